@@ -1,0 +1,341 @@
+/* penumbra — environment lighting with soft shadows for dynamic scenes.
+ *
+ * Public C API. Conventions (docs/api.md has one section per function):
+ *  - Every function returns a pn_status; PN_SUCCESS is 0. Negative values in
+ *    [-999, -1] are OpenCL error codes passed through unchanged; the library's
+ *    own codes start at -1001.
+ *  - The message of the last error is kept per context and per thread and read
+ *    (and cleared) with pn_get_error(). Errors that cannot be tied to a context
+ *    (a NULL handle, a failed context creation) go to the thread's global slot:
+ *    pn_get_error(NULL, ...).
+ *  - Objects are opaque, reference counted handles: *_create gives a handle
+ *    with one reference, *_retain adds one, *_release drops one; the last
+ *    release of a context waits for its queued work.
+ *  - Configure -> commit -> execute: setters only record; *_commit validates,
+ *    uploads and builds; execution only enqueues work. An object changed after
+ *    its commit is unusable (PN_ERROR_NOT_COMMITTED) until committed again.
+ *  - OpenCL objects handed in by the caller (context, queue, buffers) are
+ *    borrowed: retained while penumbra holds them, never copied.
+ *  - A context and the objects created on it may be used by one thread at a
+ *    time; different contexts are independent.
+ */
+#ifndef PENUMBRA_H
+#define PENUMBRA_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifndef CL_TARGET_OPENCL_VERSION
+#define CL_TARGET_OPENCL_VERSION 120
+#endif
+#ifdef __APPLE__
+#include <OpenCL/cl.h>
+#else
+#include <CL/cl.h>
+#endif
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#if defined(_WIN32) && defined(PENUMBRA_BUILDING)
+#define PN_API __declspec(dllexport)
+#elif defined(__GNUC__)
+#define PN_API __attribute__((visibility("default")))
+#else
+#define PN_API
+#endif
+
+#define PN_VERSION_MAJOR 0
+#define PN_VERSION_MINOR 1
+#define PN_VERSION_PATCH 0
+
+typedef int32_t pn_status;
+
+enum {
+    PN_SUCCESS = 0,
+    PN_ERROR_NULL_HANDLE = -1001,      /* a handle argument is NULL or not of the expected kind */
+    PN_ERROR_INVALID_ARGUMENT = -1002, /* an argument is out of its documented domain */
+    PN_ERROR_INVALID_SIZE = -1003,     /* a size or byte count does not match what is required */
+    PN_ERROR_INVALID_VALUE = -1004,    /* data holds NaN/Inf or a value out of range (e.g. negative radiance) */
+    PN_ERROR_OUT_OF_RANGE = -1005,     /* an index refers past the end of an array */
+    PN_ERROR_EMPTY_INPUT = -1006,      /* no vertices, no triangles, zero-sized image */
+    PN_ERROR_BAD_CONFIG = -1007,       /* a configuration string or parameter name is not understood */
+    PN_ERROR_BUILD_FAILED = -1008,     /* an OpenCL program failed to build; the message has the log */
+    PN_ERROR_NOT_COMMITTED = -1009,    /* the object (or one it uses) changed and was not committed */
+    PN_ERROR_OUT_OF_MEMORY = -1010,    /* a host allocation failed */
+    PN_ERROR_NO_DEVICE = -1011,        /* no OpenCL device matches the request */
+    PN_ERROR_UNSUPPORTED = -1012,      /* valid request the chosen method or device cannot do */
+    PN_ERROR_INTERNAL = -1099
+};
+
+/* Marks background pixels in PN_GBUFFER_INSTANCE and misses in pn_scene_intersect. */
+#define PN_BACKGROUND 0xFFFFFFFFu
+
+typedef struct pn_context_impl *pn_context;
+typedef struct pn_envmap_impl *pn_envmap;
+typedef struct pn_mesh_impl *pn_mesh;
+typedef struct pn_scene_impl *pn_scene;
+typedef struct pn_gbuffer_impl *pn_gbuffer;
+typedef struct pn_image_impl *pn_image;
+typedef struct pn_renderer_impl *pn_renderer;
+
+/* ---------------------------------------------------------------- errors */
+
+/* Returns the last error status recorded for `ctx` on the calling thread (or
+ * the thread's global slot for ctx == NULL) and clears it. *message (may be
+ * NULL) receives a sentence describing it, valid until the next penumbra call
+ * on this thread; "" when there is no error. */
+PN_API pn_status pn_get_error(pn_context ctx, const char **message);
+
+typedef void (*pn_error_callback)(void *user, pn_status status, const char *message);
+
+/* Calls `callback` (NULL to remove) for every error recorded on `ctx`, on the
+ * thread that made the failing call, before that call returns. */
+PN_API pn_status pn_context_set_error_callback(pn_context ctx, pn_error_callback callback, void *user);
+
+/* A static, human-readable name for a status code ("PN_ERROR_INVALID_VALUE"). */
+PN_API const char *pn_status_name(pn_status status);
+
+/* "0.1.0" */
+PN_API const char *pn_version(void);
+
+/* --------------------------------------------------------------- context */
+
+/* Creates a context on a device of its own choosing. `config` (may be NULL) is
+ * a comma-separated list of key=value pairs:
+ *   device=default|cpu|gpu|accelerator|N   (N: index among the platform's devices)
+ *   platform=SUBSTRING                    (case-insensitive match on the platform name)
+ *   build_options=...                     (appended to every kernel build; no commas)
+ * When config does not name a device, the environment variable PENUMBRA_DEVICE
+ * (same values as device=) is used; when neither does, a CPU device is
+ * preferred (PoCL on machines without a GPU). PENUMBRA_CL_BUILD_OPTIONS is
+ * appended to every build. */
+PN_API pn_status pn_context_create(const char *config, pn_context *out);
+
+/* Wraps the caller's context and in-order queue (both retained, not copied). */
+PN_API pn_status pn_context_create_from_cl(cl_context cl_ctx, cl_command_queue queue, const char *config,
+                                           pn_context *out);
+PN_API pn_status pn_context_retain(pn_context ctx);
+PN_API pn_status pn_context_release(pn_context ctx);
+
+/* Borrows the context's OpenCL objects (not retained for the caller). */
+PN_API pn_status pn_context_get_cl(pn_context ctx, cl_context *cl_ctx, cl_command_queue *queue,
+                                   cl_device_id *device);
+
+/* Writes the device name (NUL-terminated, truncated to `size`). */
+PN_API pn_status pn_context_get_device_name(pn_context ctx, char *name, size_t size);
+
+/* Waits for all work queued by penumbra on this context. */
+PN_API pn_status pn_context_finish(pn_context ctx);
+
+/* Builds (once, then cached in the context) the program of one kernel stage:
+ * "envmap", "raycast", "unshadowed". Building is otherwise lazy; this lets a
+ * caller pay the cost up front. A failed build returns PN_ERROR_BUILD_FAILED
+ * with the compiler log in the message. */
+PN_API pn_status pn_context_build_program(pn_context ctx, const char *stage);
+
+/* ----------------------------------------------------------- environment */
+
+/* Parameters (pn_envmap_set_int / _float), applied at commit:
+ *   "face_size"            int   cube map face size in texels, 1..2048   (default 64)
+ *   "irradiance_face_size" int   irradiance map face size, 2..256        (default 32)
+ *   "supersampling"        int   sub-samples per cube texel side, 0 = auto (default 0)
+ *   "rotation_deg"         float rotation of the map about +y            (default 0)
+ *   "intensity"            float radiance scale, >= 0                    (default 1)
+ */
+PN_API pn_status pn_envmap_create(pn_context ctx, pn_envmap *out);
+PN_API pn_status pn_envmap_retain(pn_envmap env);
+PN_API pn_status pn_envmap_release(pn_envmap env);
+
+/* Sets the lat-long radiance map: width*height RGB float triples, row 0 at the
+ * top (+y). Copied. Refused (PN_ERROR_INVALID_VALUE) when any texel is NaN,
+ * infinite or negative; the message counts them and gives the first position. */
+PN_API pn_status pn_envmap_set_latlong(pn_envmap env, const float *rgb, uint32_t width, uint32_t height);
+PN_API pn_status pn_envmap_set_int(pn_envmap env, const char *name, int32_t value);
+PN_API pn_status pn_envmap_set_float(pn_envmap env, const char *name, float value);
+PN_API pn_status pn_envmap_get_int(pn_envmap env, const char *name, int32_t *value);
+PN_API pn_status pn_envmap_get_float(pn_envmap env, const char *name, float *value);
+
+/* Converts the lat-long map on the device into a cube map (area-correct
+ * filtering), its per-texel directions and solid angles, and the irradiance
+ * cube map E(n) = sum over texels of L * max(0, n.w) * dw. */
+PN_API pn_status pn_envmap_commit(pn_envmap env);
+
+typedef enum pn_envmap_data {
+    PN_ENVMAP_CUBE_RADIANCE = 0,  /* 6*F*F float4: RGB radiance, w = 0 */
+    PN_ENVMAP_CUBE_DIRECTIONS = 1,/* 6*F*F float4: unit direction of the texel centre, w = solid angle */
+    PN_ENVMAP_IRRADIANCE = 2      /* 6*M*M float4: RGB irradiance at the vertex-grid directions, w = 0 */
+} pn_envmap_data;
+
+/* Reads committed data to host memory; `bytes` must equal the data's size. */
+PN_API pn_status pn_envmap_read(pn_envmap env, pn_envmap_data what, void *host, size_t bytes);
+
+/* ------------------------------------------------------------------ mesh */
+
+PN_API pn_status pn_mesh_create(pn_context ctx, pn_mesh *out);
+PN_API pn_status pn_mesh_retain(pn_mesh mesh);
+PN_API pn_status pn_mesh_release(pn_mesh mesh);
+
+/* positions: 3 floats per vertex; indices: 3 per triangle; normals: NULL or 3
+ * floats per vertex (interpolated as shading normals). Copied and validated:
+ * no vertices or triangles (PN_ERROR_EMPTY_INPUT), an index >= vertex_count
+ * (PN_ERROR_OUT_OF_RANGE), NaN/Inf coordinates (PN_ERROR_INVALID_VALUE).
+ * Degenerate (zero-area) triangles are accepted; rays never hit them. */
+PN_API pn_status pn_mesh_set_geometry(pn_mesh mesh, const float *positions, uint32_t vertex_count,
+                                      const uint32_t *indices, uint32_t triangle_count, const float *normals);
+
+/* Builds the BVH (binned SAH) on the host and uploads it. */
+PN_API pn_status pn_mesh_commit(pn_mesh mesh);
+
+typedef struct pn_mesh_info {
+    uint32_t vertex_count;
+    uint32_t triangle_count;
+    uint32_t bvh_node_count;
+    uint32_t bvh_depth;
+    float bounds_lo[3];
+    float bounds_hi[3];
+} pn_mesh_info;
+
+PN_API pn_status pn_mesh_get_info(pn_mesh mesh, pn_mesh_info *info);
+
+/* ----------------------------------------------------------------- scene */
+
+typedef enum pn_lobe {
+    PN_LOBE_PHONG = 0,       /* k_s (n+2)/(2pi) cos^n(angle to mirror direction) */
+    PN_LOBE_BLINN_PHONG = 1, /* k_s (n+8)/(8pi) cos^n(angle to half vector) */
+    PN_LOBE_GGX = 2          /* k_s * Cook-Torrance with GGX distribution, roughness alpha */
+} pn_lobe;
+
+typedef struct pn_material {
+    float albedo[3];  /* diffuse reflectance, each in [0, 1] */
+    float specular;   /* k_s in [0, 1]; 0 = purely diffuse */
+    float shininess;  /* Phong / Blinn-Phong exponent, >= 0 */
+    float roughness;  /* GGX alpha in (0, 1] */
+    uint32_t lobe;    /* pn_lobe */
+} pn_material;
+
+/* albedo 0.8 grey, no specular, shininess 100, roughness 0.3, Phong. */
+PN_API pn_material pn_material_default(void);
+
+typedef struct pn_camera {
+    float position[3];
+    float look_at[3];
+    float up[3];
+    float fov_deg;    /* horizontal field of view, in (0, 180) */
+    uint32_t width;   /* pixels, >= 1 */
+    uint32_t height;
+} pn_camera;
+
+PN_API pn_status pn_scene_create(pn_context ctx, pn_scene *out);
+PN_API pn_status pn_scene_retain(pn_scene scene);
+PN_API pn_status pn_scene_release(pn_scene scene);
+
+/* The scene's lighting; retained. */
+PN_API pn_status pn_scene_set_envmap(pn_scene scene, pn_envmap env);
+
+/* Adds an instance of `mesh` (retained). `transform` is the 3x4 row-major
+ * object-to-world matrix (NULL: identity); it must be finite and invertible.
+ * `material` NULL means pn_material_default(). *id receives a stable id. */
+PN_API pn_status pn_scene_add_instance(pn_scene scene, pn_mesh mesh, const float transform[12],
+                                       const pn_material *material, uint32_t *id);
+PN_API pn_status pn_scene_set_instance_transform(pn_scene scene, uint32_t id, const float transform[12]);
+PN_API pn_status pn_scene_set_instance_material(pn_scene scene, uint32_t id, const pn_material *material);
+PN_API pn_status pn_scene_remove_instance(pn_scene scene, uint32_t id);
+PN_API pn_status pn_scene_set_camera(pn_scene scene, const pn_camera *camera);
+
+/* Uploads per-mesh BVHs when the set of meshes changed and rebuilds the
+ * top-level BVH over instances (cheap: done every frame for moving objects). */
+PN_API pn_status pn_scene_commit(pn_scene scene);
+
+/* Ray queries against the committed scene, host arrays in and out.
+ * rays: 8 floats per ray: origin xyz, tmin, direction xyz (need not be unit), tmax.
+ * pn_scene_intersect: closest hit; t (INFINITY on a miss), instance id
+ *   (PN_BACKGROUND on a miss) and the mesh's triangle index; any output may be NULL.
+ * pn_scene_occluded: 1 if anything is hit in [tmin, tmax], else 0. */
+PN_API pn_status pn_scene_intersect(pn_scene scene, const float *rays, uint32_t count, float *t,
+                                    uint32_t *instance, uint32_t *triangle);
+PN_API pn_status pn_scene_occluded(pn_scene scene, const float *rays, uint32_t count, uint8_t *occluded);
+
+/* -------------------------------------------------------------- G-buffer */
+
+/* Layout (docs/gbuffer.md), one buffer per plane, width*height elements, pixel
+ * (x, y) at index y*width + x, y = 0 the top row:
+ *   POSITION  float4  world position xyz, w = distance from the camera.
+ *                     Background: xyz = unit view direction, w = +INFINITY.
+ *   NORMAL    float4  unit shading normal facing the camera, w = 0
+ *   ALBEDO    float4  diffuse albedo rgb, w = specular k_s
+ *   MATERIAL  float4  shininess, roughness, lobe (as float), 0
+ *   INSTANCE  uint32  instance id, PN_BACKGROUND for background pixels */
+typedef enum pn_gbuffer_plane {
+    PN_GBUFFER_POSITION = 0,
+    PN_GBUFFER_NORMAL = 1,
+    PN_GBUFFER_ALBEDO = 2,
+    PN_GBUFFER_MATERIAL = 3,
+    PN_GBUFFER_INSTANCE = 4
+} pn_gbuffer_plane;
+#define PN_GBUFFER_PLANE_COUNT 5
+
+/* Element size in bytes of a plane (16 or 4); 0 for an unknown plane. */
+PN_API size_t pn_gbuffer_plane_element_size(pn_gbuffer_plane plane);
+
+PN_API pn_status pn_gbuffer_create(pn_context ctx, uint32_t width, uint32_t height, pn_gbuffer *out);
+
+/* Wraps caller-owned buffers (retained; each at least width*height*element
+ * bytes, else PN_ERROR_INVALID_SIZE). planes[i] is the buffer of plane i. */
+PN_API pn_status pn_gbuffer_create_from_cl(pn_context ctx, uint32_t width, uint32_t height,
+                                           const cl_mem planes[PN_GBUFFER_PLANE_COUNT], pn_gbuffer *out);
+PN_API pn_status pn_gbuffer_retain(pn_gbuffer gbuffer);
+PN_API pn_status pn_gbuffer_release(pn_gbuffer gbuffer);
+PN_API pn_status pn_gbuffer_get_size(pn_gbuffer gbuffer, uint32_t *width, uint32_t *height);
+PN_API pn_status pn_gbuffer_get_cl(pn_gbuffer gbuffer, pn_gbuffer_plane plane, cl_mem *buffer);
+
+/* Host transfers of one plane (blocking); `bytes` must equal the plane's size. */
+PN_API pn_status pn_gbuffer_write(pn_gbuffer gbuffer, pn_gbuffer_plane plane, const void *host, size_t bytes);
+PN_API pn_status pn_gbuffer_read(pn_gbuffer gbuffer, pn_gbuffer_plane plane, void *host, size_t bytes);
+
+/* Checks a G-buffer filled by the caller, on the device: a foreground pixel
+ * with a non-finite position or normal, or a zero normal, is an error
+ * (PN_ERROR_INVALID_VALUE) whose message counts them and gives the first. */
+PN_API pn_status pn_gbuffer_validate(pn_gbuffer gbuffer);
+
+/* Casts one primary ray per pixel from the scene's camera (the G-buffer must
+ * have the camera's resolution). Enqueued only. */
+PN_API pn_status pn_scene_render_gbuffer(pn_scene scene, pn_gbuffer gbuffer);
+
+/* ----------------------------------------------------------------- image */
+
+/* float4 RGBA per pixel (linear radiance; alpha 1 on surfaces, 0 on background). */
+PN_API pn_status pn_image_create(pn_context ctx, uint32_t width, uint32_t height, pn_image *out);
+PN_API pn_status pn_image_create_from_cl(pn_context ctx, uint32_t width, uint32_t height, cl_mem buffer,
+                                         pn_image *out);
+PN_API pn_status pn_image_retain(pn_image image);
+PN_API pn_status pn_image_release(pn_image image);
+PN_API pn_status pn_image_get_cl(pn_image image, cl_mem *buffer);
+PN_API pn_status pn_image_read(pn_image image, float *host, size_t bytes);
+
+/* -------------------------------------------------------------- renderer */
+
+/* method: "unshadowed" (diffuse env lighting without visibility, from the
+ * irradiance map). Unknown names give PN_ERROR_INVALID_ARGUMENT listing the
+ * available ones. Parameters (set_int / set_float):
+ *   "background"   int  1: background pixels show the environment, 0: black (default 1)
+ */
+PN_API pn_status pn_renderer_create(pn_context ctx, const char *method, pn_renderer *out);
+PN_API pn_status pn_renderer_retain(pn_renderer renderer);
+PN_API pn_status pn_renderer_release(pn_renderer renderer);
+PN_API pn_status pn_renderer_set_int(pn_renderer renderer, const char *name, int32_t value);
+PN_API pn_status pn_renderer_set_float(pn_renderer renderer, const char *name, float value);
+PN_API pn_status pn_renderer_get_int(pn_renderer renderer, const char *name, int32_t *value);
+PN_API pn_status pn_renderer_get_float(pn_renderer renderer, const char *name, float *value);
+PN_API pn_status pn_renderer_commit(pn_renderer renderer);
+
+/* Shades every pixel of `gbuffer` with the scene's lighting into `image`
+ * (same size). The scene and its envmap must be committed. Enqueued only. */
+PN_API pn_status pn_renderer_execute(pn_renderer renderer, pn_scene scene, pn_gbuffer gbuffer, pn_image image);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* PENUMBRA_H */

@@ -1,0 +1,605 @@
+/* The boundary: every exported function of libpenumbra is here. Each checks
+ * its handles and pointer arguments, then calls the internal function that
+ * does the work; every failure comes back as a status with a recorded
+ * message, never as a crash. */
+#include "internal.h"
+
+#include <stdio.h>
+#include <string.h>
+
+#define CHECK_HANDLE(h, MAGIC, kind)                                                                         \
+    do {                                                                                                     \
+        if (!(h) || ((const pn_object *)(h))->magic != (MAGIC))                                              \
+            return pn_fail(NULL, PN_ERROR_NULL_HANDLE, "%s: the " kind " handle '%s' is NULL or not a " kind,  \
+                           __func__, #h);                                                                    \
+    } while (0)
+
+#define CHECK_PTR(ctx, p)                                                                                    \
+    do {                                                                                                     \
+        if (!(p))                                                                                            \
+            return pn_fail((ctx), PN_ERROR_INVALID_ARGUMENT, "%s: argument '%s' is NULL", __func__, #p);     \
+    } while (0)
+
+#define CHECK_NAME(ctx, name) CHECK_PTR(ctx, name)
+
+static pn_status retain(pn_object *o)
+{
+    o->refcount++;
+    return PN_SUCCESS;
+}
+
+/* Drops a reference; on the last one destroys the object and then releases
+ * the context it held (objects keep their context alive). */
+#define RELEASE(h, destroy)                                                                                  \
+    do {                                                                                                     \
+        if (--(h)->obj.refcount > 0)                                                                         \
+            return PN_SUCCESS;                                                                               \
+        pn_context owner = (h)->obj.ctx;                                                                     \
+        destroy(h);                                                                                          \
+        return pn_context_release(owner);                                                                    \
+    } while (0)
+
+/* ------------------------------------------------------------------ misc */
+
+pn_status pn_get_error(pn_context ctx, const char **message)
+{
+    if (ctx && ctx->obj.magic != PN_MAGIC_CONTEXT)
+        return pn_fail(NULL, PN_ERROR_NULL_HANDLE, "pn_get_error: 'ctx' is not a context");
+    return pn_error_take(ctx, message);
+}
+
+const char *pn_status_name(pn_status status)
+{
+    return pn_status_name_of(status);
+}
+
+const char *pn_version(void)
+{
+    return "0.1.0";
+}
+
+pn_material pn_material_default(void)
+{
+    pn_material m = {{0.8f, 0.8f, 0.8f}, 0.0f, 100.0f, 0.3f, PN_LOBE_PHONG};
+    return m;
+}
+
+/* --------------------------------------------------------------- context */
+
+pn_status pn_context_create(const char *config, pn_context *out)
+{
+    CHECK_PTR(NULL, out);
+    *out = NULL;
+    return pn_context_new(config, NULL, NULL, out);
+}
+
+pn_status pn_context_create_from_cl(cl_context cl_ctx, cl_command_queue queue, const char *config, pn_context *out)
+{
+    CHECK_PTR(NULL, out);
+    *out = NULL;
+    CHECK_PTR(NULL, cl_ctx);
+    CHECK_PTR(NULL, queue);
+    return pn_context_new(config, cl_ctx, queue, out);
+}
+
+pn_status pn_context_retain(pn_context ctx)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    return retain(&ctx->obj);
+}
+
+pn_status pn_context_release(pn_context ctx)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    if (--ctx->obj.refcount == 0)
+        pn_context_destroy(ctx);
+    return PN_SUCCESS;
+}
+
+pn_status pn_context_set_error_callback(pn_context ctx, pn_error_callback callback, void *user)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ctx->callback = callback;
+    ctx->callback_user = user;
+    return PN_SUCCESS;
+}
+
+pn_status pn_context_get_cl(pn_context ctx, cl_context *cl_ctx, cl_command_queue *queue, cl_device_id *device)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    if (cl_ctx)
+        *cl_ctx = ctx->cl_ctx;
+    if (queue)
+        *queue = ctx->queue;
+    if (device)
+        *device = ctx->device;
+    return PN_SUCCESS;
+}
+
+pn_status pn_context_get_device_name(pn_context ctx, char *name, size_t size)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    CHECK_PTR(ctx, name);
+    if (size == 0)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "pn_context_get_device_name: size is 0");
+    char buf[512] = "";
+    cl_int err = clGetDeviceInfo(ctx->device, CL_DEVICE_NAME, sizeof buf, buf, NULL);
+    if (err != CL_SUCCESS)
+        return pn_fail_cl(ctx, err, "querying the device name");
+    snprintf(name, size, "%s", buf);
+    return PN_SUCCESS;
+}
+
+pn_status pn_context_finish(pn_context ctx)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    cl_int err = clFinish(ctx->queue);
+    return err == CL_SUCCESS ? PN_SUCCESS : pn_fail_cl(ctx, err, "waiting for queued work");
+}
+
+pn_status pn_context_build_program(pn_context ctx, const char *stage)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    CHECK_NAME(ctx, stage);
+    cl_program program;
+    return pn_context_program(ctx, stage, &program);
+}
+
+/* ------------------------------------------------------------ objects */
+
+/* Allocates a zeroed object of `size` bytes tagged `magic` on ctx (retained). */
+static void *new_object(pn_context ctx, size_t size, uint32_t magic, const char *what)
+{
+    pn_object *o = pn_malloc(ctx, size, what);
+    if (!o)
+        return NULL;
+    memset(o, 0, size);
+    o->magic = magic;
+    o->refcount = 1;
+    o->ctx = ctx;
+    ctx->obj.refcount++;
+    return o;
+}
+
+/* ----------------------------------------------------------- environment */
+
+pn_status pn_envmap_create(pn_context ctx, pn_envmap *out)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    CHECK_PTR(ctx, out);
+    pn_envmap env = new_object(ctx, sizeof *env, PN_MAGIC_ENVMAP, "an env map");
+    if (!env)
+        return PN_ERROR_OUT_OF_MEMORY;
+    env->face_size = 64;
+    env->irradiance_face_size = 32;
+    env->intensity = 1.0f;
+    *out = env;
+    return PN_SUCCESS;
+}
+
+pn_status pn_envmap_retain(pn_envmap env)
+{
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    return retain(&env->obj);
+}
+
+pn_status pn_envmap_release(pn_envmap env)
+{
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    RELEASE(env, pn_envmap_destroy);
+}
+
+pn_status pn_envmap_set_latlong(pn_envmap env, const float *rgb, uint32_t width, uint32_t height)
+{
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    CHECK_PTR(env->obj.ctx, rgb);
+    return pn_envmap_do_set_latlong(env, rgb, width, height);
+}
+
+pn_status pn_envmap_set_int(pn_envmap env, const char *name, int32_t value)
+{
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    CHECK_NAME(env->obj.ctx, name);
+    return pn_envmap_param_int(env, name, &value, true);
+}
+
+pn_status pn_envmap_set_float(pn_envmap env, const char *name, float value)
+{
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    CHECK_NAME(env->obj.ctx, name);
+    return pn_envmap_param_float(env, name, &value, true);
+}
+
+pn_status pn_envmap_get_int(pn_envmap env, const char *name, int32_t *value)
+{
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    CHECK_NAME(env->obj.ctx, name);
+    CHECK_PTR(env->obj.ctx, value);
+    return pn_envmap_param_int(env, name, value, false);
+}
+
+pn_status pn_envmap_get_float(pn_envmap env, const char *name, float *value)
+{
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    CHECK_NAME(env->obj.ctx, name);
+    CHECK_PTR(env->obj.ctx, value);
+    return pn_envmap_param_float(env, name, value, false);
+}
+
+pn_status pn_envmap_commit(pn_envmap env)
+{
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    return pn_envmap_do_commit(env);
+}
+
+pn_status pn_envmap_read(pn_envmap env, pn_envmap_data what, void *host, size_t bytes)
+{
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    CHECK_PTR(env->obj.ctx, host);
+    return pn_envmap_do_read(env, what, host, bytes);
+}
+
+/* ------------------------------------------------------------------ mesh */
+
+pn_status pn_mesh_create(pn_context ctx, pn_mesh *out)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    CHECK_PTR(ctx, out);
+    pn_mesh mesh = new_object(ctx, sizeof *mesh, PN_MAGIC_MESH, "a mesh");
+    if (!mesh)
+        return PN_ERROR_OUT_OF_MEMORY;
+    *out = mesh;
+    return PN_SUCCESS;
+}
+
+pn_status pn_mesh_retain(pn_mesh mesh)
+{
+    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    return retain(&mesh->obj);
+}
+
+pn_status pn_mesh_release(pn_mesh mesh)
+{
+    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    RELEASE(mesh, pn_mesh_destroy);
+}
+
+pn_status pn_mesh_set_geometry(pn_mesh mesh, const float *positions, uint32_t vertex_count, const uint32_t *indices,
+                               uint32_t triangle_count, const float *normals)
+{
+    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    if (vertex_count)
+        CHECK_PTR(mesh->obj.ctx, positions);
+    if (triangle_count)
+        CHECK_PTR(mesh->obj.ctx, indices);
+    return pn_mesh_do_set_geometry(mesh, positions, vertex_count, indices, triangle_count, normals);
+}
+
+pn_status pn_mesh_commit(pn_mesh mesh)
+{
+    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    return pn_mesh_do_commit(mesh);
+}
+
+pn_status pn_mesh_get_info(pn_mesh mesh, pn_mesh_info *info)
+{
+    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    CHECK_PTR(mesh->obj.ctx, info);
+    if (!mesh->committed)
+        return pn_fail(mesh->obj.ctx, PN_ERROR_NOT_COMMITTED, "mesh changed since its last commit; call pn_mesh_commit");
+    info->vertex_count = mesh->vertex_count;
+    info->triangle_count = mesh->triangle_count;
+    info->bvh_node_count = mesh->bvh.node_count;
+    info->bvh_depth = mesh->bvh.depth;
+    memcpy(info->bounds_lo, mesh->bounds_lo, sizeof info->bounds_lo);
+    memcpy(info->bounds_hi, mesh->bounds_hi, sizeof info->bounds_hi);
+    return PN_SUCCESS;
+}
+
+/* ----------------------------------------------------------------- scene */
+
+pn_status pn_scene_create(pn_context ctx, pn_scene *out)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    CHECK_PTR(ctx, out);
+    pn_scene scene = new_object(ctx, sizeof *scene, PN_MAGIC_SCENE, "a scene");
+    if (!scene)
+        return PN_ERROR_OUT_OF_MEMORY;
+    *out = scene;
+    return PN_SUCCESS;
+}
+
+pn_status pn_scene_retain(pn_scene scene)
+{
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    return retain(&scene->obj);
+}
+
+pn_status pn_scene_release(pn_scene scene)
+{
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    RELEASE(scene, pn_scene_destroy);
+}
+
+pn_status pn_scene_set_envmap(pn_scene scene, pn_envmap env)
+{
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    if (env->obj.ctx != scene->obj.ctx)
+        return pn_fail(scene->obj.ctx, PN_ERROR_INVALID_ARGUMENT, "the env map belongs to a different context");
+    pn_envmap_retain(env);
+    if (scene->env)
+        pn_envmap_release(scene->env);
+    scene->env = env;
+    return PN_SUCCESS;
+}
+
+pn_status pn_scene_add_instance(pn_scene scene, pn_mesh mesh, const float transform[12], const pn_material *material,
+                                uint32_t *id)
+{
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    CHECK_PTR(scene->obj.ctx, id);
+    if (mesh->obj.ctx != scene->obj.ctx)
+        return pn_fail(scene->obj.ctx, PN_ERROR_INVALID_ARGUMENT, "the mesh belongs to a different context");
+    return pn_scene_do_add_instance(scene, mesh, transform, material, id);
+}
+
+pn_status pn_scene_set_instance_transform(pn_scene scene, uint32_t id, const float transform[12])
+{
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    return pn_scene_do_set_transform(scene, id, transform);
+}
+
+pn_status pn_scene_set_instance_material(pn_scene scene, uint32_t id, const pn_material *material)
+{
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    CHECK_PTR(scene->obj.ctx, material);
+    return pn_scene_do_set_material(scene, id, material);
+}
+
+pn_status pn_scene_remove_instance(pn_scene scene, uint32_t id)
+{
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    return pn_scene_do_remove(scene, id);
+}
+
+pn_status pn_scene_set_camera(pn_scene scene, const pn_camera *camera)
+{
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    CHECK_PTR(scene->obj.ctx, camera);
+    return pn_scene_do_set_camera(scene, camera);
+}
+
+pn_status pn_scene_commit(pn_scene scene)
+{
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    return pn_scene_do_commit(scene);
+}
+
+pn_status pn_scene_intersect(pn_scene scene, const float *rays, uint32_t count, float *t, uint32_t *instance,
+                             uint32_t *triangle)
+{
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    if (count)
+        CHECK_PTR(scene->obj.ctx, rays);
+    return pn_scene_do_query(scene, rays, count, t, instance, triangle, NULL);
+}
+
+pn_status pn_scene_occluded(pn_scene scene, const float *rays, uint32_t count, uint8_t *occluded)
+{
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    if (count) {
+        CHECK_PTR(scene->obj.ctx, rays);
+        CHECK_PTR(scene->obj.ctx, occluded);
+    }
+    return pn_scene_do_query(scene, rays, count, NULL, NULL, NULL, count ? occluded : NULL);
+}
+
+pn_status pn_scene_render_gbuffer(pn_scene scene, pn_gbuffer gbuffer)
+{
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    if (gbuffer->obj.ctx != scene->obj.ctx)
+        return pn_fail(scene->obj.ctx, PN_ERROR_INVALID_ARGUMENT, "the G-buffer belongs to a different context");
+    return pn_scene_do_render_gbuffer(scene, gbuffer);
+}
+
+/* -------------------------------------------------------------- G-buffer */
+
+static pn_status finish_create(pn_context ctx, pn_status st)
+{
+    if (!st)
+        ctx->obj.refcount++; /* the new object holds its context */
+    return st;
+}
+
+pn_status pn_gbuffer_create(pn_context ctx, uint32_t width, uint32_t height, pn_gbuffer *out)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    CHECK_PTR(ctx, out);
+    return finish_create(ctx, pn_gbuffer_new(ctx, width, height, NULL, out));
+}
+
+pn_status pn_gbuffer_create_from_cl(pn_context ctx, uint32_t width, uint32_t height,
+                                    const cl_mem planes[PN_GBUFFER_PLANE_COUNT], pn_gbuffer *out)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    CHECK_PTR(ctx, planes);
+    CHECK_PTR(ctx, out);
+    return finish_create(ctx, pn_gbuffer_new(ctx, width, height, planes, out));
+}
+
+pn_status pn_gbuffer_retain(pn_gbuffer gbuffer)
+{
+    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    return retain(&gbuffer->obj);
+}
+
+pn_status pn_gbuffer_release(pn_gbuffer gbuffer)
+{
+    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    RELEASE(gbuffer, pn_gbuffer_destroy);
+}
+
+pn_status pn_gbuffer_get_size(pn_gbuffer gbuffer, uint32_t *width, uint32_t *height)
+{
+    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    if (width)
+        *width = gbuffer->width;
+    if (height)
+        *height = gbuffer->height;
+    return PN_SUCCESS;
+}
+
+static pn_status check_plane(pn_gbuffer gbuffer, pn_gbuffer_plane plane)
+{
+    if (pn_gbuffer_plane_element_size(plane) == 0)
+        return pn_fail(gbuffer->obj.ctx, PN_ERROR_INVALID_ARGUMENT, "G-buffer plane %d does not exist (0..%d)", (int)plane,
+                       PN_GBUFFER_PLANE_COUNT - 1);
+    return PN_SUCCESS;
+}
+
+pn_status pn_gbuffer_get_cl(pn_gbuffer gbuffer, pn_gbuffer_plane plane, cl_mem *buffer)
+{
+    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    CHECK_PTR(gbuffer->obj.ctx, buffer);
+    pn_status st = check_plane(gbuffer, plane);
+    if (!st)
+        *buffer = gbuffer->planes[plane];
+    return st;
+}
+
+pn_status pn_gbuffer_write(pn_gbuffer gbuffer, pn_gbuffer_plane plane, const void *host, size_t bytes)
+{
+    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    CHECK_PTR(gbuffer->obj.ctx, host);
+    pn_status st = check_plane(gbuffer, plane);
+    return st ? st : pn_gbuffer_transfer(gbuffer, plane, (void *)host, bytes, true);
+}
+
+pn_status pn_gbuffer_read(pn_gbuffer gbuffer, pn_gbuffer_plane plane, void *host, size_t bytes)
+{
+    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    CHECK_PTR(gbuffer->obj.ctx, host);
+    pn_status st = check_plane(gbuffer, plane);
+    return st ? st : pn_gbuffer_transfer(gbuffer, plane, host, bytes, false);
+}
+
+pn_status pn_gbuffer_validate(pn_gbuffer gbuffer)
+{
+    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    return pn_gbuffer_do_validate(gbuffer);
+}
+
+/* ----------------------------------------------------------------- image */
+
+pn_status pn_image_create(pn_context ctx, uint32_t width, uint32_t height, pn_image *out)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    CHECK_PTR(ctx, out);
+    return finish_create(ctx, pn_image_new(ctx, width, height, NULL, out));
+}
+
+pn_status pn_image_create_from_cl(pn_context ctx, uint32_t width, uint32_t height, cl_mem buffer, pn_image *out)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    CHECK_PTR(ctx, buffer);
+    CHECK_PTR(ctx, out);
+    return finish_create(ctx, pn_image_new(ctx, width, height, buffer, out));
+}
+
+pn_status pn_image_retain(pn_image image)
+{
+    CHECK_HANDLE(image, PN_MAGIC_IMAGE, "image");
+    return retain(&image->obj);
+}
+
+pn_status pn_image_release(pn_image image)
+{
+    CHECK_HANDLE(image, PN_MAGIC_IMAGE, "image");
+    RELEASE(image, pn_image_destroy);
+}
+
+pn_status pn_image_get_cl(pn_image image, cl_mem *buffer)
+{
+    CHECK_HANDLE(image, PN_MAGIC_IMAGE, "image");
+    CHECK_PTR(image->obj.ctx, buffer);
+    *buffer = image->buffer;
+    return PN_SUCCESS;
+}
+
+pn_status pn_image_read(pn_image image, float *host, size_t bytes)
+{
+    CHECK_HANDLE(image, PN_MAGIC_IMAGE, "image");
+    CHECK_PTR(image->obj.ctx, host);
+    return pn_image_do_read(image, host, bytes);
+}
+
+/* -------------------------------------------------------------- renderer */
+
+pn_status pn_renderer_create(pn_context ctx, const char *method, pn_renderer *out)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    CHECK_NAME(ctx, method);
+    CHECK_PTR(ctx, out);
+    return finish_create(ctx, pn_renderer_new(ctx, method, out));
+}
+
+pn_status pn_renderer_retain(pn_renderer renderer)
+{
+    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    return retain(&renderer->obj);
+}
+
+pn_status pn_renderer_release(pn_renderer renderer)
+{
+    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    RELEASE(renderer, pn_renderer_destroy);
+}
+
+pn_status pn_renderer_set_int(pn_renderer renderer, const char *name, int32_t value)
+{
+    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    CHECK_NAME(renderer->obj.ctx, name);
+    return pn_renderer_param_int(renderer, name, &value, true);
+}
+
+pn_status pn_renderer_set_float(pn_renderer renderer, const char *name, float value)
+{
+    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    CHECK_NAME(renderer->obj.ctx, name);
+    return pn_renderer_param_float(renderer, name, &value, true);
+}
+
+pn_status pn_renderer_get_int(pn_renderer renderer, const char *name, int32_t *value)
+{
+    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    CHECK_NAME(renderer->obj.ctx, name);
+    CHECK_PTR(renderer->obj.ctx, value);
+    return pn_renderer_param_int(renderer, name, value, false);
+}
+
+pn_status pn_renderer_get_float(pn_renderer renderer, const char *name, float *value)
+{
+    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    CHECK_NAME(renderer->obj.ctx, name);
+    CHECK_PTR(renderer->obj.ctx, value);
+    return pn_renderer_param_float(renderer, name, value, false);
+}
+
+pn_status pn_renderer_commit(pn_renderer renderer)
+{
+    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    renderer->committed = true;
+    return PN_SUCCESS;
+}
+
+pn_status pn_renderer_execute(pn_renderer renderer, pn_scene scene, pn_gbuffer gbuffer, pn_image image)
+{
+    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    CHECK_HANDLE(image, PN_MAGIC_IMAGE, "image");
+    return pn_renderer_do_execute(renderer, scene, gbuffer, image);
+}

@@ -1,0 +1,186 @@
+/* G-buffers and images: per-pixel device buffers, owned or borrowed from the
+ * caller (docs/gbuffer.md gives the layout). */
+#include "internal.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+
+size_t pn_gbuffer_plane_element_size(pn_gbuffer_plane plane)
+{
+    switch (plane) {
+    case PN_GBUFFER_POSITION:
+    case PN_GBUFFER_NORMAL:
+    case PN_GBUFFER_ALBEDO:
+    case PN_GBUFFER_MATERIAL: return 16;
+    case PN_GBUFFER_INSTANCE: return 4;
+    default: return 0;
+    }
+}
+
+static const char *plane_names[PN_GBUFFER_PLANE_COUNT] = {"position", "normal", "albedo", "material", "instance"};
+
+pn_status pn_check_cl_buffer(pn_context ctx, cl_mem buffer, size_t needed, const char *what)
+{
+    size_t size = 0;
+    cl_int err = clGetMemObjectInfo(buffer, CL_MEM_SIZE, sizeof size, &size, NULL);
+    if (err != CL_SUCCESS)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "%s is not a valid cl_mem (OpenCL %d)", what, err);
+    cl_context owner = NULL;
+    clGetMemObjectInfo(buffer, CL_MEM_CONTEXT, sizeof owner, &owner, NULL);
+    if (owner != ctx->cl_ctx)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "%s belongs to a different cl_context", what);
+    if (size < needed)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "%s holds %zu bytes but %zu are needed", what, size, needed);
+    return PN_SUCCESS;
+}
+
+static pn_status check_size(pn_context ctx, uint32_t width, uint32_t height, const char *what)
+{
+    if (width == 0 || height == 0)
+        return pn_fail(ctx, PN_ERROR_EMPTY_INPUT, "%s size %ux%u is empty", what, width, height);
+    if (width > 32768 || height > 32768)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "%s size %ux%u exceeds 32768", what, width, height);
+    return PN_SUCCESS;
+}
+
+pn_status pn_gbuffer_new(pn_context ctx, uint32_t width, uint32_t height, const cl_mem *planes, pn_gbuffer *out)
+{
+    pn_status st = check_size(ctx, width, height, "G-buffer");
+    if (st)
+        return st;
+    const size_t pixels = (size_t)width * height;
+    for (int p = 0; planes && p < PN_GBUFFER_PLANE_COUNT; ++p) {
+        char what[64];
+        snprintf(what, sizeof what, "G-buffer plane %d (%s)", p, plane_names[p]);
+        if (!planes[p])
+            return pn_fail(ctx, PN_ERROR_NULL_HANDLE, "%s is NULL", what);
+        if ((st = pn_check_cl_buffer(ctx, planes[p], pixels * pn_gbuffer_plane_element_size((pn_gbuffer_plane)p), what)))
+            return st;
+    }
+    pn_gbuffer gb = calloc(1, sizeof *gb);
+    if (!gb)
+        return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory creating a G-buffer");
+    gb->obj.magic = PN_MAGIC_GBUFFER;
+    gb->obj.refcount = 1;
+    gb->obj.ctx = ctx;
+    gb->width = width;
+    gb->height = height;
+    for (int p = 0; p < PN_GBUFFER_PLANE_COUNT; ++p) {
+        if (planes) {
+            clRetainMemObject(planes[p]);
+            gb->planes[p] = planes[p];
+        } else if ((st = pn_alloc(ctx, pixels * pn_gbuffer_plane_element_size((pn_gbuffer_plane)p), CL_MEM_READ_WRITE, NULL,
+                                  &gb->planes[p], plane_names[p]))) {
+            pn_gbuffer_destroy(gb);
+            return st;
+        }
+    }
+    *out = gb;
+    return PN_SUCCESS;
+}
+
+void pn_gbuffer_destroy(pn_gbuffer gb)
+{
+    for (int p = 0; p < PN_GBUFFER_PLANE_COUNT; ++p)
+        pn_mem_release(&gb->planes[p]);
+    gb->obj.magic = PN_MAGIC_DEAD;
+    free(gb);
+}
+
+pn_status pn_gbuffer_transfer(pn_gbuffer gb, pn_gbuffer_plane plane, void *host, size_t bytes, bool write)
+{
+    pn_context ctx = gb->obj.ctx;
+    const size_t need = (size_t)gb->width * gb->height * pn_gbuffer_plane_element_size(plane);
+    if (bytes != need)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "G-buffer plane %s of %ux%u pixels needs exactly %zu bytes, got %zu",
+                       plane_names[plane], gb->width, gb->height, need, bytes);
+    cl_int err = write ? clEnqueueWriteBuffer(ctx->queue, gb->planes[plane], CL_TRUE, 0, need, host, 0, NULL, NULL)
+                       : clEnqueueReadBuffer(ctx->queue, gb->planes[plane], CL_TRUE, 0, need, host, 0, NULL, NULL);
+    return err == CL_SUCCESS ? PN_SUCCESS : pn_fail_cl(ctx, err, write ? "writing a G-buffer plane" : "reading a G-buffer plane");
+}
+
+pn_status pn_gbuffer_do_validate(pn_gbuffer gb)
+{
+    pn_context ctx = gb->obj.ctx;
+    cl_kernel k;
+    pn_status st = pn_context_kernel(ctx, "raycast", "gbuffer_validate", &k);
+    if (st)
+        return st;
+    cl_int zero = 0;
+    cl_mem counters;
+    if ((st = pn_alloc(ctx, sizeof zero, CL_MEM_READ_WRITE, &zero, &counters, "G-buffer validation")))
+        return st;
+    cl_mem first = NULL;
+    cl_int init_first = 0x7fffffff;
+    st = pn_alloc(ctx, sizeof init_first, CL_MEM_READ_WRITE, &init_first, &first, "G-buffer validation");
+    const cl_int count = (cl_int)(gb->width * gb->height);
+    if (!st) {
+        size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count, sizeof(cl_mem), sizeof(cl_mem)};
+        const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
+                              &gb->planes[PN_GBUFFER_INSTANCE], &count, &counters, &first};
+        st = pn_set_args(ctx, k, "gbuffer_validate", 6, sizes, vals);
+    }
+    if (!st)
+        st = pn_enqueue_1d(ctx, k, "gbuffer_validate", (size_t)count, 64);
+    cl_int bad = 0, first_bad = 0;
+    if (!st) {
+        cl_int err = clEnqueueReadBuffer(ctx->queue, counters, CL_TRUE, 0, sizeof bad, &bad, 0, NULL, NULL);
+        if (err == CL_SUCCESS)
+            err = clEnqueueReadBuffer(ctx->queue, first, CL_TRUE, 0, sizeof first_bad, &first_bad, 0, NULL, NULL);
+        if (err != CL_SUCCESS)
+            st = pn_fail_cl(ctx, err, "reading G-buffer validation results");
+    }
+    pn_mem_release(&counters);
+    pn_mem_release(&first);
+    if (!st && bad > 0)
+        st = pn_fail(ctx, PN_ERROR_INVALID_VALUE,
+                     "G-buffer has %d foreground pixels with a non-finite position or normal or a zero normal, first at "
+                     "(x=%u, y=%u)",
+                     bad, (unsigned)first_bad % gb->width, (unsigned)first_bad / gb->width);
+    return st;
+}
+
+pn_status pn_image_new(pn_context ctx, uint32_t width, uint32_t height, cl_mem buffer, pn_image *out)
+{
+    pn_status st = check_size(ctx, width, height, "image");
+    if (st)
+        return st;
+    const size_t bytes = (size_t)width * height * 16;
+    if (buffer && (st = pn_check_cl_buffer(ctx, buffer, bytes, "image buffer")))
+        return st;
+    pn_image img = calloc(1, sizeof *img);
+    if (!img)
+        return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory creating an image");
+    img->obj.magic = PN_MAGIC_IMAGE;
+    img->obj.refcount = 1;
+    img->obj.ctx = ctx;
+    img->width = width;
+    img->height = height;
+    if (buffer) {
+        clRetainMemObject(buffer);
+        img->buffer = buffer;
+    } else if ((st = pn_alloc(ctx, bytes, CL_MEM_READ_WRITE, NULL, &img->buffer, "an image"))) {
+        free(img);
+        return st;
+    }
+    *out = img;
+    return PN_SUCCESS;
+}
+
+void pn_image_destroy(pn_image img)
+{
+    pn_mem_release(&img->buffer);
+    img->obj.magic = PN_MAGIC_DEAD;
+    free(img);
+}
+
+pn_status pn_image_do_read(pn_image img, float *host, size_t bytes)
+{
+    pn_context ctx = img->obj.ctx;
+    const size_t need = (size_t)img->width * img->height * 16;
+    if (bytes != need)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "image of %ux%u pixels needs exactly %zu bytes, got %zu", img->width,
+                       img->height, need, bytes);
+    cl_int err = clEnqueueReadBuffer(ctx->queue, img->buffer, CL_TRUE, 0, need, host, 0, NULL, NULL);
+    return err == CL_SUCCESS ? PN_SUCCESS : pn_fail_cl(ctx, err, "reading an image");
+}

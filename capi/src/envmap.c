@@ -1,0 +1,188 @@
+/* Environment maps: validation of the lat-long input, and at commit the
+ * device conversion to a cube map, its texel directions and solid angles,
+ * and the irradiance map (kernels/envmap.cl). */
+#include "internal.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+void pn_envmap_destroy(pn_envmap env)
+{
+    pn_mem_release(&env->latlong);
+    pn_mem_release(&env->cube);
+    pn_mem_release(&env->dirs);
+    pn_mem_release(&env->irradiance);
+    env->obj.magic = PN_MAGIC_DEAD;
+    free(env);
+}
+
+pn_status pn_envmap_do_set_latlong(pn_envmap env, const float *rgb, uint32_t width, uint32_t height)
+{
+    pn_context ctx = env->obj.ctx;
+    if (width == 0 || height == 0)
+        return pn_fail(ctx, PN_ERROR_EMPTY_INPUT, "env map size %ux%u is empty", width, height);
+    size_t bytes = pn_mul_size(width, height, 3 * sizeof(float));
+    if (bytes == SIZE_MAX || (uint64_t)width * height > (1u << 28))
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "env map size %ux%u is too large", width, height);
+    size_t nan = 0, inf = 0, neg = 0, first = SIZE_MAX;
+    const size_t n = (size_t)width * height;
+    for (size_t i = 0; i < n; ++i) {
+        bool bad = false;
+        for (int c = 0; c < 3; ++c) {
+            float v = rgb[3 * i + c];
+            if (isnan(v)) { ++nan; bad = true; break; }
+            if (isinf(v)) { ++inf; bad = true; break; }
+            if (v < 0.0f) { ++neg; bad = true; break; }
+        }
+        if (bad && first == SIZE_MAX)
+            first = i;
+    }
+    if (first != SIZE_MAX)
+        return pn_fail(ctx, PN_ERROR_INVALID_VALUE,
+                       "env map has %zu NaN, %zu infinite and %zu negative texels, first at (x=%zu, y=%zu)", nan, inf,
+                       neg, first % width, first / width);
+    cl_mem buf;
+    pn_status st = pn_alloc(ctx, bytes, CL_MEM_READ_ONLY, rgb, &buf, "the lat-long env map");
+    if (st)
+        return st;
+    pn_mem_release(&env->latlong);
+    env->latlong = buf;
+    env->width = width;
+    env->height = height;
+    env->committed = false;
+    return PN_SUCCESS;
+}
+
+pn_status pn_envmap_param_int(pn_envmap env, const char *name, int32_t *value, bool set)
+{
+    pn_context ctx = env->obj.ctx;
+    struct { const char *name; int32_t *field; int32_t lo, hi; } params[] = {
+        {"face_size", &env->face_size, 1, 2048},
+        {"irradiance_face_size", &env->irradiance_face_size, 2, 256},
+        {"supersampling", &env->supersampling, 0, 64},
+    };
+    for (size_t i = 0; i < sizeof params / sizeof params[0]; ++i) {
+        if (strcmp(name, params[i].name))
+            continue;
+        if (!set) {
+            *value = *params[i].field;
+            return PN_SUCCESS;
+        }
+        if (*value < params[i].lo || *value > params[i].hi)
+            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "env map parameter %s = %d is outside [%d, %d]", name, *value,
+                           params[i].lo, params[i].hi);
+        *params[i].field = *value;
+        env->committed = false;
+        return PN_SUCCESS;
+    }
+    return pn_fail(ctx, PN_ERROR_BAD_CONFIG,
+                   "env maps have no integer parameter '%s' (face_size, irradiance_face_size, supersampling)", name);
+}
+
+pn_status pn_envmap_param_float(pn_envmap env, const char *name, float *value, bool set)
+{
+    pn_context ctx = env->obj.ctx;
+    float *field = !strcmp(name, "rotation_deg") ? &env->rotation_deg : !strcmp(name, "intensity") ? &env->intensity : NULL;
+    if (!field)
+        return pn_fail(ctx, PN_ERROR_BAD_CONFIG, "env maps have no float parameter '%s' (rotation_deg, intensity)", name);
+    if (!set) {
+        *value = *field;
+        return PN_SUCCESS;
+    }
+    if (!isfinite(*value) || (field == &env->intensity && *value < 0.0f))
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "env map parameter %s = %g must be finite%s", name, (double)*value,
+                       field == &env->intensity ? " and >= 0" : "");
+    *field = *value;
+    env->committed = false;
+    return PN_SUCCESS;
+}
+
+/* Sub-samples per cube texel side so that each sub-texel is at most half a
+ * lat-long texel: the texel centre of a face is 2/F radians wide, a lat-long
+ * row pi/H high. */
+static int auto_supersampling(uint32_t face, uint32_t height)
+{
+    double ratio = (2.0 / face) / (3.14159265358979 / height);
+    int s = (int)ceil(2.0 * ratio);
+    return s < 1 ? 1 : (s > 16 ? 16 : s);
+}
+
+pn_status pn_envmap_do_commit(pn_envmap env)
+{
+    pn_context ctx = env->obj.ctx;
+    if (!env->latlong)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "env map has no data: call pn_envmap_set_latlong before committing");
+    const int n = env->face_size, m = env->irradiance_face_size;
+    const int s = env->supersampling ? env->supersampling : auto_supersampling((uint32_t)n, env->height);
+    const size_t texels = 6u * (size_t)n * n, samples = 6u * (size_t)m * m;
+    pn_status st = PN_SUCCESS;
+    if (env->committed_face_size != n || !env->cube) {
+        pn_mem_release(&env->cube);
+        pn_mem_release(&env->dirs);
+        if ((st = pn_alloc(ctx, texels * 16, CL_MEM_READ_WRITE, NULL, &env->cube, "the env cube map")) ||
+            (st = pn_alloc(ctx, texels * 16, CL_MEM_READ_WRITE, NULL, &env->dirs, "the env cube directions")))
+            return st;
+        env->committed_face_size = n;
+    }
+    if (env->committed_irradiance_size != m || !env->irradiance) {
+        pn_mem_release(&env->irradiance);
+        if ((st = pn_alloc(ctx, samples * 16, CL_MEM_READ_WRITE, NULL, &env->irradiance, "the irradiance map")))
+            return st;
+        env->committed_irradiance_size = m;
+    }
+    cl_kernel to_cube, directions, irradiance;
+    if ((st = pn_context_kernel(ctx, "envmap", "envmap_latlong_to_cube", &to_cube)) ||
+        (st = pn_context_kernel(ctx, "envmap", "envmap_cube_directions", &directions)) ||
+        (st = pn_context_kernel(ctx, "envmap", "envmap_irradiance", &irradiance)))
+        return st;
+    const double angle = (double)env->rotation_deg * 3.14159265358979323846 / 180.0;
+    const cl_float2 rot = {{(float)cos(angle), (float)sin(angle)}};
+    const cl_int w = (cl_int)env->width, h = (cl_int)env->height, cn = n, cs = s, cm = m;
+    const cl_int ctexels = (cl_int)texels;
+    {
+        size_t sizes[] = {sizeof(cl_mem), sizeof w, sizeof h, sizeof cn, sizeof cs, sizeof rot, sizeof(float), sizeof(cl_mem)};
+        const void *vals[] = {&env->latlong, &w, &h, &cn, &cs, &rot, &env->intensity, &env->cube};
+        if ((st = pn_set_args(ctx, to_cube, "envmap_latlong_to_cube", 8, sizes, vals)) ||
+            (st = pn_enqueue_1d(ctx, to_cube, "envmap_latlong_to_cube", texels, 0)))
+            return st;
+    }
+    {
+        size_t sizes[] = {sizeof cn, sizeof(cl_mem)};
+        const void *vals[] = {&cn, &env->dirs};
+        if ((st = pn_set_args(ctx, directions, "envmap_cube_directions", 2, sizes, vals)) ||
+            (st = pn_enqueue_1d(ctx, directions, "envmap_cube_directions", texels, 0)))
+            return st;
+    }
+    {
+        size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof ctexels, sizeof cm, sizeof(cl_mem)};
+        const void *vals[] = {&env->cube, &env->dirs, &ctexels, &cm, &env->irradiance};
+        if ((st = pn_set_args(ctx, irradiance, "envmap_irradiance", 5, sizes, vals)) ||
+            (st = pn_enqueue_1d(ctx, irradiance, "envmap_irradiance", samples, 64)))
+            return st;
+    }
+    env->committed = true;
+    env->version++;
+    return PN_SUCCESS;
+}
+
+pn_status pn_envmap_do_read(pn_envmap env, pn_envmap_data what, void *host, size_t bytes)
+{
+    pn_context ctx = env->obj.ctx;
+    if (!env->committed)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "env map changed since its last commit; call pn_envmap_commit");
+    cl_mem src;
+    size_t need;
+    const size_t n = (size_t)env->face_size, m = (size_t)env->irradiance_face_size;
+    switch (what) {
+    case PN_ENVMAP_CUBE_RADIANCE: src = env->cube; need = 6 * n * n * 16; break;
+    case PN_ENVMAP_CUBE_DIRECTIONS: src = env->dirs; need = 6 * n * n * 16; break;
+    case PN_ENVMAP_IRRADIANCE: src = env->irradiance; need = 6 * m * m * 16; break;
+    default: return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "unknown env map data %d", (int)what);
+    }
+    if (bytes != need)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "reading env map data %d needs exactly %zu bytes, got %zu", (int)what,
+                       need, bytes);
+    cl_int err = clEnqueueReadBuffer(ctx->queue, src, CL_TRUE, 0, need, host, 0, NULL, NULL);
+    return err == CL_SUCCESS ? PN_SUCCESS : pn_fail_cl(ctx, err, "reading env map data");
+}

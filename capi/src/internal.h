@@ -1,0 +1,251 @@
+/* Internal declarations shared by libpenumbra's sources. Nothing here is
+ * exported: capi/src/api.c is the only file with public entry points; it
+ * checks handles and arguments and calls the functions declared below, which
+ * report every failure through pn_fail() and never abort. */
+#ifndef PENUMBRA_INTERNAL_H
+#define PENUMBRA_INTERNAL_H
+
+#include "penumbra.h"
+#include "bvh.h"
+
+#include <stdbool.h>
+
+/* ---------------------------------------------------------------- objects */
+
+enum {
+    PN_MAGIC_CONTEXT = 0x504e4358,  /* "PNCX" */
+    PN_MAGIC_ENVMAP = 0x504e454e,
+    PN_MAGIC_MESH = 0x504e4d45,
+    PN_MAGIC_SCENE = 0x504e5343,
+    PN_MAGIC_GBUFFER = 0x504e4742,
+    PN_MAGIC_IMAGE = 0x504e494d,
+    PN_MAGIC_RENDERER = 0x504e5245,
+    PN_MAGIC_DEAD = 0x44454144
+};
+
+/* Common head of every handle: type tag, reference count, owning context. */
+typedef struct pn_object {
+    uint32_t magic;
+    int32_t refcount;
+    pn_context ctx;
+} pn_object;
+
+/* ----------------------------------------------------------------- errors */
+
+/* Records an error for ctx (NULL: the thread's global slot), calls the
+ * context's callback and returns `status`, so callers can `return pn_fail(...)`. */
+pn_status pn_fail(pn_context ctx, pn_status status, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 3, 4)))
+#endif
+    ;
+
+/* Turns an OpenCL error into a recorded one naming what was being done. */
+pn_status pn_fail_cl(pn_context ctx, cl_int err, const char *what);
+
+/* Forgets the calling thread's error slot of a context being destroyed. */
+void pn_error_forget(uint64_t context_serial);
+
+/* Clears the slot before a call so pn_get_error reports this call's error only. */
+void pn_error_clear(pn_context ctx);
+/* Reads and clears the slot (pn_get_error). */
+pn_status pn_error_take(pn_context ctx, const char **message);
+const char *pn_status_name_of(pn_status status);
+
+/* ---------------------------------------------------------------- context */
+
+#define PN_MAX_PROGRAMS 8
+#define PN_MAX_KERNELS 32
+
+typedef struct pn_program_entry {
+    const char *stage;
+    cl_program program;
+} pn_program_entry;
+
+typedef struct pn_kernel_entry {
+    const char *name;
+    cl_kernel kernel;
+} pn_kernel_entry;
+
+struct pn_context_impl {
+    pn_object obj;
+    uint64_t serial; /* keys the per-thread error slots */
+    cl_context cl_ctx;
+    cl_command_queue queue;
+    cl_device_id device;
+    char build_options[512];
+    pn_error_callback callback;
+    void *callback_user;
+    pn_program_entry programs[PN_MAX_PROGRAMS];
+    int program_count;
+    pn_kernel_entry kernels[PN_MAX_KERNELS];
+    int kernel_count;
+};
+
+pn_status pn_context_new(const char *config, cl_context cl_ctx, cl_command_queue queue, pn_context *out);
+void pn_context_destroy(pn_context ctx);
+pn_status pn_context_program(pn_context ctx, const char *stage, cl_program *out);
+/* The cached kernel `name` of program `stage`. */
+pn_status pn_context_kernel(pn_context ctx, const char *stage, const char *name, cl_kernel *out);
+/* Sets kernel arguments from a list of (size, pointer) pairs. */
+pn_status pn_set_args(pn_context ctx, cl_kernel kernel, const char *name, int count, const size_t *sizes,
+                      const void *const *values);
+pn_status pn_enqueue_1d(pn_context ctx, cl_kernel kernel, const char *name, size_t items, size_t local);
+pn_status pn_alloc(pn_context ctx, size_t bytes, cl_mem_flags flags, const void *host, cl_mem *out,
+                   const char *what);
+void pn_mem_release(cl_mem *mem);
+
+/* Embedded kernel sources (generated from kernels/ by CMake). */
+typedef struct pn_kernel_file {
+    const char *path; /* relative to kernels/, e.g. "common/math.cl" */
+    const char *source;
+} pn_kernel_file;
+extern const pn_kernel_file pn_kernel_files[];
+extern const size_t pn_kernel_file_count;
+
+/* ------------------------------------------------------------ environment */
+
+struct pn_envmap_impl {
+    pn_object obj;
+    cl_mem latlong;          /* width*height*3 floats */
+    uint32_t width, height;
+    int32_t face_size, irradiance_face_size, supersampling;
+    float rotation_deg, intensity;
+    bool committed;
+    uint64_t version;        /* bumped at each commit */
+    int32_t committed_face_size, committed_irradiance_size;
+    cl_mem cube;             /* 6*F*F float4 radiance */
+    cl_mem dirs;             /* 6*F*F float4 direction + solid angle */
+    cl_mem irradiance;       /* 6*M*M float4 */
+};
+
+void pn_envmap_destroy(pn_envmap env);
+pn_status pn_envmap_do_set_latlong(pn_envmap env, const float *rgb, uint32_t width, uint32_t height);
+pn_status pn_envmap_param_int(pn_envmap env, const char *name, int32_t *value, bool set);
+pn_status pn_envmap_param_float(pn_envmap env, const char *name, float *value, bool set);
+pn_status pn_envmap_do_commit(pn_envmap env);
+pn_status pn_envmap_do_read(pn_envmap env, pn_envmap_data what, void *host, size_t bytes);
+
+/* ------------------------------------------------------------------- mesh */
+
+struct pn_mesh_impl {
+    pn_object obj;
+    float *positions;        /* 3 per vertex */
+    float *normals;          /* 3 per vertex or NULL */
+    uint32_t *indices;       /* 3 per triangle */
+    uint32_t vertex_count, triangle_count;
+    bool committed;
+    uint64_t version;        /* bumped at each commit */
+    pn_bvh bvh;
+    float bounds_lo[3], bounds_hi[3];
+    /* Triangles in BVH leaf order, gathered by every scene that uses the mesh. */
+    float *leaf_tris;        /* 12 floats per triangle (3 float4) */
+    float *leaf_normals;     /* 12 floats per triangle, or NULL */
+};
+
+void pn_mesh_destroy(pn_mesh mesh);
+pn_status pn_mesh_do_set_geometry(pn_mesh mesh, const float *positions, uint32_t vertex_count,
+                                  const uint32_t *indices, uint32_t triangle_count, const float *normals);
+pn_status pn_mesh_do_commit(pn_mesh mesh);
+/* A process-wide unique version stamp for a mesh commit. */
+uint64_t pn_next_mesh_version(void);
+
+/* ------------------------------------------------------------------ scene */
+
+typedef struct pn_instance {
+    pn_mesh mesh;            /* NULL: removed slot */
+    float object_to_world[12];
+    float world_to_object[12];
+    pn_material material;
+} pn_instance;
+
+typedef struct pn_mesh_slot {
+    pn_mesh mesh;
+    uint64_t version;
+    uint32_t node_offset, tri_offset;
+} pn_mesh_slot;
+
+struct pn_scene_impl {
+    pn_object obj;
+    pn_envmap env;
+    pn_instance *instances;
+    uint32_t instance_count, instance_capacity;
+    pn_camera camera;
+    bool has_camera;
+    bool committed;
+    /* Device data built at commit. */
+    pn_mesh_slot *mesh_slots;
+    uint32_t mesh_slot_count;
+    cl_mem blas, tris, normals;   /* concatenated per-mesh data, rebuilt when meshes change */
+    cl_mem tlas, records;         /* rebuilt at every commit */
+    size_t tlas_capacity, records_capacity;
+    uint32_t live_instances;
+};
+
+void pn_scene_destroy(pn_scene scene);
+pn_status pn_scene_do_add_instance(pn_scene scene, pn_mesh mesh, const float *transform,
+                                   const pn_material *material, uint32_t *id);
+pn_status pn_scene_do_set_transform(pn_scene scene, uint32_t id, const float *transform);
+pn_status pn_scene_do_set_material(pn_scene scene, uint32_t id, const pn_material *material);
+pn_status pn_scene_do_remove(pn_scene scene, uint32_t id);
+pn_status pn_scene_do_set_camera(pn_scene scene, const pn_camera *camera);
+pn_status pn_scene_do_commit(pn_scene scene);
+/* Checks the scene and everything it uses is committed. */
+pn_status pn_scene_ready(pn_scene scene, bool need_env);
+/* Sets the six scene arguments (tlas ... instance count) starting at `first`. */
+pn_status pn_scene_set_kernel_args(pn_scene scene, cl_kernel kernel, const char *name, cl_uint first);
+pn_status pn_scene_do_query(pn_scene scene, const float *rays, uint32_t count, float *t, uint32_t *instance,
+                            uint32_t *triangle, uint8_t *occluded);
+pn_status pn_scene_do_render_gbuffer(pn_scene scene, pn_gbuffer gbuffer);
+pn_status pn_validate_material(pn_context ctx, const pn_material *m);
+
+/* ------------------------------------------------------- G-buffer, image */
+
+struct pn_gbuffer_impl {
+    pn_object obj;
+    uint32_t width, height;
+    cl_mem planes[PN_GBUFFER_PLANE_COUNT];
+};
+
+struct pn_image_impl {
+    pn_object obj;
+    uint32_t width, height;
+    cl_mem buffer;
+};
+
+pn_status pn_gbuffer_new(pn_context ctx, uint32_t width, uint32_t height, const cl_mem *planes, pn_gbuffer *out);
+void pn_gbuffer_destroy(pn_gbuffer gbuffer);
+pn_status pn_gbuffer_transfer(pn_gbuffer gbuffer, pn_gbuffer_plane plane, void *host, size_t bytes, bool write);
+pn_status pn_gbuffer_do_validate(pn_gbuffer gbuffer);
+pn_status pn_image_new(pn_context ctx, uint32_t width, uint32_t height, cl_mem buffer, pn_image *out);
+void pn_image_destroy(pn_image image);
+pn_status pn_image_do_read(pn_image image, float *host, size_t bytes);
+/* Fails with PN_ERROR_INVALID_SIZE if `bytes` is smaller than `needed`. */
+pn_status pn_check_cl_buffer(pn_context ctx, cl_mem buffer, size_t needed, const char *what);
+
+/* --------------------------------------------------------------- renderer */
+
+typedef struct pn_method pn_method;
+
+struct pn_renderer_impl {
+    pn_object obj;
+    const pn_method *method;
+    int32_t background;
+    bool committed;
+};
+
+pn_status pn_renderer_new(pn_context ctx, const char *method, pn_renderer *out);
+void pn_renderer_destroy(pn_renderer renderer);
+pn_status pn_renderer_param_int(pn_renderer r, const char *name, int32_t *value, bool set);
+pn_status pn_renderer_param_float(pn_renderer r, const char *name, float *value, bool set);
+pn_status pn_renderer_do_execute(pn_renderer r, pn_scene scene, pn_gbuffer gbuffer, pn_image image);
+
+/* ------------------------------------------------------------------ utils */
+
+void *pn_malloc(pn_context ctx, size_t bytes, const char *what);
+/* a * b * c without overflow, or SIZE_MAX. */
+size_t pn_mul_size(size_t a, size_t b, size_t c);
+/* 3x4 row-major affine inverse; false if singular or not finite. */
+bool pn_affine_inverse(const float m[12], float inv[12]);
+
+#endif

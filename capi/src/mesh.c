@@ -1,0 +1,145 @@
+/* Meshes: validated copies of the caller's triangles and, at commit, the
+ * binned-SAH BVH with the triangles laid out in leaf order for the kernels. */
+#include "internal.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+static void free_geometry(pn_mesh mesh)
+{
+    free(mesh->positions);
+    free(mesh->normals);
+    free(mesh->indices);
+    free(mesh->leaf_tris);
+    free(mesh->leaf_normals);
+    pn_bvh_free(&mesh->bvh);
+    mesh->positions = mesh->normals = mesh->leaf_tris = mesh->leaf_normals = NULL;
+    mesh->indices = NULL;
+}
+
+void pn_mesh_destroy(pn_mesh mesh)
+{
+    free_geometry(mesh);
+    mesh->obj.magic = PN_MAGIC_DEAD;
+    free(mesh);
+}
+
+pn_status pn_mesh_do_set_geometry(pn_mesh mesh, const float *positions, uint32_t vertex_count,
+                                  const uint32_t *indices, uint32_t triangle_count, const float *normals)
+{
+    pn_context ctx = mesh->obj.ctx;
+    if (vertex_count == 0 || triangle_count == 0)
+        return pn_fail(ctx, PN_ERROR_EMPTY_INPUT, "mesh has %u vertices and %u triangles; it needs at least one of each",
+                       vertex_count, triangle_count);
+    for (uint32_t v = 0; v < vertex_count; ++v)
+        for (int c = 0; c < 3; ++c)
+            if (!isfinite(positions[3 * (size_t)v + c]))
+                return pn_fail(ctx, PN_ERROR_INVALID_VALUE, "mesh vertex %u has a non-finite coordinate (%g)", v,
+                               (double)positions[3 * (size_t)v + c]);
+    if (normals)
+        for (uint32_t v = 0; v < vertex_count; ++v)
+            for (int c = 0; c < 3; ++c)
+                if (!isfinite(normals[3 * (size_t)v + c]))
+                    return pn_fail(ctx, PN_ERROR_INVALID_VALUE, "mesh normal %u has a non-finite component (%g)", v,
+                                   (double)normals[3 * (size_t)v + c]);
+    for (uint32_t t = 0; t < triangle_count; ++t)
+        for (int c = 0; c < 3; ++c)
+            if (indices[3 * (size_t)t + c] >= vertex_count)
+                return pn_fail(ctx, PN_ERROR_OUT_OF_RANGE, "mesh triangle %u refers to vertex %u but the mesh has %u vertices",
+                               t, indices[3 * (size_t)t + c], vertex_count);
+    size_t vbytes = pn_mul_size(vertex_count, 3, sizeof(float));
+    size_t ibytes = pn_mul_size(triangle_count, 3, sizeof(uint32_t));
+    float *p = pn_malloc(ctx, vbytes, "mesh vertices");
+    float *n = normals ? pn_malloc(ctx, vbytes, "mesh normals") : NULL;
+    uint32_t *idx = pn_malloc(ctx, ibytes, "mesh indices");
+    if (!p || !idx || (normals && !n)) {
+        free(p);
+        free(n);
+        free(idx);
+        return PN_ERROR_OUT_OF_MEMORY;
+    }
+    memcpy(p, positions, vbytes);
+    if (n)
+        memcpy(n, normals, vbytes);
+    memcpy(idx, indices, ibytes);
+    free_geometry(mesh);
+    mesh->positions = p;
+    mesh->normals = n;
+    mesh->indices = idx;
+    mesh->vertex_count = vertex_count;
+    mesh->triangle_count = triangle_count;
+    mesh->committed = false;
+    return PN_SUCCESS;
+}
+
+pn_status pn_mesh_do_commit(pn_mesh mesh)
+{
+    pn_context ctx = mesh->obj.ctx;
+    if (!mesh->positions)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "mesh has no geometry: call pn_mesh_set_geometry before committing");
+    const uint32_t nt = mesh->triangle_count;
+    pn_aabb *boxes = pn_malloc(ctx, pn_mul_size(nt, 1, sizeof *boxes), "triangle bounds");
+    float *tris = pn_malloc(ctx, pn_mul_size(nt, 12, sizeof(float)), "leaf-ordered triangles");
+    float *nrms = mesh->normals ? pn_malloc(ctx, pn_mul_size(nt, 12, sizeof(float)), "leaf-ordered normals") : NULL;
+    if (!boxes || !tris || (mesh->normals && !nrms)) {
+        free(boxes);
+        free(tris);
+        free(nrms);
+        return PN_ERROR_OUT_OF_MEMORY;
+    }
+    for (int c = 0; c < 3; ++c) {
+        mesh->bounds_lo[c] = INFINITY;
+        mesh->bounds_hi[c] = -INFINITY;
+    }
+    for (uint32_t t = 0; t < nt; ++t) {
+        for (int c = 0; c < 3; ++c) {
+            boxes[t].lo[c] = INFINITY;
+            boxes[t].hi[c] = -INFINITY;
+        }
+        for (int k = 0; k < 3; ++k) {
+            const float *v = mesh->positions + 3 * (size_t)mesh->indices[3 * (size_t)t + k];
+            for (int c = 0; c < 3; ++c) {
+                boxes[t].lo[c] = fminf(boxes[t].lo[c], v[c]);
+                boxes[t].hi[c] = fmaxf(boxes[t].hi[c], v[c]);
+            }
+        }
+        for (int c = 0; c < 3; ++c) {
+            mesh->bounds_lo[c] = fminf(mesh->bounds_lo[c], boxes[t].lo[c]);
+            mesh->bounds_hi[c] = fmaxf(mesh->bounds_hi[c], boxes[t].hi[c]);
+        }
+    }
+    pn_bvh bvh = {0};
+    if (pn_bvh_build(boxes, nt, 4, &bvh) != 0) {
+        free(boxes);
+        free(tris);
+        free(nrms);
+        return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building the BVH of a %u-triangle mesh", nt);
+    }
+    free(boxes);
+    for (uint32_t slot = 0; slot < nt; ++slot) {
+        const uint32_t t = bvh.order[slot];
+        for (int k = 0; k < 3; ++k) {
+            const uint32_t v = mesh->indices[3 * (size_t)t + k];
+            float *dst = tris + 12 * (size_t)slot + 4 * k;
+            memcpy(dst, mesh->positions + 3 * (size_t)v, 3 * sizeof(float));
+            /* v0.w carries the mesh's own triangle index (as uint bits). */
+            uint32_t bits = k == 0 ? t : 0;
+            memcpy(dst + 3, &bits, sizeof bits);
+            if (nrms) {
+                float *nd = nrms + 12 * (size_t)slot + 4 * k;
+                memcpy(nd, mesh->normals + 3 * (size_t)v, 3 * sizeof(float));
+                nd[3] = 0.0f;
+            }
+        }
+    }
+    pn_bvh_free(&mesh->bvh);
+    free(mesh->leaf_tris);
+    free(mesh->leaf_normals);
+    mesh->bvh = bvh;
+    mesh->leaf_tris = tris;
+    mesh->leaf_normals = nrms;
+    mesh->committed = true;
+    mesh->version = pn_next_mesh_version();
+    return PN_SUCCESS;
+}

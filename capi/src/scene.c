@@ -1,0 +1,514 @@
+/* Scenes: instances of meshes with transforms and materials, a camera and an
+ * environment. Commit gathers the meshes' BVHs into one device buffer (only
+ * when the set of meshes changed) and rebuilds the top-level BVH over the
+ * instances (every commit: cheap, so rigid objects can move every frame). */
+#include "internal.h"
+
+#include <math.h>
+#include <stdatomic.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define RECORD_FLOATS (9 * 4)
+
+static const float identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+
+void pn_scene_destroy(pn_scene scene)
+{
+    for (uint32_t i = 0; i < scene->instance_count; ++i)
+        if (scene->instances[i].mesh)
+            pn_mesh_release(scene->instances[i].mesh);
+    if (scene->env)
+        pn_envmap_release(scene->env);
+    free(scene->instances);
+    free(scene->mesh_slots);
+    pn_mem_release(&scene->blas);
+    pn_mem_release(&scene->tris);
+    pn_mem_release(&scene->normals);
+    pn_mem_release(&scene->tlas);
+    pn_mem_release(&scene->records);
+    scene->obj.magic = PN_MAGIC_DEAD;
+    free(scene);
+}
+
+pn_status pn_validate_material(pn_context ctx, const pn_material *m)
+{
+    for (int c = 0; c < 3; ++c)
+        if (!(m->albedo[c] >= 0.0f && m->albedo[c] <= 1.0f))
+            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "material albedo[%d] = %g is outside [0, 1]", c,
+                           (double)m->albedo[c]);
+    if (!(m->specular >= 0.0f && m->specular <= 1.0f))
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "material specular = %g is outside [0, 1]", (double)m->specular);
+    if (!(m->shininess >= 0.0f && isfinite(m->shininess)))
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "material shininess = %g must be finite and >= 0",
+                       (double)m->shininess);
+    if (!(m->roughness > 0.0f && m->roughness <= 1.0f))
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "material roughness = %g is outside (0, 1]", (double)m->roughness);
+    if (m->lobe > PN_LOBE_GGX)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "material lobe %u is not a pn_lobe (0 Phong, 1 Blinn-Phong, 2 GGX)",
+                       m->lobe);
+    return PN_SUCCESS;
+}
+
+static pn_status set_transform(pn_scene scene, pn_instance *inst, const float *transform)
+{
+    const float *m = transform ? transform : identity;
+    float inv[12];
+    if (!pn_affine_inverse(m, inv))
+        return pn_fail(scene->obj.ctx, PN_ERROR_INVALID_ARGUMENT, "instance transform is %s",
+                       transform && !(isfinite(m[0]) && isfinite(m[1]) && isfinite(m[2]) && isfinite(m[3]) &&
+                                      isfinite(m[4]) && isfinite(m[5]) && isfinite(m[6]) && isfinite(m[7]) &&
+                                      isfinite(m[8]) && isfinite(m[9]) && isfinite(m[10]) && isfinite(m[11]))
+                           ? "not finite"
+                           : "singular (not invertible)");
+    memcpy(inst->object_to_world, m, sizeof inst->object_to_world);
+    memcpy(inst->world_to_object, inv, sizeof inv);
+    return PN_SUCCESS;
+}
+
+pn_status pn_scene_do_add_instance(pn_scene scene, pn_mesh mesh, const float *transform, const pn_material *material,
+                                   uint32_t *id)
+{
+    pn_context ctx = scene->obj.ctx;
+    pn_material mat = material ? *material : pn_material_default();
+    pn_status st = pn_validate_material(ctx, &mat);
+    if (st)
+        return st;
+    pn_instance inst = {0};
+    if ((st = set_transform(scene, &inst, transform)))
+        return st;
+    if (scene->instance_count == scene->instance_capacity) {
+        uint32_t cap = scene->instance_capacity ? 2 * scene->instance_capacity : 8;
+        pn_instance *grown = realloc(scene->instances, (size_t)cap * sizeof *grown);
+        if (!grown)
+            return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory adding instance %u", scene->instance_count);
+        scene->instances = grown;
+        scene->instance_capacity = cap;
+    }
+    inst.mesh = mesh;
+    inst.material = mat;
+    pn_mesh_retain(mesh);
+    *id = scene->instance_count;
+    scene->instances[scene->instance_count++] = inst;
+    scene->committed = false;
+    return PN_SUCCESS;
+}
+
+static pn_status live_instance(pn_scene scene, uint32_t id, pn_instance **out)
+{
+    if (id >= scene->instance_count || !scene->instances[id].mesh)
+        return pn_fail(scene->obj.ctx, PN_ERROR_OUT_OF_RANGE, "scene has no instance %u", id);
+    *out = &scene->instances[id];
+    return PN_SUCCESS;
+}
+
+pn_status pn_scene_do_set_transform(pn_scene scene, uint32_t id, const float *transform)
+{
+    pn_instance *inst = NULL;
+    pn_status st = live_instance(scene, id, &inst);
+    if (!st && !(st = set_transform(scene, inst, transform)))
+        scene->committed = false;
+    return st;
+}
+
+pn_status pn_scene_do_set_material(pn_scene scene, uint32_t id, const pn_material *material)
+{
+    pn_instance *inst = NULL;
+    pn_status st = live_instance(scene, id, &inst);
+    if (!st && !(st = pn_validate_material(scene->obj.ctx, material))) {
+        inst->material = *material;
+        scene->committed = false;
+    }
+    return st;
+}
+
+pn_status pn_scene_do_remove(pn_scene scene, uint32_t id)
+{
+    pn_instance *inst = NULL;
+    pn_status st = live_instance(scene, id, &inst);
+    if (!st) {
+        pn_mesh_release(inst->mesh);
+        inst->mesh = NULL;
+        scene->committed = false;
+    }
+    return st;
+}
+
+pn_status pn_scene_do_set_camera(pn_scene scene, const pn_camera *c)
+{
+    pn_context ctx = scene->obj.ctx;
+    for (int i = 0; i < 3; ++i)
+        if (!isfinite(c->position[i]) || !isfinite(c->look_at[i]) || !isfinite(c->up[i]))
+            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "camera position, look_at and up must be finite");
+    if (!(c->fov_deg > 0.0f && c->fov_deg < 180.0f))
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "camera fov_deg = %g is outside (0, 180)", (double)c->fov_deg);
+    if (c->width == 0 || c->height == 0 || c->width > 32768 || c->height > 32768)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "camera resolution %ux%u is outside 1..32768", c->width, c->height);
+    double f[3], len = 0, cr[3], clen = 0;
+    for (int i = 0; i < 3; ++i) {
+        f[i] = (double)c->look_at[i] - c->position[i];
+        len += f[i] * f[i];
+    }
+    if (len == 0.0)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "camera look_at equals its position");
+    cr[0] = f[1] * c->up[2] - f[2] * c->up[1];
+    cr[1] = f[2] * c->up[0] - f[0] * c->up[2];
+    cr[2] = f[0] * c->up[1] - f[1] * c->up[0];
+    for (int i = 0; i < 3; ++i)
+        clen += cr[i] * cr[i];
+    double ulen = (double)c->up[0] * c->up[0] + (double)c->up[1] * c->up[1] + (double)c->up[2] * c->up[2];
+    if (!(clen > 1e-12 * len * ulen))
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "camera up vector is zero or parallel to the view direction");
+    scene->camera = *c;
+    scene->has_camera = true;
+    return PN_SUCCESS;
+}
+
+/* ----------------------------------------------------------------- commit */
+
+/* Concatenates the BLAS nodes, triangles and normals of every mesh in use,
+ * unless the same meshes at the same versions are already on the device. */
+static pn_status gather_meshes(pn_scene scene)
+{
+    pn_context ctx = scene->obj.ctx;
+    uint32_t count = 0;
+    pn_mesh_slot *slots = pn_malloc(ctx, pn_mul_size(scene->instance_count ? scene->instance_count : 1, 1, sizeof *slots),
+                                    "mesh slots");
+    if (!slots)
+        return PN_ERROR_OUT_OF_MEMORY;
+    size_t nodes = 0, tris = 0;
+    bool any_normals = false;
+    for (uint32_t i = 0; i < scene->instance_count; ++i) {
+        pn_mesh m = scene->instances[i].mesh;
+        if (!m)
+            continue;
+        if (!m->committed) {
+            free(slots);
+            return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "the mesh of instance %u changed since its last commit", i);
+        }
+        uint32_t k = 0;
+        while (k < count && slots[k].mesh != m)
+            ++k;
+        if (k < count)
+            continue;
+        slots[count].mesh = m;
+        slots[count].version = m->version;
+        slots[count].node_offset = (uint32_t)nodes;
+        slots[count].tri_offset = (uint32_t)tris;
+        nodes += m->bvh.node_count;
+        tris += m->triangle_count;
+        any_normals = any_normals || m->leaf_normals;
+        ++count;
+    }
+    bool same = count == scene->mesh_slot_count && scene->blas;
+    for (uint32_t k = 0; same && k < count; ++k)
+        same = slots[k].mesh == scene->mesh_slots[k].mesh && slots[k].version == scene->mesh_slots[k].version;
+    if (same) {
+        free(slots);
+        return PN_SUCCESS;
+    }
+    if (nodes > UINT32_MAX / 2 || tris > UINT32_MAX / 3) {
+        free(slots);
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "scene has too many triangles (%zu)", tris);
+    }
+    float *hnodes = pn_malloc(ctx, pn_mul_size(nodes ? nodes : 1, 1, sizeof(pn_bvh_node)), "scene BLAS nodes");
+    float *htris = pn_malloc(ctx, pn_mul_size(tris ? tris : 1, 12, sizeof(float)), "scene triangles");
+    float *hnrm = any_normals ? pn_malloc(ctx, pn_mul_size(tris, 12, sizeof(float)), "scene normals") : NULL;
+    pn_status st = PN_SUCCESS;
+    if (!hnodes || !htris || (any_normals && !hnrm))
+        st = PN_ERROR_OUT_OF_MEMORY;
+    for (uint32_t k = 0; !st && k < count; ++k) {
+        pn_mesh m = slots[k].mesh;
+        memcpy((char *)hnodes + (size_t)slots[k].node_offset * sizeof(pn_bvh_node), m->bvh.nodes,
+               (size_t)m->bvh.node_count * sizeof(pn_bvh_node));
+        memcpy(htris + 12 * (size_t)slots[k].tri_offset, m->leaf_tris, (size_t)m->triangle_count * 12 * sizeof(float));
+        if (hnrm) {
+            float *dst = hnrm + 12 * (size_t)slots[k].tri_offset;
+            if (m->leaf_normals)
+                memcpy(dst, m->leaf_normals, (size_t)m->triangle_count * 12 * sizeof(float));
+            else
+                memset(dst, 0, (size_t)m->triangle_count * 12 * sizeof(float));
+        }
+    }
+    cl_mem blas = NULL, dtris = NULL, dnrm = NULL;
+    if (!st && !(st = pn_alloc(ctx, nodes * sizeof(pn_bvh_node), CL_MEM_READ_ONLY, hnodes, &blas, "scene BLAS nodes")) &&
+        !(st = pn_alloc(ctx, tris * 12 * sizeof(float), CL_MEM_READ_ONLY, htris, &dtris, "scene triangles")))
+        st = pn_alloc(ctx, hnrm ? tris * 12 * sizeof(float) : 16, CL_MEM_READ_ONLY, hnrm, &dnrm, "scene normals");
+    free(hnodes);
+    free(htris);
+    free(hnrm);
+    if (st) {
+        pn_mem_release(&blas);
+        pn_mem_release(&dtris);
+        pn_mem_release(&dnrm);
+        free(slots);
+        return st;
+    }
+    pn_mem_release(&scene->blas);
+    pn_mem_release(&scene->tris);
+    pn_mem_release(&scene->normals);
+    scene->blas = blas;
+    scene->tris = dtris;
+    scene->normals = dnrm;
+    free(scene->mesh_slots);
+    scene->mesh_slots = slots;
+    scene->mesh_slot_count = count;
+    return PN_SUCCESS;
+}
+
+static const pn_mesh_slot *slot_of(pn_scene scene, pn_mesh mesh)
+{
+    for (uint32_t k = 0; k < scene->mesh_slot_count; ++k)
+        if (scene->mesh_slots[k].mesh == mesh)
+            return &scene->mesh_slots[k];
+    return NULL;
+}
+
+static void world_box(const pn_instance *inst, pn_aabb *box)
+{
+    const pn_mesh m = inst->mesh;
+    const float *x = inst->object_to_world;
+    for (int c = 0; c < 3; ++c) {
+        box->lo[c] = INFINITY;
+        box->hi[c] = -INFINITY;
+    }
+    for (int corner = 0; corner < 8; ++corner) {
+        float p[3] = {corner & 1 ? m->bounds_hi[0] : m->bounds_lo[0], corner & 2 ? m->bounds_hi[1] : m->bounds_lo[1],
+                      corner & 4 ? m->bounds_hi[2] : m->bounds_lo[2]};
+        for (int r = 0; r < 3; ++r) {
+            float w = x[4 * r] * p[0] + x[4 * r + 1] * p[1] + x[4 * r + 2] * p[2] + x[4 * r + 3];
+            box->lo[r] = fminf(box->lo[r], w);
+            box->hi[r] = fmaxf(box->hi[r], w);
+        }
+    }
+    /* Pad by a few ulps: the box is of float-rounded corners, the kernels transform rays instead. */
+    for (int r = 0; r < 3; ++r) {
+        float pad = 1e-6f * fmaxf(fabsf(box->lo[r]), fabsf(box->hi[r])) + 1e-30f;
+        box->lo[r] -= pad;
+        box->hi[r] += pad;
+    }
+}
+
+static pn_status ensure_buffer(pn_context ctx, cl_mem *buf, size_t *capacity, size_t bytes, const char *what)
+{
+    if (*buf && *capacity >= bytes)
+        return PN_SUCCESS;
+    pn_mem_release(buf);
+    *capacity = 0;
+    pn_status st = pn_alloc(ctx, bytes, CL_MEM_READ_ONLY, NULL, buf, what);
+    if (!st)
+        *capacity = bytes;
+    return st;
+}
+
+pn_status pn_scene_do_commit(pn_scene scene)
+{
+    pn_context ctx = scene->obj.ctx;
+    pn_status st = gather_meshes(scene);
+    if (st)
+        return st;
+    uint32_t live = 0;
+    for (uint32_t i = 0; i < scene->instance_count; ++i)
+        live += scene->instances[i].mesh != NULL;
+    pn_aabb *boxes = pn_malloc(ctx, pn_mul_size(live ? live : 1, 1, sizeof *boxes), "instance bounds");
+    uint32_t *ids = pn_malloc(ctx, pn_mul_size(live ? live : 1, 1, sizeof *ids), "instance ids");
+    float *records = pn_malloc(ctx, pn_mul_size(live ? live : 1, RECORD_FLOATS, sizeof(float)), "instance records");
+    pn_bvh tlas = {0};
+    if (!boxes || !ids || !records)
+        st = PN_ERROR_OUT_OF_MEMORY;
+    uint32_t n = 0;
+    for (uint32_t i = 0; !st && i < scene->instance_count; ++i)
+        if (scene->instances[i].mesh) {
+            world_box(&scene->instances[i], &boxes[n]);
+            ids[n++] = i;
+        }
+    if (!st && live && pn_bvh_build(boxes, live, 2, &tlas) != 0)
+        st = pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building the instance BVH");
+    for (uint32_t slot = 0; !st && slot < live; ++slot) {
+        const pn_instance *inst = &scene->instances[ids[tlas.order[slot]]];
+        const pn_mesh_slot *ms = slot_of(scene, inst->mesh);
+        float *r = records + (size_t)slot * RECORD_FLOATS;
+        memcpy(r, inst->world_to_object, 12 * sizeof(float));
+        memcpy(r + 12, inst->object_to_world, 12 * sizeof(float));
+        memcpy(r + 24, inst->material.albedo, 3 * sizeof(float));
+        r[27] = inst->material.specular;
+        r[28] = inst->material.shininess;
+        r[29] = inst->material.roughness;
+        r[30] = (float)inst->material.lobe;
+        r[31] = 0.0f;
+        uint32_t offs[4] = {ms->node_offset, ms->tri_offset, inst->mesh->leaf_normals ? 1u : 0u,
+                            ids[tlas.order[slot]]};
+        memcpy(r + 32, offs, sizeof offs);
+    }
+    if (!st) {
+        size_t tlas_bytes = live ? (size_t)tlas.node_count * sizeof(pn_bvh_node) : sizeof(pn_bvh_node);
+        size_t rec_bytes = (size_t)(live ? live : 1) * RECORD_FLOATS * sizeof(float);
+        if (!(st = ensure_buffer(ctx, &scene->tlas, &scene->tlas_capacity, tlas_bytes, "the instance BVH")) &&
+            !(st = ensure_buffer(ctx, &scene->records, &scene->records_capacity, rec_bytes, "instance records"))) {
+            cl_int err = CL_SUCCESS;
+            if (live) {
+                err = clEnqueueWriteBuffer(ctx->queue, scene->tlas, CL_TRUE, 0, tlas_bytes, tlas.nodes, 0, NULL, NULL);
+                if (err == CL_SUCCESS)
+                    err = clEnqueueWriteBuffer(ctx->queue, scene->records, CL_TRUE, 0, rec_bytes, records, 0, NULL, NULL);
+            }
+            if (err != CL_SUCCESS)
+                st = pn_fail_cl(ctx, err, "uploading the instance BVH");
+        }
+    }
+    pn_bvh_free(&tlas);
+    free(boxes);
+    free(ids);
+    free(records);
+    if (!st) {
+        scene->live_instances = live;
+        scene->committed = true;
+    }
+    return st;
+}
+
+pn_status pn_scene_ready(pn_scene scene, bool need_env)
+{
+    pn_context ctx = scene->obj.ctx;
+    if (!scene->committed)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "scene changed since its last commit; call pn_scene_commit");
+    for (uint32_t k = 0; k < scene->mesh_slot_count; ++k)
+        if (!scene->mesh_slots[k].mesh->committed || scene->mesh_slots[k].version != scene->mesh_slots[k].mesh->version)
+            return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "a mesh of the scene changed since the scene's last commit");
+    if (need_env && !scene->env)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "scene has no env map: call pn_scene_set_envmap");
+    if (need_env && !scene->env->committed)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "the scene's env map changed since its last commit");
+    return PN_SUCCESS;
+}
+
+pn_status pn_scene_set_kernel_args(pn_scene scene, cl_kernel kernel, const char *name, cl_uint first)
+{
+    const cl_uint count = scene->live_instances;
+    const cl_mem mems[5] = {scene->tlas, scene->records, scene->blas, scene->tris, scene->normals};
+    for (cl_uint i = 0; i < 5; ++i) {
+        cl_int err = clSetKernelArg(kernel, first + i, sizeof(cl_mem), &mems[i]);
+        if (err != CL_SUCCESS)
+            return pn_fail_cl(scene->obj.ctx, err, name);
+    }
+    cl_int err = clSetKernelArg(kernel, first + 5, sizeof count, &count);
+    return err == CL_SUCCESS ? PN_SUCCESS : pn_fail_cl(scene->obj.ctx, err, name);
+}
+
+/* ---------------------------------------------------------------- queries */
+
+pn_status pn_scene_do_query(pn_scene scene, const float *rays, uint32_t count, float *t, uint32_t *instance,
+                            uint32_t *triangle, uint8_t *occluded)
+{
+    pn_context ctx = scene->obj.ctx;
+    pn_status st = pn_scene_ready(scene, false);
+    if (st || count == 0)
+        return st;
+    for (uint32_t i = 0; i < count; ++i)
+        for (int c = 0; c < 8; ++c)
+            if (isnan(rays[8 * (size_t)i + c]) || (c != 3 && c != 7 && !isfinite(rays[8 * (size_t)i + c])))
+                return pn_fail(ctx, PN_ERROR_INVALID_VALUE, "ray %u has a non-finite origin or direction, or a NaN bound", i);
+    const bool any = occluded != NULL;
+    const char *name = any ? "occluded_rays" : "intersect_rays";
+    cl_kernel k;
+    if ((st = pn_context_kernel(ctx, "raycast", name, &k)))
+        return st;
+    cl_mem drays = NULL, out0 = NULL, out1 = NULL, out2 = NULL;
+    const size_t n = count;
+    st = pn_alloc(ctx, n * 32, CL_MEM_READ_ONLY, rays, &drays, "rays");
+    if (!st)
+        st = pn_alloc(ctx, any ? n : n * 4, CL_MEM_WRITE_ONLY, NULL, &out0, "ray results");
+    if (!st && !any && !(st = pn_alloc(ctx, n * 4, CL_MEM_WRITE_ONLY, NULL, &out1, "ray results")))
+        st = pn_alloc(ctx, n * 4, CL_MEM_WRITE_ONLY, NULL, &out2, "ray results");
+    const cl_int cn = (cl_int)count;
+    if (!st)
+        st = pn_scene_set_kernel_args(scene, k, name, 0);
+    if (!st) {
+        size_t sizes[] = {sizeof(cl_mem), sizeof cn, sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem)};
+        const void *vals[] = {&drays, &cn, &out0, &out1, &out2};
+        for (cl_uint i = 0; !st && i < (any ? 3u : 5u); ++i) {
+            cl_int err = clSetKernelArg(k, 6 + i, sizes[i], vals[i]);
+            if (err != CL_SUCCESS)
+                st = pn_fail_cl(ctx, err, "setting ray query arguments");
+        }
+    }
+    if (!st)
+        st = pn_enqueue_1d(ctx, k, name, n, 64);
+    cl_int err = CL_SUCCESS;
+    if (!st && any)
+        err = clEnqueueReadBuffer(ctx->queue, out0, CL_TRUE, 0, n, occluded, 0, NULL, NULL);
+    if (!st && !any && t)
+        err = clEnqueueReadBuffer(ctx->queue, out0, CL_TRUE, 0, n * 4, t, 0, NULL, NULL);
+    if (!st && !any && instance && err == CL_SUCCESS)
+        err = clEnqueueReadBuffer(ctx->queue, out1, CL_TRUE, 0, n * 4, instance, 0, NULL, NULL);
+    if (!st && !any && triangle && err == CL_SUCCESS)
+        err = clEnqueueReadBuffer(ctx->queue, out2, CL_TRUE, 0, n * 4, triangle, 0, NULL, NULL);
+    if (!st && err != CL_SUCCESS)
+        st = pn_fail_cl(ctx, err, "reading ray query results");
+    if (!st && !any && !t && !instance && !triangle)
+        clFinish(ctx->queue);
+    pn_mem_release(&drays);
+    pn_mem_release(&out0);
+    pn_mem_release(&out1);
+    pn_mem_release(&out2);
+    return st;
+}
+
+pn_status pn_scene_do_render_gbuffer(pn_scene scene, pn_gbuffer gb)
+{
+    pn_context ctx = scene->obj.ctx;
+    pn_status st = pn_scene_ready(scene, false);
+    if (st)
+        return st;
+    if (!scene->has_camera)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "scene has no camera: call pn_scene_set_camera");
+    const pn_camera *c = &scene->camera;
+    if (gb->width != c->width || gb->height != c->height)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "G-buffer is %ux%u but the camera renders %ux%u", gb->width,
+                       gb->height, c->width, c->height);
+    double f[3], r[3], u[3];
+    for (int i = 0; i < 3; ++i)
+        f[i] = (double)c->look_at[i] - c->position[i];
+    double fl = sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]);
+    for (int i = 0; i < 3; ++i)
+        f[i] /= fl;
+    r[0] = f[1] * c->up[2] - f[2] * c->up[1];
+    r[1] = f[2] * c->up[0] - f[0] * c->up[2];
+    r[2] = f[0] * c->up[1] - f[1] * c->up[0];
+    double rl = sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]);
+    for (int i = 0; i < 3; ++i)
+        r[i] /= rl;
+    u[0] = r[1] * f[2] - r[2] * f[1];
+    u[1] = r[2] * f[0] - r[0] * f[2];
+    u[2] = r[0] * f[1] - r[1] * f[0];
+    const double tx = tan(c->fov_deg * 3.14159265358979323846 / 360.0), ty = tx * c->height / c->width;
+    cl_float4 org = {{c->position[0], c->position[1], c->position[2], 0}};
+    cl_float4 fwd = {{(float)f[0], (float)f[1], (float)f[2], 0}};
+    cl_float4 right = {{(float)(r[0] * tx), (float)(r[1] * tx), (float)(r[2] * tx), 0}};
+    cl_float4 up = {{(float)(u[0] * ty), (float)(u[1] * ty), (float)(u[2] * ty), 0}};
+    const cl_int w = (cl_int)c->width, h = (cl_int)c->height;
+    cl_kernel k;
+    if ((st = pn_context_kernel(ctx, "raycast", "gbuffer_primary", &k)) ||
+        (st = pn_scene_set_kernel_args(scene, k, "gbuffer_primary", 0)))
+        return st;
+    size_t sizes[] = {16, 16, 16, 16, sizeof w, sizeof h, sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem),
+                      sizeof(cl_mem), sizeof(cl_mem)};
+    const void *vals[] = {&org, &fwd, &right, &up, &w, &h, &gb->planes[0], &gb->planes[1], &gb->planes[2],
+                          &gb->planes[3], &gb->planes[4]};
+    for (cl_uint i = 0; i < 11; ++i) {
+        cl_int err = clSetKernelArg(k, 6 + i, sizes[i], vals[i]);
+        if (err != CL_SUCCESS)
+            return pn_fail_cl(ctx, err, "setting G-buffer kernel arguments");
+    }
+    size_t local[2] = {8, 8};
+    size_t global[2] = {(c->width + 7) / 8 * 8, (c->height + 7) / 8 * 8};
+    cl_int err = clEnqueueNDRangeKernel(ctx->queue, k, 2, NULL, global, local, 0, NULL, NULL);
+    return err == CL_SUCCESS ? PN_SUCCESS : pn_fail_cl(ctx, err, "enqueueing the primary-ray kernel");
+}
+
+/* A process-wide counter: a (mesh, version) pair never repeats, even when a
+ * released mesh's memory is reused by a new one. */
+static atomic_uint_fast64_t mesh_versions = 1;
+uint64_t pn_next_mesh_version(void)
+{
+    return atomic_fetch_add(&mesh_versions, 1);
+}

@@ -1,0 +1,127 @@
+/* Direction <-> lat-long and cube-map addressing (docs/conventions.md).
+ *
+ * Lat-long: u = atan2(x, -z) / 2pi in [0, 1), v = acos(y) / pi, row 0 on top;
+ * the same convention as Mitsuba 3's envmap emitter.
+ * Cube: faces +X, -X, +Y, -Y, +Z, -Z (0..5); on face f the texel coordinates
+ * (a, b) in [-1, 1]^2 (a along columns, b along rows) map to the directions
+ *   +X ( 1, -b, -a)   -X (-1, -b,  a)   +Y ( a,  1,  b)
+ *   -Y ( a, -1, -b)   +Z ( a, -b,  1)   -Z (-a, -b, -1)
+ */
+#ifndef PN_COMMON_SPHERE_MAPS_CL
+#define PN_COMMON_SPHERE_MAPS_CL
+
+#include "common/math.cl"
+
+inline float3 pn_latlong_to_dir(float u, float v)
+{
+    float phi = PN_TWO_PI * u;
+    float theta = PN_PI * v;
+    float st = sin(theta);
+    return (float3)(sin(phi) * st, cos(theta), -cos(phi) * st);
+}
+
+/* (u, v) of a unit direction; u in [0, 1), v in [0, 1]. */
+inline float2 pn_dir_to_latlong(float3 d)
+{
+    float u = atan2(d.x, -d.z) * PN_INV_TWO_PI;
+    if (u < 0.0f)
+        u += 1.0f;
+    if (u >= 1.0f)
+        u = 0.0f;
+    float v = acos(clamp(d.y, -1.0f, 1.0f)) * PN_INV_PI;
+    return (float2)(u, v);
+}
+
+/* Unnormalised direction of face coordinates (a, b) in [-1, 1]. */
+inline float3 pn_cube_to_dir(int face, float a, float b)
+{
+    switch (face) {
+    case 0: return (float3)(1.0f, -b, -a);
+    case 1: return (float3)(-1.0f, -b, a);
+    case 2: return (float3)(a, 1.0f, b);
+    case 3: return (float3)(a, -1.0f, -b);
+    case 4: return (float3)(a, -b, 1.0f);
+    default: return (float3)(-a, -b, -1.0f);
+    }
+}
+
+/* Face and coordinates (a, b) in [-1, 1] of a nonzero direction. Ties between
+ * axes go to x, then y, so every direction has exactly one face. */
+inline int pn_dir_to_cube(float3 d, float *a, float *b)
+{
+    float ax = fabs(d.x), ay = fabs(d.y), az = fabs(d.z);
+    if (ax >= ay && ax >= az) {
+        float inv = 1.0f / ax;
+        *b = -d.y * inv;
+        if (d.x > 0.0f) { *a = -d.z * inv; return 0; }
+        *a = d.z * inv;
+        return 1;
+    }
+    if (ay >= az) {
+        float inv = 1.0f / ay;
+        *a = d.x * inv;
+        if (d.y > 0.0f) { *b = d.z * inv; return 2; }
+        *b = -d.z * inv;
+        return 3;
+    }
+    float inv = 1.0f / az;
+    *b = -d.y * inv;
+    if (d.z > 0.0f) { *a = d.x * inv; return 4; }
+    *a = -d.x * inv;
+    return 5;
+}
+
+/* Solid angle subtended by [0, x] x [0, y] on the plane at distance 1. */
+inline float pn_cube_area_element(float x, float y)
+{
+    return atan2(x * y, sqrt(x * x + y * y + 1.0f));
+}
+
+/* Exact solid angle of the face rectangle [a0, a1] x [b0, b1]. */
+inline float pn_cube_solid_angle(float a0, float b0, float a1, float b1)
+{
+    return pn_cube_area_element(a0, b0) - pn_cube_area_element(a0, b1) - pn_cube_area_element(a1, b0) +
+           pn_cube_area_element(a1, b1);
+}
+
+/* Texel (i, j) centre of a face of size n in face coordinates. */
+inline float pn_cube_texel_coord(int i, int n)
+{
+    return 2.0f * ((float)i + 0.5f) / (float)n - 1.0f;
+}
+
+/* Flat index of a texel of a cube map with faces of n x n texels. */
+inline int pn_cube_index(int face, int i, int j, int n)
+{
+    return (face * n + j) * n + i;
+}
+
+/* Bilinear lookup of a vertex-grid cube map: face f holds n x n samples at
+ * a_i = -1 + 2 i / (n - 1), so the samples on a face's edge are the same
+ * directions as on its neighbour's and the lookup is continuous across seams. */
+inline float3 pn_cube_grid_lookup(global const float4 *grid, int n, float3 d)
+{
+    float a, b;
+    int face = pn_dir_to_cube(d, &a, &b);
+    float x = clamp((a + 1.0f) * 0.5f * (float)(n - 1), 0.0f, (float)(n - 1));
+    float y = clamp((b + 1.0f) * 0.5f * (float)(n - 1), 0.0f, (float)(n - 1));
+    int x0 = min((int)x, n - 2), y0 = min((int)y, n - 2);
+    float fx = x - (float)x0, fy = y - (float)y0;
+    global const float4 *row0 = grid + (face * n + y0) * n + x0;
+    global const float4 *row1 = row0 + n;
+    float4 top = mix(row0[0], row0[1], fx);
+    float4 bottom = mix(row1[0], row1[1], fx);
+    return mix(top, bottom, fy).xyz;
+}
+
+/* Nearest-texel lookup of a texel-centred cube map. */
+inline float3 pn_cube_texel_lookup(global const float4 *cube, int n, float3 d)
+{
+    float a, b;
+    int face = pn_dir_to_cube(d, &a, &b);
+    int i = clamp((int)((a + 1.0f) * 0.5f * (float)n), 0, n - 1);
+    int j = clamp((int)((b + 1.0f) * 0.5f * (float)n), 0, n - 1);
+    return cube[pn_cube_index(face, i, j, n)].xyz;
+}
+
+#endif

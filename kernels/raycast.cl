@@ -1,0 +1,120 @@
+/* Ray casting stage: primary rays into the G-buffer, batched ray queries,
+ * and validation of caller-supplied G-buffers (docs/gbuffer.md). */
+#include "common/raytrace.cl"
+
+#define PN_SCENE_ARGS                                                                                        \
+    global const float4 *tlas, global const float4 *instances, global const float4 *blas,                  \
+        global const float4 *tris, global const float4 *normals, uint instance_count
+
+inline pn_scene_view make_view(global const float4 *tlas, global const float4 *instances,
+                               global const float4 *blas, global const float4 *tris, uint instance_count)
+{
+    pn_scene_view v;
+    v.tlas = tlas;
+    v.instances = instances;
+    v.blas = blas;
+    v.tris = tris;
+    v.instance_count = instance_count;
+    return v;
+}
+
+/* camera: origin, forward, right * tan(fov/2), up * tan(fov/2) * height/width. */
+kernel void gbuffer_primary(PN_SCENE_ARGS, float4 cam_origin, float4 cam_forward, float4 cam_right, float4 cam_up,
+                            int width, int height, global float4 *position, global float4 *normal,
+                            global float4 *albedo, global float4 *material, global uint *instance_id)
+{
+    int x = get_global_id(0), y = get_global_id(1);
+    if (x >= width || y >= height)
+        return;
+    int idx = y * width + x;
+    float sx = 2.0f * ((float)x + 0.5f) / (float)width - 1.0f;
+    float sy = 1.0f - 2.0f * ((float)y + 0.5f) / (float)height;
+    float3 dir = normalize(cam_forward.xyz + sx * cam_right.xyz + sy * cam_up.xyz);
+    float3 org = cam_origin.xyz;
+    pn_scene_view scene = make_view(tlas, instances, blas, tris, instance_count);
+    pn_hit hit;
+    if (!pn_trace(scene, org, dir, 0.0f, INFINITY, &hit, false)) {
+        position[idx] = (float4)(dir, INFINITY);
+        normal[idx] = (float4)(0.0f);
+        albedo[idx] = (float4)(0.0f);
+        material[idx] = (float4)(0.0f);
+        instance_id[idx] = PN_BACKGROUND;
+        return;
+    }
+    global const float4 *inst = instances + hit.slot * PN_INSTANCE_STRIDE;
+    global const float4 *w2o = inst + PN_INST_WORLD_TO_OBJECT;
+    uint4 offs = as_uint4(inst[PN_INST_OFFSETS]);
+    float3 v0 = tris[3 * hit.tri].xyz, v1 = tris[3 * hit.tri + 1].xyz, v2 = tris[3 * hit.tri + 2].xyz;
+    float3 ng = normalize(pn_xform_normal(w2o, cross(v1 - v0, v2 - v0)));
+    float3 ns = ng;
+    if (offs.z & PN_INST_FLAG_NORMALS) {
+        float w0 = 1.0f - hit.u - hit.v;
+        float3 n = w0 * normals[3 * hit.tri].xyz + hit.u * normals[3 * hit.tri + 1].xyz +
+                   hit.v * normals[3 * hit.tri + 2].xyz;
+        n = pn_xform_normal(w2o, n);
+        float len = length(n);
+        /* A zero or flipped interpolated normal (bad vertex normals) falls back to the geometric one. */
+        if (len > 0.0f && dot(n, ng) > 0.0f)
+            ns = n / len;
+    }
+    /* Two-sided surfaces: both normals face the camera. */
+    if (dot(ng, dir) > 0.0f) {
+        ng = -ng;
+        ns = -ns;
+    }
+    position[idx] = (float4)(org + hit.t * dir, hit.t);
+    normal[idx] = (float4)(ns, 0.0f);
+    albedo[idx] = inst[PN_INST_ALBEDO];
+    material[idx] = inst[PN_INST_MATERIAL];
+    instance_id[idx] = offs.w;
+}
+
+/* rays: two float4 per ray (origin, tmin), (direction, tmax). */
+kernel void intersect_rays(PN_SCENE_ARGS, global const float4 *rays, int count, global float *t_out,
+                           global uint *instance_out, global uint *triangle_out)
+{
+    int gid = get_global_id(0);
+    if (gid >= count)
+        return;
+    float4 o = rays[2 * gid], d = rays[2 * gid + 1];
+    pn_scene_view scene = make_view(tlas, instances, blas, tris, instance_count);
+    pn_hit hit;
+    if (pn_trace(scene, o.xyz, d.xyz, o.w, d.w, &hit, false)) {
+        t_out[gid] = hit.t;
+        instance_out[gid] = as_uint4(instances[hit.slot * PN_INSTANCE_STRIDE + PN_INST_OFFSETS]).w;
+        triangle_out[gid] = as_uint(tris[3 * hit.tri].w);
+    } else {
+        t_out[gid] = INFINITY;
+        instance_out[gid] = PN_BACKGROUND;
+        triangle_out[gid] = PN_BACKGROUND;
+    }
+}
+
+kernel void occluded_rays(PN_SCENE_ARGS, global const float4 *rays, int count, global uchar *occluded)
+{
+    int gid = get_global_id(0);
+    if (gid >= count)
+        return;
+    float4 o = rays[2 * gid], d = rays[2 * gid + 1];
+    pn_scene_view scene = make_view(tlas, instances, blas, tris, instance_count);
+    pn_hit hit;
+    occluded[gid] = pn_trace(scene, o.xyz, d.xyz, o.w, d.w, &hit, true) ? 1 : 0;
+}
+
+/* Counts foreground pixels whose position or normal is not finite, or whose
+ * normal is zero; first_bad receives the smallest such pixel index. */
+kernel void gbuffer_validate(global const float4 *position, global const float4 *normal,
+                             global const uint *instance_id, int count, volatile global int *bad_count,
+                             volatile global int *first_bad)
+{
+    int gid = get_global_id(0);
+    if (gid >= count || instance_id[gid] == PN_BACKGROUND)
+        return;
+    float4 p = position[gid], n = normal[gid];
+    bool finite = isfinite(p.x) && isfinite(p.y) && isfinite(p.z) && isfinite(n.x) && isfinite(n.y) &&
+                  isfinite(n.z);
+    if (!finite || dot(n.xyz, n.xyz) == 0.0f) {
+        atomic_inc(bad_count);
+        atomic_min(first_bad, gid);
+    }
+}

@@ -1,0 +1,179 @@
+"""ctypes declarations of libpenumbra (capi/include/penumbra.h).
+
+The library is found, in order: the ``PENUMBRA_LIBRARY`` environment variable
+(a path), the copy installed beside this package, then the system loader.
+Every call goes through :func:`call`, which raises the library's message as a
+:class:`~penumbra.errors.PenumbraError` (or :class:`~penumbra.errors.InputError`
+for invalid data) on a bad status.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import os
+from pathlib import Path
+
+from .errors import InputError, PenumbraError
+
+SUCCESS = 0
+ERROR_NULL_HANDLE = -1001
+ERROR_INVALID_ARGUMENT = -1002
+ERROR_INVALID_SIZE = -1003
+ERROR_INVALID_VALUE = -1004
+ERROR_OUT_OF_RANGE = -1005
+ERROR_EMPTY_INPUT = -1006
+ERROR_BAD_CONFIG = -1007
+ERROR_BUILD_FAILED = -1008
+ERROR_NOT_COMMITTED = -1009
+ERROR_OUT_OF_MEMORY = -1010
+ERROR_NO_DEVICE = -1011
+ERROR_UNSUPPORTED = -1012
+
+# Statuses that mean "the caller's data or arguments are wrong".
+_INPUT_ERRORS = {ERROR_INVALID_ARGUMENT, ERROR_INVALID_SIZE, ERROR_INVALID_VALUE, ERROR_OUT_OF_RANGE,
+                 ERROR_EMPTY_INPUT, ERROR_BAD_CONFIG}
+
+BACKGROUND = 0xFFFFFFFF
+GBUFFER_PLANES = ("position", "normal", "albedo", "material", "instance")
+
+
+class Material(ctypes.Structure):
+    _fields_ = [("albedo", ctypes.c_float * 3), ("specular", ctypes.c_float), ("shininess", ctypes.c_float),
+                ("roughness", ctypes.c_float), ("lobe", ctypes.c_uint32)]
+
+
+class Camera(ctypes.Structure):
+    _fields_ = [("position", ctypes.c_float * 3), ("look_at", ctypes.c_float * 3), ("up", ctypes.c_float * 3),
+                ("fov_deg", ctypes.c_float), ("width", ctypes.c_uint32), ("height", ctypes.c_uint32)]
+
+
+class MeshInfo(ctypes.Structure):
+    _fields_ = [("vertex_count", ctypes.c_uint32), ("triangle_count", ctypes.c_uint32),
+                ("bvh_node_count", ctypes.c_uint32), ("bvh_depth", ctypes.c_uint32),
+                ("bounds_lo", ctypes.c_float * 3), ("bounds_hi", ctypes.c_float * 3)]
+
+
+_H = ctypes.c_void_p          # every opaque handle
+_P = ctypes.c_void_p          # host pointers
+_OUT = ctypes.POINTER(ctypes.c_void_p)
+_u32, _i32, _f32, _size = ctypes.c_uint32, ctypes.c_int32, ctypes.c_float, ctypes.c_size_t
+_str = ctypes.c_char_p
+
+_SIGNATURES = {
+    "pn_get_error": [_H, ctypes.POINTER(ctypes.c_char_p)],
+    "pn_context_create": [_str, _OUT],
+    "pn_context_create_from_cl": [_H, _H, _str, _OUT],
+    "pn_context_retain": [_H], "pn_context_release": [_H],
+    "pn_context_get_cl": [_H, _OUT, _OUT, _OUT],
+    "pn_context_get_device_name": [_H, ctypes.c_char_p, _size],
+    "pn_context_finish": [_H],
+    "pn_context_build_program": [_H, _str],
+    "pn_envmap_create": [_H, _OUT], "pn_envmap_release": [_H],
+    "pn_envmap_set_latlong": [_H, _P, _u32, _u32],
+    "pn_envmap_set_int": [_H, _str, _i32], "pn_envmap_set_float": [_H, _str, _f32],
+    "pn_envmap_get_int": [_H, _str, ctypes.POINTER(_i32)], "pn_envmap_get_float": [_H, _str, ctypes.POINTER(_f32)],
+    "pn_envmap_commit": [_H],
+    "pn_envmap_read": [_H, ctypes.c_int, _P, _size],
+    "pn_mesh_create": [_H, _OUT], "pn_mesh_release": [_H],
+    "pn_mesh_set_geometry": [_H, _P, _u32, _P, _u32, _P],
+    "pn_mesh_commit": [_H],
+    "pn_mesh_get_info": [_H, ctypes.POINTER(MeshInfo)],
+    "pn_scene_create": [_H, _OUT], "pn_scene_release": [_H],
+    "pn_scene_set_envmap": [_H, _H],
+    "pn_scene_add_instance": [_H, _H, _P, ctypes.POINTER(Material), ctypes.POINTER(_u32)],
+    "pn_scene_set_instance_transform": [_H, _u32, _P],
+    "pn_scene_set_instance_material": [_H, _u32, ctypes.POINTER(Material)],
+    "pn_scene_remove_instance": [_H, _u32],
+    "pn_scene_set_camera": [_H, ctypes.POINTER(Camera)],
+    "pn_scene_commit": [_H],
+    "pn_scene_intersect": [_H, _P, _u32, _P, _P, _P],
+    "pn_scene_occluded": [_H, _P, _u32, _P],
+    "pn_scene_render_gbuffer": [_H, _H],
+    "pn_gbuffer_create": [_H, _u32, _u32, _OUT],
+    "pn_gbuffer_create_from_cl": [_H, _u32, _u32, ctypes.POINTER(ctypes.c_void_p), _OUT],
+    "pn_gbuffer_release": [_H],
+    "pn_gbuffer_get_cl": [_H, ctypes.c_int, _OUT],
+    "pn_gbuffer_write": [_H, ctypes.c_int, _P, _size],
+    "pn_gbuffer_read": [_H, ctypes.c_int, _P, _size],
+    "pn_gbuffer_validate": [_H],
+    "pn_image_create": [_H, _u32, _u32, _OUT],
+    "pn_image_create_from_cl": [_H, _u32, _u32, _H, _OUT],
+    "pn_image_release": [_H],
+    "pn_image_get_cl": [_H, _OUT],
+    "pn_image_read": [_H, _P, _size],
+    "pn_renderer_create": [_H, _str, _OUT], "pn_renderer_release": [_H],
+    "pn_renderer_set_int": [_H, _str, _i32], "pn_renderer_set_float": [_H, _str, _f32],
+    "pn_renderer_get_int": [_H, _str, ctypes.POINTER(_i32)],
+    "pn_renderer_get_float": [_H, _str, ctypes.POINTER(_f32)],
+    "pn_renderer_commit": [_H],
+    "pn_renderer_execute": [_H, _H, _H, _H],
+}
+
+
+def _candidates():
+    env = os.environ.get("PENUMBRA_LIBRARY")
+    if env:
+        yield env
+        return
+    here = Path(__file__).resolve().parent
+    for name in ("libpenumbra.so", "libpenumbra.dylib", "penumbra.dll"):
+        yield str(here / name)
+    found = ctypes.util.find_library("penumbra")
+    if found:
+        yield found
+
+
+def _load():
+    errors = []
+    for path in _candidates():
+        if os.sep in path and not os.path.exists(path):
+            errors.append(f"{path}: not found")
+            continue
+        try:
+            lib = ctypes.CDLL(path)
+            break
+        except OSError as exc:
+            errors.append(f"{path}: {exc}")
+    else:
+        raise PenumbraError("cannot load libpenumbra (install the package with `pip install .` or set "
+                            "PENUMBRA_LIBRARY): " + "; ".join(errors))
+    for name, argtypes in _SIGNATURES.items():
+        fn = getattr(lib, name)
+        fn.argtypes = argtypes
+        fn.restype = ctypes.c_int32
+    lib.pn_version.restype = ctypes.c_char_p
+    lib.pn_version.argtypes = []
+    lib.pn_status_name.restype = ctypes.c_char_p
+    lib.pn_status_name.argtypes = [ctypes.c_int32]
+    return lib
+
+
+lib = _load()
+library_path = lib._name
+
+
+def last_error(ctx_handle) -> tuple[int, str]:
+    msg = ctypes.c_char_p()
+    status = lib.pn_get_error(ctx_handle, ctypes.byref(msg))
+    return status, (msg.value or b"").decode("utf-8", "replace")
+
+
+def call(name: str, ctx_handle, *args) -> None:
+    """Calls ``name``; on failure raises with the message recorded for ``ctx_handle``.
+
+    Errors are recorded on the context of the object passed; a NULL handle or
+    a failed context creation records on the global slot, so both are read."""
+    status = getattr(lib, name)(*args)
+    if status == SUCCESS:
+        return
+    _, message = last_error(ctx_handle)
+    if not message:
+        _, message = last_error(None)
+    text = f"{name}: {message or lib.pn_status_name(status).decode()}"
+    cls = InputError if status in _INPUT_ERRORS else PenumbraError
+    raise cls(text, status)
+
+
+def version() -> str:
+    return lib.pn_version().decode()

@@ -1,0 +1,435 @@
+"""Thin Python objects over libpenumbra's handles.
+
+Each class owns one reference to its native handle and releases it when
+closed or garbage collected. Arguments may be numpy arrays (host data, copied
+by the library) or, where the C API borrows device memory, pyopencl buffers
+and arrays: their ``int_ptr`` handles are passed straight through, so a
+pyopencl user's buffers and queue are used without copies.
+"""
+
+from __future__ import annotations
+
+import ctypes
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from . import _native
+from ._native import call, lib
+from .errors import InputError
+
+LOBES = {"phong": 0, "blinn_phong": 1, "ggx": 2}
+
+
+def _ptr(array: np.ndarray) -> int:
+    return array.ctypes.data
+
+
+def _host(array, dtype, shape_tail: tuple[int, ...], what: str) -> np.ndarray:
+    """A C-contiguous copy (or view) of `array` with the required dtype and trailing shape."""
+    a = np.ascontiguousarray(np.asarray(array, dtype=dtype))
+    if a.ndim != 1 + len(shape_tail) or a.shape[1:] != shape_tail:
+        want = "(N, " + ", ".join(map(str, shape_tail)) + ")"
+        raise InputError(f"{what} must have shape {want}, got {a.shape}")
+    return a
+
+
+def _mem_handle(obj: Any, what: str) -> int:
+    """The cl_mem handle of a pyopencl Buffer or Array (offset 0), for the C API."""
+    base = getattr(obj, "base_data", None)
+    if base is not None:  # pyopencl.array.Array
+        if getattr(obj, "offset", 0):
+            raise InputError(f"{what}: pyopencl arrays with a nonzero offset are not supported")
+        return base.int_ptr
+    ptr = getattr(obj, "int_ptr", None)
+    if ptr is None:
+        raise InputError(f"{what} must be a pyopencl Buffer or Array, got {type(obj).__name__}")
+    return ptr
+
+
+class _Handle:
+    _release = ""
+
+    def __init__(self, ctx: "Context | None"):
+        self._h = ctypes.c_void_p()
+        self._ctx = ctx
+
+    @property
+    def handle(self) -> int:
+        """The native handle, for passing to other bindings of the C API."""
+        return self._h.value or 0
+
+    def _ctx_handle(self):
+        return self._ctx._h if self._ctx is not None else None
+
+    def _call(self, name: str, *args) -> None:
+        call(name, self._ctx_handle(), *args)
+
+    def close(self) -> None:
+        if self._h.value:
+            getattr(lib, self._release)(self._h)
+            self._h = ctypes.c_void_p()
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:  # interpreter shutdown: the library may already be gone
+            pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class Context(_Handle):
+    """An OpenCL device and its queue, with penumbra's compiled programs.
+
+    ``Context()`` picks a device (``config`` such as ``"device=gpu"``, or the
+    ``PENUMBRA_DEVICE`` environment variable; a CPU by default).
+    ``Context(queue=q)`` wraps a pyopencl command queue (and its context)."""
+
+    _release = "pn_context_release"
+
+    def __init__(self, config: str | None = None, *, queue=None):
+        super().__init__(None)
+        cfg = config.encode() if config else None
+        if queue is not None:
+            call("pn_context_create_from_cl", None, queue.context.int_ptr, queue.int_ptr, cfg, ctypes.byref(self._h))
+        else:
+            call("pn_context_create", None, cfg, ctypes.byref(self._h))
+        self._ctx = self
+
+    @property
+    def device_name(self) -> str:
+        buf = ctypes.create_string_buffer(512)
+        self._call("pn_context_get_device_name", self._h, buf, 512)
+        return buf.value.decode("utf-8", "replace")
+
+    def cl_objects(self):
+        """(pyopencl.Context, pyopencl.CommandQueue) sharing this context's OpenCL objects."""
+        import pyopencl as cl
+
+        c, q, d = ctypes.c_void_p(), ctypes.c_void_p(), ctypes.c_void_p()
+        self._call("pn_context_get_cl", self._h, ctypes.byref(c), ctypes.byref(q), ctypes.byref(d))
+        return (cl.Context.from_int_ptr(c.value, retain=True), cl.CommandQueue.from_int_ptr(q.value, retain=True))
+
+    def finish(self) -> None:
+        self._call("pn_context_finish", self._h)
+
+    def build(self, stage: str) -> None:
+        """Builds (and caches) a kernel stage now rather than on first use."""
+        self._call("pn_context_build_program", self._h, stage.encode())
+
+
+class EnvMap(_Handle):
+    """An environment map: lat-long RGB radiance converted on the device into
+    a cube map and an irradiance map. Parameters: face_size,
+    irradiance_face_size, supersampling, rotation_deg, intensity."""
+
+    _release = "pn_envmap_release"
+    _INT = ("face_size", "irradiance_face_size", "supersampling")
+    _FLOAT = ("rotation_deg", "intensity")
+
+    def __init__(self, ctx: Context, latlong, **params):
+        super().__init__(ctx)
+        call("pn_envmap_create", ctx._h, ctx._h, ctypes.byref(self._h))
+        self.set_latlong(latlong)
+        self.set(**params)
+        self.commit()
+
+    def set_latlong(self, latlong) -> None:
+        a = np.ascontiguousarray(np.asarray(latlong, dtype=np.float32))
+        if a.ndim != 3 or a.shape[2] != 3:
+            raise InputError(f"env map must have shape (height, width, 3), got {a.shape}")
+        self._call("pn_envmap_set_latlong", self._h, _ptr(a), a.shape[1], a.shape[0])
+
+    def set(self, **params) -> None:
+        for name, value in params.items():
+            if name in self._INT:
+                self._call("pn_envmap_set_int", self._h, name.encode(), int(value))
+            elif name in self._FLOAT:
+                self._call("pn_envmap_set_float", self._h, name.encode(), float(value))
+            else:
+                raise InputError(f"env maps have no parameter '{name}' ({', '.join(self._INT + self._FLOAT)})")
+
+    def get(self, name: str):
+        if name in self._INT:
+            v = ctypes.c_int32()
+            self._call("pn_envmap_get_int", self._h, name.encode(), ctypes.byref(v))
+        else:
+            v = ctypes.c_float()
+            self._call("pn_envmap_get_float", self._h, name.encode(), ctypes.byref(v))
+        return v.value
+
+    def commit(self) -> None:
+        self._call("pn_envmap_commit", self._h)
+
+    def _read(self, what: int, n: int) -> np.ndarray:
+        out = np.empty((6, n, n, 4), np.float32)
+        self._call("pn_envmap_read", self._h, what, _ptr(out), out.nbytes)
+        return out
+
+    def cube_radiance(self) -> np.ndarray:
+        """(6, F, F, 3) radiance of the cube texels (faces +X -X +Y -Y +Z -Z)."""
+        return self._read(0, self.get("face_size"))[..., :3]
+
+    def cube_directions(self) -> tuple[np.ndarray, np.ndarray]:
+        """(6, F, F, 3) unit texel-centre directions and (6, F, F) solid angles."""
+        d = self._read(1, self.get("face_size"))
+        return d[..., :3], d[..., 3]
+
+    def irradiance(self) -> np.ndarray:
+        """(6, M, M, 3) irradiance at the vertex-grid directions of each face."""
+        return self._read(2, self.get("irradiance_face_size"))[..., :3]
+
+
+class Mesh(_Handle):
+    """A triangle mesh with its BVH (built at construction)."""
+
+    _release = "pn_mesh_release"
+
+    def __init__(self, ctx: Context, vertices, faces, normals=None):
+        super().__init__(ctx)
+        call("pn_mesh_create", ctx._h, ctx._h, ctypes.byref(self._h))
+        v = _host(vertices, np.float32, (3,), "vertices")
+        f = np.asarray(faces)
+        if f.size and (f.min() < 0 or not np.issubdtype(f.dtype, np.integer)):
+            raise InputError("faces must hold non-negative integer vertex indices")
+        f = _host(f, np.uint32, (3,), "faces")
+        n = None if normals is None else _host(normals, np.float32, (3,), "normals")
+        if n is not None and len(n) != len(v):
+            raise InputError(f"normals has {len(n)} rows but there are {len(v)} vertices")
+        self._call("pn_mesh_set_geometry", self._h, _ptr(v) if v.size else None, len(v), _ptr(f) if f.size else None,
+                   len(f), None if n is None else _ptr(n))
+        self._call("pn_mesh_commit", self._h)
+
+    @property
+    def info(self) -> dict:
+        i = _native.MeshInfo()
+        self._call("pn_mesh_get_info", self._h, ctypes.byref(i))
+        return {"vertices": i.vertex_count, "triangles": i.triangle_count, "bvh_nodes": i.bvh_node_count,
+                "bvh_depth": i.bvh_depth, "bounds": (tuple(i.bounds_lo), tuple(i.bounds_hi))}
+
+
+@dataclass
+class Material:
+    """Lambertian albedo plus an optional specular lobe (docs/api.md, pn_material)."""
+
+    albedo: Sequence[float] = (0.8, 0.8, 0.8)
+    specular: float = 0.0
+    shininess: float = 100.0
+    roughness: float = 0.3
+    lobe: str = "phong"
+
+    def native(self) -> _native.Material:
+        if self.lobe not in LOBES:
+            raise InputError(f"unknown lobe '{self.lobe}' (one of {', '.join(LOBES)})")
+        albedo = np.broadcast_to(np.asarray(self.albedo, dtype=np.float64), (3,))
+        return _native.Material((ctypes.c_float * 3)(*albedo), self.specular, self.shininess, self.roughness,
+                                LOBES[self.lobe])
+
+
+@dataclass
+class Camera:
+    position: Sequence[float] = (0.0, 2.0, 6.0)
+    look_at: Sequence[float] = (0.0, 0.5, 0.0)
+    up: Sequence[float] = (0.0, 1.0, 0.0)
+    fov_deg: float = 40.0
+    resolution: tuple[int, int] = (512, 512)  # (width, height)
+
+    def native(self) -> _native.Camera:
+        f3 = lambda v: (ctypes.c_float * 3)(*[float(x) for x in v])  # noqa: E731
+        w, h = (int(x) for x in self.resolution)
+        if w <= 0 or h <= 0:
+            raise InputError(f"camera resolution {self.resolution} must be positive")
+        return _native.Camera(f3(self.position), f3(self.look_at), f3(self.up), float(self.fov_deg), w, h)
+
+
+def _transform_3x4(transform) -> np.ndarray | None:
+    if transform is None:
+        return None
+    t = np.asarray(transform, dtype=np.float64)
+    if t.shape == (4, 4):
+        t = t[:3]
+    if t.shape != (3, 4):
+        raise InputError(f"a transform must be a 3x4 or 4x4 matrix, got shape {t.shape}")
+    return np.ascontiguousarray(t, dtype=np.float32)
+
+
+class Scene(_Handle):
+    """Instances of meshes (transform + material), a camera and an env map."""
+
+    _release = "pn_scene_release"
+
+    def __init__(self, ctx: Context):
+        super().__init__(ctx)
+        call("pn_scene_create", ctx._h, ctx._h, ctypes.byref(self._h))
+        self._keep: dict[int, Any] = {}
+        self.envmap: EnvMap | None = None
+        self.camera: Camera | None = None
+
+    def set_envmap(self, env: EnvMap) -> None:
+        self._call("pn_scene_set_envmap", self._h, env._h)
+        self.envmap = env
+
+    def set_camera(self, camera: Camera) -> None:
+        c = camera.native()
+        self._call("pn_scene_set_camera", self._h, ctypes.byref(c))
+        self.camera = camera
+
+    def add(self, mesh: Mesh, transform=None, material: Material | None = None) -> int:
+        t = _transform_3x4(transform)
+        m = (material or Material()).native()
+        out = ctypes.c_uint32()
+        self._call("pn_scene_add_instance", self._h, mesh._h, None if t is None else _ptr(t), ctypes.byref(m),
+                   ctypes.byref(out))
+        self._keep[out.value] = mesh
+        return out.value
+
+    def set_transform(self, instance: int, transform) -> None:
+        t = _transform_3x4(transform)
+        self._call("pn_scene_set_instance_transform", self._h, instance, None if t is None else _ptr(t))
+
+    def set_material(self, instance: int, material: Material) -> None:
+        m = material.native()
+        self._call("pn_scene_set_instance_material", self._h, instance, ctypes.byref(m))
+
+    def remove(self, instance: int) -> None:
+        self._call("pn_scene_remove_instance", self._h, instance)
+        self._keep.pop(instance, None)
+
+    def commit(self) -> None:
+        self._call("pn_scene_commit", self._h)
+
+    @staticmethod
+    def _rays(origins, directions, tmin, tmax) -> np.ndarray:
+        o = _host(origins, np.float32, (3,), "origins")
+        d = _host(directions, np.float32, (3,), "directions")
+        if len(o) != len(d):
+            raise InputError(f"{len(o)} origins but {len(d)} directions")
+        rays = np.empty((len(o), 8), np.float32)
+        rays[:, :3], rays[:, 3], rays[:, 4:7], rays[:, 7] = o, tmin, d, tmax
+        return rays
+
+    def intersect(self, origins, directions, tmin=0.0, tmax=np.inf):
+        """Closest hits: (t, instance, triangle); t = inf and ids = BACKGROUND on a miss."""
+        rays = self._rays(origins, directions, tmin, tmax)
+        n = len(rays)
+        t = np.empty(n, np.float32)
+        inst = np.empty(n, np.uint32)
+        tri = np.empty(n, np.uint32)
+        self._call("pn_scene_intersect", self._h, _ptr(rays), n, _ptr(t), _ptr(inst), _ptr(tri))
+        return t, inst, tri
+
+    def occluded(self, origins, directions, tmin=0.0, tmax=np.inf) -> np.ndarray:
+        rays = self._rays(origins, directions, tmin, tmax)
+        out = np.empty(len(rays), np.uint8)
+        self._call("pn_scene_occluded", self._h, _ptr(rays), len(rays), _ptr(out))
+        return out.astype(bool)
+
+    def render_gbuffer(self, gbuffer: "GBuffer") -> None:
+        self._call("pn_scene_render_gbuffer", self._h, gbuffer._h)
+
+
+_PLANE_DTYPE = {"position": (np.float32, 4), "normal": (np.float32, 4), "albedo": (np.float32, 4),
+                "material": (np.float32, 4), "instance": (np.uint32, 1)}
+
+
+class GBuffer(_Handle):
+    """Per-pixel surface data (docs/gbuffer.md). ``planes``: optional dict of
+    pyopencl buffers/arrays by plane name to wrap instead of allocating."""
+
+    _release = "pn_gbuffer_release"
+
+    def __init__(self, ctx: Context, width: int, height: int, planes: dict | None = None):
+        super().__init__(ctx)
+        self.width, self.height = int(width), int(height)
+        if planes is None:
+            call("pn_gbuffer_create", ctx._h, ctx._h, self.width, self.height, ctypes.byref(self._h))
+        else:
+            missing = [p for p in _native.GBUFFER_PLANES if p not in planes]
+            if missing:
+                raise InputError(f"G-buffer planes missing: {', '.join(missing)}")
+            arr = (ctypes.c_void_p * 5)(*[_mem_handle(planes[p], f"G-buffer plane {p}") for p in _native.GBUFFER_PLANES])
+            call("pn_gbuffer_create_from_cl", ctx._h, ctx._h, self.width, self.height, arr, ctypes.byref(self._h))
+            self._borrowed = planes
+
+    @staticmethod
+    def _plane(name: str) -> int:
+        if name not in _PLANE_DTYPE:
+            raise InputError(f"unknown G-buffer plane '{name}' ({', '.join(_native.GBUFFER_PLANES)})")
+        return _native.GBUFFER_PLANES.index(name)
+
+    def read(self, plane: str) -> np.ndarray:
+        dtype, k = _PLANE_DTYPE[plane]
+        out = np.empty((self.height, self.width, k) if k > 1 else (self.height, self.width), dtype)
+        self._call("pn_gbuffer_read", self._h, self._plane(plane), _ptr(out), out.nbytes)
+        return out
+
+    def write(self, plane: str, data) -> None:
+        idx = self._plane(plane)
+        dtype, k = _PLANE_DTYPE[plane]
+        a = np.ascontiguousarray(np.asarray(data, dtype=dtype))
+        want = (self.height, self.width, k) if k > 1 else (self.height, self.width)
+        if a.shape != want:
+            raise InputError(f"G-buffer plane {plane} must have shape {want}, got {a.shape}")
+        self._call("pn_gbuffer_write", self._h, idx, _ptr(a), a.nbytes)
+
+    def validate(self) -> None:
+        self._call("pn_gbuffer_validate", self._h)
+
+    def cl_buffer(self, plane: str):
+        """The plane's buffer as a pyopencl Buffer (shares the device memory)."""
+        import pyopencl as cl
+
+        out = ctypes.c_void_p()
+        self._call("pn_gbuffer_get_cl", self._h, self._plane(plane), ctypes.byref(out))
+        return cl.Buffer.from_int_ptr(out.value, retain=True)
+
+
+class Image(_Handle):
+    """An RGBA float image (alpha 1 on surfaces, 0 on background)."""
+
+    _release = "pn_image_release"
+
+    def __init__(self, ctx: Context, width: int, height: int, buffer=None):
+        super().__init__(ctx)
+        self.width, self.height = int(width), int(height)
+        if buffer is None:
+            call("pn_image_create", ctx._h, ctx._h, self.width, self.height, ctypes.byref(self._h))
+        else:
+            call("pn_image_create_from_cl", ctx._h, ctx._h, self.width, self.height,
+                 _mem_handle(buffer, "image buffer"), ctypes.byref(self._h))
+            self._borrowed = buffer
+
+    def read(self) -> np.ndarray:
+        out = np.empty((self.height, self.width, 4), np.float32)
+        self._call("pn_image_read", self._h, _ptr(out), out.nbytes)
+        return out
+
+
+class Renderer(_Handle):
+    """A shading method by name (``"unshadowed"``) with its parameters."""
+
+    _release = "pn_renderer_release"
+
+    def __init__(self, ctx: Context, method: str, **params):
+        super().__init__(ctx)
+        self.method = method
+        call("pn_renderer_create", ctx._h, ctx._h, method.encode(), ctypes.byref(self._h))
+        self.set(**params)
+        self._call("pn_renderer_commit", self._h)
+
+    def set(self, **params) -> None:
+        for name, value in params.items():
+            if isinstance(value, (bool, int, np.integer)):
+                self._call("pn_renderer_set_int", self._h, name.encode(), int(value))
+            else:
+                self._call("pn_renderer_set_float", self._h, name.encode(), float(value))
+        self._call("pn_renderer_commit", self._h)
+
+    def execute(self, scene: Scene, gbuffer: GBuffer, image: Image) -> None:
+        self._call("pn_renderer_execute", self._h, scene._h, gbuffer._h, image._h)
