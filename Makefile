@@ -1,0 +1,56 @@
+# One-command entry points for a fresh Debian machine (run as root, or with
+# the packages already installed): `make demo`, `make test`.
+SHELL := /bin/bash
+VENV ?= .venv
+PY := $(VENV)/bin/python
+DEBS := pocl-opencl-icd ocl-icd-opencl-dev opencl-headers cmake ninja-build g++ pkg-config python3-venv
+STAMP_DEPS := $(VENV)/.deps-installed
+STAMP_PKG := $(VENV)/.penumbra-installed
+SOURCES := $(shell find capi kernels python cmake -type f) CMakeLists.txt pyproject.toml
+
+.PHONY: all deps venv install demo test test-c test-python clean
+
+all: install
+
+# Debian packages, only those missing (needs root for apt-get).
+deps:
+	@missing=$$(for p in $(DEBS); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q 'install ok installed' || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+	  echo "installing Debian packages:" $$missing; \
+	  if [ "$$(id -u)" != 0 ]; then SUDO=sudo; fi; \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$missing; \
+	fi
+
+$(STAMP_DEPS): pyproject.toml | deps
+	python3 -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q "scikit-build-core>=0.10" "numpy>=1.24" "pyopencl>=2023.1" "OpenEXR>=3.2" \
+	  "libigl>=2.5" "pillow>=10" "tqdm>=4.60" "pytest>=7"
+	touch $@
+
+venv: $(STAMP_DEPS)
+
+$(STAMP_PKG): $(STAMP_DEPS) $(SOURCES)
+	$(PY) -m pip install -q --no-build-isolation --no-deps .
+	touch $@
+
+install: $(STAMP_PKG)
+
+demo: install
+	$(VENV)/bin/penumbra demo --out out/demo
+
+# C library with warnings as errors, under AddressSanitizer + UBSan, through ctest.
+test-c: deps
+	cmake -S . -B build/asan -G Ninja -DPENUMBRA_SANITIZE=ON -DPENUMBRA_WERROR=ON -DCMAKE_BUILD_TYPE=Debug > /dev/null
+	cmake --build build/asan
+	cd build/asan && ctest --output-on-failure
+
+test-python: install
+	cmake -S . -B build/release -G Ninja -DPENUMBRA_WERROR=ON > /dev/null
+	cmake --build build/release
+	PENUMBRA_BUILD_DIR=$(CURDIR)/build/release PYOPENCL_CTX=0 $(PY) -m pytest -q tests
+
+test: test-c test-python
+
+clean:
+	rm -rf build out

@@ -1,0 +1,162 @@
+"""The ``penumbra`` command: ``info``, ``render`` and ``demo``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .errors import PenumbraError
+
+
+def _progress(total: int, desc: str):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="frame", leave=False, disable=None, file=sys.stderr)
+
+
+def cmd_info(args) -> int:
+    import pyopencl as cl
+
+    from ._native import library_path
+    from .core import Context
+
+    print(f"penumbra {__version__} ({library_path})")
+    for p in cl.get_platforms():
+        for i, d in enumerate(p.get_devices()):
+            print(f"  platform '{p.name}' device {i}: {d.name} ({cl.device_type.to_string(d.type)}, "
+                  f"{d.max_compute_units} compute units, OpenCL C {d.opencl_c_version})")
+    ctx = Context(args.device)
+    print(f"default device: {ctx.device_name}")
+    return 0
+
+
+def _write_outputs(result, out: str | None, png: str | None, exposure: float) -> list[str]:
+    from .imageio import write_exr, write_png
+
+    written = []
+    rgb = np.ascontiguousarray(result.image[..., :3])
+    if out:
+        write_exr(out, rgb)
+        written.append(out)
+    if png:
+        write_png(png, rgb, exposure=exposure)
+        written.append(png)
+    return written
+
+
+def report(result, scene_source: str) -> dict:
+    h, w = result.image.shape[:2]
+    return {"method": result.method, "device": result.device, "resolution": [w, h], "params": result.params,
+            "scene": scene_source, "timings_ms": result.timings_ms, "penumbra_version": __version__}
+
+
+def cmd_render(args) -> int:
+    from .core import Context
+    from .fileutil import atomic_write_text
+    from .render import build_scene, render
+    from .scenefile import load_scene
+
+    desc = load_scene(args.scene, args.set)
+    method = args.method or desc.render.get("method", "unshadowed")
+    params = {k: v for k, v in desc.render.items() if k != "method"}
+    ctx = Context(args.device)
+    built = build_scene(desc, ctx)
+    with _progress(args.frames + 1, f"render {method}") as bar:
+        result = render(built, method, frames=args.frames, progress=bar, **params)
+    out = args.output if args.output or args.png else "out.exr"
+    written = _write_outputs(result, out, args.png, args.exposure)
+    rep = report(result, str(args.scene))
+    if args.json:
+        atomic_write_text(args.json, json.dumps(rep, indent=2) + "\n")
+        written.append(args.json)
+    t = result.timings_ms
+    print(f"{method} on {result.device}: frame median {t['frame_median']:.2f} ms "
+          f"(G-buffer {t['gbuffer_median']:.2f} ms, shading {t['shade_median']:.2f} ms); wrote {', '.join(written)}")
+    return 0
+
+
+def auto_exposure(image: np.ndarray, percentile: float = 97.0) -> float:
+    """Exposure (stops) that maps the given percentile of the lit pixels' luminance to 0.9."""
+    lum = image[..., :3] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    lit = lum[image[..., 3] > 0]
+    level = float(np.percentile(lit, percentile)) if lit.size else 0.0
+    return float(np.log2(0.9 / level)) if level > 0 else 0.0
+
+
+def cmd_demo(args) -> int:
+    from .core import Context
+    from .imageio import write_exr, write_png
+    from .render import GBUFFER_VIEWS, METHODS, build_scene, render
+    from .scenefile import default_scene_path, load_scene
+
+    out = Path(args.out)
+    desc = load_scene(default_scene_path(), args.set)
+    ctx = Context(args.device)
+    built = build_scene(desc, ctx)
+    rows = []
+    result = None
+    with _progress(len(METHODS) * (args.frames + 1), "demo") as bar:
+        for method in METHODS:
+            result = render(built, method, frames=args.frames, progress=bar)
+            rgb = np.ascontiguousarray(result.image[..., :3])
+            write_exr(out / f"{method}.exr", rgb)
+            write_png(out / f"{method}.png", rgb, exposure=auto_exposure(result.image))
+            rows.append((method, result.timings_ms))
+    for view in GBUFFER_VIEWS:
+        img = result.view(view)
+        write_exr(out / f"gbuffer_{view}.exr", img)
+        write_png(out / f"gbuffer_{view}.png", img)
+    w, h = desc.camera.resolution
+    print(f"penumbra demo: built-in scene, {w}x{h}, device {ctx.device_name}")
+    print(f"{'method':<14}{'frame median ms':>17}{'frame min ms':>14}{'G-buffer ms':>13}{'shading ms':>12}")
+    for method, t in rows:
+        print(f"{method:<14}{t['frame_median']:>17.2f}{t['frame_min']:>14.2f}{t['gbuffer_median']:>13.2f}"
+              f"{t['shade_median']:>12.2f}")
+    print(f"images in {out}/: " + ", ".join(f"{m}.exr/.png" for m in METHODS) + ", "
+          + ", ".join(f"gbuffer_{v}.exr/.png" for v in GBUFFER_VIEWS))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="penumbra", description="Environment lighting with soft shadows (OpenCL).")
+    p.add_argument("--version", action="version", version=f"penumbra {__version__}")
+    p.add_argument("--device", default=None, help="context config, e.g. 'device=gpu' (default: PENUMBRA_DEVICE or a CPU)")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    sub.add_parser("info", help="list OpenCL devices and the library version")
+
+    r = sub.add_parser("render", help="render a TOML scene file")
+    r.add_argument("scene", help="scene file (docs/scene-format.md)")
+    r.add_argument("--method", default=None, help="shading method (default: the scene's [render] method)")
+    r.add_argument("-o", "--output", default=None, help="EXR output (default out.exr)")
+    r.add_argument("--png", default=None, help="also write a tone-mapped sRGB PNG")
+    r.add_argument("--json", default=None, help="write a JSON report (method, device, resolution, params, timings_ms)")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scene value, e.g. camera.fov_deg=30 or object.bunny.albedo=[1,0,0]")
+    r.add_argument("--frames", type=int, default=5, help="timed frames after one warm-up (default 5)")
+    r.add_argument("--exposure", type=float, default=0.0, help="PNG exposure in stops")
+
+    d = sub.add_parser("demo", help="render the built-in procedural scene with every method")
+    d.add_argument("--out", default="out/demo", help="output directory (default out/demo)")
+    d.add_argument("--frames", type=int, default=5)
+    d.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a scene value")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    handlers = {"info": cmd_info, "render": cmd_render, "demo": cmd_demo}
+    try:
+        return handlers[args.command](args)
+    except PenumbraError as exc:
+        print(f"penumbra: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

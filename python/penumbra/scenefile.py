@@ -1,0 +1,283 @@
+"""Scene files (TOML): the public contract documented in docs/scene-format.md.
+
+:func:`load_scene` turns a file (or a dict) into a :class:`SceneDescription`
+of plain values, checked key by key: an unknown key, a wrong type or a value
+out of range raises :class:`~penumbra.errors.InputError` naming the table and
+key. Relative paths resolve against the scene file's directory.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import InputError
+
+PROCEDURAL_ENVS = ("sky", "constant", "directional", "area_lights")
+PRIMITIVES = ("sphere", "box", "plane", "torus", "cylinder", "cone", "torus_knot")
+LOBES = ("phong", "blinn_phong", "ggx")
+
+
+@dataclass
+class EnvironmentDesc:
+    map: str = "sky"                 # a file path (resolved) or one of PROCEDURAL_ENVS
+    intensity: float = 1.0
+    rotation_deg: float = 0.0
+    face_size: int = 64
+    irradiance_face_size: int = 32
+    params: dict[str, Any] = field(default_factory=dict)  # arguments of the procedural map
+
+
+@dataclass
+class CameraDesc:
+    position: tuple[float, float, float] = (0.0, 2.0, 6.0)
+    look_at: tuple[float, float, float] = (0.0, 0.5, 0.0)
+    up: tuple[float, float, float] = (0.0, 1.0, 0.0)
+    fov_deg: float = 40.0
+    resolution: tuple[int, int] = (512, 512)
+
+
+@dataclass
+class ObjectDesc:
+    name: str
+    mesh: str | None = None          # resolved file path, or None for a primitive
+    primitive: str | None = None
+    params: dict[str, Any] = field(default_factory=dict)  # arguments of the primitive
+    translate: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rotate_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    albedo: tuple[float, float, float] = (0.8, 0.8, 0.8)
+    specular: float = 0.0
+    shininess: float = 100.0
+    roughness: float = 0.3
+    lobe: str = "phong"
+
+    def transform(self) -> np.ndarray:
+        """4x4 object-to-world matrix: scale, then rotate about x, y, z (in that order), then translate."""
+        rx, ry, rz = (math.radians(a) for a in self.rotate_deg)
+
+        def rot(axis: int, a: float) -> np.ndarray:
+            c, s = math.cos(a), math.sin(a)
+            i, j = [(1, 2), (2, 0), (0, 1)][axis]
+            m = np.eye(3)
+            m[i, i], m[i, j], m[j, i], m[j, j] = c, -s, s, c
+            return m
+
+        m = np.eye(4)
+        m[:3, :3] = rot(2, rz) @ rot(1, ry) @ rot(0, rx) @ np.diag(self.scale)
+        m[:3, 3] = self.translate
+        return m
+
+
+@dataclass
+class SceneDescription:
+    environment: EnvironmentDesc
+    camera: CameraDesc
+    objects: list[ObjectDesc]
+    render: dict[str, Any] = field(default_factory=dict)  # method = "...", other keys: method parameters
+    source: str = "<dict>"
+
+
+# ---------------------------------------------------------------- checking
+
+def _where(table: str, key: str) -> str:
+    return f"[{table}] {key}"
+
+
+def _number(table: str, key: str, v: Any, lo: float | None = None, hi: float | None = None,
+            lo_open: bool = False) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise InputError(f"{_where(table, key)} must be a finite number, got {v!r}")
+    if lo is not None and (v < lo or (lo_open and v == lo)):
+        raise InputError(f"{_where(table, key)} = {v} must be {'>' if lo_open else '>='} {lo}")
+    if hi is not None and v > hi:
+        raise InputError(f"{_where(table, key)} = {v} must be <= {hi}")
+    return float(v)
+
+
+def _integer(table: str, key: str, v: Any, lo: int, hi: int) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+        raise InputError(f"{_where(table, key)} must be an integer in [{lo}, {hi}], got {v!r}")
+    return v
+
+
+def _vector(table: str, key: str, v: Any, n: int = 3, broadcast: bool = False, **limits) -> tuple:
+    if broadcast and isinstance(v, (int, float)) and not isinstance(v, bool):
+        v = [v] * n
+    if not isinstance(v, (list, tuple)) or len(v) != n:
+        raise InputError(f"{_where(table, key)} must be a list of {n} numbers{' or one number' if broadcast else ''}, "
+                         f"got {v!r}")
+    return tuple(_number(table, f"{key}[{i}]", x, **limits) for i, x in enumerate(v))
+
+
+def _string(table: str, key: str, v: Any, choices: tuple[str, ...] | None = None) -> str:
+    if not isinstance(v, str):
+        raise InputError(f"{_where(table, key)} must be a string, got {v!r}")
+    if choices is not None and v not in choices:
+        raise InputError(f"{_where(table, key)} = {v!r} is not one of {', '.join(choices)}")
+    return v
+
+
+def _check_keys(table: str, data: dict, allowed: set[str]) -> None:
+    unknown = sorted(set(data) - allowed)
+    if unknown:
+        raise InputError(f"[{table}] has unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(allowed))}")
+
+
+def _resolve(base: Path, p: str) -> str:
+    path = Path(p).expanduser()
+    return str(path if path.is_absolute() else (base / path).resolve())
+
+
+def _environment(d: dict, base: Path) -> EnvironmentDesc:
+    t = "environment"
+    _check_keys(t, d, {"map", "intensity", "rotation_deg", "face_size", "irradiance_face_size", "params"})
+    e = EnvironmentDesc()
+    m = _string(t, "map", d.get("map", "sky"))
+    e.map = m if m in PROCEDURAL_ENVS else _resolve(base, m)
+    e.intensity = _number(t, "intensity", d.get("intensity", 1.0), lo=0.0)
+    e.rotation_deg = _number(t, "rotation_deg", d.get("rotation_deg", 0.0))
+    e.face_size = _integer(t, "face_size", d.get("face_size", 64), 1, 2048)
+    e.irradiance_face_size = _integer(t, "irradiance_face_size", d.get("irradiance_face_size", 32), 2, 256)
+    params = d.get("params", {})
+    if not isinstance(params, dict):
+        raise InputError(f"{_where(t, 'params')} must be a table")
+    if params and m not in PROCEDURAL_ENVS:
+        raise InputError(f"{_where(t, 'params')} only applies to procedural maps ({', '.join(PROCEDURAL_ENVS)})")
+    e.params = dict(params)
+    return e
+
+
+def _camera(d: dict) -> CameraDesc:
+    t = "camera"
+    _check_keys(t, d, {"position", "look_at", "up", "fov_deg", "resolution"})
+    c = CameraDesc()
+    c.position = _vector(t, "position", d.get("position", c.position))
+    c.look_at = _vector(t, "look_at", d.get("look_at", c.look_at))
+    c.up = _vector(t, "up", d.get("up", c.up))
+    c.fov_deg = _number(t, "fov_deg", d.get("fov_deg", c.fov_deg), lo=0.0, hi=179.9, lo_open=True)
+    res = d.get("resolution", list(c.resolution))
+    if not isinstance(res, (list, tuple)) or len(res) != 2:
+        raise InputError(f"{_where(t, 'resolution')} must be [width, height], got {res!r}")
+    c.resolution = (_integer(t, "resolution[0]", res[0], 1, 32768), _integer(t, "resolution[1]", res[1], 1, 32768))
+    if np.allclose(c.position, c.look_at):
+        raise InputError("[camera] look_at equals position")
+    return c
+
+
+_OBJECT_KEYS = {"name", "mesh", "primitive", "params", "translate", "rotate_deg", "scale", "albedo", "specular",
+                "shininess", "roughness", "lobe"}
+
+
+def _object(d: dict, index: int, base: Path) -> ObjectDesc:
+    if not isinstance(d, dict):
+        raise InputError(f"[[object]] #{index} must be a table")
+    name = d.get("name", f"object{index}")
+    t = f"object '{name}'"
+    _check_keys(t, d, _OBJECT_KEYS)
+    o = ObjectDesc(name=_string(t, "name", name))
+    if ("mesh" in d) == ("primitive" in d):
+        raise InputError(f"[{t}] needs exactly one of 'mesh' (a file) or 'primitive' ({', '.join(PRIMITIVES)})")
+    if "mesh" in d:
+        o.mesh = _resolve(base, _string(t, "mesh", d["mesh"]))
+    else:
+        o.primitive = _string(t, "primitive", d["primitive"], PRIMITIVES)
+    params = d.get("params", {})
+    if not isinstance(params, dict):
+        raise InputError(f"{_where(t, 'params')} must be a table")
+    o.params = dict(params)
+    o.translate = _vector(t, "translate", d.get("translate", o.translate))
+    o.rotate_deg = _vector(t, "rotate_deg", d.get("rotate_deg", o.rotate_deg))
+    o.scale = _vector(t, "scale", d.get("scale", 1.0), broadcast=True)
+    if any(s == 0.0 for s in o.scale):
+        raise InputError(f"{_where(t, 'scale')} must not contain 0 (the object would be flat)")
+    o.albedo = _vector(t, "albedo", d.get("albedo", o.albedo), broadcast=True, lo=0.0, hi=1.0)
+    o.specular = _number(t, "specular", d.get("specular", o.specular), lo=0.0, hi=1.0)
+    o.shininess = _number(t, "shininess", d.get("shininess", o.shininess), lo=0.0)
+    o.roughness = _number(t, "roughness", d.get("roughness", o.roughness), lo=0.0, hi=1.0, lo_open=True)
+    o.lobe = _string(t, "lobe", d.get("lobe", o.lobe), LOBES)
+    return o
+
+
+def parse_scene(data: dict, base_dir: str | Path = ".", source: str = "<dict>") -> SceneDescription:
+    """Checks a scene given as a dict (the parsed TOML) and returns its description."""
+    base = Path(base_dir)
+    _check_keys("scene", data, {"environment", "camera", "object", "render"})
+    for table in ("environment", "camera", "render"):
+        if table in data and not isinstance(data[table], dict):
+            raise InputError(f"[{table}] must be a table")
+    objects = data.get("object", [])
+    if not isinstance(objects, list):
+        raise InputError("objects are given as [[object]] tables")
+    descs = [_object(o, i, base) for i, o in enumerate(objects)]
+    names = [o.name for o in descs]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise InputError(f"object names must be unique; repeated: {', '.join(sorted(dup))}")
+    render = dict(data.get("render", {}))
+    if "method" in render:
+        _string("render", "method", render["method"])
+    return SceneDescription(environment=_environment(data.get("environment", {}), base),
+                            camera=_camera(data.get("camera", {})), objects=descs, render=render, source=source)
+
+
+def apply_overrides(data: dict, overrides: list[str]) -> dict:
+    """Applies ``--set`` overrides ``table.key=value`` (value in TOML syntax, bare
+    words taken as strings) to the parsed TOML. Objects are addressed by name or
+    index: ``object.bunny.albedo=[1,0,0]``, ``object.0.translate=[0,1,0]``."""
+    data = copy.deepcopy(data)
+    for item in overrides:
+        if "=" not in item:
+            raise InputError(f"--set {item!r} is not key=value")
+        key, raw = item.split("=", 1)
+        try:
+            value = tomllib.loads(f"v = {raw}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = raw
+        parts = key.strip().split(".")
+        if parts[0] == "object":
+            if len(parts) != 3:
+                raise InputError(f"--set {key}: objects are set as object.NAME_OR_INDEX.key")
+            objs = data.setdefault("object", [])
+            sel = parts[1]
+            match = [o for i, o in enumerate(objs) if o.get("name") == sel or str(i) == sel]
+            if not match:
+                raise InputError(f"--set {key}: there is no object named or numbered '{sel}'")
+            match[0][parts[2]] = value
+        elif len(parts) == 2:
+            data.setdefault(parts[0], {})[parts[1]] = value
+        elif len(parts) == 3:
+            data.setdefault(parts[0], {}).setdefault(parts[1], {})[parts[2]] = value
+        else:
+            raise InputError(f"--set {key}: expected table.key (e.g. camera.fov_deg=30)")
+    return data
+
+
+def read_toml(path: str | Path) -> dict:
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise InputError(f"cannot read scene file {p}: {exc.strerror or exc}") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"scene file {p} is not valid TOML: {exc}") from None
+
+
+def load_scene(path: str | Path, overrides: list[str] | None = None) -> SceneDescription:
+    """Reads and checks a TOML scene file; ``overrides`` are ``--set`` strings."""
+    p = Path(path)
+    data = apply_overrides(read_toml(p), overrides or [])
+    return parse_scene(data, p.resolve().parent, str(p))
+
+
+def default_scene_path() -> Path:
+    """The built-in procedural scene (no files outside the package)."""
+    return Path(__file__).resolve().parent / "scenes" / "default.toml"
