@@ -77,11 +77,29 @@ inline float pn_cube_area_element(float x, float y)
     return atan2(x * y, sqrt(x * x + y * y + 1.0f));
 }
 
-/* Exact solid angle of the face rectangle [a0, a1] x [b0, b1]. */
+/* Solid angle of the face rectangle [a0, a1] x [b0, b1]. The closed form
+ * (differences of the area element) cancels catastrophically in float32 for
+ * small rectangles (0.4 % error at face size 64, 100 % at 2048), so small
+ * rectangles integrate the density 1 / (1 + a^2 + b^2)^(3/2) with 3x3-point
+ * Gauss-Legendre instead (relative error below 3e-7 for sides <= 0.25). */
 inline float pn_cube_solid_angle(float a0, float b0, float a1, float b1)
 {
-    return pn_cube_area_element(a0, b0) - pn_cube_area_element(a0, b1) - pn_cube_area_element(a1, b0) +
-           pn_cube_area_element(a1, b1);
+    float sa = a1 - a0, sb = b1 - b0;
+    if (sa > 0.25f || sb > 0.25f)
+        return pn_cube_area_element(a0, b0) - pn_cube_area_element(a0, b1) - pn_cube_area_element(a1, b0) +
+               pn_cube_area_element(a1, b1);
+    const float x[3] = {-0.774596669241483f, 0.0f, 0.774596669241483f};
+    const float w[3] = {0.555555555555556f, 0.888888888888889f, 0.555555555555556f};
+    float ca = 0.5f * (a0 + a1), cb = 0.5f * (b0 + b1), sum = 0.0f;
+    for (int j = 0; j < 3; ++j) {
+        float b = cb + 0.5f * sb * x[j];
+        for (int i = 0; i < 3; ++i) {
+            float a = ca + 0.5f * sa * x[i];
+            float r = 1.0f + a * a + b * b;
+            sum += w[i] * w[j] * rsqrt(r * r * r);
+        }
+    }
+    return 0.25f * sa * sb * sum;
 }
 
 /* Texel (i, j) centre of a face of size n in face coordinates. */
