@@ -62,6 +62,11 @@ kernel void gbuffer_primary(PN_SCENE_ARGS, float4 cam_origin, float4 cam_forward
         ng = -ng;
         ns = -ns;
     }
+    /* Near the silhouette of a coarse smooth mesh the interpolated normal can
+     * still face away from the camera; the G-buffer promises normals facing
+     * it, so such pixels fall back to the geometric normal too. */
+    if (dot(ns, dir) > 0.0f)
+        ns = ng;
     position[idx] = (float4)(org + hit.t * dir, hit.t);
     normal[idx] = (float4)(ns, 0.0f);
     albedo[idx] = inst[PN_INST_ALBEDO];

@@ -73,6 +73,15 @@ pn_status pn_mesh_do_set_geometry(pn_mesh mesh, const float *positions, uint32_t
     return PN_SUCCESS;
 }
 
+/* True when the triangle has zero area: its edge vectors' cross product is 0
+ * in double (exact for collinear float inputs: equal products round alike). */
+static bool zero_area(const float *a, const float *b, const float *c)
+{
+    const double e1[3] = {(double)b[0] - a[0], (double)b[1] - a[1], (double)b[2] - a[2]};
+    const double e2[3] = {(double)c[0] - a[0], (double)c[1] - a[1], (double)c[2] - a[2]};
+    return e1[1] * e2[2] == e1[2] * e2[1] && e1[2] * e2[0] == e1[0] * e2[2] && e1[0] * e2[1] == e1[1] * e2[0];
+}
+
 pn_status pn_mesh_do_commit(pn_mesh mesh)
 {
     pn_context ctx = mesh->obj.ctx;
@@ -119,10 +128,17 @@ pn_status pn_mesh_do_commit(pn_mesh mesh)
     free(boxes);
     for (uint32_t slot = 0; slot < nt; ++slot) {
         const uint32_t t = bvh.order[slot];
+        const uint32_t *idx = mesh->indices + 3 * (size_t)t;
+        /* A zero-area triangle is stored as three copies of its first vertex:
+         * the kernel's edge functions are then exactly 0 and it is never hit.
+         * (Kept as stored, the ray-relative rounding of collinear vertices can
+         * give three tiny edge functions of one sign and a spurious hit.) */
+        const bool degenerate = zero_area(mesh->positions + 3 * (size_t)idx[0], mesh->positions + 3 * (size_t)idx[1],
+                                          mesh->positions + 3 * (size_t)idx[2]);
         for (int k = 0; k < 3; ++k) {
             const uint32_t v = mesh->indices[3 * (size_t)t + k];
             float *dst = tris + 12 * (size_t)slot + 4 * k;
-            memcpy(dst, mesh->positions + 3 * (size_t)v, 3 * sizeof(float));
+            memcpy(dst, mesh->positions + 3 * (size_t)idx[degenerate ? 0 : k], 3 * sizeof(float));
             /* v0.w carries the mesh's own triangle index (as uint bits). */
             uint32_t bits = k == 0 ? t : 0;
             memcpy(dst + 3, &bits, sizeof bits);

@@ -69,6 +69,13 @@ inline float pn_ray_box(float3 org, float3 inv_dir, float tmin, float tmax, floa
     float3 t0 = (lo.xyz - org) * inv_dir;
     float3 t1 = (hi.xyz - org) * inv_dir;
     float3 tn = fmin(t0, t1), tf = fmax(t0, t1);
+    /* A zero direction component with the origin in a slab's boundary plane
+     * gives 0 * inf = NaN: the ray lies in the closed slab for every t (fmin
+     * and fmax would otherwise pair the NaN with the other plane's +-inf and
+     * cull the box, losing hits on triangles that lie on the box's face). */
+    int3 in_plane = isnan(t0) | isnan(t1);
+    tn = select(tn, (float3)(-INFINITY), in_plane);
+    tf = select(tf, (float3)(INFINITY), in_plane);
     float enter = fmax(fmax(tn.x, tn.y), fmax(tn.z, tmin));
     float leave = fmin(fmin(tf.x, tf.y), fmin(tf.z, tmax)) * 1.00000024f;
     return enter <= leave ? enter : INFINITY;
@@ -109,6 +116,12 @@ inline pn_ray_shear pn_make_shear(float3 dir)
 inline bool pn_ray_triangle(float3 org, pn_ray_shear s, float tmin, float tmax, float3 v0, float3 v1, float3 v2,
                             float *t_out, float *u_out, float *v_out)
 {
+    /* No FMA contraction here: a shared edge's function is computed as
+     * p.x*q.y - p.y*q.x in one triangle and q.x*p.y - q.y*p.x in the other,
+     * exact negatives only when both products are rounded alike. A fused
+     * multiply-add (OpenCL C contracts by default) breaks that, and rays
+     * through shared edges then miss both triangles. */
+#pragma OPENCL FP_CONTRACT OFF
     float3 A = v0 - org, B = v1 - org, C = v2 - org;
     float az = pn_comp(A, s.kz), bz = pn_comp(B, s.kz), cz = pn_comp(C, s.kz);
     float ax = pn_comp(A, s.kx) - s.sx * az, ay = pn_comp(A, s.ky) - s.sy * az;

@@ -29,7 +29,7 @@ def cmd_info(args) -> int:
     for p in cl.get_platforms():
         for i, d in enumerate(p.get_devices()):
             print(f"  platform '{p.name}' device {i}: {d.name} ({cl.device_type.to_string(d.type)}, "
-                  f"{d.max_compute_units} compute units, OpenCL C {d.opencl_c_version})")
+                  f"{d.max_compute_units} compute units, {d.opencl_c_version})")
     ctx = Context(args.device)
     print(f"default device: {ctx.device_name}")
     return 0

@@ -220,7 +220,7 @@ def _vertex_normals(num_vertices: int, tri_vertex: np.ndarray, tri_normal: np.nd
 
 # libigl prints these remarks about lines it skips or files it rejects; they are
 # either irrelevant to us ('o' object names) or superseded by our own diagnosis.
-_IGL_CHATTER = re.compile(r"^(Warning: readOBJ\(\) ignored non-comment line \d+:|  \S.*|"
+_IGL_CHATTER = re.compile(r"^(Warning: readOBJ\(\) ignored non-comment line \d+:|  .*|"
                           r"Error: read(OBJ|OFF)\(\).*|Failed to cast F to matrix.*|IOError: .*|Error: bad line.*)$")
 
 

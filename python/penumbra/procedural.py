@@ -19,11 +19,11 @@ Environment maps are float32 arrays (H, W, 3) of linear RGB radiance:
 Emitters that are small compared with a pixel are rasterised with
 area-correct coverage, so the power they carry does not depend on the resolution.
 
-Shapes are :class:`~penumbra.meshio.Mesh` objects centred at the origin, with
-counter-clockwise winding seen from outside (``cross(v1 - v0, v2 - v0)``
-points outward) and unit per-vertex normals: :func:`sphere`, :func:`box`,
-:func:`plane`, :func:`torus`, :func:`cylinder`, :func:`cone`,
-:func:`torus_knot`, :func:`rounded_cube`.
+Shapes are :class:`~penumbra.meshio.Mesh` objects centred at the origin (the
+torus knot by its centroid), with counter-clockwise winding seen from outside
+(``cross(v1 - v0, v2 - v0)`` points outward) and unit per-vertex normals:
+:func:`sphere`, :func:`box`, :func:`plane`, :func:`torus`, :func:`cylinder`,
+:func:`cone`, :func:`torus_knot`, :func:`rounded_cube`.
 
 :func:`terrain_heights` returns a fractal (fBm) height field.
 """
@@ -459,7 +459,8 @@ def torus_knot(p: int = 2, q: int = 3, radius: float = 1.0, tube_radius: float =
     twisting (rotation-minimising), with the small remaining twist spread over
     the loop so the tube closes seamlessly. ``p`` and ``q`` must be coprime;
     keep ``tube_radius`` below about a quarter of ``radius`` for (2, 3), or the
-    tube intersects itself.
+    tube intersects itself. The knot's centroid is at the origin (it is
+    q-fold symmetric about the y axis); its bounding box is not symmetric.
     """
     p = _count(p, "p", 1)
     q = _count(q, "q", 1)

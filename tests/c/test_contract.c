@@ -1,1 +1,1827 @@
-int main(void){return 0;}
+/* Contract tests of libpenumbra through its public API only (penumbra.h):
+ * every documented error (status, the slot it is recorded in, and what the
+ * message names), error routing (per context, per thread, global slot,
+ * callbacks), caller-owned OpenCL objects, a small end-to-end render with a
+ * known answer, and create/release cycles that must not leak.
+ *
+ * Each failed check prints "FAIL: <name>: <details>". The last line printed
+ * is "N passed, M failed"; the exit status is nonzero on any failure. */
+#include "penumbra.h"
+
+#include <math.h>
+#include <pthread.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#if defined(__SANITIZE_ADDRESS__)
+#define PN_TEST_ASAN 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+#define PN_TEST_ASAN 1
+#endif
+#endif
+
+static int g_passed, g_failed;
+
+static void report(int ok, const char *name, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 3, 4)))
+#endif
+    ;
+
+static void report(int ok, const char *name, const char *fmt, ...)
+{
+    if (ok) {
+        ++g_passed;
+        return;
+    }
+    ++g_failed;
+    printf("FAIL: %s", name);
+    if (fmt) {
+        va_list ap;
+        va_start(ap, fmt);
+        fputs(": ", stdout);
+        vprintf(fmt, ap);
+        va_end(ap);
+    }
+    fputc('\n', stdout);
+    fflush(stdout);
+}
+
+#define CHECK(name, cond) report((cond) != 0, (name), "%s", #cond)
+
+/* Reads and clears a slot, copying the message (valid only until the next call). */
+static pn_status take_error(pn_context ctx, char *buf, size_t size)
+{
+    const char *msg = NULL;
+    pn_status st = pn_get_error(ctx, &msg);
+    snprintf(buf, size, "%s", msg ? msg : "(null message pointer)");
+    return st;
+}
+
+/* `got` must be `want`; the slot of `ctx` (NULL: the global slot) must hold
+ * the same status with a message containing every string of the
+ * NULL-terminated list; reading it must clear it; and the other slot (global
+ * when ctx is set, none otherwise) must be empty: an error is recorded once,
+ * where the API documents. */
+static void expect_error(const char *name, pn_status got, pn_status want, pn_context ctx, ...)
+{
+    char msg[2048], again_msg[2048];
+    pn_status recorded = take_error(ctx, msg, sizeof msg);
+    pn_status again = take_error(ctx, again_msg, sizeof again_msg);
+    pn_status other = PN_SUCCESS;
+    char other_msg[2048] = "";
+    if (ctx)
+        other = take_error(NULL, other_msg, sizeof other_msg);
+    if (got != want) {
+        report(0, name, "returned %s (%d), expected %s; message: '%s'", pn_status_name(got), (int)got,
+               pn_status_name(want), msg);
+        return;
+    }
+    if (recorded != want) {
+        report(0, name, "pn_get_error(%s) gave %s, expected %s; message: '%s'%s%s", ctx ? "ctx" : "NULL",
+               pn_status_name(recorded), pn_status_name(want), msg, other ? "; global slot: " : "",
+               other ? other_msg : "");
+        return;
+    }
+    va_list ap;
+    va_start(ap, ctx);
+    for (const char *s = va_arg(ap, const char *); s; s = va_arg(ap, const char *))
+        if (!strstr(msg, s)) {
+            report(0, name, "message '%s' does not contain '%s'", msg, s);
+            va_end(ap);
+            return;
+        }
+    va_end(ap);
+    if (again != PN_SUCCESS || again_msg[0]) {
+        report(0, name, "pn_get_error did not clear the slot (second read: %s '%s')", pn_status_name(again), again_msg);
+        return;
+    }
+    if (other != PN_SUCCESS) {
+        report(0, name, "the error was also recorded in the global slot: %s '%s'", pn_status_name(other), other_msg);
+        return;
+    }
+    report(1, name, NULL);
+}
+
+/* A call that must succeed; on failure prints the messages of both slots. */
+static int expect_ok(const char *name, pn_status got, pn_context ctx)
+{
+    if (got == PN_SUCCESS) {
+        report(1, name, NULL);
+        return 1;
+    }
+    char msg[2048] = "", gmsg[2048] = "";
+    if (ctx)
+        take_error(ctx, msg, sizeof msg);
+    take_error(NULL, gmsg, sizeof gmsg);
+    report(0, name, "returned %s (%d); context message: '%s'; global message: '%s'", pn_status_name(got), (int)got,
+           msg, gmsg);
+    return 0;
+}
+
+static int near(float a, float b, float tol)
+{
+    return fabsf(a - b) <= tol;
+}
+
+/* ------------------------------------------------------------ test data */
+
+/* Axis-aligned box [-h, h]^3 around `c`, 8 vertices, 12 outward CCW triangles. */
+static void make_box(float h, const float c[3], float pos[24], uint32_t idx[36])
+{
+    for (int v = 0; v < 8; ++v) {
+        pos[3 * v + 0] = c[0] + ((v & 1) ? h : -h);
+        pos[3 * v + 1] = c[1] + ((v & 2) ? h : -h);
+        pos[3 * v + 2] = c[2] + ((v & 4) ? h : -h);
+    }
+    /* vertex v: bit0 = +x, bit1 = +y, bit2 = +z */
+    static const uint32_t tri[36] = {
+        0, 4, 6, 0, 6, 2, /* -x */
+        1, 3, 7, 1, 7, 5, /* +x */
+        0, 1, 5, 0, 5, 4, /* -y */
+        2, 6, 7, 2, 7, 3, /* +y */
+        0, 2, 3, 0, 3, 1, /* -z */
+        4, 5, 7, 4, 7, 6, /* +z */
+    };
+    memcpy(idx, tri, sizeof tri);
+}
+
+static float *constant_env(uint32_t w, uint32_t h, float value)
+{
+    float *rgb = malloc(sizeof(float) * 3 * w * h);
+    for (size_t i = 0; rgb && i < 3 * (size_t)w * h; ++i)
+        rgb[i] = value;
+    return rgb;
+}
+
+static pn_camera front_camera(uint32_t w, uint32_t h)
+{
+    pn_camera cam = {{0.0f, 0.0f, 3.0f}, {0.0f, 0.0f, 0.0f}, {0.0f, 1.0f, 0.0f}, 60.0f, w, h};
+    return cam;
+}
+
+/* A constant env, a box of albedo 0.5 and a camera looking at its +z face. */
+typedef struct rig {
+    pn_envmap env;
+    pn_mesh mesh;
+    pn_scene scene;
+    pn_gbuffer gbuffer;
+    pn_image image;
+    pn_renderer renderer;
+    uint32_t instance;
+    uint32_t w, h;
+} rig;
+
+static int rig_create(pn_context ctx, rig *r, uint32_t w, uint32_t h, int face_size)
+{
+    memset(r, 0, sizeof *r);
+    r->w = w;
+    r->h = h;
+    float pos[24];
+    uint32_t idx[36];
+    const float centre[3] = {0, 0, 0};
+    make_box(0.5f, centre, pos, idx);
+    float *rgb = constant_env(16, 8, 1.0f);
+    pn_material mat = pn_material_default();
+    mat.albedo[0] = mat.albedo[1] = mat.albedo[2] = 0.5f;
+    pn_camera cam = front_camera(w, h);
+    pn_status st = rgb ? PN_SUCCESS : PN_ERROR_OUT_OF_MEMORY;
+    if (!st) st = pn_envmap_create(ctx, &r->env);
+    if (!st) st = pn_envmap_set_latlong(r->env, rgb, 16, 8);
+    if (!st) st = pn_envmap_set_int(r->env, "face_size", face_size);
+    if (!st) st = pn_envmap_set_int(r->env, "irradiance_face_size", face_size < 8 ? 4 : 16);
+    if (!st) st = pn_envmap_commit(r->env);
+    if (!st) st = pn_mesh_create(ctx, &r->mesh);
+    if (!st) st = pn_mesh_set_geometry(r->mesh, pos, 8, idx, 12, NULL);
+    if (!st) st = pn_mesh_commit(r->mesh);
+    if (!st) st = pn_scene_create(ctx, &r->scene);
+    if (!st) st = pn_scene_set_envmap(r->scene, r->env);
+    if (!st) st = pn_scene_add_instance(r->scene, r->mesh, NULL, &mat, &r->instance);
+    if (!st) st = pn_scene_set_camera(r->scene, &cam);
+    if (!st) st = pn_scene_commit(r->scene);
+    if (!st) st = pn_gbuffer_create(ctx, w, h, &r->gbuffer);
+    if (!st) st = pn_image_create(ctx, w, h, &r->image);
+    if (!st) st = pn_renderer_create(ctx, "unshadowed", &r->renderer);
+    if (!st) st = pn_renderer_commit(r->renderer);
+    free(rgb);
+    return expect_ok("rig: building a scene", st, ctx);
+}
+
+static void rig_release(rig *r)
+{
+    /* Releasing a NULL handle is an error, so only what exists. */
+    if (r->renderer) pn_renderer_release(r->renderer);
+    if (r->image) pn_image_release(r->image);
+    if (r->gbuffer) pn_gbuffer_release(r->gbuffer);
+    if (r->scene) pn_scene_release(r->scene);
+    if (r->mesh) pn_mesh_release(r->mesh);
+    if (r->env) pn_envmap_release(r->env);
+    memset(r, 0, sizeof *r);
+}
+
+static pn_status rig_render(rig *r)
+{
+    pn_status st = pn_scene_render_gbuffer(r->scene, r->gbuffer);
+    if (!st)
+        st = pn_renderer_execute(r->renderer, r->scene, r->gbuffer, r->image);
+    return st;
+}
+
+/* ------------------------------------------------------------ the tests */
+
+static void test_status_names(void)
+{
+    static const struct { pn_status s; const char *name; } names[] = {
+        {PN_SUCCESS, "PN_SUCCESS"},
+        {PN_ERROR_NULL_HANDLE, "PN_ERROR_NULL_HANDLE"},
+        {PN_ERROR_INVALID_ARGUMENT, "PN_ERROR_INVALID_ARGUMENT"},
+        {PN_ERROR_INVALID_SIZE, "PN_ERROR_INVALID_SIZE"},
+        {PN_ERROR_INVALID_VALUE, "PN_ERROR_INVALID_VALUE"},
+        {PN_ERROR_OUT_OF_RANGE, "PN_ERROR_OUT_OF_RANGE"},
+        {PN_ERROR_EMPTY_INPUT, "PN_ERROR_EMPTY_INPUT"},
+        {PN_ERROR_BAD_CONFIG, "PN_ERROR_BAD_CONFIG"},
+        {PN_ERROR_BUILD_FAILED, "PN_ERROR_BUILD_FAILED"},
+        {PN_ERROR_NOT_COMMITTED, "PN_ERROR_NOT_COMMITTED"},
+        {PN_ERROR_OUT_OF_MEMORY, "PN_ERROR_OUT_OF_MEMORY"},
+        {PN_ERROR_NO_DEVICE, "PN_ERROR_NO_DEVICE"},
+        {PN_ERROR_UNSUPPORTED, "PN_ERROR_UNSUPPORTED"},
+        {PN_ERROR_INTERNAL, "PN_ERROR_INTERNAL"},
+    };
+    for (size_t i = 0; i < sizeof names / sizeof names[0]; ++i) {
+        const char *got = pn_status_name(names[i].s);
+        report(got && !strcmp(got, names[i].name), "pn_status_name", "status %d gave '%s', expected '%s'",
+               (int)names[i].s, got ? got : "(NULL)", names[i].name);
+    }
+    const char *cl = pn_status_name(CL_INVALID_VALUE);
+    report(cl && strstr(cl, "OpenCL") != NULL, "pn_status_name of an OpenCL code", "gave '%s'", cl ? cl : "(NULL)");
+    const char *unknown = pn_status_name(12345);
+    report(unknown && *unknown, "pn_status_name of an unknown code is a non-empty string", "gave '%s'",
+           unknown ? unknown : "(NULL)");
+    unknown = pn_status_name(-1500);
+    report(unknown && *unknown, "pn_status_name(-1500) is a non-empty string", "gave '%s'", unknown ? unknown : "(NULL)");
+
+    char want[32];
+    snprintf(want, sizeof want, "%d.%d.%d", PN_VERSION_MAJOR, PN_VERSION_MINOR, PN_VERSION_PATCH);
+    report(!strcmp(pn_version(), want), "pn_version matches PN_VERSION_*", "'%s' vs '%s'", pn_version(), want);
+
+    /* With nothing recorded: PN_SUCCESS and "" (NULL message pointer allowed). */
+    const char *msg = NULL;
+    pn_get_error(NULL, NULL);
+    pn_status st = pn_get_error(NULL, &msg);
+    report(st == PN_SUCCESS && msg && msg[0] == '\0', "pn_get_error with no error: success and \"\"", "%s '%s'",
+           pn_status_name(st), msg ? msg : "(NULL)");
+}
+
+static void test_null_handles(pn_context ctx)
+{
+    /* Every kind of handle, NULL: PN_ERROR_NULL_HANDLE in the global slot, the message naming the function. */
+    expect_error("NULL context: pn_context_retain", pn_context_retain(NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_context_retain", NULL);
+    expect_error("NULL context: pn_context_release", pn_context_release(NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_context_release", NULL);
+    expect_error("NULL context: pn_context_finish", pn_context_finish(NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_context_finish", NULL);
+    expect_error("NULL context: pn_context_build_program", pn_context_build_program(NULL, "envmap"),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_context_build_program", NULL);
+    expect_error("NULL context: pn_context_set_error_callback", pn_context_set_error_callback(NULL, NULL, NULL),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_context_set_error_callback", NULL);
+    cl_context clc;
+    expect_error("NULL context: pn_context_get_cl", pn_context_get_cl(NULL, &clc, NULL, NULL), PN_ERROR_NULL_HANDLE,
+                 NULL, "pn_context_get_cl", NULL);
+    pn_envmap env = (pn_envmap)(uintptr_t)1;
+    expect_error("NULL context: pn_envmap_create", pn_envmap_create(NULL, &env), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_envmap_create", NULL);
+    pn_mesh mesh;
+    expect_error("NULL context: pn_mesh_create", pn_mesh_create(NULL, &mesh), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_mesh_create", NULL);
+    pn_scene scene;
+    expect_error("NULL context: pn_scene_create", pn_scene_create(NULL, &scene), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_scene_create", NULL);
+    pn_gbuffer gb;
+    expect_error("NULL context: pn_gbuffer_create", pn_gbuffer_create(NULL, 4, 4, &gb), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_gbuffer_create", NULL);
+    pn_image img;
+    expect_error("NULL context: pn_image_create", pn_image_create(NULL, 4, 4, &img), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_image_create", NULL);
+    pn_renderer rend;
+    expect_error("NULL context: pn_renderer_create", pn_renderer_create(NULL, "unshadowed", &rend),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_renderer_create", NULL);
+
+    expect_error("NULL env map: pn_envmap_commit", pn_envmap_commit(NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_envmap_commit", NULL);
+    expect_error("NULL env map: pn_envmap_release", pn_envmap_release(NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_envmap_release", NULL);
+    float rgb[3] = {1, 1, 1};
+    expect_error("NULL env map: pn_envmap_set_latlong", pn_envmap_set_latlong(NULL, rgb, 1, 1), PN_ERROR_NULL_HANDLE,
+                 NULL, "pn_envmap_set_latlong", NULL);
+    expect_error("NULL mesh: pn_mesh_commit", pn_mesh_commit(NULL), PN_ERROR_NULL_HANDLE, NULL, "pn_mesh_commit",
+                 NULL);
+    pn_mesh_info info;
+    expect_error("NULL mesh: pn_mesh_get_info", pn_mesh_get_info(NULL, &info), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_mesh_get_info", NULL);
+    expect_error("NULL scene: pn_scene_commit", pn_scene_commit(NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_scene_commit", NULL);
+    expect_error("NULL scene: pn_scene_retain", pn_scene_retain(NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_scene_retain", NULL);
+    expect_error("NULL G-buffer: pn_gbuffer_validate", pn_gbuffer_validate(NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_gbuffer_validate", NULL);
+    uint32_t w, h;
+    expect_error("NULL G-buffer: pn_gbuffer_get_size", pn_gbuffer_get_size(NULL, &w, &h), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_gbuffer_get_size", NULL);
+    float px[4];
+    expect_error("NULL image: pn_image_read", pn_image_read(NULL, px, sizeof px), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_image_read", NULL);
+    expect_error("NULL image: pn_image_release", pn_image_release(NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_image_release", NULL);
+    expect_error("NULL renderer: pn_renderer_commit", pn_renderer_commit(NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_renderer_commit", NULL);
+    expect_error("NULL renderer: pn_renderer_set_int", pn_renderer_set_int(NULL, "background", 0),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_renderer_set_int", NULL);
+
+    /* A NULL handle among valid ones still goes to the global slot. */
+    rig r;
+    if (!rig_create(ctx, &r, 8, 8, 4))
+        return;
+    expect_error("NULL scene in pn_renderer_execute", pn_renderer_execute(r.renderer, NULL, r.gbuffer, r.image),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_renderer_execute", "scene", NULL);
+    expect_error("NULL image in pn_renderer_execute", pn_renderer_execute(r.renderer, r.scene, r.gbuffer, NULL),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_renderer_execute", "image", NULL);
+    uint32_t id;
+    expect_error("NULL mesh in pn_scene_add_instance", pn_scene_add_instance(r.scene, NULL, NULL, NULL, &id),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_scene_add_instance", "mesh", NULL);
+    expect_error("NULL env map in pn_scene_set_envmap", pn_scene_set_envmap(r.scene, NULL), PN_ERROR_NULL_HANDLE,
+                 NULL, "pn_scene_set_envmap", NULL);
+    expect_error("NULL G-buffer in pn_scene_render_gbuffer", pn_scene_render_gbuffer(r.scene, NULL),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_scene_render_gbuffer", NULL);
+
+    /* Wrong kind of handle: a mesh where a scene is expected, and so on. */
+    expect_error("mesh passed as a scene: pn_scene_commit", pn_scene_commit((pn_scene)(void *)r.mesh),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_scene_commit", "scene", NULL);
+    expect_error("mesh passed as a scene: pn_scene_render_gbuffer",
+                 pn_scene_render_gbuffer((pn_scene)(void *)r.mesh, r.gbuffer), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_scene_render_gbuffer", NULL);
+    expect_error("env map passed as a mesh: pn_scene_add_instance",
+                 pn_scene_add_instance(r.scene, (pn_mesh)(void *)r.env, NULL, NULL, &id), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_scene_add_instance", "mesh", NULL);
+    expect_error("image passed as a G-buffer: pn_renderer_execute",
+                 pn_renderer_execute(r.renderer, r.scene, (pn_gbuffer)(void *)r.image, r.image), PN_ERROR_NULL_HANDLE,
+                 NULL, "pn_renderer_execute", NULL);
+    expect_error("scene passed as a context: pn_mesh_create", pn_mesh_create((pn_context)(void *)r.scene, &mesh),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_mesh_create", NULL);
+    expect_error("renderer passed as an env map: pn_envmap_release", pn_envmap_release((pn_envmap)(void *)r.renderer),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_envmap_release", NULL);
+    expect_error("mesh passed as a context: pn_get_error", pn_get_error((pn_context)(void *)r.mesh, NULL),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_get_error", NULL);
+    /* The objects survived the wrong-kind calls. */
+    expect_ok("objects usable after wrong-kind calls", rig_render(&r), ctx);
+    pn_context_finish(ctx);
+    rig_release(&r);
+}
+
+static void test_null_pointers(pn_context ctx)
+{
+    expect_error("pn_context_create(out = NULL)", pn_context_create(NULL, NULL), PN_ERROR_INVALID_ARGUMENT, NULL,
+                 "pn_context_create", "out", NULL);
+    expect_error("pn_envmap_create(out = NULL)", pn_envmap_create(ctx, NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "pn_envmap_create", "out", NULL);
+    expect_error("pn_mesh_create(out = NULL)", pn_mesh_create(ctx, NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "pn_mesh_create", "out", NULL);
+    expect_error("pn_scene_create(out = NULL)", pn_scene_create(ctx, NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "pn_scene_create", "out", NULL);
+    expect_error("pn_gbuffer_create(out = NULL)", pn_gbuffer_create(ctx, 4, 4, NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "pn_gbuffer_create", "out", NULL);
+    expect_error("pn_image_create(out = NULL)", pn_image_create(ctx, 4, 4, NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "pn_image_create", "out", NULL);
+    expect_error("pn_renderer_create(out = NULL)", pn_renderer_create(ctx, "unshadowed", NULL),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_renderer_create", "out", NULL);
+    pn_renderer rend;
+    expect_error("pn_renderer_create(method = NULL)", pn_renderer_create(ctx, NULL, &rend), PN_ERROR_INVALID_ARGUMENT,
+                 ctx, "pn_renderer_create", "method", NULL);
+    expect_error("pn_context_get_device_name(name = NULL)", pn_context_get_device_name(ctx, NULL, 16),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_context_get_device_name", NULL);
+    char name[8];
+    expect_error("pn_context_get_device_name(size = 0)", pn_context_get_device_name(ctx, name, 0),
+                 PN_ERROR_INVALID_SIZE, ctx, "size", NULL);
+    expect_error("pn_context_build_program(stage = NULL)", pn_context_build_program(ctx, NULL),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_context_build_program", NULL);
+    expect_error("pn_context_build_program(unknown stage)", pn_context_build_program(ctx, "banana"),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "banana", NULL);
+
+    rig r;
+    if (!rig_create(ctx, &r, 8, 8, 4))
+        return;
+    expect_error("pn_envmap_set_latlong(rgb = NULL)", pn_envmap_set_latlong(r.env, NULL, 4, 4),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_envmap_set_latlong", "rgb", NULL);
+    expect_error("pn_envmap_set_int(name = NULL)", pn_envmap_set_int(r.env, NULL, 1), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "pn_envmap_set_int", "name", NULL);
+    expect_error("pn_envmap_get_int(value = NULL)", pn_envmap_get_int(r.env, "face_size", NULL),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_envmap_get_int", "value", NULL);
+    expect_error("pn_envmap_get_float(value = NULL)", pn_envmap_get_float(r.env, "intensity", NULL),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_envmap_get_float", "value", NULL);
+    expect_error("pn_envmap_read(host = NULL)", pn_envmap_read(r.env, PN_ENVMAP_CUBE_RADIANCE, NULL, 16),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_envmap_read", "host", NULL);
+    uint32_t idx[3] = {0, 1, 2};
+    expect_error("pn_mesh_set_geometry(positions = NULL)", pn_mesh_set_geometry(r.mesh, NULL, 3, idx, 1, NULL),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_mesh_set_geometry", "positions", NULL);
+    float pos[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    expect_error("pn_mesh_set_geometry(indices = NULL)", pn_mesh_set_geometry(r.mesh, pos, 3, NULL, 1, NULL),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_mesh_set_geometry", "indices", NULL);
+    expect_error("pn_mesh_get_info(info = NULL)", pn_mesh_get_info(r.mesh, NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "pn_mesh_get_info", "info", NULL);
+    expect_error("pn_scene_add_instance(id = NULL)", pn_scene_add_instance(r.scene, r.mesh, NULL, NULL, NULL),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_scene_add_instance", "id", NULL);
+    expect_error("pn_scene_set_camera(camera = NULL)", pn_scene_set_camera(r.scene, NULL), PN_ERROR_INVALID_ARGUMENT,
+                 ctx, "pn_scene_set_camera", "camera", NULL);
+    expect_error("pn_scene_set_instance_material(material = NULL)",
+                 pn_scene_set_instance_material(r.scene, r.instance, NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "pn_scene_set_instance_material", "material", NULL);
+    float ray[8] = {0, 0, 3, 0, 0, 0, -1, INFINITY};
+    expect_error("pn_scene_intersect(rays = NULL)", pn_scene_intersect(r.scene, NULL, 1, NULL, NULL, NULL),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_scene_intersect", "rays", NULL);
+    expect_error("pn_scene_occluded(occluded = NULL)", pn_scene_occluded(r.scene, ray, 1, NULL),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_scene_occluded", "occluded", NULL);
+    expect_error("pn_gbuffer_get_cl(buffer = NULL)", pn_gbuffer_get_cl(r.gbuffer, PN_GBUFFER_NORMAL, NULL),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_gbuffer_get_cl", "buffer", NULL);
+    expect_error("pn_gbuffer_write(host = NULL)", pn_gbuffer_write(r.gbuffer, PN_GBUFFER_NORMAL, NULL, 8 * 8 * 16),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_gbuffer_write", "host", NULL);
+    expect_error("pn_gbuffer_read(host = NULL)", pn_gbuffer_read(r.gbuffer, PN_GBUFFER_NORMAL, NULL, 8 * 8 * 16),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_gbuffer_read", "host", NULL);
+    expect_error("pn_image_read(host = NULL)", pn_image_read(r.image, NULL, 8 * 8 * 16), PN_ERROR_INVALID_ARGUMENT,
+                 ctx, "pn_image_read", "host", NULL);
+    expect_error("pn_image_get_cl(buffer = NULL)", pn_image_get_cl(r.image, NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "pn_image_get_cl", "buffer", NULL);
+    expect_error("pn_renderer_get_int(value = NULL)", pn_renderer_get_int(r.renderer, "background", NULL),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_renderer_get_int", "value", NULL);
+    expect_error("pn_renderer_set_int(name = NULL)", pn_renderer_set_int(r.renderer, NULL, 1),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_renderer_set_int", "name", NULL);
+
+    /* Optional outputs may be NULL. */
+    uint32_t w = 0;
+    expect_ok("pn_gbuffer_get_size with height = NULL", pn_gbuffer_get_size(r.gbuffer, &w, NULL), ctx);
+    CHECK("pn_gbuffer_get_size width", w == 8);
+    cl_command_queue q = NULL;
+    expect_ok("pn_context_get_cl with only the queue", pn_context_get_cl(ctx, NULL, &q, NULL), ctx);
+    CHECK("pn_context_get_cl gives a queue", q != NULL);
+    expect_ok("pn_scene_intersect with all outputs NULL", pn_scene_intersect(r.scene, ray, 1, NULL, NULL, NULL), ctx);
+    expect_ok("pn_scene_intersect with count 0 and NULL rays", pn_scene_intersect(r.scene, NULL, 0, NULL, NULL, NULL),
+              ctx);
+    rig_release(&r);
+}
+
+static void test_config(void)
+{
+    pn_context c = (pn_context)(uintptr_t)1;
+    expect_error("config device=banana", pn_context_create("device=banana", &c), PN_ERROR_BAD_CONFIG, NULL, "banana",
+                 "device", NULL);
+    CHECK("failed pn_context_create sets *out to NULL", c == NULL);
+    expect_error("config colour=red", pn_context_create("colour=red", &c), PN_ERROR_BAD_CONFIG, NULL, "colour", NULL);
+    expect_error("config nokey", pn_context_create("nokey", &c), PN_ERROR_BAD_CONFIG, NULL, "nokey", NULL);
+    expect_error("config cpu,colour=red (unknown key after a good one)", pn_context_create("device=cpu,colour=red", &c),
+                 PN_ERROR_BAD_CONFIG, NULL, "colour", NULL);
+    expect_error("config device=999 (no such device)", pn_context_create("device=999", &c), PN_ERROR_NO_DEVICE, NULL,
+                 "999", NULL);
+    expect_error("config platform=no-such-platform", pn_context_create("platform=no-such-platform-xyz", &c),
+                 PN_ERROR_NO_DEVICE, NULL, "no-such-platform-xyz", NULL);
+    CHECK("failed pn_context_create leaves *out NULL", c == NULL);
+}
+
+static void test_envmap(pn_context ctx)
+{
+    pn_envmap env = NULL;
+    if (!expect_ok("pn_envmap_create", pn_envmap_create(ctx, &env), ctx))
+        return;
+    const uint32_t W = 16, H = 64;
+    float *rgb = constant_env(W, H, 0.25f);
+#define TEXEL(x, y) (rgb + 3 * ((size_t)(y) * W + (x)))
+
+    /* One NaN at (3, 40). */
+    TEXEL(3, 40)[1] = NAN;
+    expect_error("env map NaN texel", pn_envmap_set_latlong(env, rgb, W, H), PN_ERROR_INVALID_VALUE, ctx, "NaN",
+                 "(x=3, y=40)", "1 NaN", NULL);
+    /* Later bad texels are counted, the first position is still reported. */
+    TEXEL(7, 41)[0] = NAN;
+    TEXEL(0, 50)[2] = INFINITY;
+    TEXEL(1, 50)[0] = -INFINITY;
+    TEXEL(2, 60)[0] = -0.5f;
+    expect_error("env map NaN, Inf and negative texels counted", pn_envmap_set_latlong(env, rgb, W, H),
+                 PN_ERROR_INVALID_VALUE, ctx, "2 NaN", "2 infinite", "1 negative", "(x=3, y=40)", NULL);
+    TEXEL(3, 40)[1] = 0.25f;
+    TEXEL(7, 41)[0] = 0.25f;
+    expect_error("env map Inf texels", pn_envmap_set_latlong(env, rgb, W, H), PN_ERROR_INVALID_VALUE, ctx,
+                 "2 infinite", "(x=0, y=50)", NULL);
+    TEXEL(0, 50)[2] = 0.25f;
+    TEXEL(1, 50)[0] = 0.25f;
+    expect_error("env map negative texel", pn_envmap_set_latlong(env, rgb, W, H), PN_ERROR_INVALID_VALUE, ctx,
+                 "1 negative", "(x=2, y=60)", NULL);
+    TEXEL(2, 60)[0] = 0.0f; /* zero is fine */
+    TEXEL(W - 1, H - 1)[2] = -1e-30f;
+    expect_error("env map tiny negative texel in the last position", pn_envmap_set_latlong(env, rgb, W, H),
+                 PN_ERROR_INVALID_VALUE, ctx, "1 negative", "(x=15, y=63)", NULL);
+    TEXEL(W - 1, H - 1)[2] = 0.25f;
+    TEXEL(2, 60)[0] = 0.25f;
+#undef TEXEL
+
+    expect_error("env map zero width", pn_envmap_set_latlong(env, rgb, 0, H), PN_ERROR_EMPTY_INPUT, ctx, NULL);
+    expect_error("env map zero height", pn_envmap_set_latlong(env, rgb, W, 0), PN_ERROR_EMPTY_INPUT, ctx, NULL);
+    expect_error("commit with no data", pn_envmap_commit(env), PN_ERROR_NOT_COMMITTED, ctx, NULL);
+    float probe[4];
+    expect_error("read before any commit", pn_envmap_read(env, PN_ENVMAP_IRRADIANCE, probe, sizeof probe),
+                 PN_ERROR_NOT_COMMITTED, ctx, NULL);
+    expect_ok("env map valid data", pn_envmap_set_latlong(env, rgb, W, H), ctx);
+    expect_error("read after set, before commit", pn_envmap_read(env, PN_ENVMAP_IRRADIANCE, probe, sizeof probe),
+                 PN_ERROR_NOT_COMMITTED, ctx, NULL);
+
+    /* Parameters. */
+    int32_t iv = 0;
+    float fv = 0;
+    expect_ok("get face_size", pn_envmap_get_int(env, "face_size", &iv), ctx);
+    CHECK("default face_size is 64", iv == 64);
+    expect_ok("get irradiance_face_size", pn_envmap_get_int(env, "irradiance_face_size", &iv), ctx);
+    CHECK("default irradiance_face_size is 32", iv == 32);
+    expect_ok("get supersampling", pn_envmap_get_int(env, "supersampling", &iv), ctx);
+    CHECK("default supersampling is 0", iv == 0);
+    expect_ok("get intensity", pn_envmap_get_float(env, "intensity", &fv), ctx);
+    CHECK("default intensity is 1", fv == 1.0f);
+    expect_ok("get rotation_deg", pn_envmap_get_float(env, "rotation_deg", &fv), ctx);
+    CHECK("default rotation_deg is 0", fv == 0.0f);
+    expect_error("unknown int parameter", pn_envmap_set_int(env, "banana", 3), PN_ERROR_BAD_CONFIG, ctx, "banana",
+                 NULL);
+    expect_error("unknown float parameter", pn_envmap_set_float(env, "gamma", 2.2f), PN_ERROR_BAD_CONFIG, ctx, "gamma",
+                 NULL);
+    expect_error("int parameter set as float", pn_envmap_set_float(env, "face_size", 8.0f), PN_ERROR_BAD_CONFIG, ctx,
+                 "face_size", NULL);
+    expect_error("float parameter set as int", pn_envmap_set_int(env, "intensity", 1), PN_ERROR_BAD_CONFIG, ctx,
+                 "intensity", NULL);
+    expect_error("unknown parameter read", pn_envmap_get_int(env, "banana", &iv), PN_ERROR_BAD_CONFIG, ctx, "banana",
+                 NULL);
+    expect_error("face_size 0", pn_envmap_set_int(env, "face_size", 0), PN_ERROR_INVALID_ARGUMENT, ctx, "face_size",
+                 NULL);
+    expect_error("face_size 2049", pn_envmap_set_int(env, "face_size", 2049), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "face_size", NULL);
+    expect_error("face_size -1", pn_envmap_set_int(env, "face_size", -1), PN_ERROR_INVALID_ARGUMENT, ctx, NULL);
+    expect_error("irradiance_face_size 1", pn_envmap_set_int(env, "irradiance_face_size", 1),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "irradiance_face_size", NULL);
+    expect_error("irradiance_face_size 257", pn_envmap_set_int(env, "irradiance_face_size", 257),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, NULL);
+    expect_error("supersampling -1", pn_envmap_set_int(env, "supersampling", -1), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 NULL);
+    expect_error("intensity -1", pn_envmap_set_float(env, "intensity", -1.0f), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "intensity", NULL);
+    expect_error("intensity NaN", pn_envmap_set_float(env, "intensity", NAN), PN_ERROR_INVALID_ARGUMENT, ctx, NULL);
+    expect_error("rotation_deg Inf", pn_envmap_set_float(env, "rotation_deg", INFINITY), PN_ERROR_INVALID_ARGUMENT,
+                 ctx, NULL);
+    expect_ok("get face_size after refused sets", pn_envmap_get_int(env, "face_size", &iv), ctx);
+    CHECK("refused sets leave face_size unchanged", iv == 64);
+    expect_ok("face_size 1 (lower bound)", pn_envmap_set_int(env, "face_size", 1), ctx);
+    expect_ok("face_size 2048 (upper bound)", pn_envmap_set_int(env, "face_size", 2048), ctx);
+    expect_ok("irradiance_face_size 256 (upper bound)", pn_envmap_set_int(env, "irradiance_face_size", 256), ctx);
+    expect_ok("rotation_deg -720", pn_envmap_set_float(env, "rotation_deg", -720.0f), ctx);
+    expect_ok("intensity 0", pn_envmap_set_float(env, "intensity", 0.0f), ctx);
+
+    /* Commit a small map and read it back. */
+    const int F = 8, M = 3;
+    expect_ok("face_size 8", pn_envmap_set_int(env, "face_size", F), ctx);
+    expect_ok("irradiance_face_size 3", pn_envmap_set_int(env, "irradiance_face_size", M), ctx);
+    expect_ok("intensity 2", pn_envmap_set_float(env, "intensity", 2.0f), ctx);
+    expect_ok("rotation_deg 0", pn_envmap_set_float(env, "rotation_deg", 0.0f), ctx);
+    if (expect_ok("pn_envmap_commit", pn_envmap_commit(env), ctx)) {
+        const size_t cube_bytes = 6 * (size_t)F * F * 16, irr_bytes = 6 * (size_t)M * M * 16;
+        float *cube = malloc(cube_bytes + 16), *dirs = malloc(cube_bytes + 16), *irr = malloc(irr_bytes + 16);
+        expect_error("envmap_read radiance with one byte too few",
+                     pn_envmap_read(env, PN_ENVMAP_CUBE_RADIANCE, cube, cube_bytes - 1), PN_ERROR_INVALID_SIZE, ctx,
+                     NULL);
+        expect_error("envmap_read radiance with 16 bytes too many",
+                     pn_envmap_read(env, PN_ENVMAP_CUBE_RADIANCE, cube, cube_bytes + 16), PN_ERROR_INVALID_SIZE, ctx,
+                     NULL);
+        expect_error("envmap_read irradiance with the radiance size",
+                     pn_envmap_read(env, PN_ENVMAP_IRRADIANCE, irr, cube_bytes), PN_ERROR_INVALID_SIZE, ctx, NULL);
+        expect_error("envmap_read unknown data 7", pn_envmap_read(env, (pn_envmap_data)7, cube, cube_bytes),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, NULL);
+        if (expect_ok("envmap_read radiance", pn_envmap_read(env, PN_ENVMAP_CUBE_RADIANCE, cube, cube_bytes), ctx) &&
+            expect_ok("envmap_read directions", pn_envmap_read(env, PN_ENVMAP_CUBE_DIRECTIONS, dirs, cube_bytes),
+                      ctx) &&
+            expect_ok("envmap_read irradiance", pn_envmap_read(env, PN_ENVMAP_IRRADIANCE, irr, irr_bytes), ctx)) {
+            /* Constant radiance 0.25 * intensity 2 = 0.5 everywhere; solid angles sum to 4 pi; E = pi * 0.5
+             * up to the discretisation of the cosine-weighted sum over only 6 * 8 * 8 texels (< 1%). */
+            int rad_ok = 1, irr_ok = 1;
+            double omega = 0;
+            for (int i = 0; i < 6 * F * F; ++i) {
+                for (int c = 0; c < 3; ++c)
+                    rad_ok = rad_ok && near(cube[4 * i + c], 0.5f, 1e-4f);
+                omega += dirs[4 * i + 3];
+            }
+            float worst = 0.0f;
+            for (int i = 0; i < 6 * M * M; ++i)
+                for (int c = 0; c < 3; ++c)
+                    worst = fmaxf(worst, fabsf(irr[4 * i + c] - 0.5f * 3.14159265f));
+            irr_ok = worst < 0.01f;
+            CHECK("cube radiance of a constant map is constant (x intensity)", rad_ok);
+            report(fabs(omega - 4 * 3.14159265358979) < 1e-3, "cube solid angles sum to 4 pi", "sum %.6f", omega);
+            report(irr_ok, "irradiance of a constant map is pi * L", "largest deviation %g", (double)worst);
+        }
+        /* Changing a parameter makes the data unusable until the next commit. */
+        expect_ok("set face_size after commit", pn_envmap_set_int(env, "face_size", 12), ctx);
+        expect_error("read after a change, before commit",
+                     pn_envmap_read(env, PN_ENVMAP_CUBE_RADIANCE, cube, cube_bytes), PN_ERROR_NOT_COMMITTED, ctx,
+                     NULL);
+        if (expect_ok("recommit with face_size 12", pn_envmap_commit(env), ctx)) {
+            float *big = malloc(6 * 12 * 12 * 16);
+            expect_ok("read with the new size", pn_envmap_read(env, PN_ENVMAP_CUBE_RADIANCE, big, 6 * 12 * 12 * 16),
+                      ctx);
+            free(big);
+        }
+        /* A refused set_latlong keeps the committed data. */
+        rgb[0] = NAN;
+        expect_error("refused set_latlong after commit", pn_envmap_set_latlong(env, rgb, W, H),
+                     PN_ERROR_INVALID_VALUE, ctx, "(x=0, y=0)", NULL);
+        CHECK("a refused set_latlong keeps the map committed",
+              pn_envmap_read(env, PN_ENVMAP_IRRADIANCE, irr, irr_bytes) == PN_SUCCESS);
+        pn_get_error(ctx, NULL);
+        free(cube);
+        free(dirs);
+        free(irr);
+    }
+    free(rgb);
+    expect_ok("pn_envmap_release", pn_envmap_release(env), ctx);
+}
+
+static void test_mesh(pn_context ctx)
+{
+    pn_mesh mesh = NULL;
+    if (!expect_ok("pn_mesh_create", pn_mesh_create(ctx, &mesh), ctx))
+        return;
+    float pos[12] = {0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0};
+    uint32_t idx[9] = {0, 1, 2, 0, 2, 3, 1, 2, 3};
+    pn_mesh_info info;
+    expect_error("commit before set_geometry", pn_mesh_commit(mesh), PN_ERROR_NOT_COMMITTED, ctx, NULL);
+    expect_error("get_info before commit", pn_mesh_get_info(mesh, &info), PN_ERROR_NOT_COMMITTED, ctx, NULL);
+    expect_error("empty mesh: no vertices", pn_mesh_set_geometry(mesh, pos, 0, idx, 3, NULL), PN_ERROR_EMPTY_INPUT,
+                 ctx, NULL);
+    expect_error("empty mesh: no triangles", pn_mesh_set_geometry(mesh, pos, 4, idx, 0, NULL), PN_ERROR_EMPTY_INPUT,
+                 ctx, NULL);
+    expect_error("empty mesh: NULL arrays and zero counts", pn_mesh_set_geometry(mesh, NULL, 0, NULL, 0, NULL),
+                 PN_ERROR_EMPTY_INPUT, ctx, NULL);
+    idx[7] = 7;
+    expect_error("index out of range", pn_mesh_set_geometry(mesh, pos, 4, idx, 3, NULL), PN_ERROR_OUT_OF_RANGE, ctx,
+                 "triangle 2", "vertex 7", NULL);
+    idx[7] = 4; /* == vertex_count: the first invalid index */
+    expect_error("index == vertex_count", pn_mesh_set_geometry(mesh, pos, 4, idx, 3, NULL), PN_ERROR_OUT_OF_RANGE, ctx,
+                 "triangle 2", "vertex 4", NULL);
+    idx[7] = 2;
+    pos[4] = NAN;
+    expect_error("NaN vertex", pn_mesh_set_geometry(mesh, pos, 4, idx, 3, NULL), PN_ERROR_INVALID_VALUE, ctx,
+                 "vertex 1", NULL);
+    pos[4] = 0;
+    pos[11] = -INFINITY;
+    expect_error("Inf vertex", pn_mesh_set_geometry(mesh, pos, 4, idx, 3, NULL), PN_ERROR_INVALID_VALUE, ctx,
+                 "vertex 3", NULL);
+    pos[11] = 0;
+    float nrm[12] = {0, 0, 1, 0, 0, 1, 0, 0, 1, 0, 0, 1};
+    nrm[5] = NAN;
+    expect_error("NaN normal", pn_mesh_set_geometry(mesh, pos, 4, idx, 3, nrm), PN_ERROR_INVALID_VALUE, ctx,
+                 "normal 1", NULL);
+    nrm[5] = 1;
+    expect_error("failed set_geometry leaves the mesh uncommitted", pn_mesh_get_info(mesh, &info),
+                 PN_ERROR_NOT_COMMITTED, ctx, NULL);
+
+    /* Degenerate triangles: a repeated vertex and three collinear vertices. */
+    float dpos[15] = {0, 0, 0, 1, 0, 0, 1, 1, 0, 2, 0, 0, 3, 0, 0};
+    uint32_t didx[9] = {0, 1, 2, 0, 0, 1, 0, 1, 4};
+    if (expect_ok("degenerate triangles are accepted", pn_mesh_set_geometry(mesh, dpos, 5, didx, 3, NULL),
+                  ctx) &&
+        expect_ok("commit with degenerate triangles", pn_mesh_commit(mesh), ctx) &&
+        expect_ok("get_info", pn_mesh_get_info(mesh, &info), ctx)) {
+        CHECK("info.vertex_count", info.vertex_count == 5);
+        CHECK("info.triangle_count", info.triangle_count == 3);
+        CHECK("info.bvh_node_count >= 1", info.bvh_node_count >= 1);
+        CHECK("info bounds", info.bounds_lo[0] == 0 && info.bounds_hi[0] == 3 && info.bounds_hi[1] == 1 &&
+                                 info.bounds_lo[2] == 0 && info.bounds_hi[2] == 0);
+    }
+    /* Only degenerate triangles. */
+    uint32_t all_degenerate[6] = {0, 3, 4, 1, 1, 1};
+    expect_ok("a mesh of only degenerate triangles", pn_mesh_set_geometry(mesh, dpos, 5, all_degenerate, 2, NULL),
+              ctx);
+    expect_ok("commit a mesh of only degenerate triangles", pn_mesh_commit(mesh), ctx);
+
+    /* Rays never hit degenerate triangles, and do hit the valid one. */
+    pn_scene scene = NULL;
+    uint32_t id;
+    if (expect_ok("set geometry with degenerate triangles again", pn_mesh_set_geometry(mesh, dpos, 5, didx, 3, NULL),
+                  ctx) &&
+        expect_ok("commit", pn_mesh_commit(mesh), ctx) && expect_ok("scene", pn_scene_create(ctx, &scene), ctx) &&
+        expect_ok("add", pn_scene_add_instance(scene, mesh, NULL, NULL, &id), ctx) &&
+        expect_ok("commit scene with degenerate triangles", pn_scene_commit(scene), ctx)) {
+        /* Down the collinear edge x in (1, 2) at y = 0 (only degenerate triangles there), and into the valid one. */
+        float rays[16] = {1.5f, 0.0f, 1.0f, 0.0f, 0.0f, 0.0f, -1.0f, INFINITY,
+                          0.9f, 0.5f, 1.0f, 0.0f, 0.0f, 0.0f, -1.0f, INFINITY};
+        float t[2] = {0, 0};
+        uint32_t inst[2] = {0, 0}, tri[2] = {0, 0};
+        if (expect_ok("intersect", pn_scene_intersect(scene, rays, 2, t, inst, tri), ctx)) {
+            report(isinf(t[0]) && inst[0] == PN_BACKGROUND, "a ray through degenerate triangles misses",
+                   "t=%g inst=%u tri=%u", (double)t[0], inst[0], tri[0]);
+            report(near(t[1], 1.0f, 1e-5f) && inst[1] == id && tri[1] == 0, "a ray hits the valid triangle",
+                   "t=%g inst=%u tri=%u", (double)t[1], inst[1], tri[1]);
+        }
+        /* Changing the mesh makes the scene unusable until both are committed again. */
+        expect_ok("change the mesh", pn_mesh_set_geometry(mesh, pos, 4, idx, 3, NULL), ctx);
+        expect_error("query with a changed mesh", pn_scene_intersect(scene, rays, 2, t, inst, tri),
+                     PN_ERROR_NOT_COMMITTED, ctx, NULL);
+        expect_error("scene commit with an uncommitted mesh", pn_scene_commit(scene), PN_ERROR_NOT_COMMITTED, ctx,
+                     NULL);
+        expect_ok("recommit the mesh", pn_mesh_commit(mesh), ctx);
+        expect_error("query with a recommitted mesh but not the scene",
+                     pn_scene_intersect(scene, rays, 2, t, inst, tri), PN_ERROR_NOT_COMMITTED, ctx, NULL);
+        expect_ok("recommit the scene", pn_scene_commit(scene), ctx);
+        if (expect_ok("query after both commits", pn_scene_intersect(scene, rays, 2, t, inst, tri), ctx))
+            report(near(t[1], 1.0f, 1e-5f) && inst[1] == id, "hit after recommit", "t=%g inst=%u", (double)t[1],
+                   inst[1]);
+        rays[4] = NAN;
+        expect_error("ray with a NaN direction", pn_scene_intersect(scene, rays, 2, t, inst, tri),
+                     PN_ERROR_INVALID_VALUE, ctx, "ray 0", NULL);
+    }
+    if (scene)
+        pn_scene_release(scene);
+    expect_ok("pn_mesh_release", pn_mesh_release(mesh), ctx);
+}
+
+static void test_scene(pn_context ctx)
+{
+    rig r;
+    if (!rig_create(ctx, &r, 16, 12, 4))
+        return;
+    uint32_t id = 99;
+    const float singular[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0};
+    const float zero[12] = {0};
+    const float rank2[12] = {1, 2, 3, 0, 2, 4, 6, 0, 0, 0, 1, 0};
+    float nan_t[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+    nan_t[3] = NAN;
+    float inf_t[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+    inf_t[5] = INFINITY;
+    expect_error("singular transform (zero row)", pn_scene_add_instance(r.scene, r.mesh, singular, NULL, &id),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "singular", NULL);
+    expect_error("zero transform", pn_scene_add_instance(r.scene, r.mesh, zero, NULL, &id), PN_ERROR_INVALID_ARGUMENT,
+                 ctx, NULL);
+    expect_error("rank-2 transform", pn_scene_add_instance(r.scene, r.mesh, rank2, NULL, &id),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, NULL);
+    expect_error("NaN translation", pn_scene_add_instance(r.scene, r.mesh, nan_t, NULL, &id),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "finite", NULL);
+    expect_error("Inf transform", pn_scene_add_instance(r.scene, r.mesh, inf_t, NULL, &id), PN_ERROR_INVALID_ARGUMENT,
+                 ctx, "finite", NULL);
+    CHECK("a refused add_instance leaves *id alone", id == 99);
+    expect_error("set_instance_transform singular", pn_scene_set_instance_transform(r.scene, r.instance, singular),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, NULL);
+    expect_error("set_instance_transform NaN", pn_scene_set_instance_transform(r.scene, r.instance, nan_t),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, NULL);
+    expect_error("set_instance_transform unknown id", pn_scene_set_instance_transform(r.scene, 1000, NULL),
+                 PN_ERROR_OUT_OF_RANGE, ctx, "1000", NULL);
+    const float scaled[12] = {1e-3f, 0, 0, 0, 0, 1e-3f, 0, 0, 0, 0, 1e-3f, 0};
+    expect_ok("a small uniform scale is invertible", pn_scene_set_instance_transform(r.scene, r.instance, scaled), ctx);
+    expect_ok("identity (NULL) transform", pn_scene_set_instance_transform(r.scene, r.instance, NULL), ctx);
+
+    /* Materials. */
+    const pn_material def = pn_material_default();
+    CHECK("pn_material_default", def.albedo[0] == 0.8f && def.albedo[1] == 0.8f && def.albedo[2] == 0.8f &&
+                                     def.specular == 0.0f && def.shininess == 100.0f && def.roughness == 0.3f &&
+                                     def.lobe == PN_LOBE_PHONG);
+    struct { const char *name; pn_material m; } bad[10];
+    for (int i = 0; i < 10; ++i)
+        bad[i].m = def;
+    bad[0].name = "albedo 1.5";
+    bad[0].m.albedo[1] = 1.5f;
+    bad[1].name = "albedo -0.1";
+    bad[1].m.albedo[0] = -0.1f;
+    bad[2].name = "albedo NaN";
+    bad[2].m.albedo[2] = NAN;
+    bad[3].name = "specular 2";
+    bad[3].m.specular = 2.0f;
+    bad[4].name = "specular -1";
+    bad[4].m.specular = -1.0f;
+    bad[5].name = "shininess -1";
+    bad[5].m.shininess = -1.0f;
+    bad[6].name = "shininess Inf";
+    bad[6].m.shininess = INFINITY;
+    bad[7].name = "roughness 0";
+    bad[7].m.roughness = 0.0f;
+    bad[8].name = "roughness 1.5";
+    bad[8].m.roughness = 1.5f;
+    bad[9].name = "lobe 3";
+    bad[9].m.lobe = 3;
+    for (int i = 0; i < 10; ++i) {
+        char name[96];
+        snprintf(name, sizeof name, "material %s (add_instance)", bad[i].name);
+        expect_error(name, pn_scene_add_instance(r.scene, r.mesh, NULL, &bad[i].m, &id), PN_ERROR_INVALID_ARGUMENT,
+                     ctx, "material", NULL);
+        snprintf(name, sizeof name, "material %s (set_instance_material)", bad[i].name);
+        expect_error(name, pn_scene_set_instance_material(r.scene, r.instance, &bad[i].m), PN_ERROR_INVALID_ARGUMENT,
+                     ctx, "material", NULL);
+    }
+    pn_material edge = def;
+    edge.albedo[0] = 0.0f;
+    edge.albedo[1] = 1.0f;
+    edge.specular = 1.0f;
+    edge.shininess = 0.0f;
+    edge.roughness = 1.0f;
+    edge.lobe = PN_LOBE_GGX;
+    expect_ok("material at the edges of its domain", pn_scene_set_instance_material(r.scene, r.instance, &edge), ctx);
+    expect_error("set_instance_material unknown id", pn_scene_set_instance_material(r.scene, 77, &def),
+                 PN_ERROR_OUT_OF_RANGE, ctx, "77", NULL);
+
+    /* Instances: add, remove, remove again. */
+    uint32_t second = 0;
+    expect_ok("add a second instance (NULL material)", pn_scene_add_instance(r.scene, r.mesh, NULL, NULL, &second),
+              ctx);
+    CHECK("instance ids differ", second != r.instance);
+    expect_ok("remove it", pn_scene_remove_instance(r.scene, second), ctx);
+    expect_error("remove it again", pn_scene_remove_instance(r.scene, second), PN_ERROR_OUT_OF_RANGE, ctx, NULL);
+    expect_error("set the transform of a removed instance", pn_scene_set_instance_transform(r.scene, second, NULL),
+                 PN_ERROR_OUT_OF_RANGE, ctx, NULL);
+
+    /* Cameras. */
+    pn_camera cam = front_camera(16, 12);
+    pn_camera c = cam;
+    c.fov_deg = 0.0f;
+    expect_error("camera fov 0", pn_scene_set_camera(r.scene, &c), PN_ERROR_INVALID_ARGUMENT, ctx, "fov", NULL);
+    c.fov_deg = 180.0f;
+    expect_error("camera fov 180", pn_scene_set_camera(r.scene, &c), PN_ERROR_INVALID_ARGUMENT, ctx, "fov", NULL);
+    c.fov_deg = -30.0f;
+    expect_error("camera fov -30", pn_scene_set_camera(r.scene, &c), PN_ERROR_INVALID_ARGUMENT, ctx, NULL);
+    c.fov_deg = NAN;
+    expect_error("camera fov NaN", pn_scene_set_camera(r.scene, &c), PN_ERROR_INVALID_ARGUMENT, ctx, NULL);
+    c = cam;
+    c.width = 0;
+    pn_status st = pn_scene_set_camera(r.scene, &c);
+    /* The header says width >= 1 without naming the status: any of the size/argument errors will do. */
+    report(st == PN_ERROR_INVALID_ARGUMENT || st == PN_ERROR_INVALID_SIZE || st == PN_ERROR_EMPTY_INPUT,
+           "camera width 0 is refused", "returned %s", pn_status_name(st));
+    pn_get_error(ctx, NULL);
+    c = cam;
+    c.height = 0;
+    st = pn_scene_set_camera(r.scene, &c);
+    report(st == PN_ERROR_INVALID_ARGUMENT || st == PN_ERROR_INVALID_SIZE || st == PN_ERROR_EMPTY_INPUT,
+           "camera height 0 is refused", "returned %s", pn_status_name(st));
+    pn_get_error(ctx, NULL);
+    c = cam;
+    c.up[0] = 0;
+    c.up[1] = 0;
+    c.up[2] = -2; /* parallel to the view direction (0, 0, -1) */
+    expect_error("camera up parallel to the view", pn_scene_set_camera(r.scene, &c), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "up", NULL);
+    c.up[2] = 0;
+    expect_error("camera up zero", pn_scene_set_camera(r.scene, &c), PN_ERROR_INVALID_ARGUMENT, ctx, "up", NULL);
+    c = cam;
+    memcpy(c.look_at, c.position, sizeof c.look_at);
+    expect_error("camera look_at == position", pn_scene_set_camera(r.scene, &c), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 NULL);
+    c = cam;
+    c.position[1] = INFINITY;
+    expect_error("camera position Inf", pn_scene_set_camera(r.scene, &c), PN_ERROR_INVALID_ARGUMENT, ctx, NULL);
+
+    /* The failed camera calls kept the good camera: the scene still renders at 16x12. */
+    expect_ok("recommit", pn_scene_commit(r.scene), ctx);
+    expect_ok("render after refused camera changes", rig_render(&r), ctx);
+
+    /* render_gbuffer with the wrong size. */
+    pn_gbuffer small = NULL;
+    if (expect_ok("gbuffer 8x8", pn_gbuffer_create(ctx, 8, 8, &small), ctx)) {
+        expect_error("render_gbuffer with a G-buffer of the wrong size", pn_scene_render_gbuffer(r.scene, small),
+                     PN_ERROR_INVALID_SIZE, ctx, "8x8", "16x12", NULL);
+        expect_error("execute with G-buffer and image of different sizes",
+                     pn_renderer_execute(r.renderer, r.scene, small, r.image), PN_ERROR_INVALID_SIZE, ctx, NULL);
+        pn_gbuffer_release(small);
+    }
+
+    /* Changed but not committed. */
+    expect_ok("move the instance", pn_scene_set_instance_transform(r.scene, r.instance, scaled), ctx);
+    expect_error("render_gbuffer on a changed scene", pn_scene_render_gbuffer(r.scene, r.gbuffer),
+                 PN_ERROR_NOT_COMMITTED, ctx, "pn_scene_commit", NULL);
+    expect_error("execute on a changed scene", pn_renderer_execute(r.renderer, r.scene, r.gbuffer, r.image),
+                 PN_ERROR_NOT_COMMITTED, ctx, NULL);
+    float ray[8] = {0, 0, 3, 0, 0, 0, -1, INFINITY};
+    uint8_t occ;
+    expect_error("occluded on a changed scene", pn_scene_occluded(r.scene, ray, 1, &occ), PN_ERROR_NOT_COMMITTED, ctx,
+                 NULL);
+    expect_ok("commit", pn_scene_commit(r.scene), ctx);
+    expect_ok("render after commit", rig_render(&r), ctx);
+    expect_ok("add an instance", pn_scene_add_instance(r.scene, r.mesh, NULL, NULL, &id), ctx);
+    expect_error("render_gbuffer after add_instance", pn_scene_render_gbuffer(r.scene, r.gbuffer),
+                 PN_ERROR_NOT_COMMITTED, ctx, NULL);
+    expect_ok("commit", pn_scene_commit(r.scene), ctx);
+    expect_ok("remove the instance", pn_scene_remove_instance(r.scene, id), ctx);
+    expect_error("render_gbuffer after remove_instance", pn_scene_render_gbuffer(r.scene, r.gbuffer),
+                 PN_ERROR_NOT_COMMITTED, ctx, NULL);
+    expect_ok("commit", pn_scene_commit(r.scene), ctx);
+    expect_ok("change a material", pn_scene_set_instance_material(r.scene, r.instance, &def), ctx);
+    expect_error("execute after set_instance_material", pn_renderer_execute(r.renderer, r.scene, r.gbuffer, r.image),
+                 PN_ERROR_NOT_COMMITTED, ctx, NULL);
+    expect_ok("commit", pn_scene_commit(r.scene), ctx);
+    /* The env map changed. */
+    expect_ok("change the env map intensity", pn_envmap_set_float(r.env, "intensity", 0.5f), ctx);
+    expect_error("execute with a changed env map", pn_renderer_execute(r.renderer, r.scene, r.gbuffer, r.image),
+                 PN_ERROR_NOT_COMMITTED, ctx, NULL);
+    expect_ok("a G-buffer needs no env map", pn_scene_render_gbuffer(r.scene, r.gbuffer), ctx);
+    expect_ok("recommit the env map", pn_envmap_commit(r.env), ctx);
+    expect_ok("execute after env commit", pn_renderer_execute(r.renderer, r.scene, r.gbuffer, r.image), ctx);
+
+    /* A scene with no env map or no camera. */
+    pn_scene bare = NULL;
+    if (expect_ok("scene", pn_scene_create(ctx, &bare), ctx)) {
+        expect_ok("add", pn_scene_add_instance(bare, r.mesh, NULL, NULL, &id), ctx);
+        expect_ok("commit a scene without camera or env", pn_scene_commit(bare), ctx);
+        expect_error("render_gbuffer without a camera", pn_scene_render_gbuffer(bare, r.gbuffer),
+                     PN_ERROR_NOT_COMMITTED, ctx, "camera", NULL);
+        expect_error("execute without an env map", pn_renderer_execute(r.renderer, bare, r.gbuffer, r.image),
+                     PN_ERROR_NOT_COMMITTED, ctx, "env", NULL);
+        pn_scene_release(bare);
+    }
+    /* An empty scene commits and renders background only. */
+    pn_scene empty = NULL;
+    if (expect_ok("empty scene", pn_scene_create(ctx, &empty), ctx)) {
+        pn_camera ec = front_camera(16, 12);
+        float t = 0;
+        uint32_t inst = 0;
+        if (expect_ok("set camera", pn_scene_set_camera(empty, &ec), ctx) &&
+            expect_ok("set envmap", pn_scene_set_envmap(empty, r.env), ctx) &&
+            expect_ok("commit an empty scene", pn_scene_commit(empty), ctx) &&
+            expect_ok("intersect an empty scene", pn_scene_intersect(empty, ray, 1, &t, &inst, NULL), ctx))
+            CHECK("an empty scene has no hits", isinf(t) && inst == PN_BACKGROUND);
+        expect_ok("render an empty scene", pn_scene_render_gbuffer(empty, r.gbuffer), ctx);
+        pn_scene_release(empty);
+    }
+    pn_context_finish(ctx);
+    rig_release(&r);
+}
+
+static void test_renderer(pn_context ctx)
+{
+    pn_renderer rend = (pn_renderer)(uintptr_t)1;
+    expect_error("unknown method", pn_renderer_create(ctx, "raytraced-banana", &rend), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "raytraced-banana", "unshadowed", NULL);
+    rend = NULL;
+    if (!expect_ok("renderer unshadowed", pn_renderer_create(ctx, "unshadowed", &rend), ctx))
+        return;
+    int32_t v = -1;
+    float f;
+    expect_ok("get background", pn_renderer_get_int(rend, "background", &v), ctx);
+    CHECK("background defaults to 1", v == 1);
+    expect_error("unknown int parameter", pn_renderer_set_int(rend, "samples", 4), PN_ERROR_BAD_CONFIG, ctx, "samples",
+                 NULL);
+    expect_error("unknown float parameter", pn_renderer_set_float(rend, "exposure", 1.0f), PN_ERROR_BAD_CONFIG, ctx,
+                 "exposure", NULL);
+    expect_error("int parameter as float", pn_renderer_set_float(rend, "background", 0.0f), PN_ERROR_BAD_CONFIG, ctx,
+                 "background", NULL);
+    expect_error("get unknown float parameter", pn_renderer_get_float(rend, "exposure", &f), PN_ERROR_BAD_CONFIG, ctx,
+                 "exposure", NULL);
+    expect_error("background 2", pn_renderer_set_int(rend, "background", 2), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "background", NULL);
+    expect_ok("background 0", pn_renderer_set_int(rend, "background", 0), ctx);
+    expect_ok("get background", pn_renderer_get_int(rend, "background", &v), ctx);
+    CHECK("background is 0 after set", v == 0);
+
+    rig r;
+    if (rig_create(ctx, &r, 8, 8, 4)) {
+        expect_error("execute a renderer changed since its commit", pn_renderer_execute(rend, r.scene, r.gbuffer, r.image),
+                     PN_ERROR_NOT_COMMITTED, ctx, "pn_renderer_commit", NULL);
+        expect_ok("commit", pn_renderer_commit(rend), ctx);
+        expect_ok("render_gbuffer", pn_scene_render_gbuffer(r.scene, r.gbuffer), ctx);
+        expect_ok("execute", pn_renderer_execute(rend, r.scene, r.gbuffer, r.image), ctx);
+        float px[8 * 8 * 4];
+        if (expect_ok("read", pn_image_read(r.image, px, sizeof px), ctx))
+            report(px[0] == 0 && px[1] == 0 && px[2] == 0 && px[3] == 0, "background 0 gives black background pixels",
+                   "corner (%g %g %g %g)", (double)px[0], (double)px[1], (double)px[2], (double)px[3]);
+        pn_image other = NULL;
+        if (expect_ok("image 4x4", pn_image_create(ctx, 4, 4, &other), ctx)) {
+            expect_error("execute into an image of another size", pn_renderer_execute(rend, r.scene, r.gbuffer, other),
+                         PN_ERROR_INVALID_SIZE, ctx, NULL);
+            pn_image_release(other);
+        }
+        rig_release(&r);
+    }
+    pn_renderer_release(rend);
+}
+
+static void test_gbuffer(pn_context ctx)
+{
+    const uint32_t W = 8, H = 6, N = W * H;
+    CHECK("plane element sizes", pn_gbuffer_plane_element_size(PN_GBUFFER_POSITION) == 16 &&
+                                     pn_gbuffer_plane_element_size(PN_GBUFFER_NORMAL) == 16 &&
+                                     pn_gbuffer_plane_element_size(PN_GBUFFER_ALBEDO) == 16 &&
+                                     pn_gbuffer_plane_element_size(PN_GBUFFER_MATERIAL) == 16 &&
+                                     pn_gbuffer_plane_element_size(PN_GBUFFER_INSTANCE) == 4);
+    CHECK("plane 7 has element size 0", pn_gbuffer_plane_element_size((pn_gbuffer_plane)7) == 0);
+    CHECK("plane -1 has element size 0", pn_gbuffer_plane_element_size((pn_gbuffer_plane)-1) == 0);
+
+    pn_gbuffer gb = NULL;
+    expect_error("gbuffer 0x6", pn_gbuffer_create(ctx, 0, H, &gb), PN_ERROR_EMPTY_INPUT, ctx, NULL);
+    expect_error("gbuffer 8x0", pn_gbuffer_create(ctx, W, 0, &gb), PN_ERROR_EMPTY_INPUT, ctx, NULL);
+    expect_error("gbuffer 40000x1", pn_gbuffer_create(ctx, 40000, 1, &gb), PN_ERROR_INVALID_SIZE, ctx, NULL);
+    pn_image img = NULL;
+    expect_error("image 0x0", pn_image_create(ctx, 0, 0, &img), PN_ERROR_EMPTY_INPUT, ctx, NULL);
+    if (!expect_ok("gbuffer 8x6", pn_gbuffer_create(ctx, W, H, &gb), ctx))
+        return;
+    uint32_t w = 0, h = 0;
+    expect_ok("get_size", pn_gbuffer_get_size(gb, &w, &h), ctx);
+    CHECK("get_size gives 8x6", w == W && h == H);
+
+    float *pos = calloc(N, 16), *nrm = calloc(N, 16), *alb = calloc(N, 16), *mat = calloc(N, 16);
+    uint32_t *ids = calloc(N, 4);
+    expect_error("write with a wrong byte count", pn_gbuffer_write(gb, PN_GBUFFER_NORMAL, nrm, (size_t)N * 16 - 4),
+                 PN_ERROR_INVALID_SIZE, ctx, NULL);
+    expect_error("write instance plane with the float4 size", pn_gbuffer_write(gb, PN_GBUFFER_INSTANCE, ids, (size_t)N * 16),
+                 PN_ERROR_INVALID_SIZE, ctx, NULL);
+    expect_error("read with a wrong byte count", pn_gbuffer_read(gb, PN_GBUFFER_POSITION, pos, 16),
+                 PN_ERROR_INVALID_SIZE, ctx, NULL);
+    expect_error("write plane 7", pn_gbuffer_write(gb, (pn_gbuffer_plane)7, nrm, (size_t)N * 16),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "7", NULL);
+    expect_error("read plane 7", pn_gbuffer_read(gb, (pn_gbuffer_plane)7, nrm, (size_t)N * 16),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "7", NULL);
+    cl_mem plane_mem;
+    expect_error("get_cl plane 7", pn_gbuffer_get_cl(gb, (pn_gbuffer_plane)7, &plane_mem), PN_ERROR_INVALID_ARGUMENT,
+                 ctx, "7", NULL);
+    expect_error("get_cl plane -1", pn_gbuffer_get_cl(gb, (pn_gbuffer_plane)-1, &plane_mem), PN_ERROR_INVALID_ARGUMENT,
+                 ctx, NULL);
+
+    /* A caller-written G-buffer: the left column is background, the rest a plane at z = 0 facing +z. */
+    for (uint32_t y = 0; y < H; ++y)
+        for (uint32_t x = 0; x < W; ++x) {
+            size_t i = (size_t)y * W + x;
+            ids[i] = x == 0 ? PN_BACKGROUND : 0;
+            pos[4 * i + 0] = (float)x;
+            pos[4 * i + 1] = (float)y;
+            pos[4 * i + 2] = 0.0f;
+            pos[4 * i + 3] = 3.0f;
+            nrm[4 * i + 2] = 1.0f;
+            alb[4 * i + 0] = alb[4 * i + 1] = alb[4 * i + 2] = 0.5f;
+            mat[4 * i + 0] = 100.0f;
+            mat[4 * i + 1] = 0.3f;
+        }
+    /* Background pixels may hold anything. */
+    nrm[4 * (2 * W + 0) + 0] = NAN;
+    pos[4 * (3 * W + 0) + 1] = INFINITY;
+    nrm[4 * (4 * W + 0) + 2] = 0.0f;
+    int wrote = expect_ok("write position", pn_gbuffer_write(gb, PN_GBUFFER_POSITION, pos, (size_t)N * 16), ctx) &&
+                expect_ok("write normal", pn_gbuffer_write(gb, PN_GBUFFER_NORMAL, nrm, (size_t)N * 16), ctx) &&
+                expect_ok("write albedo", pn_gbuffer_write(gb, PN_GBUFFER_ALBEDO, alb, (size_t)N * 16), ctx) &&
+                expect_ok("write material", pn_gbuffer_write(gb, PN_GBUFFER_MATERIAL, mat, (size_t)N * 16), ctx) &&
+                expect_ok("write instance", pn_gbuffer_write(gb, PN_GBUFFER_INSTANCE, ids, (size_t)N * 4), ctx);
+    if (wrote) {
+        expect_ok("validate: NaN/Inf/zero on background pixels are fine", pn_gbuffer_validate(gb), ctx);
+        uint32_t *back = calloc(N, 4);
+        if (expect_ok("read instance back", pn_gbuffer_read(gb, PN_GBUFFER_INSTANCE, back, (size_t)N * 4), ctx))
+            CHECK("instance plane round trip", !memcmp(back, ids, (size_t)N * 4));
+        free(back);
+        /* A NaN normal at foreground pixel (x=5, y=3), plus a zero normal later. */
+        nrm[4 * (3 * W + 5) + 1] = NAN;
+        nrm[4 * (5 * W + 6) + 2] = 0.0f;
+        pn_gbuffer_write(gb, PN_GBUFFER_NORMAL, nrm, (size_t)N * 16);
+        expect_error("validate: NaN normal on a foreground pixel", pn_gbuffer_validate(gb), PN_ERROR_INVALID_VALUE, ctx,
+                     "(x=5, y=3)", "2 foreground", NULL);
+        nrm[4 * (3 * W + 5) + 1] = 0.0f;
+        pn_gbuffer_write(gb, PN_GBUFFER_NORMAL, nrm, (size_t)N * 16);
+        expect_error("validate: zero normal on a foreground pixel", pn_gbuffer_validate(gb), PN_ERROR_INVALID_VALUE,
+                     ctx, "(x=6, y=5)", "1 foreground", NULL);
+        nrm[4 * (5 * W + 6) + 2] = 1.0f;
+        pn_gbuffer_write(gb, PN_GBUFFER_NORMAL, nrm, (size_t)N * 16);
+        pos[4 * (1 * W + 1) + 0] = -INFINITY;
+        pn_gbuffer_write(gb, PN_GBUFFER_POSITION, pos, (size_t)N * 16);
+        expect_error("validate: infinite position on a foreground pixel", pn_gbuffer_validate(gb),
+                     PN_ERROR_INVALID_VALUE, ctx, "(x=1, y=1)", NULL);
+        pos[4 * (1 * W + 1) + 0] = 1.0f;
+        pn_gbuffer_write(gb, PN_GBUFFER_POSITION, pos, (size_t)N * 16);
+        expect_ok("validate after fixing", pn_gbuffer_validate(gb), ctx);
+
+        /* Shade the caller's G-buffer: foreground = albedo * E / pi = 0.5 under a unit env. */
+        rig r;
+        if (rig_create(ctx, &r, W, H, 8)) {
+            pn_image im = NULL;
+            float *px = calloc(N, 16);
+            if (expect_ok("image", pn_image_create(ctx, W, H, &im), ctx) &&
+                expect_ok("shade a caller-written G-buffer", pn_renderer_execute(r.renderer, r.scene, gb, im), ctx) &&
+                expect_ok("read", pn_image_read(im, px, (size_t)N * 16), ctx)) {
+                size_t fg = 2 * W + 3;
+                report(near(px[4 * fg], 0.5f, 1e-3f) && px[4 * fg + 3] == 1.0f, "shading a written G-buffer",
+                       "pixel (3, 2) = (%g %g %g %g)", (double)px[4 * fg], (double)px[4 * fg + 1],
+                       (double)px[4 * fg + 2], (double)px[4 * fg + 3]);
+                expect_error("image read with a wrong byte count", pn_image_read(im, px, (size_t)N * 16 + 16),
+                             PN_ERROR_INVALID_SIZE, ctx, NULL);
+            }
+            free(px);
+            if (im)
+                pn_image_release(im);
+            rig_release(&r);
+        }
+    }
+    free(pos);
+    free(nrm);
+    free(alb);
+    free(mat);
+    free(ids);
+
+    /* Wrapping caller-owned buffers. */
+    cl_context clc = NULL;
+    expect_ok("get_cl", pn_context_get_cl(ctx, &clc, NULL, NULL), ctx);
+    cl_mem planes[PN_GBUFFER_PLANE_COUNT] = {0};
+    cl_int err = CL_SUCCESS;
+    for (int p = 0; p < PN_GBUFFER_PLANE_COUNT && err == CL_SUCCESS; ++p)
+        planes[p] = clCreateBuffer(clc, CL_MEM_READ_WRITE, (size_t)N * pn_gbuffer_plane_element_size((pn_gbuffer_plane)p),
+                                   NULL, &err);
+    cl_mem tiny = clCreateBuffer(clc, CL_MEM_READ_WRITE, (size_t)N * 16 - 16, NULL, &err);
+    if (err != CL_SUCCESS) {
+        report(0, "clCreateBuffer for caller-owned planes", "OpenCL error %d", err);
+    } else {
+        pn_gbuffer wrapped = NULL;
+        cl_mem saved = planes[PN_GBUFFER_ALBEDO];
+        planes[PN_GBUFFER_ALBEDO] = tiny;
+        expect_error("create_from_cl with a too-small plane", pn_gbuffer_create_from_cl(ctx, W, H, planes, &wrapped),
+                     PN_ERROR_INVALID_SIZE, ctx, "albedo", NULL);
+        planes[PN_GBUFFER_ALBEDO] = saved;
+        expect_error("create_from_cl larger than the buffers", pn_gbuffer_create_from_cl(ctx, W, H + 1, planes, &wrapped),
+                     PN_ERROR_INVALID_SIZE, ctx, NULL);
+        cl_mem saved_inst = planes[PN_GBUFFER_INSTANCE];
+        planes[PN_GBUFFER_INSTANCE] = NULL;
+        pn_status st = pn_gbuffer_create_from_cl(ctx, W, H, planes, &wrapped);
+        report(st == PN_ERROR_NULL_HANDLE || st == PN_ERROR_INVALID_ARGUMENT, "create_from_cl with a NULL plane",
+               "returned %s", pn_status_name(st));
+        pn_get_error(ctx, NULL);
+        pn_get_error(NULL, NULL);
+        planes[PN_GBUFFER_INSTANCE] = saved_inst;
+        expect_error("create_from_cl with planes = NULL", pn_gbuffer_create_from_cl(ctx, W, H, NULL, &wrapped),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, "planes", NULL);
+        pn_image wimg = NULL;
+        expect_error("image_create_from_cl with a too-small buffer", pn_image_create_from_cl(ctx, W, H, tiny, &wimg),
+                     PN_ERROR_INVALID_SIZE, ctx, NULL);
+        if (expect_ok("create_from_cl with adequate buffers", pn_gbuffer_create_from_cl(ctx, W, H, planes, &wrapped),
+                      ctx)) {
+            cl_mem got = NULL;
+            expect_ok("get_cl of a wrapped plane", pn_gbuffer_get_cl(wrapped, PN_GBUFFER_MATERIAL, &got), ctx);
+            CHECK("the wrapped plane is the caller's buffer (not a copy)", got == planes[PN_GBUFFER_MATERIAL]);
+            /* Borrowed objects are retained: the caller may drop its references. */
+            for (int p = 0; p < PN_GBUFFER_PLANE_COUNT; ++p) {
+                clReleaseMemObject(planes[p]);
+                planes[p] = NULL;
+            }
+            uint32_t *buf = calloc(N, 4);
+            for (uint32_t i = 0; i < N; ++i)
+                buf[i] = i * 7u;
+            uint32_t *back = calloc(N, 4);
+            if (expect_ok("write after the caller released its buffers",
+                          pn_gbuffer_write(wrapped, PN_GBUFFER_INSTANCE, buf, (size_t)N * 4), ctx) &&
+                expect_ok("read it back", pn_gbuffer_read(wrapped, PN_GBUFFER_INSTANCE, back, (size_t)N * 4), ctx))
+                CHECK("wrapped plane round trip", !memcmp(buf, back, (size_t)N * 4));
+            free(buf);
+            free(back);
+            pn_gbuffer_release(wrapped);
+        }
+    }
+    for (int p = 0; p < PN_GBUFFER_PLANE_COUNT; ++p)
+        if (planes[p])
+            clReleaseMemObject(planes[p]);
+    if (tiny)
+        clReleaseMemObject(tiny);
+    pn_gbuffer_release(gb);
+}
+
+/* ------------------------------------------------------ error routing */
+
+typedef struct callback_log {
+    int calls;
+    pn_status status;
+    char message[2048];
+} callback_log;
+
+static void on_error(void *user, pn_status status, const char *message)
+{
+    callback_log *log = user;
+    log->calls++;
+    log->status = status;
+    snprintf(log->message, sizeof log->message, "%s", message ? message : "(NULL)");
+}
+
+typedef struct thread_args {
+    pn_envmap env;
+    pn_context ctx;
+    pn_status in_thread_before, call, in_thread_after;
+    char message[2048];
+} thread_args;
+
+static void *error_in_thread(void *p)
+{
+    thread_args *a = p;
+    a->in_thread_before = pn_get_error(a->ctx, NULL);
+    a->call = pn_envmap_set_int(a->env, "thread-banana", 1);
+    const char *msg = NULL;
+    a->in_thread_after = pn_get_error(a->ctx, &msg);
+    snprintf(a->message, sizeof a->message, "%s", msg ? msg : "");
+    return NULL;
+}
+
+static void test_error_routing(pn_context a, pn_context b)
+{
+    pn_envmap ea = NULL, eb = NULL;
+    if (!expect_ok("env on A", pn_envmap_create(a, &ea), a) || !expect_ok("env on B", pn_envmap_create(b, &eb), b))
+        goto out;
+
+    /* An error on A is not visible on B nor in the global slot; reading clears it. */
+    pn_status st = pn_envmap_set_int(ea, "banana-a", 1);
+    CHECK("error on A returned", st == PN_ERROR_BAD_CONFIG);
+    CHECK("B's slot is empty", pn_get_error(b, NULL) == PN_SUCCESS);
+    CHECK("the global slot is empty", pn_get_error(NULL, NULL) == PN_SUCCESS);
+    const char *msg = NULL;
+    st = pn_get_error(a, &msg);
+    report(st == PN_ERROR_BAD_CONFIG && msg && strstr(msg, "banana-a"), "A's slot holds its error", "%s '%s'",
+           pn_status_name(st), msg ? msg : "(NULL)");
+    st = pn_get_error(a, &msg);
+    report(st == PN_SUCCESS && msg && !*msg, "pn_get_error cleared A's slot", "%s '%s'", pn_status_name(st),
+           msg ? msg : "(NULL)");
+
+    /* Errors on both: each keeps its own. */
+    pn_envmap_set_int(ea, "first-a", 1);
+    pn_envmap_set_int(eb, "first-b", 1);
+    pn_envmap_commit(NULL); /* global */
+    char ma[2048], mb[2048], mg[2048];
+    pn_status sa = take_error(a, ma, sizeof ma), sb = take_error(b, mb, sizeof mb), sg = take_error(NULL, mg, sizeof mg);
+    report(sa == PN_ERROR_BAD_CONFIG && strstr(ma, "first-a") && !strstr(ma, "first-b"), "A keeps A's error", "'%s'",
+           ma);
+    report(sb == PN_ERROR_BAD_CONFIG && strstr(mb, "first-b"), "B keeps B's error", "'%s'", mb);
+    report(sg == PN_ERROR_NULL_HANDLE && strstr(mg, "pn_envmap_commit"), "the global slot keeps the NULL-handle error",
+           "'%s'", mg);
+
+    /* The last error wins; a later success does not hide it (the slot holds the last error). */
+    pn_envmap_set_int(ea, "older", 1);
+    pn_envmap_set_int(ea, "newer", 1);
+    int32_t v;
+    pn_envmap_get_int(ea, "face_size", &v);
+    st = take_error(a, ma, sizeof ma);
+    report(st == PN_ERROR_BAD_CONFIG && strstr(ma, "newer"), "the slot holds the most recent error", "%s '%s'",
+           pn_status_name(st), ma);
+
+    /* Callback: called with status and message, on the failing call, only for its context. */
+    callback_log log = {0};
+    expect_ok("set callback", pn_context_set_error_callback(a, on_error, &log), a);
+    st = pn_envmap_set_int(ea, "cb-banana", 1);
+    report(log.calls == 1 && log.status == PN_ERROR_BAD_CONFIG && strstr(log.message, "cb-banana"),
+           "the callback gets status and message", "calls %d status %s message '%s'", log.calls,
+           pn_status_name(log.status), log.message);
+    take_error(a, ma, sizeof ma);
+    report(!strcmp(ma, log.message), "the callback's message is pn_get_error's", "'%s' vs '%s'", ma, log.message);
+    pn_envmap_set_int(eb, "on-b", 1);
+    CHECK("errors on B do not call A's callback", log.calls == 1);
+    pn_get_error(b, NULL);
+    pn_envmap_commit(NULL);
+    CHECK("global errors do not call a context's callback", log.calls == 1);
+    pn_get_error(NULL, NULL);
+    int32_t good;
+    pn_envmap_get_int(ea, "face_size", &good);
+    CHECK("successful calls do not call the callback", log.calls == 1);
+    pn_envmap_set_float(ea, "intensity", -1.0f);
+    report(log.calls == 2 && log.status == PN_ERROR_INVALID_ARGUMENT, "the callback sees each error", "calls %d status %s",
+           log.calls, pn_status_name(log.status));
+    pn_get_error(a, NULL);
+    expect_ok("remove callback", pn_context_set_error_callback(a, NULL, NULL), a);
+    pn_envmap_set_int(ea, "after-removal", 1);
+    CHECK("a removed callback is not called", log.calls == 2);
+    pn_get_error(a, NULL);
+
+    /* Per thread: an error made on A in another thread is not visible in this one. */
+    thread_args ta;
+    memset(&ta, 0, sizeof ta);
+    ta.env = ea;
+    ta.ctx = a;
+    pn_envmap_set_int(ea, "main-thread", 1); /* left in this thread's slot for A */
+    pthread_t th;
+    if (pthread_create(&th, NULL, error_in_thread, &ta) == 0) {
+        pthread_join(th, NULL);
+        CHECK("a new thread starts with A's slot empty", ta.in_thread_before == PN_SUCCESS);
+        report(ta.call == PN_ERROR_BAD_CONFIG && ta.in_thread_after == PN_ERROR_BAD_CONFIG &&
+                   strstr(ta.message, "thread-banana"),
+               "the thread reads its own error", "'%s'", ta.message);
+        st = take_error(a, ma, sizeof ma);
+        report(st == PN_ERROR_BAD_CONFIG && strstr(ma, "main-thread"), "the main thread keeps its own error on A",
+               "%s '%s'", pn_status_name(st), ma);
+    } else {
+        report(0, "pthread_create", NULL);
+    }
+
+    /* Many contexts with errors at once on one thread. */
+out:
+    if (ea)
+        pn_envmap_release(ea);
+    if (eb)
+        pn_envmap_release(eb);
+}
+
+/* Errors are kept per context however many contexts have one pending. */
+static void test_many_pending_errors(void)
+{
+    enum { N = 20 };
+    pn_context c[N] = {0};
+    pn_envmap e[N] = {0};
+    int made = 0;
+    for (; made < N; ++made)
+        if (pn_context_create(NULL, &c[made]) || pn_envmap_create(c[made], &e[made]))
+            break;
+    if (made < N) {
+        report(0, "creating 20 contexts", NULL);
+    } else {
+        pn_envmap_commit(NULL); /* a pending error in the global slot */
+        for (int i = 0; i < N; ++i) {
+            char name[32];
+            snprintf(name, sizeof name, "pending-%d", i);
+            pn_envmap_set_int(e[i], name, 1);
+        }
+        int lost = 0, first_lost = -1;
+        for (int i = 0; i < N; ++i) {
+            char msg[2048], want[32];
+            snprintf(want, sizeof want, "'pending-%d'", i);
+            if (take_error(c[i], msg, sizeof msg) != PN_ERROR_BAD_CONFIG || !strstr(msg, want))
+                if (!lost++)
+                    first_lost = i;
+        }
+        report(lost == 0, "20 contexts with a pending error each keep their own", "%d lost, the first on context %d",
+               lost, first_lost);
+        char gmsg[2048];
+        pn_status g = take_error(NULL, gmsg, sizeof gmsg);
+        report(g == PN_ERROR_NULL_HANDLE && strstr(gmsg, "pn_envmap_commit"),
+               "the global slot keeps its error while 20 contexts record theirs", "%s '%s'", pn_status_name(g), gmsg);
+    }
+    for (int i = 0; i < N; ++i) {
+        if (e[i])
+            pn_envmap_release(e[i]);
+        if (c[i])
+            pn_context_release(c[i]);
+    }
+}
+
+/* ------------------------------------------ caller-owned OpenCL objects */
+
+static int first_cpu_device(cl_platform_id *platform, cl_device_id *device)
+{
+    cl_platform_id plats[16];
+    cl_uint n = 0;
+    if (clGetPlatformIDs(16, plats, &n) != CL_SUCCESS)
+        return 0;
+    for (cl_uint p = 0; p < n && p < 16; ++p) {
+        cl_uint nd = 0;
+        if (clGetDeviceIDs(plats[p], CL_DEVICE_TYPE_CPU, 1, device, &nd) == CL_SUCCESS && nd > 0) {
+            *platform = plats[p];
+            return 1;
+        }
+    }
+    return 0;
+}
+
+static cl_uint refcount_of(cl_context c)
+{
+    cl_uint n = 0;
+    clGetContextInfo(c, CL_CONTEXT_REFERENCE_COUNT, sizeof n, &n, NULL);
+    return n;
+}
+
+/* The end-to-end check of one rendered image of the front camera on a constant unit env. */
+static void check_front_render(const char *what, const float *px, uint32_t w, uint32_t h, const uint32_t *ids,
+                               uint32_t instance)
+{
+    int fg = 0, bg = 0, bad_fg = 0, bad_bg = 0, bad_ids = 0;
+    char first[256] = "";
+    for (uint32_t i = 0; i < w * h; ++i) {
+        const float *p = px + 4 * i;
+        if (p[3] == 1.0f) {
+            ++fg;
+            if (!(near(p[0], 0.5f, 1e-3f) && near(p[1], 0.5f, 1e-3f) && near(p[2], 0.5f, 1e-3f)) && !bad_fg++)
+                snprintf(first, sizeof first, "foreground pixel %u = (%g %g %g)", i, (double)p[0], (double)p[1],
+                         (double)p[2]);
+            if (ids && ids[i] != instance)
+                ++bad_ids;
+        } else {
+            ++bg;
+            if (!(p[3] == 0.0f && near(p[0], 1.0f, 1e-3f) && near(p[1], 1.0f, 1e-3f) && near(p[2], 1.0f, 1e-3f)) &&
+                !bad_bg++)
+                snprintf(first, sizeof first, "background pixel %u = (%g %g %g %g)", i, (double)p[0], (double)p[1],
+                         (double)p[2], (double)p[3]);
+            if (ids && ids[i] != PN_BACKGROUND)
+                ++bad_ids;
+        }
+    }
+    char name[128];
+    snprintf(name, sizeof name, "%s: foreground = albedo * E / pi = 0.5, background = env = 1 with alpha 0", what);
+    report(bad_fg == 0 && bad_bg == 0, name, "%d bad foreground, %d bad background; %s", bad_fg, bad_bg, first);
+    snprintf(name, sizeof name, "%s: both foreground and background pixels present", what);
+    report(fg > (int)(w * h) / 10 && bg > (int)(w * h) / 10, name, "%d foreground, %d background", fg, bg);
+    const uint32_t c = (h / 2) * w + w / 2;
+    snprintf(name, sizeof name, "%s: centre pixel is on the box, corner on the background", what);
+    report(px[4 * c + 3] == 1.0f && px[3] == 0.0f, name, "centre alpha %g, corner alpha %g", (double)px[4 * c + 3],
+           (double)px[3]);
+    if (ids) {
+        snprintf(name, sizeof name, "%s: instance plane matches alpha", what);
+        report(bad_ids == 0, name, "%d mismatches", bad_ids);
+    }
+}
+
+static void test_end_to_end(pn_context ctx)
+{
+    const uint32_t W = 32, H = 24;
+    rig r;
+    if (!rig_create(ctx, &r, W, H, 16))
+        return;
+    float *px = calloc((size_t)W * H, 16);
+    float *pos = calloc((size_t)W * H, 16), *nrm = calloc((size_t)W * H, 16);
+    uint32_t *ids = calloc((size_t)W * H, 4);
+    if (expect_ok("render", rig_render(&r), ctx) &&
+        expect_ok("read image", pn_image_read(r.image, px, (size_t)W * H * 16), ctx) &&
+        expect_ok("read instance ids", pn_gbuffer_read(r.gbuffer, PN_GBUFFER_INSTANCE, ids, (size_t)W * H * 4), ctx) &&
+        expect_ok("read positions", pn_gbuffer_read(r.gbuffer, PN_GBUFFER_POSITION, pos, (size_t)W * H * 16), ctx) &&
+        expect_ok("read normals", pn_gbuffer_read(r.gbuffer, PN_GBUFFER_NORMAL, nrm, (size_t)W * H * 16), ctx)) {
+        check_front_render("end to end", px, W, H, ids, r.instance);
+        const uint32_t c = (H / 2) * W + W / 2;
+        report(near(pos[4 * c + 2], 0.5f, 1e-4f) && near(pos[4 * c + 3], 2.5f, 2e-3f),
+               "centre pixel position on the z = 0.5 face at distance ~2.5", "(%g %g %g %g)", (double)pos[4 * c],
+               (double)pos[4 * c + 1], (double)pos[4 * c + 2], (double)pos[4 * c + 3]);
+        report(near(nrm[4 * c + 2], 1.0f, 1e-5f) && nrm[4 * c + 3] == 0.0f, "centre pixel normal is +z", "(%g %g %g)",
+               (double)nrm[4 * c], (double)nrm[4 * c + 1], (double)nrm[4 * c + 2]);
+        report(isinf(pos[3]) && pos[3] > 0 && near(pos[0] * pos[0] + pos[1] * pos[1] + pos[2] * pos[2], 1.0f, 1e-4f),
+               "background position: unit view direction, w = +inf", "(%g %g %g %g)", (double)pos[0], (double)pos[1],
+               (double)pos[2], (double)pos[3]);
+        expect_ok("validate a rendered G-buffer", pn_gbuffer_validate(r.gbuffer), ctx);
+    }
+    /* Ray queries against the same scene. */
+    float rays[24] = {0, 0, 3, 0, 0, 0, -1, INFINITY,  /* hits the +z face at t = 2.5 */
+                      0, 3, 3, 0, 0, 0, -1, INFINITY,  /* misses */
+                      0, 0, 3, 0, 0, 0, -1, 2.0f};     /* stops short */
+    float t[3];
+    uint32_t inst[3], tri[3];
+    uint8_t occ[3];
+    if (expect_ok("intersect", pn_scene_intersect(r.scene, rays, 3, t, inst, tri), ctx)) {
+        report(near(t[0], 2.5f, 1e-5f) && inst[0] == r.instance && (tri[0] == 10 || tri[0] == 11),
+               "closest hit on the +z face", "t=%g inst=%u tri=%u", (double)t[0], inst[0], tri[0]);
+        report(isinf(t[1]) && inst[1] == PN_BACKGROUND, "a miss", "t=%g inst=%u", (double)t[1], inst[1]);
+        report(isinf(t[2]) && inst[2] == PN_BACKGROUND, "tmax cuts the ray", "t=%g inst=%u", (double)t[2], inst[2]);
+    }
+    if (expect_ok("occluded", pn_scene_occluded(r.scene, rays, 3, occ), ctx))
+        report(occ[0] == 1 && occ[1] == 0 && occ[2] == 0, "occlusion flags", "%u %u %u", occ[0], occ[1], occ[2]);
+
+    /* Objects keep their context alive; release order does not matter. */
+    free(px);
+    free(pos);
+    free(nrm);
+    free(ids);
+    rig_release(&r);
+}
+
+/* Every kind of object, every device path (commit, render, shade, validate, queries, transfers, wrapping),
+ * and some failures; all released at the end. */
+static void exercise(pn_context ctx, cl_context clc)
+{
+    rig r;
+    if (!rig_create(ctx, &r, 8, 8, 4))
+        return;
+    float px[8 * 8 * 4];
+    uint32_t ids[8 * 8];
+    float rays[8] = {0, 0, 3, 0, 0, 0, -1, INFINITY};
+    float t;
+    uint8_t occ;
+    pn_status st = rig_render(&r);
+    if (!st) st = pn_image_read(r.image, px, sizeof px);
+    if (!st) st = pn_gbuffer_read(r.gbuffer, PN_GBUFFER_INSTANCE, ids, sizeof ids);
+    if (!st) st = pn_gbuffer_write(r.gbuffer, PN_GBUFFER_INSTANCE, ids, sizeof ids);
+    if (!st) st = pn_gbuffer_validate(r.gbuffer);
+    if (!st) st = pn_scene_intersect(r.scene, rays, 1, &t, NULL, NULL);
+    if (!st) st = pn_scene_occluded(r.scene, rays, 1, &occ);
+    if (!st) st = pn_envmap_set_int(r.env, "face_size", 6);
+    if (!st) st = pn_envmap_commit(r.env);
+    if (!st) st = pn_scene_commit(r.scene);
+    cl_int err;
+    cl_mem planes[PN_GBUFFER_PLANE_COUNT] = {0};
+    for (int p = 0; p < PN_GBUFFER_PLANE_COUNT; ++p)
+        planes[p] = clCreateBuffer(clc, CL_MEM_READ_WRITE, 64 * pn_gbuffer_plane_element_size((pn_gbuffer_plane)p), NULL,
+                                   &err);
+    cl_mem img_mem = clCreateBuffer(clc, CL_MEM_READ_WRITE, 64 * 16, NULL, &err);
+    pn_gbuffer wg = NULL;
+    pn_image wi = NULL;
+    if (!st) st = pn_gbuffer_create_from_cl(ctx, 8, 8, planes, &wg);
+    if (!st) st = pn_image_create_from_cl(ctx, 8, 8, img_mem, &wi);
+    if (!st) st = pn_scene_render_gbuffer(r.scene, wg);
+    if (!st) st = pn_renderer_execute(r.renderer, r.scene, wg, wi);
+    if (!st) st = pn_context_finish(ctx);
+    /* Failures on the way. */
+    pn_gbuffer none = NULL;
+    pn_gbuffer_create_from_cl(ctx, 16, 16, planes, &none);
+    pn_envmap_set_latlong(r.env, NULL, 1, 1);
+    pn_get_error(ctx, NULL);
+    if (wg) pn_gbuffer_release(wg);
+    if (wi) pn_image_release(wi);
+    for (int p = 0; p < PN_GBUFFER_PLANE_COUNT; ++p)
+        if (planes[p])
+            clReleaseMemObject(planes[p]);
+    if (img_mem)
+        clReleaseMemObject(img_mem);
+    expect_ok("exercise every object kind", st, ctx);
+    rig_release(&r);
+}
+
+static void test_from_cl(void)
+{
+    cl_platform_id platform;
+    cl_device_id device;
+    if (!first_cpu_device(&platform, &device)) {
+        report(0, "pn_context_create_from_cl: no OpenCL CPU device", NULL);
+        return;
+    }
+    cl_int err;
+    cl_context_properties props[] = {CL_CONTEXT_PLATFORM, (cl_context_properties)platform, 0};
+    cl_context clc = clCreateContext(props, 1, &device, NULL, NULL, &err);
+    if (err != CL_SUCCESS) {
+        report(0, "clCreateContext", "OpenCL error %d", err);
+        return;
+    }
+    cl_command_queue q = clCreateCommandQueue(clc, device, 0, &err);
+    if (err != CL_SUCCESS) {
+        report(0, "clCreateCommandQueue", "OpenCL error %d", err);
+        clReleaseContext(clc);
+        return;
+    }
+    pn_context ctx = (pn_context)(uintptr_t)1;
+    expect_error("create_from_cl(cl_ctx = NULL)", pn_context_create_from_cl(NULL, q, NULL, &ctx),
+                 PN_ERROR_INVALID_ARGUMENT, NULL, "cl_ctx", NULL);
+    CHECK("failed create_from_cl sets *out to NULL", ctx == NULL);
+    expect_error("create_from_cl(queue = NULL)", pn_context_create_from_cl(clc, NULL, NULL, &ctx),
+                 PN_ERROR_INVALID_ARGUMENT, NULL, "queue", NULL);
+    expect_error("create_from_cl with a bad config", pn_context_create_from_cl(clc, q, "colour=red", &ctx),
+                 PN_ERROR_BAD_CONFIG, NULL, "colour", NULL);
+    /* A queue of another cl_context. */
+    cl_context other = clCreateContext(props, 1, &device, NULL, NULL, &err);
+    if (err == CL_SUCCESS) {
+        expect_error("create_from_cl with a queue of another context", pn_context_create_from_cl(other, q, NULL, &ctx),
+                     PN_ERROR_INVALID_ARGUMENT, NULL, "queue", NULL);
+        clReleaseContext(other);
+    }
+
+    const cl_uint refs_before = refcount_of(clc);
+    ctx = NULL;
+    if (!expect_ok("pn_context_create_from_cl", pn_context_create_from_cl(clc, q, NULL, &ctx), NULL)) {
+        clReleaseCommandQueue(q);
+        clReleaseContext(clc);
+        return;
+    }
+    report(refcount_of(clc) == refs_before + 1, "create_from_cl retains the cl_context", "%u -> %u", refs_before,
+           refcount_of(clc));
+    cl_context got_ctx = NULL;
+    cl_command_queue got_q = NULL;
+    cl_device_id got_dev = NULL;
+    expect_ok("get_cl", pn_context_get_cl(ctx, &got_ctx, &got_q, &got_dev), ctx);
+    CHECK("get_cl gives the caller's cl_context", got_ctx == clc);
+    CHECK("get_cl gives the caller's queue", got_q == q);
+    CHECK("get_cl gives the queue's device", got_dev == device);
+    CHECK("get_cl does not retain for the caller", refcount_of(clc) == refs_before + 1);
+    char name[256] = "";
+    expect_ok("device name", pn_context_get_device_name(ctx, name, sizeof name), ctx);
+    CHECK("device name is not empty", name[0] != '\0');
+    char tiny[4] = "xxx";
+    expect_ok("device name truncated", pn_context_get_device_name(ctx, tiny, sizeof tiny), ctx);
+    CHECK("truncated device name is NUL-terminated", strlen(tiny) <= 3);
+
+    /* Render into a caller-owned image buffer and read it through OpenCL directly. */
+    const uint32_t W = 24, H = 16;
+    rig r;
+    if (rig_create(ctx, &r, W, H, 16)) {
+        cl_mem mine = clCreateBuffer(clc, CL_MEM_READ_WRITE, (size_t)W * H * 16, NULL, &err);
+        pn_image wrapped = NULL;
+        if (err == CL_SUCCESS &&
+            expect_ok("image_create_from_cl", pn_image_create_from_cl(ctx, W, H, mine, &wrapped), ctx)) {
+            cl_mem got = NULL;
+            expect_ok("image_get_cl", pn_image_get_cl(wrapped, &got), ctx);
+            CHECK("the wrapped image is the caller's buffer", got == mine);
+            float *px = calloc((size_t)W * H, 16), *px2 = calloc((size_t)W * H, 16);
+            if (expect_ok("render_gbuffer", pn_scene_render_gbuffer(r.scene, r.gbuffer), ctx) &&
+                expect_ok("execute into the caller's buffer", pn_renderer_execute(r.renderer, r.scene, r.gbuffer, wrapped),
+                          ctx) &&
+                clEnqueueReadBuffer(q, mine, CL_TRUE, 0, (size_t)W * H * 16, px, 0, NULL, NULL) == CL_SUCCESS) {
+                check_front_render("caller-owned image", px, W, H, NULL, 0);
+                if (expect_ok("execute into an owned image", pn_renderer_execute(r.renderer, r.scene, r.gbuffer, r.image),
+                              ctx) &&
+                    expect_ok("read owned image", pn_image_read(r.image, px2, (size_t)W * H * 16), ctx))
+                    CHECK("caller-owned and owned images are identical", !memcmp(px, px2, (size_t)W * H * 16));
+            }
+            free(px);
+            free(px2);
+            pn_image_release(wrapped);
+        }
+        if (mine)
+            clReleaseMemObject(mine);
+        rig_release(&r);
+    }
+    /* Device objects are not leaked: once every kernel is built and cached, creating, using and releasing
+     * objects (successfully or not) leaves the cl_context's reference count (held by every cl_mem, program
+     * and kernel) where it was. */
+    exercise(ctx, clc);
+    const cl_uint baseline = refcount_of(clc);
+    for (int i = 0; i < 5; ++i)
+        exercise(ctx, clc);
+    report(refcount_of(clc) == baseline, "no OpenCL objects leaked by create/use/release of every object kind",
+           "cl_context reference count %u -> %u", baseline, refcount_of(clc));
+
+    pn_context_release(ctx);
+    report(refcount_of(clc) == refs_before, "releasing the context gives the cl_context reference back", "%u vs %u",
+           refcount_of(clc), refs_before);
+    /* The caller's objects still work. */
+    CHECK("the caller's queue still works after release", clFinish(q) == CL_SUCCESS);
+    clReleaseCommandQueue(q);
+    clReleaseContext(clc);
+}
+
+/* ------------------------------------------------------------- leaks */
+
+static long rss_kib(void)
+{
+    FILE *f = fopen("/proc/self/statm", "r");
+    if (!f)
+        return -1;
+    long size = 0, resident = -1;
+    if (fscanf(f, "%ld %ld", &size, &resident) != 2)
+        resident = -1;
+    fclose(f);
+    return resident < 0 ? -1 : resident * 4; /* pages of 4 KiB on the platforms this runs on */
+}
+
+static void test_cycles(pn_context ctx)
+{
+    const float centre[3] = {0, 0, 0};
+    float pos[24];
+    uint32_t idx[36];
+    make_box(0.5f, centre, pos, idx);
+    float *rgb = constant_env(8, 4, 1.0f);
+    const pn_camera cam = front_camera(8, 8);
+    const int iterations = 1000;
+    long rss100 = -1, rss_end = -1;
+    int failures = 0;
+    pn_status first_bad = PN_SUCCESS;
+    char first_msg[2048] = "";
+    for (int i = 0; i < iterations; ++i) {
+        pn_envmap env = NULL;
+        pn_mesh mesh = NULL;
+        pn_scene scene = NULL;
+        pn_gbuffer gb = NULL;
+        pn_image img = NULL;
+        pn_renderer rend = NULL;
+        uint32_t id;
+        pn_status st = pn_envmap_create(ctx, &env);
+        if (!st) st = pn_envmap_set_latlong(env, rgb, 8, 4);
+        if (!st) st = pn_envmap_set_int(env, "face_size", 2);
+        if (!st) st = pn_envmap_set_int(env, "irradiance_face_size", 2);
+        if (!st) st = pn_envmap_commit(env);
+        if (!st) st = pn_mesh_create(ctx, &mesh);
+        if (!st) st = pn_mesh_set_geometry(mesh, pos, 8, idx, 12, NULL);
+        if (!st) st = pn_mesh_commit(mesh);
+        if (!st) st = pn_scene_create(ctx, &scene);
+        if (!st) st = pn_scene_set_envmap(scene, env);
+        if (!st) st = pn_scene_add_instance(scene, mesh, NULL, NULL, &id);
+        if (!st) st = pn_scene_set_camera(scene, &cam);
+        if (!st) st = pn_scene_commit(scene);
+        if (!st) st = pn_gbuffer_create(ctx, 8, 8, &gb);
+        if (!st) st = pn_image_create(ctx, 8, 8, &img);
+        if (!st) st = pn_renderer_create(ctx, "unshadowed", &rend);
+        if (!st) st = pn_renderer_commit(rend);
+        if (!st && i % 10 == 0) {
+            /* Some iterations render, and some fail on purpose (errors must not leak either). */
+            st = pn_scene_render_gbuffer(scene, gb);
+            if (!st) st = pn_renderer_execute(rend, scene, gb, img);
+            if (!st) st = pn_context_finish(ctx);
+            if (!st && pn_envmap_set_int(env, "no-such-parameter", 1) != PN_ERROR_BAD_CONFIG)
+                st = PN_ERROR_INTERNAL;
+            pn_get_error(ctx, NULL);
+        }
+        /* Release in an order different from creation: objects hold what they use. */
+        if (mesh) pn_mesh_release(mesh);
+        if (env) pn_envmap_release(env);
+        if (rend) pn_renderer_release(rend);
+        if (img) pn_image_release(img);
+        if (scene) pn_scene_release(scene);
+        if (gb) pn_gbuffer_release(gb);
+        if (st) {
+            if (!failures++) {
+                first_bad = st;
+                take_error(ctx, first_msg, sizeof first_msg);
+            }
+        }
+        if (i == 99)
+            rss100 = rss_kib();
+    }
+    rss_end = rss_kib();
+    free(rgb);
+    report(failures == 0, "1000 create/use/release cycles", "%d failed, first %s: %s", failures,
+           pn_status_name(first_bad), first_msg);
+#ifdef PN_TEST_ASAN
+    printf("note: RSS growth check skipped under AddressSanitizer (LeakSanitizer checks leaks at exit)\n");
+    (void)rss100;
+    (void)rss_end;
+#else
+    if (rss100 > 0 && rss_end > 0) {
+        report(rss_end - rss100 <= 4096, "RSS does not grow by more than 4 MiB between cycle 100 and 1000",
+               "%ld KiB -> %ld KiB", rss100, rss_end);
+    } else {
+        printf("note: /proc/self/statm unavailable; RSS growth check skipped\n");
+    }
+#endif
+
+    /* Context create/release cycles (slow on PoCL: 50), with objects outliving their context handle. */
+    int ctx_failures = 0;
+    long rss_ctx10 = -1;
+    for (int i = 0; i < 50; ++i) {
+        pn_context c = NULL;
+        pn_mesh m = NULL;
+        pn_status st = pn_context_create(NULL, &c);
+        if (!st) st = pn_mesh_create(c, &m);
+        if (!st) st = pn_context_release(c); /* m keeps it alive */
+        if (!st) st = pn_mesh_set_geometry(m, pos, 8, idx, 12, NULL);
+        if (!st) st = pn_mesh_commit(m);
+        if (!st && i % 10 == 0) {
+            /* An error on a context that is then destroyed must not linger. */
+            pn_mesh_commit(NULL);
+            pn_get_error(NULL, NULL);
+            pn_mesh_get_info(m, NULL);
+        }
+        if (m) st = st ? st : pn_mesh_release(m); /* last reference: destroys the context */
+        else if (c) pn_context_release(c);
+        if (st && !ctx_failures++)
+            take_error(NULL, first_msg, sizeof first_msg);
+        if (i == 9)
+            rss_ctx10 = rss_kib();
+    }
+    report(ctx_failures == 0, "50 context create/release cycles", "%d failed: %s", ctx_failures, first_msg);
+#ifndef PN_TEST_ASAN
+    long rss_ctx_end = rss_kib();
+    if (rss_ctx10 > 0 && rss_ctx_end > 0)
+        report(rss_ctx_end - rss_ctx10 <= 8192, "RSS does not grow by more than 8 MiB over 40 context cycles",
+               "%ld KiB -> %ld KiB", rss_ctx10, rss_ctx_end);
+#else
+    (void)rss_ctx10;
+#endif
+}
+
+static void test_retain_release(pn_context ctx)
+{
+    pn_mesh m = NULL;
+    if (!expect_ok("mesh", pn_mesh_create(ctx, &m), ctx))
+        return;
+    expect_ok("retain", pn_mesh_retain(m), ctx);
+    expect_ok("release (1 of 2)", pn_mesh_release(m), ctx);
+    float pos[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    uint32_t idx[3] = {0, 1, 2};
+    expect_ok("still usable after one release", pn_mesh_set_geometry(m, pos, 3, idx, 1, NULL), ctx);
+    expect_ok("release (2 of 2)", pn_mesh_release(m), ctx);
+
+    /* A scene holds its meshes and env map. */
+    rig r;
+    if (rig_create(ctx, &r, 8, 8, 4)) {
+        pn_mesh_release(r.mesh);
+        r.mesh = NULL;
+        pn_envmap_release(r.env);
+        r.env = NULL;
+        expect_ok("render after releasing the caller's mesh and env handles", rig_render(&r), ctx);
+        expect_ok("commit after releasing the caller's mesh", pn_scene_commit(r.scene), ctx);
+        pn_context_finish(ctx);
+        rig_release(&r);
+    }
+    /* An extra context reference. */
+    expect_ok("context retain", pn_context_retain(ctx), ctx);
+    expect_ok("context release", pn_context_release(ctx), ctx);
+    expect_ok("context still usable", pn_context_finish(ctx), ctx);
+}
+
+int main(void)
+{
+    setvbuf(stdout, NULL, _IOLBF, 0);
+    test_status_names();
+    test_config();
+
+    pn_context ctx = NULL, ctx2 = NULL;
+    if (!expect_ok("pn_context_create(NULL)", pn_context_create(NULL, &ctx), NULL) ||
+        !expect_ok("pn_context_create(\"device=cpu\")", pn_context_create("device=cpu", &ctx2), NULL)) {
+        printf("%d passed, %d failed\n", g_passed, g_failed);
+        return 1;
+    }
+    char name[256] = "";
+    pn_context_get_device_name(ctx, name, sizeof name);
+    printf("device: %s\n", name);
+
+    test_null_handles(ctx);
+    test_null_pointers(ctx);
+    test_envmap(ctx);
+    test_mesh(ctx);
+    test_scene(ctx);
+    test_renderer(ctx);
+    test_gbuffer(ctx);
+    test_error_routing(ctx, ctx2);
+    test_many_pending_errors();
+    test_end_to_end(ctx);
+    test_from_cl();
+    test_retain_release(ctx);
+    test_cycles(ctx);
+
+    pn_context_release(ctx2);
+    pn_context_release(ctx);
+    printf("%d passed, %d failed\n", g_passed, g_failed);
+    return g_failed ? 1 : 0;
+}

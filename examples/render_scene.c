@@ -1,0 +1,318 @@
+/* render_scene: a standalone consumer of libpenumbra.
+ *
+ *   render_scene ENV.pfm OUT.pfm [WIDTH HEIGHT]
+ *
+ * Reads a lat-long environment map from a PFM file, builds a small scene in
+ * C (a unit box standing on a ground quad), renders it with the "unshadowed"
+ * method and writes the RGB result as a PFM file (written to a temporary
+ * file beside OUT.pfm, then renamed over it).
+ *
+ * PFM: a text header "PF\n<width> <height>\n<scale>\n" ("Pf" for one channel)
+ * followed by 32-bit floats, little-endian when scale < 0, with the rows
+ * stored bottom-to-top. penumbra's images and env maps are top row first, so
+ * rows are flipped on the way in and out. */
+#define _POSIX_C_SOURCE 200809L
+
+#include <penumbra.h>
+
+#include <errno.h>
+#include <fcntl.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+/* ------------------------------------------------------------------ PFM */
+
+static int host_is_little_endian(void)
+{
+    const uint16_t one = 1;
+    unsigned char first;
+    memcpy(&first, &one, 1);
+    return first == 1;
+}
+
+static void swap_floats(float *v, size_t n)
+{
+    for (size_t i = 0; i < n; ++i) {
+        unsigned char b[4], t;
+        memcpy(b, &v[i], 4);
+        t = b[0], b[0] = b[3], b[3] = t;
+        t = b[1], b[1] = b[2], b[2] = t;
+        memcpy(&v[i], b, 4);
+    }
+}
+
+/* Reads one whitespace-delimited header token. */
+static int read_token(FILE *f, char *buf, size_t size)
+{
+    int c;
+    size_t n = 0;
+    do
+        c = fgetc(f);
+    while (c == ' ' || c == '\t' || c == '\n' || c == '\r');
+    while (c != EOF && c != ' ' && c != '\t' && c != '\n' && c != '\r') {
+        if (n + 1 >= size)
+            return 0;
+        buf[n++] = (char)c;
+        c = fgetc(f);
+    }
+    buf[n] = '\0';
+    /* `c` is the single whitespace character that ends the token (the last one precedes the data). */
+    return n > 0 && c != EOF;
+}
+
+/* Returns width*height RGB triples, top row first, or NULL (with a message on stderr). */
+static float *read_pfm(const char *path, uint32_t *width, uint32_t *height)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f) {
+        fprintf(stderr, "render_scene: cannot open %s: %s\n", path, strerror(errno));
+        return NULL;
+    }
+    char magic[8], ws[32], hs[32], ss[64];
+    float *rgb = NULL, *raw = NULL;
+    if (!read_token(f, magic, sizeof magic) || !read_token(f, ws, sizeof ws) || !read_token(f, hs, sizeof hs) ||
+        !read_token(f, ss, sizeof ss) || (strcmp(magic, "PF") && strcmp(magic, "Pf"))) {
+        fprintf(stderr, "render_scene: %s is not a PFM file (expected a \"PF\" or \"Pf\" header)\n", path);
+        goto fail;
+    }
+    char *end;
+    unsigned long w = strtoul(ws, &end, 10);
+    int bad = *end != '\0';
+    unsigned long h = strtoul(hs, &end, 10);
+    bad = bad || *end != '\0';
+    double scale = strtod(ss, &end);
+    bad = bad || *end != '\0' || scale == 0.0;
+    if (bad || w == 0 || h == 0 || w > 65536 || h > 65536) {
+        fprintf(stderr, "render_scene: %s has an invalid PFM header (%s x %s, scale %s)\n", path, ws, hs, ss);
+        goto fail;
+    }
+    const size_t channels = magic[1] == 'F' ? 3 : 1;
+    const size_t count = (size_t)w * h * channels;
+    raw = malloc(count * sizeof *raw);
+    rgb = malloc((size_t)w * h * 3 * sizeof *rgb);
+    if (!raw || !rgb) {
+        fprintf(stderr, "render_scene: out of memory reading %s\n", path);
+        goto fail;
+    }
+    if (fread(raw, sizeof *raw, count, f) != count) {
+        fprintf(stderr, "render_scene: %s is truncated (expected %lu x %lu x %zu floats)\n", path, w, h, channels);
+        goto fail;
+    }
+    if ((scale < 0) != host_is_little_endian())
+        swap_floats(raw, count);
+    for (size_t y = 0; y < h; ++y) {
+        const float *src = raw + (h - 1 - y) * w * channels; /* PFM rows are bottom-to-top */
+        float *dst = rgb + y * w * 3;
+        for (size_t x = 0; x < w; ++x)
+            for (size_t c = 0; c < 3; ++c)
+                dst[3 * x + c] = src[channels * x + (channels == 3 ? c : 0)];
+    }
+    free(raw);
+    fclose(f);
+    *width = (uint32_t)w;
+    *height = (uint32_t)h;
+    return rgb;
+fail:
+    free(raw);
+    free(rgb);
+    fclose(f);
+    return NULL;
+}
+
+/* Writes RGBA pixels (top row first) as an RGB PFM, atomically: a temporary
+ * file in the same directory, flushed to disk, then renamed over `path`. */
+static int write_pfm(const char *path, const float *rgba, uint32_t width, uint32_t height)
+{
+    size_t len = strlen(path) + 64;
+    char *tmp = malloc(len);
+    float *row = malloc((size_t)width * 3 * sizeof *row);
+    FILE *f = NULL;
+    int ok = 0;
+    if (!tmp || !row) {
+        fprintf(stderr, "render_scene: out of memory writing %s\n", path);
+        goto done;
+    }
+    snprintf(tmp, len, "%s.%ld.tmp", path, (long)getpid());
+    int fd = open(tmp, O_WRONLY | O_CREAT | O_EXCL, 0666);
+    if (fd < 0 || !(f = fdopen(fd, "wb"))) {
+        fprintf(stderr, "render_scene: cannot create %s: %s\n", tmp, strerror(errno));
+        if (fd >= 0) {
+            close(fd);
+            unlink(tmp);
+        }
+        goto done;
+    }
+    int good = fprintf(f, "PF\n%u %u\n-1.0\n", width, height) > 0;
+    const int swap = !host_is_little_endian();
+    for (uint32_t y = height; good && y-- > 0;) { /* bottom row first */
+        const float *src = rgba + (size_t)y * width * 4;
+        for (uint32_t x = 0; x < width; ++x)
+            for (int c = 0; c < 3; ++c)
+                row[3 * x + c] = src[4 * x + c];
+        if (swap)
+            swap_floats(row, (size_t)width * 3);
+        good = fwrite(row, sizeof *row, (size_t)width * 3, f) == (size_t)width * 3;
+    }
+    good = good && fflush(f) == 0 && fsync(fileno(f)) == 0;
+    good = fclose(f) == 0 && good;
+    if (!good || rename(tmp, path) != 0) {
+        fprintf(stderr, "render_scene: cannot write %s: %s\n", path, strerror(errno));
+        unlink(tmp);
+        goto done;
+    }
+    ok = 1;
+done:
+    free(tmp);
+    free(row);
+    return ok;
+}
+
+/* ---------------------------------------------------------------- scene */
+
+/* Unit box centred at (0, 0.5, 0): 8 corners, 12 triangles wound counter-clockwise seen from outside. */
+static const float box_positions[8 * 3] = {
+    -0.5f, 0.0f, -0.5f, /* 0 */
+    0.5f,  0.0f, -0.5f, /* 1 */
+    0.5f,  1.0f, -0.5f, /* 2 */
+    -0.5f, 1.0f, -0.5f, /* 3 */
+    -0.5f, 0.0f, 0.5f,  /* 4 */
+    0.5f,  0.0f, 0.5f,  /* 5 */
+    0.5f,  1.0f, 0.5f,  /* 6 */
+    -0.5f, 1.0f, 0.5f,  /* 7 */
+};
+static const uint32_t box_indices[12 * 3] = {
+    0, 3, 2, 0, 2, 1, /* -z */
+    4, 5, 6, 4, 6, 7, /* +z */
+    0, 4, 7, 0, 7, 3, /* -x */
+    1, 2, 6, 1, 6, 5, /* +x */
+    0, 1, 5, 0, 5, 4, /* -y */
+    3, 7, 6, 3, 6, 2, /* +y */
+};
+
+/* Ground quad y = 0 over [-3, 3] x [-3, 3], facing +y. */
+static const float ground_positions[4 * 3] = {
+    -3.0f, 0.0f, -3.0f, 3.0f, 0.0f, -3.0f, 3.0f, 0.0f, 3.0f, -3.0f, 0.0f, 3.0f,
+};
+static const uint32_t ground_indices[2 * 3] = {0, 3, 2, 0, 2, 1};
+
+/* ----------------------------------------------------------------- main */
+
+static pn_context g_ctx; /* for error messages: NULL until created */
+
+/* On failure prints the call, the status and penumbra's message. */
+static int check(pn_status status, const char *what)
+{
+    if (status == PN_SUCCESS)
+        return 1;
+    const char *msg = NULL;
+    pn_status recorded = g_ctx ? pn_get_error(g_ctx, &msg) : PN_SUCCESS;
+    if (recorded == PN_SUCCESS) /* NULL handles and context creation report in the global slot */
+        pn_get_error(NULL, &msg);
+    fprintf(stderr, "render_scene: %s failed: %s: %s\n", what, pn_status_name(status), msg && *msg ? msg : "(no message)");
+    return 0;
+}
+
+static int parse_size(const char *s, uint32_t *out)
+{
+    char *end;
+    unsigned long v = strtoul(s, &end, 10);
+    if (*s == '\0' || *end != '\0' || v == 0 || v > 32768)
+        return 0;
+    *out = (uint32_t)v;
+    return 1;
+}
+
+int main(int argc, char **argv)
+{
+    uint32_t width = 160, height = 120;
+    if (argc != 3 && argc != 5) {
+        fprintf(stderr, "usage: %s ENV.pfm OUT.pfm [WIDTH HEIGHT]\n", argv[0]);
+        return 2;
+    }
+    if (argc == 5 && (!parse_size(argv[3], &width) || !parse_size(argv[4], &height))) {
+        fprintf(stderr, "render_scene: WIDTH and HEIGHT must be integers in 1..32768\n");
+        return 2;
+    }
+    uint32_t env_w = 0, env_h = 0;
+    float *env_rgb = read_pfm(argv[1], &env_w, &env_h);
+    if (!env_rgb)
+        return 1;
+
+    pn_envmap env = NULL;
+    pn_mesh box = NULL, ground = NULL;
+    pn_scene scene = NULL;
+    pn_gbuffer gbuffer = NULL;
+    pn_image image = NULL;
+    pn_renderer renderer = NULL;
+    float *pixels = NULL;
+    int ok = 0;
+
+    pn_material box_material = pn_material_default();
+    box_material.albedo[0] = 0.7f;
+    box_material.albedo[1] = 0.5f;
+    box_material.albedo[2] = 0.3f;
+    pn_material ground_material = pn_material_default();
+    ground_material.albedo[0] = ground_material.albedo[1] = ground_material.albedo[2] = 0.8f;
+    const pn_camera camera = {{2.5f, 2.0f, 3.5f}, {0.0f, 0.4f, 0.0f}, {0.0f, 1.0f, 0.0f}, 45.0f, width, height};
+    uint32_t box_id, ground_id;
+
+    if (!check(pn_context_create(NULL, &g_ctx), "pn_context_create") ||
+        !check(pn_envmap_create(g_ctx, &env), "pn_envmap_create") ||
+        !check(pn_envmap_set_latlong(env, env_rgb, env_w, env_h), "pn_envmap_set_latlong") ||
+        !check(pn_envmap_commit(env), "pn_envmap_commit") ||
+        !check(pn_mesh_create(g_ctx, &box), "pn_mesh_create (box)") ||
+        !check(pn_mesh_set_geometry(box, box_positions, 8, box_indices, 12, NULL), "pn_mesh_set_geometry (box)") ||
+        !check(pn_mesh_commit(box), "pn_mesh_commit (box)") ||
+        !check(pn_mesh_create(g_ctx, &ground), "pn_mesh_create (ground)") ||
+        !check(pn_mesh_set_geometry(ground, ground_positions, 4, ground_indices, 2, NULL),
+               "pn_mesh_set_geometry (ground)") ||
+        !check(pn_mesh_commit(ground), "pn_mesh_commit (ground)") ||
+        !check(pn_scene_create(g_ctx, &scene), "pn_scene_create") ||
+        !check(pn_scene_set_envmap(scene, env), "pn_scene_set_envmap") ||
+        !check(pn_scene_add_instance(scene, box, NULL, &box_material, &box_id), "pn_scene_add_instance (box)") ||
+        !check(pn_scene_add_instance(scene, ground, NULL, &ground_material, &ground_id),
+               "pn_scene_add_instance (ground)") ||
+        !check(pn_scene_set_camera(scene, &camera), "pn_scene_set_camera") ||
+        !check(pn_scene_commit(scene), "pn_scene_commit") ||
+        !check(pn_gbuffer_create(g_ctx, width, height, &gbuffer), "pn_gbuffer_create") ||
+        !check(pn_image_create(g_ctx, width, height, &image), "pn_image_create") ||
+        !check(pn_renderer_create(g_ctx, "unshadowed", &renderer), "pn_renderer_create") ||
+        !check(pn_renderer_commit(renderer), "pn_renderer_commit") ||
+        !check(pn_scene_render_gbuffer(scene, gbuffer), "pn_scene_render_gbuffer") ||
+        !check(pn_renderer_execute(renderer, scene, gbuffer, image), "pn_renderer_execute"))
+        goto cleanup;
+
+    const size_t bytes = (size_t)width * height * 4 * sizeof(float);
+    pixels = malloc(bytes);
+    if (!pixels) {
+        fprintf(stderr, "render_scene: out of memory for a %ux%u image\n", width, height);
+        goto cleanup;
+    }
+    if (!check(pn_image_read(image, pixels, bytes), "pn_image_read"))
+        goto cleanup;
+    ok = write_pfm(argv[2], pixels, width, height);
+
+cleanup:
+    /* Release what exists, checking each call. */
+    if (renderer && !check(pn_renderer_release(renderer), "pn_renderer_release")) ok = 0;
+    if (image && !check(pn_image_release(image), "pn_image_release")) ok = 0;
+    if (gbuffer && !check(pn_gbuffer_release(gbuffer), "pn_gbuffer_release")) ok = 0;
+    if (scene && !check(pn_scene_release(scene), "pn_scene_release")) ok = 0;
+    if (ground && !check(pn_mesh_release(ground), "pn_mesh_release (ground)")) ok = 0;
+    if (box && !check(pn_mesh_release(box), "pn_mesh_release (box)")) ok = 0;
+    if (env && !check(pn_envmap_release(env), "pn_envmap_release")) ok = 0;
+    if (g_ctx) {
+        pn_context ctx = g_ctx;
+        g_ctx = NULL;
+        if (!check(pn_context_release(ctx), "pn_context_release"))
+            ok = 0;
+    }
+    free(pixels);
+    free(env_rgb);
+    if (ok)
+        printf("wrote %s (%ux%u)\n", argv[2], width, height);
+    return ok ? 0 : 1;
+}

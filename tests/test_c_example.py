@@ -1,0 +1,171 @@
+"""The C example (examples/render_scene.c) against the Python API.
+
+Builds libpenumbra from this checkout, installs it into a temporary prefix,
+builds examples/ against the installed CMake package, renders a deterministic
+env map with the example, then renders the same scene through penumbra.core
+(loaded as usual: PENUMBRA_LIBRARY or the installed package) and requires the
+two images to agree to 1e-6: same kernels, same inputs. The env map goes in
+and the image comes out as PFM files (rows bottom-to-top), so this also pins
+the example's row-order conversions."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from penumbra import Camera, EnvMap, GBuffer, Image, Material, Mesh, Renderer, Scene
+
+REPO = Path(__file__).resolve().parents[1]
+
+pytestmark = pytest.mark.skipif(shutil.which("cmake") is None, reason="cmake is not installed")
+
+# The scene of examples/render_scene.c, vertex for vertex.
+BOX_VERTICES = np.array([
+    [-0.5, 0.0, -0.5], [0.5, 0.0, -0.5], [0.5, 1.0, -0.5], [-0.5, 1.0, -0.5],
+    [-0.5, 0.0, 0.5], [0.5, 0.0, 0.5], [0.5, 1.0, 0.5], [-0.5, 1.0, 0.5],
+], np.float32)
+BOX_FACES = np.array([
+    [0, 3, 2], [0, 2, 1],  # -z
+    [4, 5, 6], [4, 6, 7],  # +z
+    [0, 4, 7], [0, 7, 3],  # -x
+    [1, 2, 6], [1, 6, 5],  # +x
+    [0, 1, 5], [0, 5, 4],  # -y
+    [3, 7, 6], [3, 6, 2],  # +y
+], np.uint32)
+GROUND_VERTICES = np.array([[-3, 0, -3], [3, 0, -3], [3, 0, 3], [-3, 0, 3]], np.float32)
+GROUND_FACES = np.array([[0, 3, 2], [0, 2, 1]], np.uint32)
+CAMERA = dict(position=(2.5, 2.0, 3.5), look_at=(0.0, 0.4, 0.0), up=(0.0, 1.0, 0.0), fov_deg=45.0)
+WIDTH, HEIGHT = 96, 72
+
+
+def sky_envmap(width: int = 64, height: int = 32) -> np.ndarray:
+    """(height, width, 3), top row first: a smooth sky-to-ground gradient with a bright disc."""
+    v = (np.arange(height) + 0.5) / height
+    u = (np.arange(width) + 0.5) / width
+    uu, vv = np.meshgrid(u, v)
+    up = np.clip(1.0 - 2.0 * vv, 0.0, 1.0)  # 1 at the zenith, 0 at and below the horizon
+    down = np.clip(2.0 * vv - 1.0, 0.0, 1.0)
+    rgb = np.stack([0.35 + 0.25 * up - 0.15 * down, 0.45 + 0.35 * up - 0.2 * down, 0.6 + 0.6 * up - 0.3 * down], -1)
+    # A sun-like disc at azimuth u = 0.3, 40 degrees above the horizon: 30x brighter.
+    d2 = ((uu - 0.3) * 2.0) ** 2 + (vv - (0.5 - 40 / 180)) ** 2
+    rgb += (d2 < 0.06**2)[..., None] * np.array([30.0, 27.0, 22.0])
+    return rgb.astype(np.float32)
+
+
+def write_pfm(path: Path, rgb: np.ndarray) -> None:
+    h, w, _ = rgb.shape
+    with open(path, "wb") as f:
+        f.write(b"PF\n%d %d\n-1.0\n" % (w, h))
+        f.write(np.ascontiguousarray(rgb[::-1], dtype="<f4").tobytes())  # bottom row first
+
+
+def read_pfm(path: Path) -> np.ndarray:
+    """(height, width, channels), top row first."""
+    data = path.read_bytes()
+    tokens, pos = [], 0
+    while len(tokens) < 4:  # magic, width, height, scale; one whitespace byte ends each
+        while data[pos:pos + 1].isspace():
+            pos += 1
+        end = pos
+        while not data[end:end + 1].isspace():
+            end += 1
+        tokens.append(data[pos:end].decode())
+        pos = end + 1
+    magic, w, h, scale = tokens[0], int(tokens[1]), int(tokens[2]), float(tokens[3])
+    channels = {"PF": 3, "Pf": 1}[magic]
+    pixels = np.frombuffer(data, "<f4" if scale < 0 else ">f4", count=w * h * channels, offset=pos)
+    return pixels.reshape(h, w, channels)[::-1].astype(np.float32)
+
+
+def run(cmd: list, **kw) -> subprocess.CompletedProcess:
+    result = subprocess.run([str(c) for c in cmd], capture_output=True, text=True, timeout=900, **kw)
+    assert result.returncode == 0, f"{' '.join(map(str, cmd))} failed:\n{result.stdout}\n{result.stderr}"
+    return result
+
+
+@pytest.fixture(scope="module")
+def render_scene_exe(tmp_path_factory) -> Path:
+    """examples/render_scene built against a fresh build of this checkout, installed in a temporary prefix."""
+    tmp = tmp_path_factory.mktemp("c_example")
+    generator = ["-G", "Ninja"] if shutil.which("ninja") else []
+    build, prefix, examples = tmp / "build", tmp / "prefix", tmp / "examples"
+    run(["cmake", "-S", REPO, "-B", build, *generator, "-DCMAKE_BUILD_TYPE=Release", "-DPENUMBRA_TESTS=OFF",
+         "-DPENUMBRA_WERROR=ON"])
+    run(["cmake", "--build", build, "--parallel"])
+    run(["cmake", "--install", build, "--prefix", prefix])
+    run(["cmake", "-S", REPO / "examples", "-B", examples, *generator, f"-DCMAKE_PREFIX_PATH={prefix}",
+         "-DPENUMBRA_EXAMPLES_WERROR=ON"])
+    run(["cmake", "--build", examples])
+    exe = examples / "render_scene"
+    assert exe.is_file()
+    return exe
+
+
+def python_render(ctx, latlong: np.ndarray, width: int, height: int) -> np.ndarray:
+    env = EnvMap(ctx, latlong)
+    box = Mesh(ctx, BOX_VERTICES, BOX_FACES)
+    ground = Mesh(ctx, GROUND_VERTICES, GROUND_FACES)
+    scene = Scene(ctx)
+    scene.set_envmap(env)
+    assert scene.add(box, None, Material(albedo=(0.7, 0.5, 0.3))) == 0
+    assert scene.add(ground, None, Material(albedo=(0.8, 0.8, 0.8))) == 1
+    scene.set_camera(Camera(resolution=(width, height), **CAMERA))
+    scene.commit()
+    gbuffer = GBuffer(ctx, width, height)
+    image = Image(ctx, width, height)
+    scene.render_gbuffer(gbuffer)
+    Renderer(ctx, "unshadowed").execute(scene, gbuffer, image)
+    return image.read()
+
+
+def test_pfm_helpers_round_trip(tmp_path):
+    rgb = sky_envmap()
+    write_pfm(tmp_path / "a.pfm", rgb)
+    assert np.array_equal(read_pfm(tmp_path / "a.pfm"), rgb)
+
+
+def test_c_example_matches_python(render_scene_exe, ctx, tmp_path):
+    latlong = sky_envmap()
+    write_pfm(tmp_path / "env.pfm", latlong)
+    out = tmp_path / "out.pfm"
+    result = run([render_scene_exe, tmp_path / "env.pfm", out, WIDTH, HEIGHT], env=os.environ.copy())
+    assert "wrote" in result.stdout
+    assert not list(tmp_path.glob("*.tmp")), "the example left its temporary file"
+    c_image = read_pfm(out)
+    assert c_image.shape == (HEIGHT, WIDTH, 3)
+
+    py_image = python_render(ctx, latlong, WIDTH, HEIGHT)
+    assert py_image.shape == (HEIGHT, WIDTH, 4)
+    alpha = py_image[..., 3]
+    # The scene is in view: box and ground in front of a visible sky.
+    assert (alpha == 1).mean() > 0.3 and (alpha == 0).mean() > 0.05
+    assert np.isfinite(c_image).all()
+
+    diff = np.abs(c_image - py_image[..., :3])
+    worst = np.unravel_index(np.argmax(diff), diff.shape)
+    assert diff.max() <= 1e-6, (f"C and Python renders differ by {diff.max():g} at (y, x, c) = {worst}: "
+                                f"C {c_image[worst[:2]]} vs Python {py_image[worst[:2]][:3]}")
+
+
+def test_c_example_default_size_and_errors(render_scene_exe, tmp_path):
+    write_pfm(tmp_path / "env.pfm", sky_envmap(16, 8))
+    run([render_scene_exe, tmp_path / "env.pfm", tmp_path / "default.pfm"])
+    assert read_pfm(tmp_path / "default.pfm").shape == (120, 160, 3)
+
+    # A NaN texel at (x=5, y=2) of the top-first map: penumbra's message, with the position, and no output file.
+    bad = sky_envmap(16, 8)
+    bad[2, 5, 1] = np.nan
+    write_pfm(tmp_path / "nan.pfm", bad)
+    failed = subprocess.run([str(render_scene_exe), str(tmp_path / "nan.pfm"), str(tmp_path / "bad.pfm")],
+                            capture_output=True, text=True, timeout=300)
+    assert failed.returncode != 0
+    assert "PN_ERROR_INVALID_VALUE" in failed.stderr and "(x=5, y=2)" in failed.stderr, failed.stderr
+    assert not (tmp_path / "bad.pfm").exists()
+
+    usage = subprocess.run([str(render_scene_exe)], capture_output=True, text=True, timeout=60)
+    assert usage.returncode != 0 and "usage" in usage.stderr
