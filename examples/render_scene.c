@@ -150,7 +150,7 @@ static int write_pfm(const char *path, const float *rgba, uint32_t width, uint32
     for (uint32_t y = height; good && y-- > 0;) { /* bottom row first */
         const float *src = rgba + (size_t)y * width * 4;
         for (uint32_t x = 0; x < width; ++x)
-            for (int c = 0; c < 3; ++c)
+            for (uint32_t c = 0; c < 3; ++c)
                 row[3 * x + c] = src[4 * x + c];
         if (swap)
             swap_floats(row, (size_t)width * 3);

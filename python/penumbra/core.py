@@ -364,9 +364,10 @@ class GBuffer(_Handle):
         return _native.GBUFFER_PLANES.index(name)
 
     def read(self, plane: str) -> np.ndarray:
+        idx = self._plane(plane)
         dtype, k = _PLANE_DTYPE[plane]
         out = np.empty((self.height, self.width, k) if k > 1 else (self.height, self.width), dtype)
-        self._call("pn_gbuffer_read", self._h, self._plane(plane), _ptr(out), out.nbytes)
+        self._call("pn_gbuffer_read", self._h, idx, _ptr(out), out.nbytes)
         return out
 
     def write(self, plane: str, data) -> None:
