@@ -8,7 +8,7 @@
 #include <stdio.h>
 #include <string.h>
 
-#define PN_ERROR_SLOTS 16
+#define PN_ERROR_SLOTS 64 /* contexts per thread with a pending error; older ones are recycled */
 #define PN_MESSAGE_SIZE 2048
 
 typedef struct error_slot {
