@@ -185,7 +185,8 @@ PN_API pn_status pn_mesh_release(pn_mesh mesh);
 PN_API pn_status pn_mesh_set_geometry(pn_mesh mesh, const float *positions, uint32_t vertex_count,
                                       const uint32_t *indices, uint32_t triangle_count, const float *normals);
 
-/* Builds the BVH (binned SAH) on the host and uploads it. */
+/* Builds the BVH (binned SAH) on the host; scenes that use the mesh upload it
+ * at their next pn_scene_commit (and must be committed again after this). */
 PN_API pn_status pn_mesh_commit(pn_mesh mesh);
 
 typedef struct pn_mesh_info {
@@ -252,7 +253,8 @@ PN_API pn_status pn_scene_commit(pn_scene scene);
  * rays: 8 floats per ray: origin xyz, tmin, direction xyz (need not be unit), tmax.
  * pn_scene_intersect: closest hit; t (INFINITY on a miss), instance id
  *   (PN_BACKGROUND on a miss) and the mesh's triangle index; any output may be NULL.
- * pn_scene_occluded: 1 if anything is hit in [tmin, tmax], else 0. */
+ * pn_scene_occluded: 1 if anything is hit in the open interval (tmin, tmax), else 0
+ *   (pn_scene_intersect uses the same open interval). */
 PN_API pn_status pn_scene_intersect(pn_scene scene, const float *rays, uint32_t count, float *t,
                                     uint32_t *instance, uint32_t *triangle);
 PN_API pn_status pn_scene_occluded(pn_scene scene, const float *rays, uint32_t count, uint8_t *occluded);

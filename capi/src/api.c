@@ -43,8 +43,12 @@ static pn_status retain(pn_object *o)
 
 pn_status pn_get_error(pn_context ctx, const char **message)
 {
-    if (ctx && ctx->obj.magic != PN_MAGIC_CONTEXT)
+    if (ctx && ctx->obj.magic != PN_MAGIC_CONTEXT) {
+        /* Recorded in the global slot too, like every other bad handle. */
+        if (message)
+            *message = "pn_get_error: 'ctx' is not a context";
         return pn_fail(NULL, PN_ERROR_NULL_HANDLE, "pn_get_error: 'ctx' is not a context");
+    }
     return pn_error_take(ctx, message);
 }
 

@@ -110,10 +110,9 @@ static uint32_t levels_needed(uint32_t count, uint32_t max_leaf)
     return k;
 }
 
-/* Maps a centroid to one of nb bins. Written so that NaN or out-of-range
- * values land in a valid bin instead of reaching an undefined float-to-int
- * conversion. Binning and partitioning
- * both call this, so they always agree. */
+/* Maps a centroid to one of nb bins. NaN or out-of-range values land in a
+ * valid bin instead of reaching an undefined float-to-int conversion.
+ * Binning and partitioning both call this, so they always agree. */
 static inline uint32_t bin_of(float c, float cmin, float scale, int nb)
 {
     float t = (c - cmin) * scale;

@@ -38,10 +38,15 @@ typedef struct pn_bvh {
  * e.g. a zero-area triangle); boxes with NaN are not accepted (callers validate).
  * max_leaf_size >= 1. Returns 0 on success, -1 on allocation failure (no leak). */
 /* Guarantees depth <= PN_BVH_MAX_DEPTH so the kernels' fixed traversal stack
- * (PN_BVH_MAX_DEPTH entries) cannot overflow. */
+ * (PN_BVH_MAX_DEPTH entries) cannot overflow, and every leaf holds at most
+ * max_leaf_size primitives (near the depth bound, and where centroids
+ * coincide, nodes are split at the median instead of by SAH).
+ * Also returns -1 for count == 0 or count > 2^31 (node indices are 32-bit).
+ * *out is zeroed first, so pn_bvh_free(out) is safe whatever the result. */
 #define PN_BVH_MAX_DEPTH 48
 int pn_bvh_build(const pn_aabb *boxes, uint32_t count, uint32_t max_leaf_size, pn_bvh *out);
 
+/* Frees and zeroes *bvh; safe on a zeroed or already freed struct. */
 void pn_bvh_free(pn_bvh *bvh);
 
 #endif

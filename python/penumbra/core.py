@@ -426,6 +426,8 @@ class Renderer(_Handle):
 
     def set(self, **params) -> None:
         for name, value in params.items():
+            if not isinstance(value, (bool, int, float, np.integer, np.floating)):
+                raise InputError(f"renderer parameter {name} must be a number, got {value!r}")
             if isinstance(value, (bool, int, np.integer)):
                 self._call("pn_renderer_set_int", self._h, name.encode(), int(value))
             else:
