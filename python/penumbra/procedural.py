@@ -367,25 +367,30 @@ def sphere(radius: float = 1.0, subdivisions: int = 4) -> Mesh:
     return Mesh(vertices * radius, faces, vertices)
 
 
+def _cube_face_frames():
+    """(n, u, v) for the six faces of an axis-aligned cube, with tangents
+    u x v = n so the quad -u-v, +u-v, +u+v, -u+v is counter-clockwise from outside."""
+    for axis in range(3):
+        for sign in (1.0, -1.0):
+            n = np.zeros(3)
+            n[axis] = sign
+            u = np.zeros(3)
+            u[(axis + 1) % 3] = 1.0
+            yield n, u, np.cross(n, u)
+
+
 def box(size: Sequence[float] = (1.0, 1.0, 1.0)) -> Mesh:
     """An axis-aligned box with the given edge lengths: 24 vertices (4 per side) with flat normals."""
     half = np.asarray(size, dtype=np.float64) / 2.0
     if half.shape != (3,) or not (np.isfinite(half).all() and (half > 0).all()):
         raise InputError(f"size must be 3 positive finite numbers, got {size!r}")
     vertices, normals, faces = [], [], []
-    for axis in range(3):
-        for sign in (1.0, -1.0):
-            n = np.zeros(3)
-            n[axis] = sign
-            # Tangents u, v with u x v = n, so the quad -u-v, +u-v, +u+v, -u+v is counter-clockwise from outside.
-            u = np.zeros(3)
-            u[(axis + 1) % 3] = 1.0
-            v = np.cross(n, u)
-            base = len(vertices)
-            for cu, cv in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
-                vertices.append((n + cu * u + cv * v) * half)
-                normals.append(n)
-            faces += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
+    for n, u, v in _cube_face_frames():
+        base = len(vertices)
+        for cu, cv in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+            vertices.append((n + cu * u + cv * v) * half)
+            normals.append(n)
+        faces += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
     return Mesh(np.array(vertices), np.array(faces), np.array(normals))
 
 
@@ -592,19 +597,13 @@ def rounded_cube(size: float = 1.0, radius: float = 0.15, segments: int = 8) -> 
     m = len(coords)
     idx = np.arange(m * m).reshape(m, m)
     quads = (idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:])
-    for axis in range(3):
-        for sign in (1.0, -1.0):
-            n = np.zeros(3)
-            n[axis] = sign
-            u = np.zeros(3)
-            u[(axis + 1) % 3] = 1.0
-            v = np.cross(n, u)  # u x v = n: grid quads are counter-clockwise from outside
-            cu, cv = np.meshgrid(coords, coords, indexing="ij")
-            q = half * n + cu[..., None] * u + cv[..., None] * v
-            points.append(q.reshape(-1, 3))
-            p00, p10, p11, p01 = (x + count for x in quads)
-            faces += [np.stack([p00, p10, p11], -1).reshape(-1, 3), np.stack([p00, p11, p01], -1).reshape(-1, 3)]
-            count += m * m
+    for n, u, v in _cube_face_frames():
+        cu, cv = np.meshgrid(coords, coords, indexing="ij")
+        q = half * n + cu[..., None] * u + cv[..., None] * v
+        points.append(q.reshape(-1, 3))
+        p00, p10, p11, p01 = (x + count for x in quads)
+        faces += [np.stack([p00, p10, p11], -1).reshape(-1, 3), np.stack([p00, p11, p01], -1).reshape(-1, 3)]
+        count += m * m
     # Weld the six grids along the cube edges (their grid points are bit-identical there).
     cube_points, inverse = np.unique(np.concatenate(points), axis=0, return_inverse=True)
     faces = inverse.reshape(-1)[np.concatenate(faces)]
