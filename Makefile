@@ -3,9 +3,11 @@
 SHELL := /bin/bash
 VENV ?= .venv
 PY := $(VENV)/bin/python
-DEBS := pocl-opencl-icd ocl-icd-opencl-dev opencl-headers cmake ninja-build g++ pkg-config python3-venv
+DEBS := pocl-opencl-icd ocl-icd-opencl-dev opencl-headers cmake ninja-build g++ pkg-config python3-venv libllvm19
 STAMP_DEPS := $(VENV)/.deps-installed
 STAMP_PKG := $(VENV)/.penumbra-installed
+# Mitsuba 3's LLVM variant (cross-validation, benchmarks) loads Debian's libLLVM 19.
+export DRJIT_LIBLLVM_PATH ?= /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
 SOURCES := $(shell find capi kernels python cmake -type f) CMakeLists.txt pyproject.toml
 
 .PHONY: all deps venv install demo test test-c test-python clean
@@ -25,7 +27,7 @@ $(STAMP_DEPS): pyproject.toml | deps
 	python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q "scikit-build-core>=0.10" "numpy>=1.24" "pyopencl>=2023.1" "OpenEXR>=3.2" \
-	  "libigl>=2.5" "pillow>=10" "tqdm>=4.60" "pytest>=7"
+	  "libigl>=2.5" "pillow>=10" "tqdm>=4.60" "pytest>=7" "mitsuba>=3.5" "embreex>=2.17" "matplotlib>=3.7"
 	touch $@
 
 venv: $(STAMP_DEPS)
