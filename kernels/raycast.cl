@@ -2,23 +2,6 @@
  * and validation of caller-supplied G-buffers (docs/gbuffer.md). */
 #include "common/raytrace.cl"
 
-#define PN_SCENE_ARGS                                                                                        \
-    global const float4 *tlas, global const float4 *instances, global const float4 *blas,                  \
-        global const float4 *tris, global const float4 *normals, uint instance_count
-
-inline pn_scene_view make_view(global const float4 *tlas, global const float4 *instances,
-                               global const float4 *blas, global const float4 *tris, uint instance_count)
-{
-    pn_scene_view v;
-    v.tlas = tlas;
-    v.instances = instances;
-    v.blas = blas;
-    v.tris = tris;
-    v.instance_count = instance_count;
-    return v;
-}
-
-/* camera: origin, forward, right * tan(fov/2), up * tan(fov/2) * height/width. */
 kernel void gbuffer_primary(PN_SCENE_ARGS, float4 cam_origin, float4 cam_forward, float4 cam_right, float4 cam_up,
                             int width, int height, global float4 *position, global float4 *normal,
                             global float4 *albedo, global float4 *material, global uint *instance_id)
@@ -31,7 +14,7 @@ kernel void gbuffer_primary(PN_SCENE_ARGS, float4 cam_origin, float4 cam_forward
     float sy = 1.0f - 2.0f * ((float)y + 0.5f) / (float)height;
     float3 dir = normalize(cam_forward.xyz + sx * cam_right.xyz + sy * cam_up.xyz);
     float3 org = cam_origin.xyz;
-    pn_scene_view scene = make_view(tlas, instances, blas, tris, instance_count);
+    pn_scene_view scene = pn_make_scene_view(tlas, instances, blas, tris, instance_count);
     pn_hit hit;
     if (!pn_trace(scene, org, dir, 0.0f, INFINITY, &hit, false)) {
         position[idx] = (float4)(dir, INFINITY);
@@ -82,7 +65,7 @@ kernel void intersect_rays(PN_SCENE_ARGS, global const float4 *rays, int count, 
     if (gid >= count)
         return;
     float4 o = rays[2 * gid], d = rays[2 * gid + 1];
-    pn_scene_view scene = make_view(tlas, instances, blas, tris, instance_count);
+    pn_scene_view scene = pn_make_scene_view(tlas, instances, blas, tris, instance_count);
     pn_hit hit;
     if (pn_trace(scene, o.xyz, d.xyz, o.w, d.w, &hit, false)) {
         t_out[gid] = hit.t;
@@ -101,7 +84,7 @@ kernel void occluded_rays(PN_SCENE_ARGS, global const float4 *rays, int count, g
     if (gid >= count)
         return;
     float4 o = rays[2 * gid], d = rays[2 * gid + 1];
-    pn_scene_view scene = make_view(tlas, instances, blas, tris, instance_count);
+    pn_scene_view scene = pn_make_scene_view(tlas, instances, blas, tris, instance_count);
     pn_hit hit;
     occluded[gid] = pn_trace(scene, o.xyz, d.xyz, o.w, d.w, &hit, true) ? 1 : 0;
 }

@@ -12,3 +12,9 @@ SOLID_ANGLE_SUM_RTOL = 1e-5
 CUBE_RTOL = 1e-5
 # Irradiance sums over 6*F*F float32 terms.
 IRRADIANCE_RTOL = 2e-5
+# BRDF kernel against float64: pow(x, n) turns the float32 rounding of x
+# (~1e-7 relative after the dot products) into n * 1e-7; shininess up to 1000.
+BRDF_RTOL = 3e-4
+# `reference` pixels against the float64 sum: hundreds of float32 terms, each
+# with BRDF rounding as above, and float32 positions and normals.
+REFERENCE_RTOL = 1e-4

@@ -245,6 +245,19 @@ PN_API pn_status pn_scene_set_instance_material(pn_scene scene, uint32_t id, con
 PN_API pn_status pn_scene_remove_instance(pn_scene scene, uint32_t id);
 PN_API pn_status pn_scene_set_camera(pn_scene scene, const pn_camera *camera);
 
+/* A spherical light: a sphere of uniform outgoing radiance (docs/reference.md).
+ * Lights illuminate surfaces but are not part of the geometry: they cast no
+ * shadow and the camera does not see them. */
+typedef struct pn_sphere_light {
+    float position[3];
+    float radius;      /* > 0 */
+    float radiance[3]; /* linear RGB, each >= 0 */
+} pn_sphere_light;
+
+/* Replaces the scene's spherical lights (count 0 removes them; lights may be
+ * NULL then). Copied; takes effect at the next pn_scene_commit. At most 1024. */
+PN_API pn_status pn_scene_set_lights(pn_scene scene, const pn_sphere_light *lights, uint32_t count);
+
 /* Uploads per-mesh BVHs when the set of meshes changed and rebuilds the
  * top-level BVH over instances (cheap: done every frame for moving objects). */
 PN_API pn_status pn_scene_commit(pn_scene scene);
@@ -318,11 +331,29 @@ PN_API pn_status pn_image_read(pn_image image, float *host, size_t bytes);
 
 /* -------------------------------------------------------------- renderer */
 
-/* method: "unshadowed" (diffuse env lighting without visibility, from the
- * irradiance map). Unknown names give PN_ERROR_INVALID_ARGUMENT listing the
- * available ones. Parameters (set_int / set_float):
- *   "background"   int  1: background pixels show the environment, 0: black (default 1)
+/* Shading methods by name; unknown names give PN_ERROR_INVALID_ARGUMENT
+ * listing the available ones. Methods and their parameters (set_int /
+ * set_float; an int value is accepted for a float parameter):
+ *
+ * "unshadowed"  diffuse env lighting without visibility, from the irradiance map.
+ * "reference"   brute-force ground truth (docs/reference.md): the env map on a
+ *               cube of face_size directions times ray-cast visibility times
+ *               the BRDF (docs/brdf.md), plus stratified spherical lights.
+ *     "face_size"          int    directions per cube-face side, 1..256 (default 32 = 6144 directions)
+ *     "sun_supersampling"  int    texels brighter than sun_threshold split into s x s sub-texels, 1..16 (1)
+ *     "sun_threshold"      float  ... relative to the brightest texel's power, in (0, 1] (0.01)
+ *     "light_samples"      int    stratified samples per light cap side, 1..64 (16 = 256 rays)
+ *     "visibility"         int    1: shadow rays, 0: every direction unoccluded (1)
+ *     "ray_offset"         float  shadow-ray origin lift, relative to scene size + distance to camera (1e-5)
+ * "floor"       the memory-bound floor: reads the G-buffer, writes the image (docs/benchmarks.md).
+ *
+ * "unshadowed" and "reference" also take
+ *     "background"         int    1: background pixels show the environment, 0: black (1)
  */
+PN_API uint32_t pn_method_count(void);
+/* Name of method i < pn_method_count(), NULL beyond; a static string. */
+PN_API const char *pn_method_name(uint32_t index);
+
 PN_API pn_status pn_renderer_create(pn_context ctx, const char *method, pn_renderer *out);
 PN_API pn_status pn_renderer_retain(pn_renderer renderer);
 PN_API pn_status pn_renderer_release(pn_renderer renderer);

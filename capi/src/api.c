@@ -375,6 +375,14 @@ pn_status pn_scene_set_camera(pn_scene scene, const pn_camera *camera)
     return pn_scene_do_set_camera(scene, camera);
 }
 
+pn_status pn_scene_set_lights(pn_scene scene, const pn_sphere_light *lights, uint32_t count)
+{
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    if (count)
+        CHECK_PTR(scene->obj.ctx, lights);
+    return pn_scene_do_set_lights(scene, lights, count);
+}
+
 pn_status pn_scene_commit(pn_scene scene)
 {
     CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
@@ -541,6 +549,16 @@ pn_status pn_image_read(pn_image image, float *host, size_t bytes)
 }
 
 /* -------------------------------------------------------------- renderer */
+
+uint32_t pn_method_count(void)
+{
+    return pn_renderer_method_count();
+}
+
+const char *pn_method_name(uint32_t index)
+{
+    return pn_renderer_method_name(index);
+}
 
 pn_status pn_renderer_create(pn_context ctx, const char *method, pn_renderer *out)
 {

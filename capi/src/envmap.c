@@ -110,13 +110,39 @@ static int auto_supersampling(uint32_t face, uint32_t height)
     return s < 1 ? 1 : (s > 64 ? 64 : s);
 }
 
+/* Enqueues the lat-long -> cube resampling at face size `face` into `cube`
+ * and the texel directions + solid angles into `dirs`. */
+static pn_status fill_cube(pn_envmap env, int face, cl_mem cube, cl_mem dirs)
+{
+    pn_context ctx = env->obj.ctx;
+    const size_t texels = 6u * (size_t)face * face;
+    const cl_int w = (cl_int)env->width, h = (cl_int)env->height, cn = face;
+    const cl_int cs = env->supersampling ? env->supersampling : auto_supersampling((uint32_t)face, env->height);
+    const double angle = (double)env->rotation_deg * 3.14159265358979323846 / 180.0;
+    const cl_float2 rot = {{(float)cos(angle), (float)sin(angle)}};
+    cl_kernel to_cube, to_dirs;
+    pn_status st;
+    if ((st = pn_context_kernel(ctx, "envmap", "envmap_latlong_to_cube", &to_cube)) ||
+        (st = pn_context_kernel(ctx, "envmap", "envmap_cube_directions", &to_dirs)))
+        return st;
+    size_t sizes[] = {sizeof(cl_mem), sizeof w, sizeof h, sizeof cn, sizeof cs, sizeof rot, sizeof(float), sizeof(cl_mem)};
+    const void *vals[] = {&env->latlong, &w, &h, &cn, &cs, &rot, &env->intensity, &cube};
+    if ((st = pn_set_args(ctx, to_cube, "envmap_latlong_to_cube", 8, sizes, vals)) ||
+        (st = pn_enqueue_1d(ctx, to_cube, "envmap_latlong_to_cube", texels, 0)))
+        return st;
+    size_t dsizes[] = {sizeof cn, sizeof(cl_mem)};
+    const void *dvals[] = {&cn, &dirs};
+    if ((st = pn_set_args(ctx, to_dirs, "envmap_cube_directions", 2, dsizes, dvals)))
+        return st;
+    return pn_enqueue_1d(ctx, to_dirs, "envmap_cube_directions", texels, 0);
+}
+
 pn_status pn_envmap_do_commit(pn_envmap env)
 {
     pn_context ctx = env->obj.ctx;
     if (!env->latlong)
         return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "env map has no data: call pn_envmap_set_latlong before committing");
     const int n = env->face_size, m = env->irradiance_face_size;
-    const int s = env->supersampling ? env->supersampling : auto_supersampling((uint32_t)n, env->height);
     const size_t texels = 6u * (size_t)n * n, samples = 6u * (size_t)m * m;
     pn_status st = PN_SUCCESS;
     if (env->committed_face_size != n || !env->cube) {
@@ -133,29 +159,11 @@ pn_status pn_envmap_do_commit(pn_envmap env)
             return st;
         env->committed_irradiance_size = m;
     }
-    cl_kernel to_cube, directions, irradiance;
-    if ((st = pn_context_kernel(ctx, "envmap", "envmap_latlong_to_cube", &to_cube)) ||
-        (st = pn_context_kernel(ctx, "envmap", "envmap_cube_directions", &directions)) ||
+    cl_kernel irradiance;
+    if ((st = fill_cube(env, n, env->cube, env->dirs)) ||
         (st = pn_context_kernel(ctx, "envmap", "envmap_irradiance", &irradiance)))
         return st;
-    const double angle = (double)env->rotation_deg * 3.14159265358979323846 / 180.0;
-    const cl_float2 rot = {{(float)cos(angle), (float)sin(angle)}};
-    const cl_int w = (cl_int)env->width, h = (cl_int)env->height, cn = n, cs = s, cm = m;
-    const cl_int ctexels = (cl_int)texels;
-    {
-        size_t sizes[] = {sizeof(cl_mem), sizeof w, sizeof h, sizeof cn, sizeof cs, sizeof rot, sizeof(float), sizeof(cl_mem)};
-        const void *vals[] = {&env->latlong, &w, &h, &cn, &cs, &rot, &env->intensity, &env->cube};
-        if ((st = pn_set_args(ctx, to_cube, "envmap_latlong_to_cube", 8, sizes, vals)) ||
-            (st = pn_enqueue_1d(ctx, to_cube, "envmap_latlong_to_cube", texels, 0)))
-            return st;
-    }
-    {
-        size_t sizes[] = {sizeof cn, sizeof(cl_mem)};
-        const void *vals[] = {&cn, &env->dirs};
-        if ((st = pn_set_args(ctx, directions, "envmap_cube_directions", 2, sizes, vals)) ||
-            (st = pn_enqueue_1d(ctx, directions, "envmap_cube_directions", texels, 0)))
-            return st;
-    }
+    const cl_int cm = m, ctexels = (cl_int)texels;
     {
         size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof ctexels, sizeof cm, sizeof(cl_mem)};
         const void *vals[] = {&env->cube, &env->dirs, &ctexels, &cm, &env->irradiance};
@@ -164,7 +172,7 @@ pn_status pn_envmap_do_commit(pn_envmap env)
             return st;
     }
     env->committed = true;
-    env->version++;
+    env->version = pn_next_version();
     return PN_SUCCESS;
 }
 
@@ -187,4 +195,28 @@ pn_status pn_envmap_do_read(pn_envmap env, pn_envmap_data what, void *host, size
                        need, bytes);
     cl_int err = clEnqueueReadBuffer(ctx->queue, src, CL_TRUE, 0, need, host, 0, NULL, NULL);
     return err == CL_SUCCESS ? PN_SUCCESS : pn_fail_cl(ctx, err, "reading env map data");
+}
+
+pn_status pn_envmap_sample_cube(pn_envmap env, int face, float *radiance, float *directions)
+{
+    pn_context ctx = env->obj.ctx;
+    if (!env->committed)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "env map changed since its last commit; call pn_envmap_commit");
+    const size_t bytes = 6u * (size_t)face * face * 16;
+    cl_mem cube = NULL, dirs = NULL;
+    pn_status st;
+    if (!(st = pn_alloc(ctx, bytes, CL_MEM_READ_WRITE, NULL, &cube, "a resampled env cube")) &&
+        !(st = pn_alloc(ctx, bytes, CL_MEM_READ_WRITE, NULL, &dirs, "resampled cube directions")) &&
+        !(st = fill_cube(env, face, cube, dirs))) {
+        cl_int err = CL_SUCCESS;
+        if (radiance)
+            err = clEnqueueReadBuffer(ctx->queue, cube, CL_TRUE, 0, bytes, radiance, 0, NULL, NULL);
+        if (err == CL_SUCCESS && directions)
+            err = clEnqueueReadBuffer(ctx->queue, dirs, CL_TRUE, 0, bytes, directions, 0, NULL, NULL);
+        if (err != CL_SUCCESS)
+            st = pn_fail_cl(ctx, err, "reading a resampled env cube");
+    }
+    pn_mem_release(&cube);
+    pn_mem_release(&dirs);
+    return st;
 }

@@ -112,7 +112,7 @@ struct pn_envmap_impl {
     int32_t face_size, irradiance_face_size, supersampling;
     float rotation_deg, intensity;
     bool committed;
-    uint64_t version;        /* bumped at each commit */
+    uint64_t version;        /* a new pn_next_version() at each commit */
     int32_t committed_face_size, committed_irradiance_size;
     cl_mem cube;             /* 6*F*F float4 radiance */
     cl_mem dirs;             /* 6*F*F float4 direction + solid angle */
@@ -125,6 +125,10 @@ pn_status pn_envmap_param_int(pn_envmap env, const char *name, int32_t *value, b
 pn_status pn_envmap_param_float(pn_envmap env, const char *name, float *value, bool set);
 pn_status pn_envmap_do_commit(pn_envmap env);
 pn_status pn_envmap_do_read(pn_envmap env, pn_envmap_data what, void *host, size_t bytes);
+/* Resamples the committed env map onto a cube of face `face` (the commit's
+ * area-averaging filter) and reads back 6*face*face float4 radiance and
+ * float4 direction + solid angle; either output may be NULL. */
+pn_status pn_envmap_sample_cube(pn_envmap env, int face, float *radiance, float *directions);
 
 /* ------------------------------------------------------------------- mesh */
 
@@ -135,7 +139,7 @@ struct pn_mesh_impl {
     uint32_t *indices;       /* 3 per triangle */
     uint32_t vertex_count, triangle_count;
     bool committed;
-    uint64_t version;        /* bumped at each commit */
+    uint64_t version;        /* a new pn_next_version() at each commit */
     pn_bvh bvh;
     float bounds_lo[3], bounds_hi[3];
     /* Triangles in BVH leaf order, gathered by every scene that uses the mesh. */
@@ -147,8 +151,8 @@ void pn_mesh_destroy(pn_mesh mesh);
 pn_status pn_mesh_do_set_geometry(pn_mesh mesh, const float *positions, uint32_t vertex_count,
                                   const uint32_t *indices, uint32_t triangle_count, const float *normals);
 pn_status pn_mesh_do_commit(pn_mesh mesh);
-/* A process-wide unique version stamp for a mesh commit. */
-uint64_t pn_next_mesh_version(void);
+/* A process-wide unique version stamp for a mesh or env map commit. */
+uint64_t pn_next_version(void);
 
 /* ------------------------------------------------------------------ scene */
 
@@ -180,6 +184,10 @@ struct pn_scene_impl {
     cl_mem tlas, records;         /* rebuilt at every commit */
     size_t tlas_capacity, records_capacity;
     uint32_t live_instances;
+    float bounds_lo[3], bounds_hi[3]; /* world bounds of the live instances at commit */
+    pn_sphere_light *lights;          /* set by pn_scene_set_lights, uploaded at commit */
+    uint32_t light_count, committed_light_count;
+    cl_mem light_buffer;              /* 2 float4 per light: centre, radius | radiance, 0 */
 };
 
 void pn_scene_destroy(pn_scene scene);
@@ -189,6 +197,9 @@ pn_status pn_scene_do_set_transform(pn_scene scene, uint32_t id, const float *tr
 pn_status pn_scene_do_set_material(pn_scene scene, uint32_t id, const pn_material *material);
 pn_status pn_scene_do_remove(pn_scene scene, uint32_t id);
 pn_status pn_scene_do_set_camera(pn_scene scene, const pn_camera *camera);
+pn_status pn_scene_do_set_lights(pn_scene scene, const pn_sphere_light *lights, uint32_t count);
+/* Largest absolute coordinate of the committed scene's bounds (0 when empty). */
+float pn_scene_scale(pn_scene scene);
 pn_status pn_scene_do_commit(pn_scene scene);
 /* Checks the scene and everything it uses is committed. */
 pn_status pn_scene_ready(pn_scene scene, bool need_env);
@@ -227,13 +238,23 @@ pn_status pn_check_cl_buffer(pn_context ctx, cl_mem buffer, size_t needed, const
 
 typedef struct pn_method pn_method;
 
+#define PN_MAX_METHOD_PARAMS 8
+
 struct pn_renderer_impl {
     pn_object obj;
     const pn_method *method;
-    int32_t background;
+    float params[PN_MAX_METHOD_PARAMS]; /* by the method's parameter table; ints stored exactly */
     bool committed;
+    /* `reference`: direction records built from the env map, reused while
+     * the env map and the parameters that shape them stay the same. */
+    cl_mem dir_records;
+    uint32_t dir_record_count;
+    uint64_t dir_env_version;
+    float dir_key[3];                   /* face size, sun supersampling, sun threshold */
 };
 
+uint32_t pn_renderer_method_count(void);
+const char *pn_renderer_method_name(uint32_t index);
 pn_status pn_renderer_new(pn_context ctx, const char *method, pn_renderer *out);
 void pn_renderer_destroy(pn_renderer renderer);
 pn_status pn_renderer_param_int(pn_renderer r, const char *name, int32_t *value, bool set);

@@ -156,6 +156,6 @@ pn_status pn_mesh_do_commit(pn_mesh mesh)
     mesh->leaf_tris = tris;
     mesh->leaf_normals = nrms;
     mesh->committed = true;
-    mesh->version = pn_next_mesh_version();
+    mesh->version = pn_next_version();
     return PN_SUCCESS;
 }

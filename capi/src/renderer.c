@@ -1,15 +1,51 @@
 /* Renderers: a shading method chosen by name, its parameters, and execution
- * on a G-buffer. Each method is one entry of `methods`; later techniques add
- * theirs beside `unshadowed`. */
+ * on a G-buffer. Each method is one entry of `methods` (name, kernel stage,
+ * parameter table, execute function); the C API, the Python package and the
+ * CLI all list methods from this table. */
 #include "internal.h"
 
+#include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
+typedef struct {
+    const char *name;
+    bool integer;
+    float fallback, lo, hi; /* default and inclusive range */
+} pn_param;
+
 struct pn_method {
     const char *name;
+    const char *stage; /* kernels/<stage>.cl */
     pn_status (*execute)(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image);
+    const pn_param *params;
+    int param_count;
 };
+
+/* Parameter slots, in the order of each method's table. */
+enum { P_BACKGROUND = 0 };
+enum { P_FACE_SIZE = 1, P_SUN_SUPERSAMPLING, P_SUN_THRESHOLD, P_LIGHT_SAMPLES, P_VISIBILITY, P_RAY_OFFSET };
+
+static const pn_param unshadowed_params[] = {
+    {"background", true, 1, 0, 1},
+};
+
+static const pn_param reference_params[] = {
+    {"background", true, 1, 0, 1},
+    {"face_size", true, 32, 1, 256},
+    {"sun_supersampling", true, 1, 1, 16},
+    {"sun_threshold", false, 0.01f, 1e-6f, 1},
+    {"light_samples", true, 16, 1, 64},
+    {"visibility", true, 1, 0, 1},
+    {"ray_offset", false, 1e-5f, 0, 0.1f},
+};
+
+static cl_float4 camera_position(pn_scene scene)
+{
+    cl_float4 c = {{scene->camera.position[0], scene->camera.position[1], scene->camera.position[2], 0.0f}};
+    return c;
+}
 
 static pn_status execute_unshadowed(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image)
 {
@@ -20,7 +56,7 @@ static pn_status execute_unshadowed(pn_renderer r, pn_scene scene, pn_gbuffer gb
     if (st)
         return st;
     const cl_int count = (cl_int)(gb->width * gb->height);
-    const cl_int m = env->irradiance_face_size, n = env->face_size, bg = r->background;
+    const cl_int m = env->irradiance_face_size, n = env->face_size, bg = (cl_int)r->params[P_BACKGROUND];
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count, sizeof(cl_mem),
                       sizeof m, sizeof(cl_mem), sizeof n, sizeof bg, sizeof(cl_mem)};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
@@ -31,19 +67,191 @@ static pn_status execute_unshadowed(pn_renderer r, pn_scene scene, pn_gbuffer gb
     return pn_enqueue_1d(ctx, k, "shade_unshadowed", (size_t)count, 64);
 }
 
+static pn_status execute_floor(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image)
+{
+    pn_context ctx = r->obj.ctx;
+    cl_kernel k;
+    pn_status st = pn_context_kernel(ctx, "floor", "shade_floor", &k);
+    if (st)
+        return st;
+    const cl_int count = (cl_int)(gb->width * gb->height);
+    const cl_float4 camera = camera_position(scene);
+    size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count, sizeof camera,
+                      sizeof(cl_mem)};
+    const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
+                          &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_INSTANCE], &count, &camera,
+                          &image->buffer};
+    if ((st = pn_set_args(ctx, k, "shade_floor", 7, sizes, vals)))
+        return st;
+    return pn_enqueue_1d(ctx, k, "shade_floor", (size_t)count, 64);
+}
+
+static float luminance(const float *rgb)
+{
+    return 0.2126f * rgb[0] + 0.7152f * rgb[1] + 0.0722f * rgb[2];
+}
+
+static void put_record(float *out, const float *dir, const float *radiance)
+{
+    memcpy(out, dir, 4 * sizeof(float)); /* direction, solid angle */
+    memcpy(out + 4, radiance, 3 * sizeof(float));
+    out[7] = 0.0f;
+}
+
+/* The `reference` direction records: one per cube texel of face F with its
+ * area-averaged radiance and exact solid angle, black texels dropped, and
+ * texels whose power L*dw reaches sun_threshold of the brightest one split
+ * into s x s sub-texels (taken from the cube of face F*s, whose texels nest
+ * inside the coarse ones). Rebuilt only when the env map or these
+ * parameters change. */
+static pn_status build_direction_records(pn_renderer r, pn_envmap env)
+{
+    pn_context ctx = r->obj.ctx;
+    const int f = (int)r->params[P_FACE_SIZE], s = (int)r->params[P_SUN_SUPERSAMPLING];
+    const float threshold = r->params[P_SUN_THRESHOLD];
+    if (r->dir_records && r->dir_env_version == env->version && r->dir_key[0] == (float)f &&
+        r->dir_key[1] == (float)s && r->dir_key[2] == threshold)
+        return PN_SUCCESS;
+    if (f * s > 2048)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                       "face_size %d x sun_supersampling %d = %d exceeds the 2048 sub-texels per face side", f, s, f * s);
+    const size_t texels = 6u * (size_t)f * f, fine_texels = texels * (size_t)s * s;
+    float *rad = pn_malloc(ctx, texels * 16, "the reference cube");
+    float *dirs = pn_malloc(ctx, texels * 16, "the reference directions");
+    float *fine_rad = s > 1 ? pn_malloc(ctx, fine_texels * 16, "the supersampled reference cube") : NULL;
+    float *fine_dirs = s > 1 ? pn_malloc(ctx, fine_texels * 16, "the supersampled reference directions") : NULL;
+    float *records = NULL;
+    pn_status st = PN_SUCCESS;
+    if (!rad || !dirs || (s > 1 && (!fine_rad || !fine_dirs)))
+        st = PN_ERROR_OUT_OF_MEMORY;
+    if (!st)
+        st = pn_envmap_sample_cube(env, f, rad, dirs);
+    if (!st && s > 1)
+        st = pn_envmap_sample_cube(env, f * s, fine_rad, fine_dirs);
+    float max_power = 0.0f;
+    for (size_t k = 0; !st && k < texels; ++k)
+        max_power = fmaxf(max_power, luminance(rad + 4 * k) * dirs[4 * k + 3]);
+    /* Pass 0 counts, pass 1 writes. */
+    size_t count = 0;
+    for (int pass = 0; !st && pass < 2; ++pass) {
+        if (pass == 1 && !(records = pn_malloc(ctx, pn_mul_size(count ? count : 1, 8, sizeof(float)), "reference records")))
+            st = PN_ERROR_OUT_OF_MEMORY;
+        size_t out = 0;
+        for (size_t k = 0; !st && k < texels; ++k) {
+            const float *l = rad + 4 * k;
+            if (l[0] == 0.0f && l[1] == 0.0f && l[2] == 0.0f)
+                continue;
+            const bool split = s > 1 && luminance(l) * dirs[4 * k + 3] >= threshold * max_power;
+            if (!split) {
+                if (pass)
+                    put_record(records + 8 * out, dirs + 4 * k, l);
+                ++out;
+                continue;
+            }
+            const size_t face = k / ((size_t)f * f), j = (k / f) % f, i = k % f, fs = (size_t)f * s;
+            for (int sj = 0; sj < s; ++sj)
+                for (int si = 0; si < s; ++si) {
+                    size_t q = face * fs * fs + (j * s + sj) * fs + (i * s + si);
+                    const float *lq = fine_rad + 4 * q;
+                    if (lq[0] == 0.0f && lq[1] == 0.0f && lq[2] == 0.0f)
+                        continue;
+                    if (pass)
+                        put_record(records + 8 * out, fine_dirs + 4 * q, lq);
+                    ++out;
+                }
+        }
+        count = out;
+    }
+    if (!st) {
+        if (count > (size_t)INT32_MAX)
+            st = pn_fail(ctx, PN_ERROR_INVALID_SIZE, "too many reference directions (%zu)", count);
+        pn_mem_release(&r->dir_records);
+        if (!st)
+            st = pn_alloc(ctx, (count ? count : 1) * 32, CL_MEM_READ_ONLY, records, &r->dir_records,
+                          "the reference direction records");
+    }
+    if (!st) {
+        r->dir_record_count = (uint32_t)count;
+        r->dir_env_version = env->version;
+        r->dir_key[0] = (float)f;
+        r->dir_key[1] = (float)s;
+        r->dir_key[2] = threshold;
+    }
+    free(rad);
+    free(dirs);
+    free(fine_rad);
+    free(fine_dirs);
+    free(records);
+    return st;
+}
+
+static pn_status execute_reference(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image)
+{
+    pn_context ctx = r->obj.ctx;
+    pn_envmap env = scene->env;
+    cl_kernel k;
+    pn_status st;
+    if (!scene->has_camera)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED,
+                       "the reference method needs the scene's camera (the viewer position for the BRDF)");
+    if ((st = pn_context_kernel(ctx, "reference", "shade_reference", &k)) ||
+        (st = build_direction_records(r, env)) ||
+        (st = pn_scene_set_kernel_args(scene, k, "shade_reference", 0)))
+        return st;
+    const cl_int count = (cl_int)(gb->width * gb->height), records = (cl_int)r->dir_record_count;
+    const cl_int lights = (cl_int)scene->committed_light_count, side = (cl_int)r->params[P_LIGHT_SAMPLES];
+    const cl_float4 camera = camera_position(scene);
+    const cl_float offset = r->params[P_RAY_OFFSET], scale = pn_scene_scale(scene);
+    const cl_int visibility = (cl_int)r->params[P_VISIBILITY], n = env->face_size;
+    const cl_int bg = (cl_int)r->params[P_BACKGROUND];
+    size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count,
+                      sizeof(cl_mem), sizeof records, sizeof(cl_mem), sizeof lights, sizeof side, sizeof camera,
+                      sizeof offset, sizeof scale, sizeof visibility, sizeof(cl_mem), sizeof n, sizeof bg,
+                      sizeof(cl_mem)};
+    const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
+                          &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
+                          &gb->planes[PN_GBUFFER_INSTANCE], &count, &r->dir_records, &records,
+                          &scene->light_buffer, &lights, &side, &camera, &offset, &scale, &visibility, &env->cube, &n,
+                          &bg, &image->buffer};
+    /* The six scene arguments come first (pn_scene_set_kernel_args). */
+    for (cl_uint i = 0; i < sizeof sizes / sizeof sizes[0]; ++i) {
+        cl_int err = clSetKernelArg(k, 6 + i, sizes[i], vals[i]);
+        if (err != CL_SUCCESS)
+            return pn_fail_cl(ctx, err, "setting shade_reference arguments");
+    }
+    return pn_enqueue_1d(ctx, k, "shade_reference", (size_t)count, 64);
+}
+
+#define PARAMS(table) table, (int)(sizeof table / sizeof table[0])
 static const pn_method methods[] = {
-    {"unshadowed", execute_unshadowed},
+    {"unshadowed", "unshadowed", execute_unshadowed, PARAMS(unshadowed_params)},
+    {"reference", "reference", execute_reference, PARAMS(reference_params)},
+    {"floor", "floor", execute_floor, NULL, 0},
 };
 #define METHOD_COUNT (sizeof methods / sizeof methods[0])
+
+uint32_t pn_renderer_method_count(void)
+{
+    return (uint32_t)METHOD_COUNT;
+}
+
+const char *pn_renderer_method_name(uint32_t index)
+{
+    return index < METHOD_COUNT ? methods[index].name : NULL;
+}
 
 pn_status pn_renderer_new(pn_context ctx, const char *method, pn_renderer *out)
 {
     const pn_method *found = NULL;
-    for (size_t i = 0; i < METHOD_COUNT; ++i)
+    char names[256] = "";
+    for (size_t i = 0; i < METHOD_COUNT; ++i) {
         if (!strcmp(methods[i].name, method))
             found = &methods[i];
+        size_t used = strlen(names);
+        snprintf(names + used, sizeof names - used, "%s%s", i ? ", " : "", methods[i].name);
+    }
     if (!found)
-        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "unknown method '%s' (available: unshadowed)", method);
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "unknown method '%s' (available: %s)", method, names);
     pn_renderer r = calloc(1, sizeof *r);
     if (!r)
         return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory creating a renderer");
@@ -51,38 +259,75 @@ pn_status pn_renderer_new(pn_context ctx, const char *method, pn_renderer *out)
     r->obj.refcount = 1;
     r->obj.ctx = ctx;
     r->method = found;
-    r->background = 1;
+    for (int i = 0; i < found->param_count; ++i)
+        r->params[i] = found->params[i].fallback;
     *out = r;
     return PN_SUCCESS;
 }
 
 void pn_renderer_destroy(pn_renderer r)
 {
+    pn_mem_release(&r->dir_records);
     r->obj.magic = PN_MAGIC_DEAD;
     free(r);
 }
 
+/* The parameter's slot, or -1 with an error listing the method's parameters. */
+static int find_param(pn_renderer r, const char *name, bool integer)
+{
+    const pn_method *m = r->method;
+    char list[256] = "";
+    for (int i = 0; i < m->param_count; ++i) {
+        if (!strcmp(m->params[i].name, name))
+            return i;
+        size_t used = strlen(list);
+        snprintf(list + used, sizeof list - used, "%s%s", i ? ", " : "", m->params[i].name);
+    }
+    pn_fail(r->obj.ctx, PN_ERROR_BAD_CONFIG, "method %s has no %s parameter '%s' (parameters: %s)", m->name,
+            integer ? "integer" : "float", name, m->param_count ? list : "none");
+    return -1;
+}
+
+static pn_status set_param(pn_renderer r, int slot, double value)
+{
+    const pn_param *p = &r->method->params[slot];
+    if (!isfinite(value) || value < p->lo || value > p->hi)
+        return pn_fail(r->obj.ctx, PN_ERROR_INVALID_ARGUMENT, "%s %s = %g is outside [%g, %g]", r->method->name,
+                       p->name, value, (double)p->lo, (double)p->hi);
+    if (p->integer && value != floor(value))
+        return pn_fail(r->obj.ctx, PN_ERROR_INVALID_ARGUMENT, "%s %s = %g must be an integer", r->method->name,
+                       p->name, value);
+    r->params[slot] = (float)value;
+    r->committed = false;
+    return PN_SUCCESS;
+}
+
 pn_status pn_renderer_param_int(pn_renderer r, const char *name, int32_t *value, bool set)
 {
-    if (strcmp(name, "background"))
-        return pn_fail(r->obj.ctx, PN_ERROR_BAD_CONFIG, "method %s has no integer parameter '%s' (background)",
+    int slot = find_param(r, name, true);
+    if (slot < 0)
+        return PN_ERROR_BAD_CONFIG;
+    if (set) /* an int is accepted for a float parameter */
+        return set_param(r, slot, (double)*value);
+    if (!r->method->params[slot].integer)
+        return pn_fail(r->obj.ctx, PN_ERROR_BAD_CONFIG, "%s %s is a float parameter: use pn_renderer_get_float",
                        r->method->name, name);
-    if (!set) {
-        *value = r->background;
-        return PN_SUCCESS;
-    }
-    if (*value != 0 && *value != 1)
-        return pn_fail(r->obj.ctx, PN_ERROR_INVALID_ARGUMENT, "background = %d must be 0 or 1", *value);
-    r->background = *value;
-    r->committed = false;
+    *value = (int32_t)r->params[slot];
     return PN_SUCCESS;
 }
 
 pn_status pn_renderer_param_float(pn_renderer r, const char *name, float *value, bool set)
 {
-    (void)value;
-    (void)set;
-    return pn_fail(r->obj.ctx, PN_ERROR_BAD_CONFIG, "method %s has no float parameter '%s'", r->method->name, name);
+    int slot = find_param(r, name, false);
+    if (slot < 0)
+        return PN_ERROR_BAD_CONFIG;
+    if (r->method->params[slot].integer)
+        return pn_fail(r->obj.ctx, PN_ERROR_BAD_CONFIG, "%s %s is an integer parameter: use pn_renderer_%s_int",
+                       r->method->name, name, set ? "set" : "get");
+    if (set)
+        return set_param(r, slot, (double)*value);
+    *value = r->params[slot];
+    return PN_SUCCESS;
 }
 
 pn_status pn_renderer_do_execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image)

@@ -27,6 +27,8 @@ void pn_scene_destroy(pn_scene scene)
     pn_mem_release(&scene->normals);
     pn_mem_release(&scene->tlas);
     pn_mem_release(&scene->records);
+    pn_mem_release(&scene->light_buffer);
+    free(scene->lights);
     scene->obj.magic = PN_MAGIC_DEAD;
     free(scene);
 }
@@ -162,6 +164,76 @@ pn_status pn_scene_do_set_camera(pn_scene scene, const pn_camera *c)
     scene->camera = *c;
     scene->has_camera = true;
     return PN_SUCCESS;
+}
+
+#define PN_MAX_LIGHTS 1024
+
+pn_status pn_scene_do_set_lights(pn_scene scene, const pn_sphere_light *lights, uint32_t count)
+{
+    pn_context ctx = scene->obj.ctx;
+    if (count > PN_MAX_LIGHTS)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "%u spherical lights is more than the %d a scene holds", count,
+                       PN_MAX_LIGHTS);
+    for (uint32_t i = 0; i < count; ++i) {
+        const pn_sphere_light *l = &lights[i];
+        bool finite = isfinite(l->radius);
+        for (int c = 0; c < 3; ++c)
+            finite = finite && isfinite(l->position[c]) && isfinite(l->radiance[c]);
+        if (!finite)
+            return pn_fail(ctx, PN_ERROR_INVALID_VALUE, "light %u has a NaN or infinite position, radius or radiance", i);
+        if (!(l->radius > 0.0f))
+            return pn_fail(ctx, PN_ERROR_INVALID_VALUE, "light %u has radius %g; it must be > 0", i, (double)l->radius);
+        if (l->radiance[0] < 0.0f || l->radiance[1] < 0.0f || l->radiance[2] < 0.0f)
+            return pn_fail(ctx, PN_ERROR_INVALID_VALUE, "light %u has a negative radiance", i);
+    }
+    pn_sphere_light *copy = NULL;
+    if (count) {
+        copy = pn_malloc(ctx, pn_mul_size(count, 1, sizeof *copy), "the light list");
+        if (!copy)
+            return PN_ERROR_OUT_OF_MEMORY;
+        memcpy(copy, lights, count * sizeof *copy);
+    }
+    free(scene->lights);
+    scene->lights = copy;
+    scene->light_count = count;
+    scene->committed = false;
+    return PN_SUCCESS;
+}
+
+/* Uploads the lights as 2 float4 each: centre, radius | radiance, 0. */
+static pn_status upload_lights(pn_scene scene)
+{
+    pn_context ctx = scene->obj.ctx;
+    const uint32_t n = scene->light_count;
+    pn_mem_release(&scene->light_buffer);
+    scene->committed_light_count = 0;
+    float *data = pn_malloc(ctx, pn_mul_size(n ? n : 1, 8, sizeof(float)), "the light buffer");
+    if (!data)
+        return PN_ERROR_OUT_OF_MEMORY;
+    memset(data, 0, 8 * sizeof(float));
+    for (uint32_t i = 0; i < n; ++i) {
+        const pn_sphere_light *l = &scene->lights[i];
+        float *d = data + 8 * (size_t)i;
+        memcpy(d, l->position, 3 * sizeof(float));
+        d[3] = l->radius;
+        memcpy(d + 4, l->radiance, 3 * sizeof(float));
+        d[7] = 0.0f;
+    }
+    /* A one-light dummy when there are none: OpenCL buffers cannot be empty. */
+    pn_status st = pn_alloc(ctx, (size_t)(n ? n : 1) * 8 * sizeof(float), CL_MEM_READ_ONLY,
+                            data, &scene->light_buffer, "the light buffer");
+    free(data);
+    if (!st)
+        scene->committed_light_count = n;
+    return st;
+}
+
+float pn_scene_scale(pn_scene scene)
+{
+    float s = 0.0f;
+    for (int i = 0; i < 3; ++i)
+        s = fmaxf(s, fmaxf(fabsf(scene->bounds_lo[i]), fabsf(scene->bounds_hi[i])));
+    return s;
 }
 
 /* ----------------------------------------------------------------- commit */
@@ -322,6 +394,14 @@ pn_status pn_scene_do_commit(pn_scene scene)
             world_box(&scene->instances[i], &boxes[n]);
             ids[n++] = i;
         }
+    for (int c = 0; c < 3; ++c) {
+        scene->bounds_lo[c] = n ? INFINITY : 0.0f;
+        scene->bounds_hi[c] = n ? -INFINITY : 0.0f;
+        for (uint32_t i = 0; !st && i < n; ++i) {
+            scene->bounds_lo[c] = fminf(scene->bounds_lo[c], boxes[i].lo[c]);
+            scene->bounds_hi[c] = fmaxf(scene->bounds_hi[c], boxes[i].hi[c]);
+        }
+    }
     if (!st && live && pn_bvh_build(boxes, live, 2, &tlas) != 0)
         st = pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building the instance BVH");
     for (uint32_t slot = 0; !st && slot < live; ++slot) {
@@ -359,6 +439,8 @@ pn_status pn_scene_do_commit(pn_scene scene)
     free(boxes);
     free(ids);
     free(records);
+    if (!st)
+        st = upload_lights(scene);
     if (!st) {
         scene->live_instances = live;
         scene->committed = true;
@@ -508,7 +590,7 @@ pn_status pn_scene_do_render_gbuffer(pn_scene scene, pn_gbuffer gb)
 /* A process-wide counter: a (mesh, version) pair never repeats, even when a
  * released mesh's memory is reused by a new one. */
 static atomic_uint_fast64_t mesh_versions = 1;
-uint64_t pn_next_mesh_version(void)
+uint64_t pn_next_version(void)
 {
     return atomic_fetch_add(&mesh_versions, 1);
 }

@@ -43,6 +43,25 @@ typedef struct {
     uint tri;       /* triangle slot in `tris` (global, leaf order) */
 } pn_hit;
 
+/* The six scene arguments every kernel that traces rays takes, in the order
+ * pn_scene_set_kernel_args sets them. */
+#define PN_SCENE_ARGS                                                                                        \
+    global const float4 *tlas, global const float4 *instances, global const float4 *blas,                  \
+        global const float4 *tris, global const float4 *normals, uint instance_count
+
+inline pn_scene_view pn_make_scene_view(global const float4 *tlas, global const float4 *instances,
+                                         global const float4 *blas, global const float4 *tris, uint instance_count)
+{
+    pn_scene_view v;
+    v.tlas = tlas;
+    v.instances = instances;
+    v.blas = blas;
+    v.tris = tris;
+    v.instance_count = instance_count;
+    return v;
+}
+
+/* camera: origin, forward, right * tan(fov/2), up * tan(fov/2) * height/width. */
 inline float3 pn_xform_point(global const float4 *rows, float3 p)
 {
     return (float3)(dot(rows[0].xyz, p) + rows[0].w, dot(rows[1].xyz, p) + rows[1].w,

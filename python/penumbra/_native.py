@@ -86,6 +86,7 @@ _SIGNATURES = {
     "pn_scene_set_instance_material": [_H, _u32, ctypes.POINTER(Material)],
     "pn_scene_remove_instance": [_H, _u32],
     "pn_scene_set_camera": [_H, ctypes.POINTER(Camera)],
+    "pn_scene_set_lights": [_H, _P, _u32],
     "pn_scene_commit": [_H],
     "pn_scene_intersect": [_H, _P, _u32, _P, _P, _P],
     "pn_scene_occluded": [_H, _P, _u32, _P],
@@ -146,6 +147,10 @@ def _load():
     lib.pn_version.argtypes = []
     lib.pn_status_name.restype = ctypes.c_char_p
     lib.pn_status_name.argtypes = [ctypes.c_int32]
+    lib.pn_method_count.restype = ctypes.c_uint32
+    lib.pn_method_count.argtypes = []
+    lib.pn_method_name.restype = ctypes.c_char_p
+    lib.pn_method_name.argtypes = [ctypes.c_uint32]
     return lib
 
 
@@ -177,3 +182,8 @@ def call(name: str, ctx_handle, *args) -> None:
 
 def version() -> str:
     return lib.pn_version().decode()
+
+
+def methods() -> tuple[str, ...]:
+    """Names of the shading methods the library offers, in its own order."""
+    return tuple(lib.pn_method_name(i).decode() for i in range(lib.pn_method_count()))

@@ -270,6 +270,7 @@ class Scene(_Handle):
         self._keep: dict[int, Any] = {}
         self.envmap: EnvMap | None = None
         self.camera: Camera | None = None
+        self.lights = np.zeros((0, 7), np.float32)
 
     def set_envmap(self, env: EnvMap) -> None:
         self._call("pn_scene_set_envmap", self._h, env._h)
@@ -279,6 +280,18 @@ class Scene(_Handle):
         c = camera.native()
         self._call("pn_scene_set_camera", self._h, ctypes.byref(c))
         self.camera = camera
+
+    def set_lights(self, lights) -> None:
+        """Spherical lights as (N, 7) rows: position xyz, radius, radiance rgb
+        (docs/reference.md); an empty list removes them. Takes effect at commit."""
+        a = np.asarray(lights, dtype=np.float64)
+        if a.size == 0:
+            a = np.zeros((0, 7))
+        if a.ndim != 2 or a.shape[1] != 7:
+            raise InputError(f"lights must be rows of 7 numbers (position xyz, radius, radiance rgb), got shape {a.shape}")
+        data = np.ascontiguousarray(a, dtype=np.float32)
+        self._call("pn_scene_set_lights", self._h, _ptr(data) if len(data) else None, len(data))
+        self.lights = data.copy()
 
     def add(self, mesh: Mesh, transform=None, material: Material | None = None) -> int:
         t = _transform_3x4(transform)
@@ -433,6 +446,19 @@ class Renderer(_Handle):
             else:
                 self._call("pn_renderer_set_float", self._h, name.encode(), float(value))
         self._call("pn_renderer_commit", self._h)
+
+    def get(self, name: str) -> int | float:
+        """A parameter's current value (int or float, as the method declares it)."""
+        v = ctypes.c_int32()
+        try:
+            self._call("pn_renderer_get_int", self._h, name.encode(), ctypes.byref(v))
+            return v.value
+        except InputError as exc:
+            if "float parameter" not in str(exc):
+                raise
+        f = ctypes.c_float()
+        self._call("pn_renderer_get_float", self._h, name.encode(), ctypes.byref(f))
+        return f.value
 
     def execute(self, scene: Scene, gbuffer: GBuffer, image: Image) -> None:
         self._call("pn_renderer_execute", self._h, scene._h, gbuffer._h, image._h)

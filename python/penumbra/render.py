@@ -12,14 +12,14 @@ from typing import Any
 
 import numpy as np
 
-from . import procedural
+from . import _native, procedural
 from .core import Camera, Context, EnvMap, GBuffer, Image, Material, Mesh, Renderer, Scene
 from .errors import InputError
 from .imageio import read_envmap
 from .meshio import load_mesh
 from .scenefile import EnvironmentDesc, ObjectDesc, SceneDescription
 
-METHODS = ("unshadowed",)
+METHODS = _native.methods()
 # G-buffer views the CLI and demo can write next to shaded images.
 GBUFFER_VIEWS = ("normals", "albedo", "depth")
 
@@ -80,6 +80,8 @@ def build_scene(desc: SceneDescription, ctx: Context) -> BuiltScene:
     c = desc.camera
     camera = Camera(position=c.position, look_at=c.look_at, up=c.up, fov_deg=c.fov_deg, resolution=c.resolution)
     scene.set_camera(camera)
+    if desc.lights:
+        scene.set_lights([light.row() for light in desc.lights])
     scene.commit()
     return BuiltScene(ctx, envmap, meshes, scene, ids, camera)
 

@@ -76,10 +76,24 @@ class ObjectDesc:
 
 
 @dataclass
+class LightDesc:
+    """A spherical light: a sphere of uniform radiance that lights surfaces
+    but casts no shadow and is not seen by the camera (docs/reference.md)."""
+
+    position: tuple = (0.0, 1.0, 0.0)
+    radius: float = 0.1
+    radiance: tuple = (10.0, 10.0, 10.0)
+
+    def row(self) -> list[float]:
+        return [*self.position, self.radius, *self.radiance]
+
+
+@dataclass
 class SceneDescription:
     environment: EnvironmentDesc
     camera: CameraDesc
     objects: list[ObjectDesc]
+    lights: list[LightDesc] = field(default_factory=list)
     render: dict[str, Any] = field(default_factory=dict)  # method = "...", other keys: method parameters
     source: str = "<dict>"
 
@@ -205,10 +219,23 @@ def _object(d: dict, index: int, base: Path) -> ObjectDesc:
     return o
 
 
+def _light(d: dict, index: int) -> LightDesc:
+    if not isinstance(d, dict):
+        raise InputError(f"[[light]] #{index} must be a table")
+    t = f"light #{index}"
+    _check_keys(t, d, {"position", "radius", "radiance"})
+    for key in ("position", "radius", "radiance"):
+        if key not in d:
+            raise InputError(f"[{t}] needs '{key}'")
+    return LightDesc(position=_vector(t, "position", d["position"]),
+                     radius=_number(t, "radius", d["radius"], lo=0.0, lo_open=True),
+                     radiance=_vector(t, "radiance", d["radiance"], broadcast=True, lo=0.0))
+
+
 def parse_scene(data: dict, base_dir: str | Path = ".", source: str = "<dict>") -> SceneDescription:
     """Checks a scene given as a dict (the parsed TOML) and returns its description."""
     base = Path(base_dir)
-    _check_keys("scene", data, {"environment", "camera", "object", "render"})
+    _check_keys("scene", data, {"environment", "camera", "object", "light", "render"})
     for table in ("environment", "camera", "render"):
         if table in data and not isinstance(data[table], dict):
             raise InputError(f"[{table}] must be a table")
@@ -220,11 +247,15 @@ def parse_scene(data: dict, base_dir: str | Path = ".", source: str = "<dict>") 
     dup = {n for n in names if names.count(n) > 1}
     if dup:
         raise InputError(f"object names must be unique; repeated: {', '.join(sorted(dup))}")
+    lights = data.get("light", [])
+    if not isinstance(lights, list):
+        raise InputError("lights are given as [[light]] tables")
     render = dict(data.get("render", {}))
     if "method" in render:
         _string("render", "method", render["method"])
     return SceneDescription(environment=_environment(data.get("environment", {}), base),
-                            camera=_camera(data.get("camera", {})), objects=descs, render=render, source=source)
+                            camera=_camera(data.get("camera", {})), objects=descs,
+                            lights=[_light(x, i) for i, x in enumerate(lights)], render=render, source=source)
 
 
 def apply_overrides(data: dict, overrides: list[str]) -> dict:
