@@ -958,6 +958,68 @@ static void test_scene(pn_context ctx)
     rig_release(&r);
 }
 
+/* The method table, the reference method's typed parameters and lights. */
+static void test_reference_renderer(pn_context ctx)
+{
+    uint32_t n = pn_method_count();
+    int seen = 0;
+    for (uint32_t i = 0; i < n; ++i)
+        seen += pn_method_name(i) && (!strcmp(pn_method_name(i), "reference") || !strcmp(pn_method_name(i), "floor"));
+    CHECK("method table lists reference and floor", seen == 2);
+    CHECK("pn_method_name beyond the table is NULL", pn_method_name(n) == NULL);
+    pn_renderer rend = NULL;
+    if (!expect_ok("renderer reference", pn_renderer_create(ctx, "reference", &rend), ctx))
+        return;
+    int32_t v = 0;
+    float f = 0;
+    expect_ok("get face_size", pn_renderer_get_int(rend, "face_size", &v), ctx);
+    CHECK("face_size defaults to 32", v == 32);
+    expect_ok("int value for a float parameter", pn_renderer_set_int(rend, "ray_offset", 0), ctx);
+    expect_ok("get ray_offset", pn_renderer_get_float(rend, "ray_offset", &f), ctx);
+    CHECK("ray_offset set to 0", f == 0.0f);
+    expect_error("face_size 0", pn_renderer_set_int(rend, "face_size", 0), PN_ERROR_INVALID_ARGUMENT, ctx, "face_size",
+                 NULL);
+    expect_error("float value for an int parameter", pn_renderer_set_float(rend, "face_size", 8.0f), PN_ERROR_BAD_CONFIG,
+                 ctx, "integer parameter", NULL);
+    expect_error("NaN sun_threshold", pn_renderer_set_float(rend, "sun_threshold", NAN), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "sun_threshold", NULL);
+    expect_error("get a float parameter as int", pn_renderer_get_int(rend, "ray_offset", &v), PN_ERROR_BAD_CONFIG, ctx,
+                 "float parameter", NULL);
+    expect_ok("face_size 4", pn_renderer_set_int(rend, "face_size", 4), ctx);
+    expect_ok("commit", pn_renderer_commit(rend), ctx);
+
+    rig r;
+    if (rig_create(ctx, &r, 8, 8, 4)) {
+        pn_sphere_light lights[2] = {{{0, 0, 3}, 0.5f, {1, 1, 1}}, {{0, 0, 3}, 0.0f, {1, 1, 1}}};
+        expect_error("light of radius 0", pn_scene_set_lights(r.scene, lights, 2), PN_ERROR_INVALID_VALUE, ctx,
+                     "light 1", "radius", NULL);
+        lights[1].radius = 1.0f;
+        lights[1].radiance[2] = NAN;
+        expect_error("NaN light radiance", pn_scene_set_lights(r.scene, lights, 2), PN_ERROR_INVALID_VALUE, ctx, "NaN",
+                     NULL);
+        expect_error("lights = NULL with a count", pn_scene_set_lights(r.scene, NULL, 1), PN_ERROR_INVALID_ARGUMENT, ctx,
+                     "lights", NULL);
+        expect_error("too many lights", pn_scene_set_lights(r.scene, lights, 5000), PN_ERROR_INVALID_SIZE, ctx, "1024",
+                     NULL);
+        expect_ok("one light", pn_scene_set_lights(r.scene, lights, 1), ctx);
+        expect_error("execute before the scene's commit", pn_renderer_execute(rend, r.scene, r.gbuffer, r.image),
+                     PN_ERROR_NOT_COMMITTED, ctx, "pn_scene_commit", NULL);
+        expect_ok("scene commit", pn_scene_commit(r.scene), ctx);
+        expect_ok("render_gbuffer", pn_scene_render_gbuffer(r.scene, r.gbuffer), ctx);
+        expect_ok("execute reference", pn_renderer_execute(rend, r.scene, r.gbuffer, r.image), ctx);
+        float px[8 * 8 * 4];
+        if (expect_ok("read", pn_image_read(r.image, px, sizeof px), ctx)) {
+            int finite = 1;
+            for (size_t i = 0; i < sizeof px / sizeof px[0]; ++i)
+                finite &= isfinite(px[i]) && px[i] >= 0.0f;
+            CHECK("reference pixels are finite and non-negative", finite);
+        }
+        expect_ok("no lights", pn_scene_set_lights(r.scene, NULL, 0), ctx);
+        rig_release(&r);
+    }
+    pn_renderer_release(rend);
+}
+
 static void test_renderer(pn_context ctx)
 {
     pn_renderer rend = (pn_renderer)(uintptr_t)1;
@@ -1004,6 +1066,7 @@ static void test_renderer(pn_context ctx)
         rig_release(&r);
     }
     pn_renderer_release(rend);
+    test_reference_renderer(ctx);
 }
 
 static void test_gbuffer(pn_context ctx)
