@@ -10,7 +10,7 @@ STAMP_PKG := $(VENV)/.penumbra-installed
 export DRJIT_LIBLLVM_PATH ?= /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
 SOURCES := $(shell find capi kernels python cmake -type f) CMakeLists.txt pyproject.toml
 
-.PHONY: all deps venv install demo test test-c test-python clean
+.PHONY: all deps venv install demo test test-c test-python bench clean
 
 all: install
 
@@ -51,6 +51,14 @@ test-python: install
 	PYOPENCL_CTX=0 $(PY) -m pytest -q tests
 
 test: test-c test-python
+
+# Speed against error on the standard scenes (bench/scenes, data from ../shared/data):
+# reports in bench/results/<scene>/, and the table in README.md refreshed.
+BENCH_SCENES := $(wildcard bench/scenes/*.toml)
+bench: install
+	@for s in $(BENCH_SCENES); do \
+	  $(VENV)/bin/penumbra bench $$s --out bench/results/$$(basename $$s .toml) --readme README.md || exit 1; \
+	done
 
 clean:
 	rm -rf build out

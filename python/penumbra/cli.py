@@ -1,4 +1,4 @@
-"""The ``penumbra`` command: ``info``, ``render`` and ``demo``."""
+"""The ``penumbra`` command: ``info``, ``render``, ``demo`` and ``export-mitsuba``."""
 
 from __future__ import annotations
 
@@ -91,7 +91,7 @@ def auto_exposure(image: np.ndarray, percentile: float = 97.0) -> float:
 def cmd_demo(args) -> int:
     from .core import Context
     from .imageio import write_exr, write_png
-    from .render import GBUFFER_VIEWS, METHODS, build_scene, render
+    from .render import GBUFFER_VIEWS, INTERACTIVE_METHODS, build_scene, render
     from .scenefile import default_scene_path, load_scene
 
     out = Path(args.out)
@@ -100,9 +100,14 @@ def cmd_demo(args) -> int:
     built = build_scene(desc, ctx)
     rows = []
     result = None
-    with _progress(len(METHODS) * (args.frames + 1), "demo") as bar:
-        for method in METHODS:
-            result = render(built, method, frames=args.frames, progress=bar)
+    # Interactive methods with full timing; the brute-force reference once, at a
+    # coarse direction grid, so the demo also shows ground-truth soft shadows.
+    runs = [(m, args.frames, {}) for m in INTERACTIVE_METHODS]
+    if args.reference_face_size > 0:
+        runs.append(("reference", 1, {"face_size": args.reference_face_size}))
+    with _progress(sum(f + (m != "reference") for m, f, _ in runs), "demo") as bar:
+        for method, frames, params in runs:
+            result = render(built, method, frames=frames, progress=bar, warmup=method != "reference", **params)
             rgb = np.ascontiguousarray(result.image[..., :3])
             write_exr(out / f"{method}.exr", rgb)
             write_png(out / f"{method}.png", rgb, exposure=auto_exposure(result.image))
@@ -117,8 +122,55 @@ def cmd_demo(args) -> int:
     for method, t in rows:
         print(f"{method:<14}{t['frame_median']:>17.2f}{t['frame_min']:>14.2f}{t['gbuffer_median']:>13.2f}"
               f"{t['shade_median']:>12.2f}")
-    print(f"images in {out}/: " + ", ".join(f"{m}.exr/.png" for m in METHODS) + ", "
+    print(f"images in {out}/: " + ", ".join(f"{m}.exr/.png" for m, _, _ in runs) + ", "
           + ", ".join(f"gbuffer_{v}.exr/.png" for v in GBUFFER_VIEWS))
+    return 0
+
+
+def cmd_export_mitsuba(args) -> int:
+    from .mitsuba import PLUGIN_NAME, export
+    from .scenefile import load_scene
+
+    desc = load_scene(args.scene, args.set)
+    written = export(desc, args.output, spp=args.spp, overwrite=args.force)
+    print(f"penumbra export-mitsuba: wrote {len(written)} file(s):")
+    for path in written:
+        print(f"  {path}")
+    plugin = [o.name for o in desc.objects if o.specular > 0]
+    if plugin:
+        # The mitsuba executable cannot load Python plugins; say so instead of letting it fail later.
+        print(f"note: {', '.join(plugin)} use(s) the '{PLUGIN_NAME}' BSDF plugin: render with "
+              "penumbra.mitsuba.load_file (docs/mitsuba.md), not the mitsuba executable")
+    return 0
+
+
+def _int_list(text: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of integers") from None
+
+
+def cmd_bench(args) -> int:
+    from .bench import BenchOptions, run
+
+    opts = BenchOptions(frames=args.frames, reference_face_size=args.reference_face_size,
+                        reference_sun_supersampling=args.reference_sun_supersampling,
+                        mitsuba_variant=args.mitsuba_variant, rays=not args.no_rays)
+    if args.methods:
+        opts.methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    if args.spp:
+        opts.spp = args.spp
+    if args.face_sizes:
+        opts.sweeps["reference"] = [{"face_size": f} for f in args.face_sizes]
+    out = Path(args.out)
+    res = run(args.scene, out, opts, overrides=args.set, log=lambda msg: print(msg, file=sys.stderr))
+    print(f"penumbra bench: wrote {out}/results.json, results.csv, pareto.png, report.md")
+    if args.readme:
+        from .bench import readme_row, update_readme
+
+        update_readme(args.readme, readme_row(res["summary"], res["results"]))
+        print(f"penumbra bench: updated the benchmark table in {args.readme}")
     return 0
 
 
@@ -144,13 +196,43 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="render the built-in procedural scene with every method")
     d.add_argument("--out", default="out/demo", help="output directory (default out/demo)")
     d.add_argument("--frames", type=int, default=5)
+    d.add_argument("--reference-face-size", type=int, default=8,
+                   help="also render the brute-force reference with this face size (0: skip; default 8)")
     d.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a scene value")
+
+    m = sub.add_parser("export-mitsuba", help="export a TOML scene as a Mitsuba 3 XML scene (docs/mitsuba.md)")
+    m.add_argument("scene", help="scene file (docs/scene-format.md)")
+    m.add_argument("-o", "--output", required=True, metavar="DIR",
+                   help="output directory: scene.xml, envmap.exr, meshes/*.ply")
+    m.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scene value, e.g. camera.fov_deg=30 or object.bunny.albedo=[1,0,0]")
+    m.add_argument("--spp", type=int, default=256, help="default samples per pixel of the XML (default 256)")
+    m.add_argument("--force", action="store_true",
+                   help="replace files in DIR even if no earlier export wrote them")
+
+    b = sub.add_parser("bench", help="speed against error of methods and Mitsuba 3 on one scene (docs/benchmarks.md)")
+    b.add_argument("scene", help="scene file (docs/scene-format.md)")
+    b.add_argument("--out", required=True, metavar="DIR", help="output directory for results.json/csv, pareto.png, "
+                   "report.md and images")
+    b.add_argument("--methods", default=None, help="comma-separated methods (default unshadowed,reference)")
+    b.add_argument("--frames", type=int, default=5, help="timed frames per setting after one warm-up (>= 5)")
+    b.add_argument("--spp", type=_int_list, default=None, help="Mitsuba samples per pixel (default 1,2,4,...,1024)")
+    b.add_argument("--face-sizes", type=_int_list, default=None,
+                   help="reference face sizes to sweep (default 4,8,16,32)")
+    b.add_argument("--reference-face-size", type=int, default=64, help="ground-truth face size (default 64)")
+    b.add_argument("--reference-sun-supersampling", type=int, default=4,
+                   help="ground-truth sub-texels per bright texel side (default 4)")
+    b.add_argument("--mitsuba-variant", default=None, help="Mitsuba variant (default llvm_ad_rgb)")
+    b.add_argument("--no-rays", action="store_true", help="skip the ray-throughput comparison with Embree")
+    b.add_argument("--readme", default=None, help="also refresh this scene's row of the table in this README")
+    b.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a scene value")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    handlers = {"info": cmd_info, "render": cmd_render, "demo": cmd_demo}
+    handlers = {"info": cmd_info, "render": cmd_render, "demo": cmd_demo, "export-mitsuba": cmd_export_mitsuba,
+                "bench": cmd_bench}
     try:
         return handlers[args.command](args)
     except PenumbraError as exc:

@@ -20,6 +20,9 @@ from .meshio import load_mesh
 from .scenefile import EnvironmentDesc, ObjectDesc, SceneDescription
 
 METHODS = _native.methods()
+# Methods meant for per-frame use; `reference` is the slow ground truth and
+# `floor` a timing yardstick (docs/benchmarks.md).
+INTERACTIVE_METHODS = tuple(m for m in METHODS if m not in ("reference", "floor"))
 # G-buffer views the CLI and demo can write next to shaded images.
 GBUFFER_VIEWS = ("normals", "albedo", "depth")
 
@@ -121,10 +124,12 @@ def _timed(fn, ctx: Context) -> float:
     return 1000.0 * (time.perf_counter() - t0)
 
 
-def render(built: BuiltScene, method: str = "unshadowed", frames: int = 5, progress=None,
+def render(built: BuiltScene, method: str = "unshadowed", frames: int = 5, progress=None, warmup: bool = True,
            **params) -> RenderResult:
     """Renders `built` with `method`. Kernel builds happen before timing; one
-    warm-up frame, then `frames` timed frames (G-buffer + shading each)."""
+    warm-up frame (unless `warmup` is False: for one-off slow renders whose
+    time is not a measurement), then `frames` timed frames (G-buffer +
+    shading each)."""
     if method not in METHODS:
         raise InputError(f"unknown method '{method}' (available: {', '.join(METHODS)})")
     if frames < 1:
@@ -136,7 +141,8 @@ def render(built: BuiltScene, method: str = "unshadowed", frames: int = 5, progr
     gbuffer, image = GBuffer(ctx, w, h), Image(ctx, w, h)
     renderer = Renderer(ctx, method, **params)
     gtimes, stimes = [], []
-    for i in range(frames + 1):
+    first = 1 if warmup else 0
+    for i in range(1 - first, frames + 1):
         g = _timed(lambda: built.scene.render_gbuffer(gbuffer), ctx)
         s = _timed(lambda: renderer.execute(built.scene, gbuffer, image), ctx)
         if i > 0:  # frame 0 warms caches up
