@@ -80,30 +80,82 @@ inline float3 pn_xform_normal(global const float4 *world_to_object, float3 n)
     return world_to_object[0].xyz * n.x + world_to_object[1].xyz * n.y + world_to_object[2].xyz * n.z;
 }
 
+/* Loads of node bounds and triangle vertices as three floats. Nodes and
+ * triangles keep indices and counts in their w components (uint bits, i.e.
+ * denormal floats); loading whole float4 lets those lanes ride along in the
+ * vector arithmetic, where every denormal operand costs a microcode assist
+ * of about a hundred cycles on x86 CPUs. vload3 leaves that lane 0. */
+inline float3 pn_load3(global const float4 *p)
+{
+    return vload3(0, (global const float *)p);
+}
+
+inline uint pn_load_w(global const float4 *p)
+{
+    return ((global const uint *)p)[3];
+}
+
+/* Per-ray constants of the slab test. */
+typedef struct {
+    float3 org, inv; /* origin, 1 / direction */
+    int3 neg;        /* sign bit of inv per axis (-1 set): the near plane is hi there */
+} pn_ray_slab;
+
+inline pn_ray_slab pn_make_slab(float3 org, float3 dir)
+{
+    pn_ray_slab r;
+    r.org = org;
+    r.inv = 1.0f / dir;
+    r.neg = signbit(r.inv);
+    return r;
+}
+
+/* Larger (smaller) of acc and t, acc when t is NaN: the compare-and-select
+ * form compiles to one max (min) instruction, unlike fmax's NaN handling. */
+inline float pn_max_acc(float acc, float t)
+{
+    return t > acc ? t : acc;
+}
+
+inline float pn_min_acc(float acc, float t)
+{
+    return t < acc ? t : acc;
+}
+
 /* Entry distance of the ray into the box, or INFINITY when it misses within
  * (tmin, tmax). The far distance is enlarged by 2 ulp-ish so that rounding
- * never culls a box the ray grazes (Ize, "Robust BVH ray traversal"). */
-inline float pn_ray_box(float3 org, float3 inv_dir, float tmin, float tmax, float4 lo, float4 hi)
+ * never culls a box the ray grazes (Ize, "Robust BVH ray traversal").
+ *
+ * Each axis contributes its near plane (lo, or hi where the direction is
+ * negative, -0 included) to the entry and its far plane to the exit. A zero
+ * direction component with the origin in one of the slab's planes gives
+ * 0 * inf = NaN for that plane: the ray lies in the closed slab for every t,
+ * so the plane must not constrain the interval. The accumulating max/min
+ * ignore a NaN term, which is exactly that (a plane that would give NaN as
+ * the near plane would give -inf or NaN as the far one and vice versa, so
+ * this matches treating the whole axis as unbounded). tmin / tmax seed the
+ * accumulators; a NaN bound makes every box miss, as it makes every
+ * triangle miss. */
+inline float pn_ray_box(const pn_ray_slab *r, float tmin, float tmax, global const float4 *node)
 {
-    float3 t0 = (lo.xyz - org) * inv_dir;
-    float3 t1 = (hi.xyz - org) * inv_dir;
-    float3 tn = fmin(t0, t1), tf = fmax(t0, t1);
-    /* A zero direction component with the origin in a slab's boundary plane
-     * gives 0 * inf = NaN: the ray lies in the closed slab for every t (fmin
-     * and fmax would otherwise pair the NaN with the other plane's +-inf and
-     * cull the box, losing hits on triangles that lie on the box's face). */
-    int3 in_plane = isnan(t0) | isnan(t1);
-    tn = select(tn, (float3)(-INFINITY), in_plane);
-    tf = select(tf, (float3)(INFINITY), in_plane);
-    float enter = fmax(fmax(tn.x, tn.y), fmax(tn.z, tmin));
-    float leave = fmin(fmin(tf.x, tf.y), fmin(tf.z, tmax)) * 1.00000024f;
+    float3 lo = pn_load3(node), hi = pn_load3(node + 1);
+    float3 near = select(lo, hi, r->neg), far = select(hi, lo, r->neg);
+    float3 tn = (near - r->org) * r->inv;
+    float3 tf = (far - r->org) * r->inv;
+    float enter = pn_max_acc(pn_max_acc(pn_max_acc(tmin, tn.x), tn.y), tn.z);
+    float leave = pn_min_acc(pn_min_acc(pn_min_acc(tmax, tf.x), tf.y), tf.z) * 1.00000024f;
     return enter <= leave ? enter : INFINITY;
 }
 
-/* Per-ray constants of the watertight test. */
+/* Per-ray constants of the watertight test, with the axes permuted so that
+ * z is the dominant direction axis (kz) and x, y the other two in the order
+ * that keeps the winding (kx, ky): a point p maps to pn_permute(s, p) =
+ * (p[kx], p[ky], p[kz]). */
 typedef struct {
-    int kx, ky, kz;
-    float sx, sy, sz;
+    int kz;           /* 0, 1, 2 */
+    bool swap;        /* kx and ky exchanged (negative dominant direction) */
+    float3 org;       /* permuted origin */
+    float sx, sy, sz; /* shear */
 } pn_ray_shear;
 
 inline float pn_comp(float3 v, int k)
@@ -111,28 +163,31 @@ inline float pn_comp(float3 v, int k)
     return k == 0 ? v.x : (k == 1 ? v.y : v.z);
 }
 
-inline pn_ray_shear pn_make_shear(float3 dir)
+inline float3 pn_permute(const pn_ray_shear *s, float3 v)
+{
+    /* kz = 0: (y, z, x); kz = 1: (z, x, y); kz = 2: (x, y, z) */
+    float3 r = s->kz == 0 ? v.yzx : (s->kz == 1 ? v.zxy : v);
+    return s->swap ? r.yxz : r;
+}
+
+inline pn_ray_shear pn_make_shear(float3 org, float3 dir)
 {
     pn_ray_shear s;
     float3 a = fabs(dir);
     s.kz = (a.x >= a.y && a.x >= a.z) ? 0 : (a.y >= a.z ? 1 : 2);
-    s.kx = (s.kz + 1) % 3;
-    s.ky = (s.kx + 1) % 3;
     float dz = pn_comp(dir, s.kz);
-    if (dz < 0.0f) {
-        int tmp = s.kx;
-        s.kx = s.ky;
-        s.ky = tmp;
-    }
-    s.sx = pn_comp(dir, s.kx) / dz;
-    s.sy = pn_comp(dir, s.ky) / dz;
+    s.swap = dz < 0.0f;
+    float3 d = pn_permute(&s, dir);
+    s.org = pn_permute(&s, org);
+    s.sx = d.x / dz;
+    s.sy = d.y / dz;
     s.sz = 1.0f / dz;
     return s;
 }
 
 /* Watertight ray-triangle test; on a hit in (tmin, tmax) returns true with t
  * and the barycentric weights (u of v1, v of v2). */
-inline bool pn_ray_triangle(float3 org, pn_ray_shear s, float tmin, float tmax, float3 v0, float3 v1, float3 v2,
+inline bool pn_ray_triangle(const pn_ray_shear *s, float tmin, float tmax, float3 v0, float3 v1, float3 v2,
                             float *t_out, float *u_out, float *v_out)
 {
     /* No FMA contraction here: a shared edge's function is computed as
@@ -141,11 +196,12 @@ inline bool pn_ray_triangle(float3 org, pn_ray_shear s, float tmin, float tmax, 
      * multiply-add (OpenCL C contracts by default) breaks that, and rays
      * through shared edges then miss both triangles. */
 #pragma OPENCL FP_CONTRACT OFF
-    float3 A = v0 - org, B = v1 - org, C = v2 - org;
-    float az = pn_comp(A, s.kz), bz = pn_comp(B, s.kz), cz = pn_comp(C, s.kz);
-    float ax = pn_comp(A, s.kx) - s.sx * az, ay = pn_comp(A, s.ky) - s.sy * az;
-    float bx = pn_comp(B, s.kx) - s.sx * bz, by = pn_comp(B, s.ky) - s.sy * bz;
-    float cx = pn_comp(C, s.kx) - s.sx * cz, cy = pn_comp(C, s.ky) - s.sy * cz;
+    /* Permuting before subtracting the (permuted) origin gives the same
+     * values as subtracting first: the operations are per component. */
+    float3 A = pn_permute(s, v0) - s->org, B = pn_permute(s, v1) - s->org, C = pn_permute(s, v2) - s->org;
+    float ax = A.x - s->sx * A.z, ay = A.y - s->sy * A.z;
+    float bx = B.x - s->sx * B.z, by = B.y - s->sy * B.z;
+    float cx = C.x - s->sx * C.z, cy = C.y - s->sy * C.z;
     float U = cx * by - cy * bx;
     float V = ax * cy - ay * cx;
     float W = bx * ay - by * ax;
@@ -154,7 +210,7 @@ inline bool pn_ray_triangle(float3 org, pn_ray_shear s, float tmin, float tmax, 
     float det = U + V + W;
     if (det == 0.0f)
         return false;
-    float T = s.sz * (U * az + V * bz + W * cz);
+    float T = s->sz * (U * A.z + V * B.z + W * C.z);
     float t = T / det;
     if (!(t > tmin && t < tmax))
         return false;
@@ -165,65 +221,76 @@ inline bool pn_ray_triangle(float3 org, pn_ray_shear s, float tmin, float tmax, 
 }
 
 /* Traverses one instance's BLAS in object space. any_hit: stop at the first
- * hit. Returns true if hit->t was lowered. */
+ * hit. Returns true if hit->t was lowered.
+ *
+ * Closest hit: children are visited nearer first, the farther one waits on
+ * the stack with its entry distance, and a popped node whose entry lies
+ * beyond a hit found meanwhile is skipped: the same test its box would fail
+ * against the lowered tmax (leave = min(far, tmax) * c passed at push time
+ * for the far planes, so only tmax * c can have changed). */
 inline bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir, float tmin, pn_hit *hit,
                           bool any_hit)
 {
     global const float4 *inst = scene.instances + slot * PN_INSTANCE_STRIDE;
     uint4 offs = as_uint4(inst[PN_INST_OFFSETS]);
     global const float4 *nodes = scene.blas + 2 * offs.x;
+    global const float4 *tris = scene.tris + 3 * offs.y;
     float3 o = pn_xform_point(inst + PN_INST_WORLD_TO_OBJECT, org);
     float3 d = pn_xform_vector(inst + PN_INST_WORLD_TO_OBJECT, dir);
-    float3 inv = 1.0f / d;
-    pn_ray_shear shear = pn_make_shear(d);
+    pn_ray_slab ray = pn_make_slab(o, d);
     bool found = false;
     uint stack[PN_BVH_MAX_DEPTH];
+    float stack_t[PN_BVH_MAX_DEPTH];
     int sp = 0;
-    uint node = 0;
-    if (pn_ray_box(o, inv, tmin, hit->t, nodes[0], nodes[1]) == INFINITY)
+    if (pn_ray_box(&ray, tmin, hit->t, nodes) == INFINITY)
         return false;
+    pn_ray_shear shear = pn_make_shear(o, d);
+    uint first = pn_load_w(nodes), count = pn_load_w(nodes + 1);
     for (;;) {
-        float4 lo = nodes[2 * node], hi = nodes[2 * node + 1];
-        uint count = as_uint(hi.w), first = as_uint(lo.w);
         if (count > 0) {
             for (uint k = first; k < first + count; ++k) {
-                uint tri = offs.y + k;
                 float t, u, v;
-                if (pn_ray_triangle(o, shear, tmin, hit->t, scene.tris[3 * tri].xyz, scene.tris[3 * tri + 1].xyz,
-                                    scene.tris[3 * tri + 2].xyz, &t, &u, &v)) {
+                if (pn_ray_triangle(&shear, tmin, hit->t, pn_load3(tris + 3 * k), pn_load3(tris + 3 * k + 1),
+                                    pn_load3(tris + 3 * k + 2), &t, &u, &v)) {
                     hit->t = t;
                     hit->u = u;
                     hit->v = v;
                     hit->slot = slot;
-                    hit->tri = tri;
+                    hit->tri = offs.y + k;
                     found = true;
                     if (any_hit)
                         return true;
                 }
             }
         } else {
-            uint left = first, right = first + 1;
-            float tl = pn_ray_box(o, inv, tmin, hit->t, nodes[2 * left], nodes[2 * left + 1]);
-            float tr = pn_ray_box(o, inv, tmin, hit->t, nodes[2 * right], nodes[2 * right + 1]);
+            global const float4 *c = nodes + 2 * first;
+            uint lf = pn_load_w(c), lc = pn_load_w(c + 1), rf = pn_load_w(c + 2), rc = pn_load_w(c + 3);
+            float tl = pn_ray_box(&ray, tmin, hit->t, c);
+            float tr = pn_ray_box(&ray, tmin, hit->t, c + 2);
             if (tl != INFINITY && tr != INFINITY) {
                 /* Visit the nearer child first; the farther waits on the stack. */
-                if (tr < tl) {
-                    stack[sp++] = left;
-                    node = right;
-                } else {
-                    stack[sp++] = right;
-                    node = left;
-                }
+                bool r_first = tr < tl;
+                stack[sp] = r_first ? first : first + 1;
+                if (!any_hit)
+                    stack_t[sp] = r_first ? tl : tr;
+                ++sp;
+                first = r_first ? rf : lf;
+                count = r_first ? rc : lc;
                 continue;
             }
-            if (tl != INFINITY) { node = left; continue; }
-            if (tr != INFINITY) { node = right; continue; }
+            if (tl != INFINITY) { first = lf; count = lc; continue; }
+            if (tr != INFINITY) { first = rf; count = rc; continue; }
         }
-        if (sp == 0)
-            break;
-        node = stack[--sp];
+        for (;;) {
+            if (sp == 0)
+                return found;
+            --sp;
+            if (any_hit || stack_t[sp] <= hit->t * 1.00000024f)
+                break;
+        }
+        first = pn_load_w(nodes + 2 * stack[sp]);
+        count = pn_load_w(nodes + 2 * stack[sp] + 1);
     }
-    return found;
 }
 
 /* Closest (any_hit = false) or any (any_hit = true) intersection with the
@@ -234,19 +301,22 @@ inline bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float tmin, fl
     hit->slot = PN_BACKGROUND;
     hit->tri = PN_BACKGROUND;
     hit->u = hit->v = 0.0f;
-    float3 inv = 1.0f / dir;
+    if (scene.instance_count == 0)
+        return false;
+    /* One instance: its BLAS root box test does the TLAS root's job. */
+    if (scene.instance_count == 1)
+        return pn_trace_blas(scene, 0, org, dir, tmin, hit, any_hit);
+    pn_ray_slab ray = pn_make_slab(org, dir);
     bool found = false;
     uint stack[PN_BVH_MAX_DEPTH];
+    float stack_t[PN_BVH_MAX_DEPTH];
     int sp = 0;
     uint node = 0;
     global const float4 *nodes = scene.tlas;
-    if (scene.instance_count == 0)
-        return false;
-    if (pn_ray_box(org, inv, tmin, tmax, nodes[0], nodes[1]) == INFINITY)
+    if (pn_ray_box(&ray, tmin, tmax, nodes) == INFINITY)
         return false;
     for (;;) {
-        float4 lo = nodes[2 * node], hi = nodes[2 * node + 1];
-        uint count = as_uint(hi.w), first = as_uint(lo.w);
+        uint first = pn_load_w(nodes + 2 * node), count = pn_load_w(nodes + 2 * node + 1);
         if (count > 0) {
             for (uint k = first; k < first + count; ++k) {
                 if (pn_trace_blas(scene, k, org, dir, tmin, hit, any_hit)) {
@@ -257,26 +327,29 @@ inline bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float tmin, fl
             }
         } else {
             uint left = first, right = first + 1;
-            float tl = pn_ray_box(org, inv, tmin, hit->t, nodes[2 * left], nodes[2 * left + 1]);
-            float tr = pn_ray_box(org, inv, tmin, hit->t, nodes[2 * right], nodes[2 * right + 1]);
+            float tl = pn_ray_box(&ray, tmin, hit->t, nodes + 2 * left);
+            float tr = pn_ray_box(&ray, tmin, hit->t, nodes + 2 * right);
             if (tl != INFINITY && tr != INFINITY) {
-                if (tr < tl) {
-                    stack[sp++] = left;
-                    node = right;
-                } else {
-                    stack[sp++] = right;
-                    node = left;
-                }
+                bool r_first = tr < tl;
+                stack[sp] = r_first ? left : right;
+                if (!any_hit)
+                    stack_t[sp] = r_first ? tl : tr;
+                ++sp;
+                node = r_first ? right : left;
                 continue;
             }
             if (tl != INFINITY) { node = left; continue; }
             if (tr != INFINITY) { node = right; continue; }
         }
-        if (sp == 0)
-            break;
-        node = stack[--sp];
+        for (;;) {
+            if (sp == 0)
+                return found;
+            --sp;
+            if (any_hit || stack_t[sp] <= hit->t * 1.00000024f)
+                break;
+        }
+        node = stack[sp];
     }
-    return found;
 }
 
 #endif
