@@ -289,9 +289,17 @@ pn_status pn_context_program(pn_context ctx, const char *stage, cl_program *out)
             return PN_SUCCESS;
         }
     const pn_kernel_file *file = find_file(path, strlen(path));
-    if (!file || strchr(stage, '/'))
-        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "there is no kernel stage '%s' (stages: envmap, raycast, unshadowed)",
-                       stage);
+    if (!file || strchr(stage, '/')) {
+        /* Stages are the top-level .cl files of kernels/ (common/ holds includes). */
+        char names[512] = "";
+        for (size_t i = 0; i < pn_kernel_file_count; ++i) {
+            const char *f = pn_kernel_files[i].path;
+            size_t used = strlen(names), len = strlen(f);
+            if (!strchr(f, '/') && len > 3)
+                snprintf(names + used, sizeof names - used, "%s%.*s", used ? ", " : "", (int)(len - 3), f);
+        }
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "there is no kernel stage '%s' (stages: %s)", stage, names);
+    }
     if (ctx->program_count == PN_MAX_PROGRAMS)
         return pn_fail(ctx, PN_ERROR_INTERNAL, "too many kernel stages");
     text src = {0};

@@ -187,6 +187,7 @@ struct pn_scene_impl {
     float bounds_lo[3], bounds_hi[3]; /* world bounds of the live instances at commit */
     pn_sphere_light *lights;          /* set by pn_scene_set_lights, uploaded at commit */
     uint32_t light_count, committed_light_count;
+    bool lights_changed;              /* set_lights since the last upload */
     cl_mem light_buffer;              /* 2 float4 per light: centre, radius | radiance, 0 */
 };
 

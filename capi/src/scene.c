@@ -196,6 +196,7 @@ pn_status pn_scene_do_set_lights(pn_scene scene, const pn_sphere_light *lights, 
     free(scene->lights);
     scene->lights = copy;
     scene->light_count = count;
+    scene->lights_changed = true;
     scene->committed = false;
     return PN_SUCCESS;
 }
@@ -223,8 +224,10 @@ static pn_status upload_lights(pn_scene scene)
     pn_status st = pn_alloc(ctx, (size_t)(n ? n : 1) * 8 * sizeof(float), CL_MEM_READ_ONLY,
                             data, &scene->light_buffer, "the light buffer");
     free(data);
-    if (!st)
+    if (!st) {
         scene->committed_light_count = n;
+        scene->lights_changed = false;
+    }
     return st;
 }
 
@@ -439,7 +442,8 @@ pn_status pn_scene_do_commit(pn_scene scene)
     free(boxes);
     free(ids);
     free(records);
-    if (!st)
+    /* Commits run every frame for moving objects: lights upload only when they changed. */
+    if (!st && (scene->lights_changed || !scene->light_buffer))
         st = upload_lights(scene);
     if (!st) {
         scene->live_instances = live;

@@ -220,6 +220,19 @@ inline bool pn_ray_triangle(const pn_ray_shear *s, float tmin, float tmax, float
     return true;
 }
 
+/* Pops the deferred node to visit next into stack index *sp; for closest
+ * hits, nodes whose entry distance lies beyond the hit found meanwhile are
+ * dropped. False when the stack is empty. */
+inline bool pn_pop(const float *stack_t, int *sp, bool any_hit, float t_hit)
+{
+    while (*sp > 0) {
+        --*sp;
+        if (any_hit || stack_t[*sp] <= t_hit * 1.00000024f)
+            return true;
+    }
+    return false;
+}
+
 /* Traverses one instance's BLAS in object space. any_hit: stop at the first
  * hit. Returns true if hit->t was lowered.
  *
@@ -281,13 +294,8 @@ inline bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir
             if (tl != INFINITY) { first = lf; count = lc; continue; }
             if (tr != INFINITY) { first = rf; count = rc; continue; }
         }
-        for (;;) {
-            if (sp == 0)
-                return found;
-            --sp;
-            if (any_hit || stack_t[sp] <= hit->t * 1.00000024f)
-                break;
-        }
+        if (!pn_pop(stack_t, &sp, any_hit, hit->t))
+            return found;
         first = pn_load_w(nodes + 2 * stack[sp]);
         count = pn_load_w(nodes + 2 * stack[sp] + 1);
     }
@@ -341,13 +349,8 @@ inline bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float tmin, fl
             if (tl != INFINITY) { node = left; continue; }
             if (tr != INFINITY) { node = right; continue; }
         }
-        for (;;) {
-            if (sp == 0)
-                return found;
-            --sp;
-            if (any_hit || stack_t[sp] <= hit->t * 1.00000024f)
-                break;
-        }
+        if (!pn_pop(stack_t, &sp, any_hit, hit->t))
+            return found;
         node = stack[sp];
     }
 }
