@@ -66,6 +66,8 @@ enum {
     PN_ERROR_OUT_OF_MEMORY = -1010,    /* a host allocation failed */
     PN_ERROR_NO_DEVICE = -1011,        /* no OpenCL device matches the request */
     PN_ERROR_UNSUPPORTED = -1012,      /* valid request the chosen method or device cannot do */
+    PN_ERROR_CANCELLED = -1013,        /* a progress callback asked to stop (a checkpoint was kept) */
+    PN_ERROR_FILE = -1014,             /* a file cannot be read or written, or is corrupt or foreign */
     PN_ERROR_INTERNAL = -1099
 };
 
@@ -79,6 +81,7 @@ typedef struct pn_scene_impl *pn_scene;
 typedef struct pn_gbuffer_impl *pn_gbuffer;
 typedef struct pn_image_impl *pn_image;
 typedef struct pn_renderer_impl *pn_renderer;
+typedef struct pn_fiv_impl *pn_fiv;
 
 /* ---------------------------------------------------------------- errors */
 
@@ -171,6 +174,10 @@ typedef enum pn_envmap_data {
 /* Reads committed data to host memory; `bytes` must equal the data's size. */
 PN_API pn_status pn_envmap_read(pn_envmap env, pn_envmap_data what, void *host, size_t bytes);
 
+/* 64-bit content hash of the committed lighting: the lat-long texels, rotation,
+ * intensity and supersampling (not the cube sizes). Occlusion fields record it. */
+PN_API pn_status pn_envmap_get_hash(pn_envmap env, uint64_t *hash);
+
 /* ------------------------------------------------------------------ mesh */
 
 PN_API pn_status pn_mesh_create(pn_context ctx, pn_mesh *out);
@@ -199,6 +206,10 @@ typedef struct pn_mesh_info {
 } pn_mesh_info;
 
 PN_API pn_status pn_mesh_get_info(pn_mesh mesh, pn_mesh_info *info);
+
+/* 64-bit content hash of the committed geometry (positions and indices; normals
+ * do not change visibility). Occlusion fields record it. */
+PN_API pn_status pn_mesh_get_hash(pn_mesh mesh, uint64_t *hash);
 
 /* ----------------------------------------------------------------- scene */
 
@@ -257,6 +268,13 @@ typedef struct pn_sphere_light {
 /* Replaces the scene's spherical lights (count 0 removes them; lights may be
  * NULL then). Copied; takes effect at the next pn_scene_commit. At most 1024. */
 PN_API pn_status pn_scene_set_lights(pn_scene scene, const pn_sphere_light *lights, uint32_t count);
+
+/* Occlusion fields (pn_fiv) used by the "fiv" method; replaces the list
+ * (count 0 clears it; fields may be NULL then). Each field applies to every
+ * instance whose mesh has the field's mesh hash; such instances become
+ * occluders. Fields are retained. At most one field per mesh (else
+ * PN_ERROR_INVALID_ARGUMENT). */
+PN_API pn_status pn_scene_set_fivs(pn_scene scene, const pn_fiv *fields, uint32_t count);
 
 /* Uploads per-mesh BVHs when the set of meshes changed and rebuilds the
  * top-level BVH over instances (cheap: done every frame for moving objects). */
@@ -328,6 +346,69 @@ PN_API pn_status pn_image_retain(pn_image image);
 PN_API pn_status pn_image_release(pn_image image);
 PN_API pn_status pn_image_get_cl(pn_image image, cl_mem *buffer);
 PN_API pn_status pn_image_read(pn_image image, float *host, size_t bytes);
+
+/* ------------------------------------------------------ occlusion fields */
+
+/* Fullsphere Irradiance Vectors of one occluder mesh under one env map
+ * (docs/fiv.md): for sample positions on concentric spheres around the
+ * mesh's bounding-sphere centre, the env radiance the mesh hides, as
+ * FIV = sum L(w) w dw over the occluded directions w (three RGB vectors). */
+typedef enum pn_precision {
+    PN_PRECISION_FLOAT32 = 0,
+    PN_PRECISION_FLOAT16 = 1  /* half floats, scaled by the env's total power */
+} pn_precision;
+
+typedef struct pn_fiv_options {
+    uint32_t theta;            /* samples from pole to pole, poles included, 3..1025 (32x17x15: theta 17) */
+    uint32_t phi;              /* samples around the axis, periodic, 4..2048 */
+    uint32_t radii;            /* concentric spheres, 2..256 */
+    float inner_radius;        /* innermost sphere, in bounding radii, (0, 1) (0.2) */
+    float error_target;        /* outermost sphere at R / sqrt(error_target), in (0, 0.5] (0.01: 10 R) */
+    uint32_t face_size;        /* env directions: a cube of face_size^2 x 6, 1..256 (32) */
+    uint32_t sun_supersampling;/* bright texels split into s x s sub-texels, 1..16 (4) */
+    float sun_threshold;       /* ... when their power reaches this share of the brightest, (0, 1] (0.1) */
+    uint32_t precision;        /* pn_precision (PN_PRECISION_FLOAT16) */
+} pn_fiv_options;
+
+PN_API pn_fiv_options pn_fiv_options_default(void);
+
+/* Called after each baked sphere with samples done and total; return nonzero
+ * to stop (the bake then fails with PN_ERROR_CANCELLED after its checkpoint). */
+typedef int (*pn_progress_callback)(void *user, uint64_t done, uint64_t total);
+
+/* Bakes the occlusion field of `mesh` (committed) under `env` (committed).
+ * `checkpoint_path` (may be NULL): the bake file, written atomically after
+ * every few spheres; if it already holds a finished bake of the same mesh,
+ * env map and options it is loaded instead, an unfinished one is resumed, and
+ * a bake of anything else is an error that leaves the file untouched.
+ * Degenerate meshes (no triangle of nonzero area) give PN_ERROR_EMPTY_INPUT. */
+PN_API pn_status pn_fiv_bake(pn_envmap env, pn_mesh mesh, const pn_fiv_options *options,
+                             const char *checkpoint_path, pn_progress_callback progress, void *user, pn_fiv *out);
+/* Reads a finished bake file; corrupt, truncated, unfinished or foreign files
+ * give PN_ERROR_FILE naming the problem. */
+PN_API pn_status pn_fiv_load(pn_context ctx, const char *path, pn_fiv *out);
+/* Writes the field atomically (a temporary file renamed over `path`). */
+PN_API pn_status pn_fiv_save(pn_fiv fiv, const char *path);
+PN_API pn_status pn_fiv_retain(pn_fiv fiv);
+PN_API pn_status pn_fiv_release(pn_fiv fiv);
+
+typedef struct pn_fiv_info {
+    pn_fiv_options options;
+    float centre[3];           /* bounding-sphere centre, object space */
+    float radius;              /* bounding radius R */
+    float inner, outer;        /* innermost and outermost sphere radii, object units */
+    uint64_t mesh_hash, env_hash;
+    uint64_t sample_count;     /* theta * phi * radii */
+    uint64_t inside_count;     /* samples inside the geometry (winding number), never used */
+    uint64_t stored_bytes;     /* the samples as stored (precision) */
+    uint64_t rays;             /* rays traced by the bake (0 when loaded from a file) */
+    double bake_seconds;       /* wall time of the bake (0 when loaded) */
+} pn_fiv_info;
+
+PN_API pn_status pn_fiv_get_info(pn_fiv fiv, pn_fiv_info *info);
+/* The samples as float: radii x theta x phi x 9 (X rgb, Y rgb, Z rgb), sample
+ * (k, i, j) at ((k * theta + i) * phi + j) * 9; NaN for samples inside. */
+PN_API pn_status pn_fiv_read(pn_fiv fiv, float *host, size_t bytes);
 
 /* -------------------------------------------------------------- renderer */
 

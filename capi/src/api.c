@@ -285,6 +285,16 @@ pn_status pn_mesh_commit(pn_mesh mesh)
     return pn_mesh_do_commit(mesh);
 }
 
+pn_status pn_mesh_get_hash(pn_mesh mesh, uint64_t *hash)
+{
+    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    CHECK_PTR(mesh->obj.ctx, hash);
+    if (!mesh->committed)
+        return pn_fail(mesh->obj.ctx, PN_ERROR_NOT_COMMITTED, "mesh changed since its last commit; call pn_mesh_commit");
+    *hash = mesh->content_hash;
+    return PN_SUCCESS;
+}
+
 pn_status pn_mesh_get_info(pn_mesh mesh, pn_mesh_info *info)
 {
     CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
@@ -381,6 +391,14 @@ pn_status pn_scene_set_lights(pn_scene scene, const pn_sphere_light *lights, uin
     if (count)
         CHECK_PTR(scene->obj.ctx, lights);
     return pn_scene_do_set_lights(scene, lights, count);
+}
+
+pn_status pn_scene_set_fivs(pn_scene scene, const pn_fiv *fields, uint32_t count)
+{
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    if (count)
+        CHECK_PTR(scene->obj.ctx, fields);
+    return pn_scene_do_set_fivs(scene, fields, count);
 }
 
 pn_status pn_scene_commit(pn_scene scene)
@@ -624,4 +642,69 @@ pn_status pn_renderer_execute(pn_renderer renderer, pn_scene scene, pn_gbuffer g
     CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
     CHECK_HANDLE(image, PN_MAGIC_IMAGE, "image");
     return pn_renderer_do_execute(renderer, scene, gbuffer, image);
+}
+
+/* ------------------------------------------------------ occlusion fields */
+
+pn_status pn_envmap_get_hash(pn_envmap env, uint64_t *hash)
+{
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    CHECK_PTR(env->obj.ctx, hash);
+    if (!env->committed)
+        return pn_fail(env->obj.ctx, PN_ERROR_NOT_COMMITTED, "env map changed since its last commit; call pn_envmap_commit");
+    *hash = env->content_hash;
+    return PN_SUCCESS;
+}
+
+pn_status pn_fiv_bake(pn_envmap env, pn_mesh mesh, const pn_fiv_options *options, const char *checkpoint_path,
+                      pn_progress_callback progress, void *user, pn_fiv *out)
+{
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    CHECK_PTR(env->obj.ctx, options);
+    CHECK_PTR(env->obj.ctx, out);
+    *out = NULL;
+    return finish_create(env->obj.ctx, pn_fiv_do_bake(env, mesh, options, checkpoint_path, progress, user, out));
+}
+
+pn_status pn_fiv_load(pn_context ctx, const char *path, pn_fiv *out)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    CHECK_NAME(ctx, path);
+    CHECK_PTR(ctx, out);
+    *out = NULL;
+    return finish_create(ctx, pn_fiv_read_file(ctx, path, false, out));
+}
+
+pn_status pn_fiv_save(pn_fiv fiv, const char *path)
+{
+    CHECK_HANDLE(fiv, PN_MAGIC_FIV, "occlusion field");
+    CHECK_NAME(fiv->obj.ctx, path);
+    return pn_fiv_write_file(fiv, path);
+}
+
+pn_status pn_fiv_retain(pn_fiv fiv)
+{
+    CHECK_HANDLE(fiv, PN_MAGIC_FIV, "occlusion field");
+    return retain(&fiv->obj);
+}
+
+pn_status pn_fiv_release(pn_fiv fiv)
+{
+    CHECK_HANDLE(fiv, PN_MAGIC_FIV, "occlusion field");
+    RELEASE(fiv, pn_fiv_destroy);
+}
+
+pn_status pn_fiv_get_info(pn_fiv fiv, pn_fiv_info *info)
+{
+    CHECK_HANDLE(fiv, PN_MAGIC_FIV, "occlusion field");
+    CHECK_PTR(fiv->obj.ctx, info);
+    return pn_fiv_do_get_info(fiv, info);
+}
+
+pn_status pn_fiv_read(pn_fiv fiv, float *host, size_t bytes)
+{
+    CHECK_HANDLE(fiv, PN_MAGIC_FIV, "occlusion field");
+    CHECK_PTR(fiv->obj.ctx, host);
+    return pn_fiv_do_read(fiv, host, bytes);
 }

@@ -50,6 +50,8 @@ pn_status pn_envmap_do_set_latlong(pn_envmap env, const float *rgb, uint32_t wid
     env->latlong = buf;
     env->width = width;
     env->height = height;
+    const uint32_t dims[2] = {width, height};
+    env->data_hash = pn_hash_bytes(pn_hash_bytes(PN_HASH_SEED, rgb, bytes), dims, sizeof dims);
     env->committed = false;
     return PN_SUCCESS;
 }
@@ -171,6 +173,9 @@ pn_status pn_envmap_do_commit(pn_envmap env)
             (st = pn_enqueue_1d(ctx, irradiance, "envmap_irradiance", samples, 64)))
             return st;
     }
+    const float lighting[2] = {env->rotation_deg, env->intensity};
+    env->content_hash = pn_hash_bytes(pn_hash_bytes(env->data_hash, lighting, sizeof lighting), &env->supersampling,
+                                      sizeof env->supersampling);
     env->committed = true;
     env->version = pn_next_version();
     return PN_SUCCESS;
@@ -219,4 +224,92 @@ pn_status pn_envmap_sample_cube(pn_envmap env, int face, float *radiance, float 
     pn_mem_release(&cube);
     pn_mem_release(&dirs);
     return st;
+}
+
+static float luminance(const float *rgb)
+{
+    return 0.2126f * rgb[0] + 0.7152f * rgb[1] + 0.0722f * rgb[2];
+}
+
+static void put_record(float *out, const float *dir, const float *radiance)
+{
+    memcpy(out, dir, 4 * sizeof(float)); /* direction, solid angle */
+    memcpy(out + 4, radiance, 3 * sizeof(float));
+    out[7] = 0.0f;
+}
+
+/* Direction records of the env map: one per cube texel of face f with its
+ * area-averaged radiance and exact solid angle (2 float4: direction, dw |
+ * radiance, 0), black texels dropped, and texels whose power L*dw reaches
+ * `threshold` of the brightest one split into s x s sub-texels (taken from
+ * the cube of face f*s, whose texels nest inside the coarse ones). Used by
+ * the reference renderer and the FIV bake. *out is malloc'ed. */
+pn_status pn_envmap_direction_records(pn_envmap env, int f, int s, float threshold, float **result, size_t *result_count)
+{
+    pn_context ctx = env->obj.ctx;
+    *result = NULL;
+    *result_count = 0;
+    if (f * s > 2048)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                       "face_size %d x sun_supersampling %d = %d exceeds the 2048 sub-texels per face side", f, s, f * s);
+    const size_t texels = 6u * (size_t)f * f, fine_texels = texels * (size_t)s * s;
+    float *rad = pn_malloc(ctx, texels * 16, "the direction cube");
+    float *dirs = pn_malloc(ctx, texels * 16, "the cube directions");
+    float *fine_rad = s > 1 ? pn_malloc(ctx, fine_texels * 16, "the supersampled cube") : NULL;
+    float *fine_dirs = s > 1 ? pn_malloc(ctx, fine_texels * 16, "the supersampled cube directions") : NULL;
+    float *records = NULL;
+    pn_status st = PN_SUCCESS;
+    if (!rad || !dirs || (s > 1 && (!fine_rad || !fine_dirs)))
+        st = PN_ERROR_OUT_OF_MEMORY;
+    if (!st)
+        st = pn_envmap_sample_cube(env, f, rad, dirs);
+    if (!st && s > 1)
+        st = pn_envmap_sample_cube(env, f * s, fine_rad, fine_dirs);
+    float max_power = 0.0f;
+    for (size_t k = 0; !st && k < texels; ++k)
+        max_power = fmaxf(max_power, luminance(rad + 4 * k) * dirs[4 * k + 3]);
+    /* Pass 0 counts, pass 1 writes. */
+    size_t count = 0;
+    for (int pass = 0; !st && pass < 2; ++pass) {
+        if (pass == 1 && !(records = pn_malloc(ctx, pn_mul_size(count ? count : 1, 8, sizeof(float)), "direction records")))
+            st = PN_ERROR_OUT_OF_MEMORY;
+        size_t out = 0;
+        for (size_t k = 0; !st && k < texels; ++k) {
+            const float *l = rad + 4 * k;
+            if (l[0] == 0.0f && l[1] == 0.0f && l[2] == 0.0f)
+                continue;
+            const bool split = s > 1 && luminance(l) * dirs[4 * k + 3] >= threshold * max_power;
+            if (!split) {
+                if (pass)
+                    put_record(records + 8 * out, dirs + 4 * k, l);
+                ++out;
+                continue;
+            }
+            const size_t face = k / ((size_t)f * f), j = (k / f) % f, i = k % f, fs = (size_t)f * s;
+            for (int sj = 0; sj < s; ++sj)
+                for (int si = 0; si < s; ++si) {
+                    size_t q = face * fs * fs + (j * s + sj) * fs + (i * s + si);
+                    const float *lq = fine_rad + 4 * q;
+                    if (lq[0] == 0.0f && lq[1] == 0.0f && lq[2] == 0.0f)
+                        continue;
+                    if (pass)
+                        put_record(records + 8 * out, fine_dirs + 4 * q, lq);
+                    ++out;
+                }
+        }
+        count = out;
+    }
+    if (!st && count > (size_t)INT32_MAX)
+        st = pn_fail(ctx, PN_ERROR_INVALID_SIZE, "too many env directions (%zu)", count);
+    free(rad);
+    free(dirs);
+    free(fine_rad);
+    free(fine_dirs);
+    if (st) {
+        free(records);
+        return st;
+    }
+    *result = records;
+    *result_count = count;
+    return PN_SUCCESS;
 }

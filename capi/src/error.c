@@ -113,6 +113,8 @@ const char *pn_status_name_of(pn_status status)
     case PN_ERROR_OUT_OF_MEMORY: return "PN_ERROR_OUT_OF_MEMORY";
     case PN_ERROR_NO_DEVICE: return "PN_ERROR_NO_DEVICE";
     case PN_ERROR_UNSUPPORTED: return "PN_ERROR_UNSUPPORTED";
+    case PN_ERROR_CANCELLED: return "PN_ERROR_CANCELLED";
+    case PN_ERROR_FILE: return "PN_ERROR_FILE";
     case PN_ERROR_INTERNAL: return "PN_ERROR_INTERNAL";
     default: return status < 0 && status > -1000 ? "OpenCL error" : "unknown status";
     }

@@ -20,6 +20,7 @@ enum {
     PN_MAGIC_GBUFFER = 0x504e4742,
     PN_MAGIC_IMAGE = 0x504e494d,
     PN_MAGIC_RENDERER = 0x504e5245,
+    PN_MAGIC_FIV = 0x504e4656,
     PN_MAGIC_DEAD = 0x44454144
 };
 
@@ -54,7 +55,7 @@ const char *pn_status_name_of(pn_status status);
 
 /* ---------------------------------------------------------------- context */
 
-#define PN_MAX_PROGRAMS 8
+#define PN_MAX_PROGRAMS 16
 #define PN_MAX_KERNELS 32
 
 typedef struct pn_program_entry {
@@ -113,6 +114,8 @@ struct pn_envmap_impl {
     float rotation_deg, intensity;
     bool committed;
     uint64_t version;        /* a new pn_next_version() at each commit */
+    uint64_t data_hash;      /* of the lat-long texels (set_latlong) */
+    uint64_t content_hash;   /* data_hash + rotation, intensity, supersampling (commit) */
     int32_t committed_face_size, committed_irradiance_size;
     cl_mem cube;             /* 6*F*F float4 radiance */
     cl_mem dirs;             /* 6*F*F float4 direction + solid angle */
@@ -129,6 +132,10 @@ pn_status pn_envmap_do_read(pn_envmap env, pn_envmap_data what, void *host, size
  * area-averaging filter) and reads back 6*face*face float4 radiance and
  * float4 direction + solid angle; either output may be NULL. */
 pn_status pn_envmap_sample_cube(pn_envmap env, int face, float *radiance, float *directions);
+/* Env directions as records of 2 float4 (direction, solid angle | radiance, 0):
+ * cube face f, black texels dropped, texels of power >= threshold x the
+ * brightest split into s x s sub-texels. *records is malloc'ed. */
+pn_status pn_envmap_direction_records(pn_envmap env, int f, int s, float threshold, float **records, size_t *count);
 
 /* ------------------------------------------------------------------- mesh */
 
@@ -140,6 +147,7 @@ struct pn_mesh_impl {
     uint32_t vertex_count, triangle_count;
     bool committed;
     uint64_t version;        /* a new pn_next_version() at each commit */
+    uint64_t content_hash;   /* of positions and indices (commit) */
     pn_bvh bvh;
     float bounds_lo[3], bounds_hi[3];
     /* Triangles in BVH leaf order, gathered by every scene that uses the mesh. */
@@ -189,6 +197,9 @@ struct pn_scene_impl {
     uint32_t light_count, committed_light_count;
     bool lights_changed;              /* set_lights since the last upload */
     cl_mem light_buffer;              /* 2 float4 per light: centre, radius | radiance, 0 */
+    pn_fiv *fivs;                     /* occlusion fields (retained), one per mesh */
+    uint32_t fiv_count;
+    uint64_t fiv_version;             /* a new pn_next_version() at each pn_scene_set_fivs */
 };
 
 void pn_scene_destroy(pn_scene scene);
@@ -235,6 +246,66 @@ pn_status pn_image_do_read(pn_image image, float *host, size_t bytes);
 /* Fails with PN_ERROR_INVALID_SIZE if `bytes` is smaller than `needed`. */
 pn_status pn_check_cl_buffer(pn_context ctx, cl_mem buffer, size_t needed, const char *what);
 
+/* ------------------------------------------------------ occlusion fields */
+
+struct pn_fiv_impl {
+    pn_object obj;
+    pn_fiv_options options;
+    float centre[3], radius;  /* bounding sphere, object space */
+    float inner, outer;       /* innermost and outermost sphere radii, object units */
+    uint64_t mesh_hash, env_hash;
+    uint32_t mesh_vertices, mesh_triangles;
+    uint32_t radii_done;      /* spheres baked so far (a bake in progress) */
+    float value_scale;        /* half storage holds value / value_scale */
+    float outer_max;          /* largest |FIV| of a channel on the outer sphere (culling bound) */
+    float *samples;           /* radii x theta x phi x 9 floats, NaN inside; rounded through half if stored so */
+    uint64_t inside_count, rays;
+    double bake_seconds;
+};
+
+pn_status pn_fiv_check_options(pn_context ctx, const pn_fiv_options *options);
+pn_status pn_fiv_new(pn_context ctx, const pn_fiv_options *options, pn_fiv *out);
+void pn_fiv_destroy(pn_fiv fiv);
+uint64_t pn_fiv_sample_count(const pn_fiv_options *options);
+/* Radius of sphere k (geometric from inner to outer). */
+float pn_fiv_radius(pn_fiv fiv, uint32_t k);
+uint16_t pn_half_from_float(float value);
+float pn_float_from_half(uint16_t half);
+pn_status pn_fiv_do_get_info(pn_fiv fiv, pn_fiv_info *info);
+pn_status pn_fiv_do_read(pn_fiv fiv, float *host, size_t bytes);
+pn_status pn_fiv_do_bake(pn_envmap env, pn_mesh mesh, const pn_fiv_options *options, const char *path,
+                         pn_progress_callback progress, void *user, pn_fiv *out);
+/* Bake files (fiv_file.c). pn_fiv_read_file loads `path` into a new field;
+ * with `partial` an unfinished bake is accepted. */
+pn_status pn_fiv_read_file(pn_context ctx, const char *path, bool partial, pn_fiv *out);
+pn_status pn_fiv_write_file(pn_fiv fiv, const char *path);
+pn_status pn_scene_do_set_fivs(pn_scene scene, const pn_fiv *fields, uint32_t count);
+void pn_scene_release_fivs(pn_scene scene);
+
+/* What a `fiv` renderer keeps between frames. */
+typedef struct pn_fiv_cache {
+    cl_mem data;              /* the scene's fields concatenated as stored */
+    uint32_t *offsets;        /* byte offset of each field in `data` */
+    uint64_t list_version;    /* scene->fiv_version that `data` holds */
+    uint64_t env_version;     /* env map that env_fiv / env_ref describe */
+    float env_fiv[9];         /* FIV(Env): X rgb, Y rgb, Z rgb */
+    float env_ref;            /* reference irradiance for culling */
+    float *records;           /* host occluder records, 16 floats each */
+    size_t records_capacity, device_capacity;
+    cl_mem device_records;
+} pn_fiv_cache;
+
+typedef struct pn_fiv_frame {
+    cl_mem occluders, fields;
+    uint32_t occluder_count;
+} pn_fiv_frame;
+
+/* Checks the fields match the scene's env map and every occluder instance
+ * only translates and scales uniformly, uploads what changed, and returns
+ * this frame's occluder records. */
+pn_status pn_fiv_prepare(pn_fiv_cache *cache, pn_scene scene, float cull_threshold, pn_fiv_frame *frame);
+void pn_fiv_cache_release(pn_fiv_cache *cache);
+
 /* --------------------------------------------------------------- renderer */
 
 typedef struct pn_method pn_method;
@@ -252,6 +323,7 @@ struct pn_renderer_impl {
     uint32_t dir_record_count;
     uint64_t dir_env_version;
     float dir_key[3];                   /* face size, sun supersampling, sun threshold */
+    pn_fiv_cache fiv;                   /* `fiv`: fields, FIV(Env), occluder records */
 };
 
 uint32_t pn_renderer_method_count(void);
@@ -269,5 +341,8 @@ void *pn_malloc(pn_context ctx, size_t bytes, const char *what);
 size_t pn_mul_size(size_t a, size_t b, size_t c);
 /* 3x4 row-major affine inverse; false if singular or not finite. */
 bool pn_affine_inverse(const float m[12], float inv[12]);
+#define PN_HASH_SEED 0xcbf29ce484222325ull
+/* FNV-1a 64 of `bytes` bytes, continuing from `hash` (start with PN_HASH_SEED). */
+uint64_t pn_hash_bytes(uint64_t hash, const void *data, size_t bytes);
 
 #endif

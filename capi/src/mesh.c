@@ -155,6 +155,8 @@ pn_status pn_mesh_do_commit(pn_mesh mesh)
     mesh->bvh = bvh;
     mesh->leaf_tris = tris;
     mesh->leaf_normals = nrms;
+    mesh->content_hash = pn_hash_bytes(pn_hash_bytes(PN_HASH_SEED, mesh->positions, 12u * (size_t)mesh->vertex_count),
+                                       mesh->indices, 12u * (size_t)mesh->triangle_count);
     mesh->committed = true;
     mesh->version = pn_next_version();
     return PN_SUCCESS;

@@ -26,6 +26,7 @@ struct pn_method {
 /* Parameter slots, in the order of each method's table. */
 enum { P_BACKGROUND = 0 };
 enum { P_FACE_SIZE = 1, P_SUN_SUPERSAMPLING, P_SUN_THRESHOLD, P_LIGHT_SAMPLES, P_VISIBILITY, P_RAY_OFFSET };
+enum { P_OVERLAP = 1, P_PARTIAL, P_SELF_SHADOW, P_TRILINEAR, P_CULL_THRESHOLD };
 
 static const pn_param unshadowed_params[] = {
     {"background", true, 1, 0, 1},
@@ -39,6 +40,15 @@ static const pn_param reference_params[] = {
     {"light_samples", true, 16, 1, 64},
     {"visibility", true, 1, 0, 1},
     {"ray_offset", false, 1e-5f, 0, 0.1f},
+};
+
+static const pn_param fiv_params[] = {
+    {"background", true, 1, 0, 1},
+    {"overlap", true, 1, 0, 2},          /* 0 sum, 1 unit-bounding-disc correction, 2 multiplied visibility */
+    {"partial", true, 1, 0, 1},          /* case B scaled by (d + R) / 2R */
+    {"self_shadow", true, 1, 0, 1},
+    {"trilinear", true, 1, 0, 1},        /* 0: nearest sample */
+    {"cull_threshold", false, 1e-3f, 0, 1},
 };
 
 static cl_float4 camera_position(pn_scene scene)
@@ -86,24 +96,8 @@ static pn_status execute_floor(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_
     return pn_enqueue_1d(ctx, k, "shade_floor", (size_t)count, 64);
 }
 
-static float luminance(const float *rgb)
-{
-    return 0.2126f * rgb[0] + 0.7152f * rgb[1] + 0.0722f * rgb[2];
-}
-
-static void put_record(float *out, const float *dir, const float *radiance)
-{
-    memcpy(out, dir, 4 * sizeof(float)); /* direction, solid angle */
-    memcpy(out + 4, radiance, 3 * sizeof(float));
-    out[7] = 0.0f;
-}
-
-/* The `reference` direction records: one per cube texel of face F with its
- * area-averaged radiance and exact solid angle, black texels dropped, and
- * texels whose power L*dw reaches sun_threshold of the brightest one split
- * into s x s sub-texels (taken from the cube of face F*s, whose texels nest
- * inside the coarse ones). Rebuilt only when the env map or these
- * parameters change. */
+/* The `reference` direction records (pn_envmap_direction_records), rebuilt
+ * only when the env map or the parameters that shape them change. */
 static pn_status build_direction_records(pn_renderer r, pn_envmap env)
 {
     pn_context ctx = r->obj.ctx;
@@ -112,63 +106,13 @@ static pn_status build_direction_records(pn_renderer r, pn_envmap env)
     if (r->dir_records && r->dir_env_version == env->version && r->dir_key[0] == (float)f &&
         r->dir_key[1] == (float)s && r->dir_key[2] == threshold)
         return PN_SUCCESS;
-    if (f * s > 2048)
-        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
-                       "face_size %d x sun_supersampling %d = %d exceeds the 2048 sub-texels per face side", f, s, f * s);
-    const size_t texels = 6u * (size_t)f * f, fine_texels = texels * (size_t)s * s;
-    float *rad = pn_malloc(ctx, texels * 16, "the reference cube");
-    float *dirs = pn_malloc(ctx, texels * 16, "the reference directions");
-    float *fine_rad = s > 1 ? pn_malloc(ctx, fine_texels * 16, "the supersampled reference cube") : NULL;
-    float *fine_dirs = s > 1 ? pn_malloc(ctx, fine_texels * 16, "the supersampled reference directions") : NULL;
     float *records = NULL;
-    pn_status st = PN_SUCCESS;
-    if (!rad || !dirs || (s > 1 && (!fine_rad || !fine_dirs)))
-        st = PN_ERROR_OUT_OF_MEMORY;
-    if (!st)
-        st = pn_envmap_sample_cube(env, f, rad, dirs);
-    if (!st && s > 1)
-        st = pn_envmap_sample_cube(env, f * s, fine_rad, fine_dirs);
-    float max_power = 0.0f;
-    for (size_t k = 0; !st && k < texels; ++k)
-        max_power = fmaxf(max_power, luminance(rad + 4 * k) * dirs[4 * k + 3]);
-    /* Pass 0 counts, pass 1 writes. */
     size_t count = 0;
-    for (int pass = 0; !st && pass < 2; ++pass) {
-        if (pass == 1 && !(records = pn_malloc(ctx, pn_mul_size(count ? count : 1, 8, sizeof(float)), "reference records")))
-            st = PN_ERROR_OUT_OF_MEMORY;
-        size_t out = 0;
-        for (size_t k = 0; !st && k < texels; ++k) {
-            const float *l = rad + 4 * k;
-            if (l[0] == 0.0f && l[1] == 0.0f && l[2] == 0.0f)
-                continue;
-            const bool split = s > 1 && luminance(l) * dirs[4 * k + 3] >= threshold * max_power;
-            if (!split) {
-                if (pass)
-                    put_record(records + 8 * out, dirs + 4 * k, l);
-                ++out;
-                continue;
-            }
-            const size_t face = k / ((size_t)f * f), j = (k / f) % f, i = k % f, fs = (size_t)f * s;
-            for (int sj = 0; sj < s; ++sj)
-                for (int si = 0; si < s; ++si) {
-                    size_t q = face * fs * fs + (j * s + sj) * fs + (i * s + si);
-                    const float *lq = fine_rad + 4 * q;
-                    if (lq[0] == 0.0f && lq[1] == 0.0f && lq[2] == 0.0f)
-                        continue;
-                    if (pass)
-                        put_record(records + 8 * out, fine_dirs + 4 * q, lq);
-                    ++out;
-                }
-        }
-        count = out;
-    }
+    pn_status st = pn_envmap_direction_records(env, f, s, threshold, &records, &count);
     if (!st) {
-        if (count > (size_t)INT32_MAX)
-            st = pn_fail(ctx, PN_ERROR_INVALID_SIZE, "too many reference directions (%zu)", count);
         pn_mem_release(&r->dir_records);
-        if (!st)
-            st = pn_alloc(ctx, (count ? count : 1) * 32, CL_MEM_READ_ONLY, records, &r->dir_records,
-                          "the reference direction records");
+        st = pn_alloc(ctx, (count ? count : 1) * 32, CL_MEM_READ_ONLY, records, &r->dir_records,
+                      "the reference direction records");
     }
     if (!st) {
         r->dir_record_count = (uint32_t)count;
@@ -177,10 +121,6 @@ static pn_status build_direction_records(pn_renderer r, pn_envmap env)
         r->dir_key[1] = (float)s;
         r->dir_key[2] = threshold;
     }
-    free(rad);
-    free(dirs);
-    free(fine_rad);
-    free(fine_dirs);
     free(records);
     return st;
 }
@@ -222,11 +162,43 @@ static pn_status execute_reference(pn_renderer r, pn_scene scene, pn_gbuffer gb,
     return pn_enqueue_1d(ctx, k, "shade_reference", (size_t)count, 64);
 }
 
+static pn_status execute_fiv(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image)
+{
+    pn_context ctx = r->obj.ctx;
+    pn_envmap env = scene->env;
+    cl_kernel k;
+    pn_fiv_frame frame;
+    pn_status st;
+    if ((st = pn_context_kernel(ctx, "fiv", "shade_fiv", &k)) ||
+        (st = pn_fiv_prepare(&r->fiv, scene, r->params[P_CULL_THRESHOLD], &frame)))
+        return st;
+    const cl_int count = (cl_int)(gb->width * gb->height), m = env->irradiance_face_size, n = env->face_size;
+    const cl_int bg = (cl_int)r->params[P_BACKGROUND], occluders = (cl_int)frame.occluder_count;
+    const cl_int overlap = (cl_int)r->params[P_OVERLAP], partial = (cl_int)r->params[P_PARTIAL];
+    const cl_int self_shadow = (cl_int)r->params[P_SELF_SHADOW], trilinear = (cl_int)r->params[P_TRILINEAR];
+    cl_float4 env_fiv[3];
+    for (int a = 0; a < 3; ++a)
+        for (int c = 0; c < 4; ++c)
+            env_fiv[a].s[c] = c < 3 ? r->fiv.env_fiv[3 * a + c] : 0.0f;
+    size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count, sizeof(cl_mem),
+                      sizeof m, sizeof(cl_mem), sizeof n, sizeof bg, sizeof(cl_mem), sizeof occluders, sizeof(cl_mem),
+                      sizeof env_fiv[0], sizeof env_fiv[1], sizeof env_fiv[2], sizeof overlap, sizeof partial,
+                      sizeof self_shadow, sizeof trilinear, sizeof(cl_mem)};
+    const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
+                          &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->irradiance,
+                          &m, &env->cube, &n, &bg, &frame.occluders, &occluders, &frame.fields, &env_fiv[0],
+                          &env_fiv[1], &env_fiv[2], &overlap, &partial, &self_shadow, &trilinear, &image->buffer};
+    if ((st = pn_set_args(ctx, k, "shade_fiv", 21, sizes, vals)))
+        return st;
+    return pn_enqueue_1d(ctx, k, "shade_fiv", (size_t)count, 64);
+}
+
 #define PARAMS(table) table, (int)(sizeof table / sizeof table[0])
 static const pn_method methods[] = {
     {"unshadowed", "unshadowed", execute_unshadowed, PARAMS(unshadowed_params)},
     {"reference", "reference", execute_reference, PARAMS(reference_params)},
     {"floor", "floor", execute_floor, NULL, 0},
+    {"fiv", "fiv", execute_fiv, PARAMS(fiv_params)},
 };
 #define METHOD_COUNT (sizeof methods / sizeof methods[0])
 
@@ -259,6 +231,7 @@ pn_status pn_renderer_new(pn_context ctx, const char *method, pn_renderer *out)
     r->obj.refcount = 1;
     r->obj.ctx = ctx;
     r->method = found;
+    r->fiv.env_version = UINT64_MAX;
     for (int i = 0; i < found->param_count; ++i)
         r->params[i] = found->params[i].fallback;
     *out = r;
@@ -268,6 +241,7 @@ pn_status pn_renderer_new(pn_context ctx, const char *method, pn_renderer *out)
 void pn_renderer_destroy(pn_renderer r)
 {
     pn_mem_release(&r->dir_records);
+    pn_fiv_cache_release(&r->fiv);
     r->obj.magic = PN_MAGIC_DEAD;
     free(r);
 }

@@ -29,6 +29,7 @@ void pn_scene_destroy(pn_scene scene)
     pn_mem_release(&scene->records);
     pn_mem_release(&scene->light_buffer);
     free(scene->lights);
+    pn_scene_release_fivs(scene);
     scene->obj.magic = PN_MAGIC_DEAD;
     free(scene);
 }

@@ -29,9 +29,11 @@ ERROR_NOT_COMMITTED = -1009
 ERROR_OUT_OF_MEMORY = -1010
 ERROR_NO_DEVICE = -1011
 ERROR_UNSUPPORTED = -1012
+ERROR_CANCELLED = -1013
+ERROR_FILE = -1014
 
 # Statuses that mean "the caller's data or arguments are wrong".
-_INPUT_ERRORS = {ERROR_INVALID_ARGUMENT, ERROR_INVALID_SIZE, ERROR_INVALID_VALUE, ERROR_OUT_OF_RANGE,
+_INPUT_ERRORS = {ERROR_INVALID_ARGUMENT, ERROR_INVALID_SIZE, ERROR_INVALID_VALUE, ERROR_OUT_OF_RANGE, ERROR_FILE,
                  ERROR_EMPTY_INPUT, ERROR_BAD_CONFIG}
 
 BACKGROUND = 0xFFFFFFFF
@@ -53,6 +55,23 @@ class MeshInfo(ctypes.Structure):
                 ("bvh_node_count", ctypes.c_uint32), ("bvh_depth", ctypes.c_uint32),
                 ("bounds_lo", ctypes.c_float * 3), ("bounds_hi", ctypes.c_float * 3)]
 
+
+class FivOptions(ctypes.Structure):
+    _fields_ = [("theta", ctypes.c_uint32), ("phi", ctypes.c_uint32), ("radii", ctypes.c_uint32),
+                ("inner_radius", ctypes.c_float), ("error_target", ctypes.c_float), ("face_size", ctypes.c_uint32),
+                ("sun_supersampling", ctypes.c_uint32), ("sun_threshold", ctypes.c_float),
+                ("precision", ctypes.c_uint32)]
+
+
+class FivInfo(ctypes.Structure):
+    _fields_ = [("options", FivOptions), ("centre", ctypes.c_float * 3), ("radius", ctypes.c_float),
+                ("inner", ctypes.c_float), ("outer", ctypes.c_float), ("mesh_hash", ctypes.c_uint64),
+                ("env_hash", ctypes.c_uint64), ("sample_count", ctypes.c_uint64), ("inside_count", ctypes.c_uint64),
+                ("stored_bytes", ctypes.c_uint64), ("rays", ctypes.c_uint64), ("bake_seconds", ctypes.c_double)]
+
+
+# int (*)(void *user, uint64_t done, uint64_t total): nonzero stops the bake.
+PROGRESS = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_uint64, ctypes.c_uint64)
 
 _H = ctypes.c_void_p          # every opaque handle
 _P = ctypes.c_void_p          # host pointers
@@ -109,6 +128,15 @@ _SIGNATURES = {
     "pn_renderer_get_float": [_H, _str, ctypes.POINTER(_f32)],
     "pn_renderer_commit": [_H],
     "pn_renderer_execute": [_H, _H, _H, _H],
+    "pn_mesh_get_hash": [_H, ctypes.POINTER(ctypes.c_uint64)],
+    "pn_envmap_get_hash": [_H, ctypes.POINTER(ctypes.c_uint64)],
+    "pn_scene_set_fivs": [_H, ctypes.POINTER(ctypes.c_void_p), _u32],
+    "pn_fiv_bake": [_H, _H, ctypes.POINTER(FivOptions), _str, PROGRESS, _P, _OUT],
+    "pn_fiv_load": [_H, _str, _OUT],
+    "pn_fiv_save": [_H, _str],
+    "pn_fiv_release": [_H],
+    "pn_fiv_get_info": [_H, ctypes.POINTER(FivInfo)],
+    "pn_fiv_read": [_H, _P, _size],
 }
 
 
@@ -151,6 +179,8 @@ def _load():
     lib.pn_method_count.argtypes = []
     lib.pn_method_name.restype = ctypes.c_char_p
     lib.pn_method_name.argtypes = [ctypes.c_uint32]
+    lib.pn_fiv_options_default.restype = FivOptions
+    lib.pn_fiv_options_default.argtypes = []
     return lib
 
 

@@ -1,0 +1,227 @@
+/* `fiv` method: diffuse env lighting with soft shadows and self-shadows from
+ * Fullsphere Irradiance Vectors (Michael and Chrysanthou; docs/fiv.md).
+ *
+ *   E = DifMap(N) - sum over occluders of I_occ,   I_occ = N . FIV_occ(c - p)
+ *
+ * FIV_occ is interpolated trilinearly from the occluder's baked field at the
+ * receiver-to-centre vector (theta, phi, log rho). Occluders fully behind the
+ * receiver plane (case C) or beyond their culling distance are skipped;
+ * straddling ones (case B) are scaled by (d + R) / 2R. A pixel on an
+ * occluder itself uses the fullsphere equality E = N . (FIV(Env) - FIV_occ).
+ * Several occluders combine by a plain sum, the unit-bounding-disc overlap
+ * correction, or multiplied visibilities (`overlap`).
+ *
+ * Occluder record, 4 float4 (capi/src/fiv.c):
+ *   [0] centre xyz (world), bounding radius R (world)
+ *   [1] object units per world unit, rho_min, ln(rho_max / rho_min), culling distance (world)
+ *   [2] uint bits: byte offset of the samples in `fields`, n_theta, n_phi, n_rho
+ *   [3] uint bits: instance id, precision (1 = half); value scale, 0 */
+#include "common/fiv_grid.cl"
+#include "common/sphere_maps.cl"
+
+#define PN_FIV_RECORD 4
+#define PN_FIV_MAX_OVERLAP 32
+
+#define PN_OVERLAP_SUM 0
+#define PN_OVERLAP_DISC 1
+#define PN_OVERLAP_MULTIPLY 2
+
+typedef struct {
+    float3 x, y, z;
+} pn_fiv3;
+
+inline bool pn_fiv_sample(global const uchar *fields, uint offset, int half_precision, int index, pn_fiv3 *s)
+{
+    if (half_precision) {
+        global const half *h = (global const half *)(fields + offset) + PN_FIV_FLOATS * index;
+        s->x = vload_half3(0, h);
+        s->y = vload_half3(1, h);
+        s->z = vload_half3(2, h);
+    } else {
+        global const float *f = (global const float *)(fields + offset) + PN_FIV_FLOATS * index;
+        s->x = vload3(0, f);
+        s->y = vload3(1, f);
+        s->z = vload3(2, f);
+    }
+    return !isnan(s->x.x); /* samples inside the geometry are NaN */
+}
+
+/* Adds weight w times sample (k, i, j) to acc when the sample is valid. */
+inline void pn_fiv_add(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k, int i, int j,
+                       float w, pn_fiv3 *acc, float *wsum)
+{
+    pn_fiv3 s;
+    if (w <= 0.0f || !pn_fiv_sample(fields, offset, hp, (k * n_theta + i) * n_phi + j, &s))
+        return;
+    acc->x += w * s.x;
+    acc->y += w * s.y;
+    acc->z += w * s.z;
+    *wsum += w;
+}
+
+/* Bilinear (theta, phi) interpolation on sphere k with total weight wk. */
+inline void pn_fiv_shell(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k, float wk,
+                         int i0, float ti, int j0, int j1, float tj, pn_fiv3 *acc, float *wsum)
+{
+    pn_fiv_add(fields, offset, hp, n_theta, n_phi, k, i0, j0, wk * (1.0f - ti) * (1.0f - tj), acc, wsum);
+    pn_fiv_add(fields, offset, hp, n_theta, n_phi, k, i0, j1, wk * (1.0f - ti) * tj, acc, wsum);
+    pn_fiv_add(fields, offset, hp, n_theta, n_phi, k, i0 + 1, j0, wk * ti * (1.0f - tj), acc, wsum);
+    pn_fiv_add(fields, offset, hp, n_theta, n_phi, k, i0 + 1, j1, wk * ti * tj, acc, wsum);
+}
+
+/* The occluded FIV at receiver-to-centre vector v (world units); false when
+ * no valid sample is near (the receiver is deep inside the geometry).
+ * Within the grid: trilinear over the valid ones of the 8 nearest samples,
+ * renormalised; with none valid, the nearest sphere farther out that has
+ * one. Inside rho_min: the innermost sphere. Beyond rho_max: the outermost
+ * sphere times the solid-angle fall-off (rho_max / rho)^2. */
+inline bool pn_fiv_lookup(global const float4 *occ, global const uchar *fields, float3 v_world, int trilinear,
+                          pn_fiv3 *out)
+{
+    float inv_scale = occ[1].x, rho_min = occ[1].y, log_ratio = occ[1].z;
+    uint offset = as_uint(occ[2].x);
+    int n_theta = as_int(occ[2].y), n_phi = as_int(occ[2].z), n_rho = as_int(occ[2].w);
+    int hp = as_int(occ[3].y);
+    float3 v = v_world * inv_scale;
+    float rho = length(v);
+    float3 d = rho > 0.0f ? v / rho : (float3)(0.0f, 1.0f, 0.0f);
+    float theta = acos(clamp(d.y, -1.0f, 1.0f));
+    float phi = atan2(d.z, d.x);
+    if (phi < 0.0f)
+        phi += PN_TWO_PI;
+    float fi = theta * (float)(n_theta - 1) * PN_INV_PI;
+    float fj = phi * (float)n_phi * PN_INV_TWO_PI;
+    float fk = rho > 0.0f ? log(rho / rho_min) / log_ratio * (float)(n_rho - 1) : 0.0f;
+    float falloff = 1.0f;
+    if (fk > (float)(n_rho - 1)) {
+        float rho_max = rho_min * exp(log_ratio);
+        falloff = (rho_max / rho) * (rho_max / rho);
+        fk = (float)(n_rho - 1);
+    }
+    fk = fmax(fk, 0.0f);
+    pn_fiv3 acc = {(float3)(0.0f), (float3)(0.0f), (float3)(0.0f)};
+    float wsum = 0.0f;
+    if (!trilinear) {
+        fi = round(fi);
+        fj = round(fj);
+        fk = round(fk);
+    }
+    int i0 = min((int)fi, n_theta - 2), k0 = min((int)fk, n_rho - 2);
+    float ti = clamp(fi - (float)i0, 0.0f, 1.0f), tk = clamp(fk - (float)k0, 0.0f, 1.0f);
+    int jf = (int)fj;
+    float tj = fj - (float)jf;
+    int j0 = jf % n_phi, j1 = (jf + 1) % n_phi; /* the phi seam wraps */
+    pn_fiv_shell(fields, offset, hp, n_theta, n_phi, k0, 1.0f - tk, i0, ti, j0, j1, tj, &acc, &wsum);
+    pn_fiv_shell(fields, offset, hp, n_theta, n_phi, k0 + 1, tk, i0, ti, j0, j1, tj, &acc, &wsum);
+    for (int k = k0 + 1; wsum <= 0.0f && k < n_rho; ++k)
+        pn_fiv_shell(fields, offset, hp, n_theta, n_phi, k, 1.0f, i0, ti, j0, j1, tj, &acc, &wsum);
+    if (wsum <= 0.0f)
+        return false;
+    float f = occ[3].z * falloff / wsum;
+    out->x = acc.x * f;
+    out->y = acc.y * f;
+    out->z = acc.z * f;
+    return true;
+}
+
+inline float3 pn_fiv_dot(float3 n, pn_fiv3 f)
+{
+    return n.x * f.x + n.y * f.y + n.z * f.z;
+}
+
+/* Area of the lens where two discs of radii a, b with centres dist apart overlap. */
+inline float pn_lens_area(float a, float b, float dist)
+{
+    if (dist >= a + b)
+        return 0.0f;
+    if (dist <= fabs(a - b)) {
+        float r = fmin(a, b);
+        return PN_PI * r * r;
+    }
+    float ca = clamp((dist * dist + a * a - b * b) / (2.0f * dist * a), -1.0f, 1.0f);
+    float cb = clamp((dist * dist + b * b - a * a) / (2.0f * dist * b), -1.0f, 1.0f);
+    float k = (-dist + a + b) * (dist + a - b) * (dist - a + b) * (dist + a + b);
+    return a * a * acos(ca) + b * b * acos(cb) - 0.5f * sqrt(fmax(k, 0.0f));
+}
+
+kernel void shade_fiv(global const float4 *position, global const float4 *normal, global const float4 *albedo,
+                      global const uint *instance_id, int count, global const float4 *irradiance, int m,
+                      global const float4 *cube, int n_cube, int show_background, global const float4 *occluders,
+                      int occluder_count, global const uchar *fields, float4 env_x, float4 env_y, float4 env_z,
+                      int overlap, int partial, int self_shadow, int trilinear, global float4 *image)
+{
+    int gid = get_global_id(0);
+    if (gid >= count)
+        return;
+    uint id = instance_id[gid];
+    if (id == PN_BACKGROUND) {
+        float3 env = show_background ? pn_cube_texel_lookup(cube, n_cube, normalize(position[gid].xyz))
+                                     : (float3)(0.0f);
+        image[gid] = (float4)(env, 0.0f);
+        return;
+    }
+    float3 p = position[gid].xyz;
+    float3 n = normalize(normal[gid].xyz);
+    float3 e_tot = pn_cube_grid_lookup(irradiance, m, n);
+    float3 e_base = e_tot;
+    float3 sum = (float3)(0.0f), largest = (float3)(0.0f), visible = (float3)(1.0f);
+    float3 occluded[PN_FIV_MAX_OVERLAP];
+    float4 disc[PN_FIV_MAX_OVERLAP]; /* unit-sphere direction, radius */
+    int discs = 0;
+    for (int o = 0; o < occluder_count; ++o) {
+        global const float4 *occ = occluders + PN_FIV_RECORD * o;
+        float4 sphere = occ[0];
+        float3 v = sphere.xyz - p;
+        if (as_uint(occ[3].x) == id) {
+            /* Self-shadowing: all unoccluded light is in the positive hemisphere. */
+            pn_fiv3 f;
+            if (self_shadow && pn_fiv_lookup(occ, fields, v, trilinear, &f)) {
+                pn_fiv3 env = {env_x.xyz, env_y.xyz, env_z.xyz};
+                e_base = pn_fiv_dot(n, env) - pn_fiv_dot(n, f);
+            }
+            continue;
+        }
+        float r = sphere.w, dist_plane = dot(v, n);
+        if (dist_plane <= -r) /* case C: fully behind the receiver plane */
+            continue;
+        float rho = length(v);
+        if (rho > occ[1].w) /* beyond the culling distance */
+            continue;
+        pn_fiv3 f;
+        if (!pn_fiv_lookup(occ, fields, v, trilinear, &f))
+            continue;
+        /* An occluder only removes light. */
+        float3 i_occ = fmax(pn_fiv_dot(n, f), 0.0f);
+        if (partial && dist_plane < r) /* case B: the share above the plane */
+            i_occ *= (dist_plane + r) / (2.0f * r);
+        sum += i_occ;
+        largest = fmax(largest, i_occ);
+        if (overlap == PN_OVERLAP_MULTIPLY)
+            visible *= clamp(1.0f - i_occ / fmax(e_tot, 1e-30f), 0.0f, 1.0f);
+        else if (overlap == PN_OVERLAP_DISC && discs < PN_FIV_MAX_OVERLAP) {
+            occluded[discs] = i_occ;
+            disc[discs] = (float4)(rho > 0.0f ? v / rho : n, fmin(r / fmax(rho, 1e-30f), 1.0f));
+            ++discs;
+        }
+    }
+    float3 e;
+    if (overlap == PN_OVERLAP_MULTIPLY) {
+        e = e_base * visible;
+    } else {
+        float3 total = sum;
+        if (overlap == PN_OVERLAP_DISC) {
+            /* Pairwise: the lens of two unit bounding discs, as a share of their
+             * areas, of the two occluders' irradiance is counted once. */
+            for (int a = 0; a < discs; ++a)
+                for (int b = a + 1; b < discs; ++b) {
+                    float ra = disc[a].w, rb = disc[b].w;
+                    float lens = pn_lens_area(ra, rb, distance(disc[a].xyz, disc[b].xyz));
+                    if (lens > 0.0f)
+                        total -= lens / (PN_PI * (ra * ra + rb * rb)) * (occluded[a] + occluded[b]);
+                }
+            total = clamp(total, largest, sum);
+        }
+        e = e_base - total;
+    }
+    image[gid] = (float4)(fmax(albedo[gid].xyz * e * PN_INV_PI, 0.0f), 1.0f);
+}
