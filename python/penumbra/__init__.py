@@ -10,8 +10,9 @@ renders them (:mod:`penumbra.render`, the ``penumbra`` command).
 from ._native import BACKGROUND, version
 from .core import Camera, Context, EnvMap, GBuffer, Image, Material, Mesh, Renderer, Scene
 from .errors import InputError, PenumbraError
+from .fiv import FivField, FivOptions
 
 __version__ = version()
 
-__all__ = ["BACKGROUND", "Camera", "Context", "EnvMap", "GBuffer", "Image", "InputError", "Material", "Mesh",
+__all__ = ["BACKGROUND", "Camera", "Context", "EnvMap", "FivField", "FivOptions", "GBuffer", "Image", "InputError", "Material", "Mesh",
            "PenumbraError", "Renderer", "Scene", "__version__"]
