@@ -176,8 +176,11 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
             /* Self-shadowing: all unoccluded light is in the positive hemisphere. */
             pn_fiv3 f;
             if (self_shadow && pn_fiv_lookup(occ, fields, v, trilinear, &f)) {
+                /* A sample off the surface also sees unoccluded light behind
+                 * the receiver plane, which the fullsphere sum subtracts: the
+                 * estimate errs low, never above the unoccluded irradiance. */
                 pn_fiv3 env = {env_x.xyz, env_y.xyz, env_z.xyz};
-                e_base = pn_fiv_dot(n, env) - pn_fiv_dot(n, f);
+                e_base = clamp(pn_fiv_dot(n, env) - pn_fiv_dot(n, f), 0.0f, e_tot);
             }
             continue;
         }

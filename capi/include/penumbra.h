@@ -427,8 +427,16 @@ PN_API pn_status pn_fiv_read(pn_fiv fiv, float *host, size_t bytes);
  *     "visibility"         int    1: shadow rays, 0: every direction unoccluded (1)
  *     "ray_offset"         float  shadow-ray origin lift, relative to scene size + distance to camera (1e-5)
  * "floor"       the memory-bound floor: reads the G-buffer, writes the image (docs/benchmarks.md).
+ * "fiv"         Fullsphere Irradiance Vectors (docs/fiv.md): diffuse env lighting with soft shadows and
+ *               self-shadows from the occlusion fields of pn_scene_set_fivs.
+ *     "overlap"            int    several occluders: 0 sum, 1 unit-bounding-disc correction, 2 multiplied visibility
+ *     "partial"            int    1: occluders straddling the receiver plane scaled by (d + R) / 2R (1)
+ *     "self_shadow"        int    1: pixels on an occluder use its own field (fullsphere equality) (1)
+ *     "trilinear"          int    1: trilinear interpolation of the 8 nearest samples, 0: nearest (1)
+ *     "cull_threshold"     float  skip occluders whose extrapolated contribution is below this share of the
+ *                                 env's reference irradiance, [0, 1] (1e-3)
  *
- * "unshadowed" and "reference" also take
+ * "unshadowed", "reference" and "fiv" also take
  *     "background"         int    1: background pixels show the environment, 0: black (1)
  */
 PN_API uint32_t pn_method_count(void);

@@ -182,8 +182,13 @@ pn_status pn_fiv_read_file(pn_context ctx, const char *path, bool partial, pn_fi
         st = pn_fail(ctx, PN_ERROR_FILE, "%s is corrupt: its header checksum does not match", path);
     pn_fiv_options o = {get_u32(h + 16), get_u32(h + 20), get_u32(h + 24), get_f32(h + 48), get_f32(h + 52),
                         get_u32(h + 36), get_u32(h + 40), get_f32(h + 44), get_u32(h + 32)};
-    if (!st && (st = pn_fiv_check_options(ctx, &o)))
-        pn_fail(ctx, PN_ERROR_FILE, "%s describes an invalid grid", path), st = PN_ERROR_FILE;
+    if (!st && pn_fiv_check_options(ctx, &o)) {
+        const char *why = NULL;
+        char detail[256];
+        pn_error_take(ctx, &why);
+        snprintf(detail, sizeof detail, "%s", why ? why : "invalid options");
+        st = pn_fail(ctx, PN_ERROR_FILE, "%s is corrupt: its header has %s", path, detail);
+    }
     const uint32_t done = get_u32(h + 28);
     if (!st && done > o.radii)
         st = pn_fail(ctx, PN_ERROR_FILE, "%s is corrupt: %u of %u spheres done", path, done, o.radii);
