@@ -1,11 +1,12 @@
 /* render_scene: a standalone consumer of libpenumbra.
  *
- *   render_scene ENV.pfm OUT.pfm [WIDTH HEIGHT]
+ *   render_scene ENV.pfm OUT.pfm [WIDTH HEIGHT [METHOD]]
  *
  * Reads a lat-long environment map from a PFM file, builds a small scene in
  * C (a unit box standing on a ground quad), renders it with the "unshadowed"
- * method and writes the RGB result as a PFM file (written to a temporary
- * file beside OUT.pfm, then renamed over it).
+ * method (or METHOD: "fiv" first bakes the box's occlusion field, a small
+ * 16x9x8 grid, so the box casts soft shadows) and writes the RGB result as a
+ * PFM file (written to a temporary file beside OUT.pfm, then renamed over it).
  *
  * PFM: a text header "PF\n<width> <height>\n<scale>\n" ("Pf" for one channel)
  * followed by 32-bit floats, little-endian when scale < 0, with the rows
@@ -228,11 +229,12 @@ static int parse_size(const char *s, uint32_t *out)
 int main(int argc, char **argv)
 {
     uint32_t width = 160, height = 120;
-    if (argc != 3 && argc != 5) {
-        fprintf(stderr, "usage: %s ENV.pfm OUT.pfm [WIDTH HEIGHT]\n", argv[0]);
+    const char *method = argc == 6 ? argv[5] : "unshadowed";
+    if (argc != 3 && argc != 5 && argc != 6) {
+        fprintf(stderr, "usage: %s ENV.pfm OUT.pfm [WIDTH HEIGHT [METHOD]]\n", argv[0]);
         return 2;
     }
-    if (argc == 5 && (!parse_size(argv[3], &width) || !parse_size(argv[4], &height))) {
+    if (argc >= 5 && (!parse_size(argv[3], &width) || !parse_size(argv[4], &height))) {
         fprintf(stderr, "render_scene: WIDTH and HEIGHT must be integers in 1..32768\n");
         return 2;
     }
@@ -247,6 +249,7 @@ int main(int argc, char **argv)
     pn_gbuffer gbuffer = NULL;
     pn_image image = NULL;
     pn_renderer renderer = NULL;
+    pn_fiv box_field = NULL;
     float *pixels = NULL;
     int ok = 0;
 
@@ -276,10 +279,23 @@ int main(int argc, char **argv)
         !check(pn_scene_add_instance(scene, ground, NULL, &ground_material, &ground_id),
                "pn_scene_add_instance (ground)") ||
         !check(pn_scene_set_camera(scene, &camera), "pn_scene_set_camera") ||
-        !check(pn_scene_commit(scene), "pn_scene_commit") ||
-        !check(pn_gbuffer_create(g_ctx, width, height, &gbuffer), "pn_gbuffer_create") ||
+        !check(pn_scene_commit(scene), "pn_scene_commit"))
+        goto cleanup;
+    if (!strcmp(method, "fiv")) {
+        /* The box's occlusion field under this env map; the scene's instances
+         * of the box then occlude (and shadow themselves). */
+        pn_fiv_options options = pn_fiv_options_default();
+        options.theta = 9;
+        options.phi = 16;
+        options.radii = 8;
+        options.face_size = 16;
+        if (!check(pn_fiv_bake(env, box, &options, NULL, NULL, NULL, &box_field), "pn_fiv_bake") ||
+            !check(pn_scene_set_fivs(scene, &box_field, 1), "pn_scene_set_fivs"))
+            goto cleanup;
+    }
+    if (!check(pn_gbuffer_create(g_ctx, width, height, &gbuffer), "pn_gbuffer_create") ||
         !check(pn_image_create(g_ctx, width, height, &image), "pn_image_create") ||
-        !check(pn_renderer_create(g_ctx, "unshadowed", &renderer), "pn_renderer_create") ||
+        !check(pn_renderer_create(g_ctx, method, &renderer), "pn_renderer_create") ||
         !check(pn_renderer_commit(renderer), "pn_renderer_commit") ||
         !check(pn_scene_render_gbuffer(scene, gbuffer), "pn_scene_render_gbuffer") ||
         !check(pn_renderer_execute(renderer, scene, gbuffer, image), "pn_renderer_execute"))
@@ -301,6 +317,7 @@ cleanup:
     if (image && !check(pn_image_release(image), "pn_image_release")) ok = 0;
     if (gbuffer && !check(pn_gbuffer_release(gbuffer), "pn_gbuffer_release")) ok = 0;
     if (scene && !check(pn_scene_release(scene), "pn_scene_release")) ok = 0;
+    if (box_field && !check(pn_fiv_release(box_field), "pn_fiv_release")) ok = 0;
     if (ground && !check(pn_mesh_release(ground), "pn_mesh_release (ground)")) ok = 0;
     if (box && !check(pn_mesh_release(box), "pn_mesh_release (box)")) ok = 0;
     if (env && !check(pn_envmap_release(env), "pn_envmap_release")) ok = 0;

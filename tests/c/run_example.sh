@@ -157,6 +157,29 @@ if "$TMP/build/render_scene" "$ENV" "$TMP/out/default.pfm" >/dev/null 2>&1 && ms
 else
     fail "default-size render: ${msg:-render_scene failed}"
 fi
+# The same scene with FIV shadows: the C-only bake-and-render path; the box's
+# shadow makes the image darker than the unshadowed one, never brighter.
+if "$TMP/build/render_scene" "$ENV" "$TMP/out/fiv.pfm" 64 48 fiv >"$TMP/fiv.log" 2>&1 && msg=$(check_pfm "$TMP/out/fiv.pfm" 64 48 2>&1); then
+    if "$PY" - "$OUT" "$TMP/out/fiv.pfm" <<'EOF'
+import struct, sys
+def pixels(path):
+    data = open(path, "rb").read()
+    body = data.split(b"\n", 3)[3]
+    return struct.unpack("<%df" % (len(body) // 4), body)
+plain, shadowed = pixels(sys.argv[1]), pixels(sys.argv[2])
+darker = sum(1 for a, b in zip(plain, shadowed) if b < a - 1e-4)
+brighter = sum(1 for a, b in zip(plain, shadowed) if b > a + 1e-4)
+if darker < 50 or brighter:
+    sys.exit("fiv image: %d darker and %d brighter values than unshadowed" % (darker, brighter))
+EOF
+    then
+        pass "render_scene ... fiv bakes the box's field in C and darkens its shadow"
+    else
+        fail "fiv render is not a shadowed version of the unshadowed one"
+    fi
+else
+    fail "render_scene ... fiv: ${msg:-$(tail -3 "$TMP/fiv.log")}"
+fi
 # Errors are reported, not crashed on.
 printf 'P6\n1 1\n255\n\0\0\0' >"$TMP/not.pfm"
 if "$TMP/build/render_scene" "$TMP/not.pfm" "$TMP/out/x.pfm" >"$TMP/err.log" 2>&1; then
