@@ -84,6 +84,8 @@ inline bool pn_fiv_lookup(global const float4 *occ, global const uchar *fields, 
     int hp = as_int(occ[3].y);
     float3 v = v_world * inv_scale;
     float rho = length(v);
+    if (!isfinite(rho)) /* a NaN/Inf position in an unvalidated G-buffer: no index from it */
+        return false;
     float3 d = rho > 0.0f ? v / rho : (float3)(0.0f, 1.0f, 0.0f);
     float theta = acos(clamp(d.y, -1.0f, 1.0f));
     float phi = atan2(d.z, d.x);

@@ -18,3 +18,41 @@ BRDF_RTOL = 3e-4
 # `reference` pixels against the float64 sum: hundreds of float32 terms, each
 # with BRDF rounding as above, and float32 positions and normals.
 REFERENCE_RTOL = 1e-4
+# --- fiv (tests/test_fiv.py against the float64 twin tests/fiv64.py) -------
+# Bake samples against the float64 ray cast, times value_scale (the env's
+# total power, a bound on every term's sum): each sample is a float32 sum of
+# up to 6*8*8 = 384 terms L w dw, whose rounding grows like sqrt(n) eps ~
+# 1e-6 of the sum of |terms| <= value_scale. Measured 1.8e-7; a wrong
+# channel, axis, solid angle or a dropped direction is >= 1e-3.
+FIV_BAKE_ATOL = 4e-6
+# `fiv` pixels against the twin, times the largest unshadowed radiance:
+# away from the poles float32 trig/log and 8-sample sums give ~1e-6
+# (measured 1.0e-6); within ~1e-3 rad of a pole, acos of the float32 d.y
+# (1 ulp of 1 = 6e-8) moves theta by a few % of itself, i.e. a few % of the
+# weight on the first ring: measured 2.5e-5 there.
+FIV_SHADE_ATOL = 5e-5
+# Continuity across the phi seam (+-1e-4 rad) and at the poles (1e-3 rad
+# away, four azimuths), times the largest value: the lookup is linear there,
+# so the change is the angle step times the gradient (measured 7e-5 at the
+# seam, 4e-4 at the poles); a seam that does not wrap jumps by > 5e-2.
+FIV_CONTINUITY_ATOL = 1e-3
+# (rho_max / rho)^2 beyond the grid, occluded E = E0 - E from two float32
+# outputs of ~5 (2 ulp ~ 1e-6) against an occluded E of ~0.06 at 4 rho_max:
+# <= 2e-5 relative (measured 7e-6).
+FIV_FALLOFF_RTOL = 5e-5
+# Adding an occluder with overlap 0 (sum of non-negative terms) or 2
+# (products of factors in [0, 1]) cannot brighten a pixel; float32 rounding
+# is monotonic, so the measured increase is exactly 0. Relative to the
+# pixel's unshadowed radiance.
+FIV_MONOTONE_ATOL = 1e-6
+# overlap 1 (pairwise unit-bounding-disc lens correction) can brighten a pixel
+# when an occluder is added: its lens with the others takes back a share of
+# their irradiance. Largest increase measured over 20 random placements of
+# 1..4 spheres and boxes above a plane: 0.179 of the pixel's unshadowed
+# radiance (docs/fiv.md quotes it); the bound leaves room for other seeds.
+FIV_OVERLAP_INCREASE_MAX = 0.25
+# A uniformly scaled + translated instance against the mesh baked at that
+# scale, times the largest radiance: the bakes agree to float32 rounding (the
+# same rays hit), the images differ by float32 transforms of centre and v
+# (measured 3.9e-7).
+FIV_SCALED_INSTANCE_ATOL = 1e-5

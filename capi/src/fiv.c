@@ -159,9 +159,9 @@ pn_status pn_scene_do_set_fivs(pn_scene scene, const pn_fiv *fields, uint32_t co
 {
     pn_context ctx = scene->obj.ctx;
     for (uint32_t i = 0; i < count; ++i) {
-        if (!fields[i] || fields[i]->obj.magic != PN_MAGIC_FIV)
-            return pn_fail(ctx, PN_ERROR_NULL_HANDLE, "pn_scene_set_fivs: fields[%u] is NULL or not an occlusion field",
-                           i);
+        if (!fields[i] || fields[i]->obj.magic != PN_MAGIC_FIV) /* a handle argument: the global slot */
+            return pn_fail(NULL, PN_ERROR_NULL_HANDLE,
+                           "pn_scene_set_fivs: fields[%u] is NULL or not an occlusion field", i);
         if (fields[i]->obj.ctx != ctx)
             return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "pn_scene_set_fivs: fields[%u] belongs to another context", i);
         for (uint32_t j = 0; j < i; ++j)

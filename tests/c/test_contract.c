@@ -252,6 +252,8 @@ static void test_status_names(void)
         {PN_ERROR_OUT_OF_MEMORY, "PN_ERROR_OUT_OF_MEMORY"},
         {PN_ERROR_NO_DEVICE, "PN_ERROR_NO_DEVICE"},
         {PN_ERROR_UNSUPPORTED, "PN_ERROR_UNSUPPORTED"},
+        {PN_ERROR_CANCELLED, "PN_ERROR_CANCELLED"},
+        {PN_ERROR_FILE, "PN_ERROR_FILE"},
         {PN_ERROR_INTERNAL, "PN_ERROR_INTERNAL"},
     };
     for (size_t i = 0; i < sizeof names / sizeof names[0]; ++i) {
@@ -1857,6 +1859,296 @@ static void test_retain_release(pn_context ctx)
     expect_ok("context still usable", pn_context_finish(ctx), ctx);
 }
 
+/* ------------------------------------------------------ occlusion fields */
+
+static int stop_after_first(void *user, uint64_t done, uint64_t total)
+{
+    (void)total;
+    uint64_t *first = user;
+    if (!*first)
+        *first = done;
+    return 1;
+}
+
+static int record_first(void *user, uint64_t done, uint64_t total)
+{
+    (void)total;
+    uint64_t *first = user;
+    if (!*first)
+        *first = done;
+    return 0;
+}
+
+/* A small bake: 5 x 8 x 3 samples, cube face 4, float32. */
+static pn_fiv_options small_fiv_options(void)
+{
+    pn_fiv_options o = pn_fiv_options_default();
+    o.theta = 5;
+    o.phi = 8;
+    o.radii = 3;
+    o.face_size = 4;
+    o.sun_supersampling = 1;
+    o.precision = PN_PRECISION_FLOAT32;
+    return o;
+}
+
+static void test_fiv(pn_context ctx)
+{
+    pn_fiv_options def = pn_fiv_options_default();
+    CHECK("pn_fiv_options_default", def.theta == 17 && def.phi == 32 && def.radii == 15 && def.inner_radius == 0.2f &&
+                                        def.error_target == 0.01f && def.face_size == 32 &&
+                                        def.sun_supersampling == 4 && def.sun_threshold == 0.1f &&
+                                        def.precision == PN_PRECISION_FLOAT16);
+
+    /* NULL and wrong-kind handles: the global slot, naming the function. */
+    pn_fiv fiv = (pn_fiv)(uintptr_t)1;
+    pn_fiv_options opt = small_fiv_options();
+    pn_fiv_info info;
+    float sample[9];
+    uint64_t hash = 0;
+    expect_error("NULL env map: pn_fiv_bake", pn_fiv_bake(NULL, NULL, &opt, NULL, NULL, NULL, &fiv),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_fiv_bake", "env", NULL);
+    expect_error("NULL context: pn_fiv_load", pn_fiv_load(NULL, "x.pnfiv", &fiv), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_fiv_load", NULL);
+    expect_error("NULL field: pn_fiv_save", pn_fiv_save(NULL, "x.pnfiv"), PN_ERROR_NULL_HANDLE, NULL, "pn_fiv_save",
+                 NULL);
+    expect_error("NULL field: pn_fiv_retain", pn_fiv_retain(NULL), PN_ERROR_NULL_HANDLE, NULL, "pn_fiv_retain", NULL);
+    expect_error("NULL field: pn_fiv_release", pn_fiv_release(NULL), PN_ERROR_NULL_HANDLE, NULL, "pn_fiv_release",
+                 NULL);
+    expect_error("NULL field: pn_fiv_get_info", pn_fiv_get_info(NULL, &info), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_fiv_get_info", NULL);
+    expect_error("NULL field: pn_fiv_read", pn_fiv_read(NULL, sample, sizeof sample), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_fiv_read", NULL);
+    expect_error("NULL scene: pn_scene_set_fivs", pn_scene_set_fivs(NULL, NULL, 0), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_scene_set_fivs", NULL);
+    expect_error("NULL env map: pn_envmap_get_hash", pn_envmap_get_hash(NULL, &hash), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_envmap_get_hash", NULL);
+    expect_error("NULL mesh: pn_mesh_get_hash", pn_mesh_get_hash(NULL, &hash), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_mesh_get_hash", NULL);
+
+    rig r;
+    if (!rig_create(ctx, &r, 8, 8, 4))
+        return;
+    expect_error("NULL mesh: pn_fiv_bake", pn_fiv_bake(r.env, NULL, &opt, NULL, NULL, NULL, &fiv),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_fiv_bake", "mesh", NULL);
+    expect_error("mesh passed as an env map: pn_fiv_bake",
+                 pn_fiv_bake((pn_envmap)(void *)r.mesh, r.mesh, &opt, NULL, NULL, NULL, &fiv), PN_ERROR_NULL_HANDLE,
+                 NULL, "pn_fiv_bake", NULL);
+    expect_error("scene passed as a field: pn_fiv_release", pn_fiv_release((pn_fiv)(void *)r.scene),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_fiv_release", NULL);
+    expect_error("env map passed as a field: pn_fiv_get_info", pn_fiv_get_info((pn_fiv)(void *)r.env, &info),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_fiv_get_info", NULL);
+    pn_fiv not_a_field = (pn_fiv)(void *)r.mesh;
+    expect_error("mesh in the list of pn_scene_set_fivs", pn_scene_set_fivs(r.scene, &not_a_field, 1),
+                 PN_ERROR_NULL_HANDLE, NULL, "fields[0]", NULL);
+    not_a_field = NULL;
+    expect_error("NULL in the list of pn_scene_set_fivs", pn_scene_set_fivs(r.scene, &not_a_field, 1),
+                 PN_ERROR_NULL_HANDLE, NULL, "fields[0]", NULL);
+
+    /* NULL pointers: the context's slot. */
+    expect_error("pn_fiv_bake(options = NULL)", pn_fiv_bake(r.env, r.mesh, NULL, NULL, NULL, NULL, &fiv),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_fiv_bake", "options", NULL);
+    expect_error("pn_fiv_bake(out = NULL)", pn_fiv_bake(r.env, r.mesh, &opt, NULL, NULL, NULL, NULL),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_fiv_bake", "out", NULL);
+    expect_error("pn_fiv_load(path = NULL)", pn_fiv_load(ctx, NULL, &fiv), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "pn_fiv_load", "path", NULL);
+    expect_error("pn_fiv_load(out = NULL)", pn_fiv_load(ctx, "x.pnfiv", NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "pn_fiv_load", "out", NULL);
+    expect_error("pn_scene_set_fivs(fields = NULL, count = 1)", pn_scene_set_fivs(r.scene, NULL, 1),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_scene_set_fivs", "fields", NULL);
+    expect_ok("pn_scene_set_fivs(NULL, 0) clears the list", pn_scene_set_fivs(r.scene, NULL, 0), ctx);
+    expect_error("pn_envmap_get_hash(hash = NULL)", pn_envmap_get_hash(r.env, NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "pn_envmap_get_hash", "hash", NULL);
+    expect_error("pn_mesh_get_hash(hash = NULL)", pn_mesh_get_hash(r.mesh, NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "pn_mesh_get_hash", "hash", NULL);
+
+    /* Bad options: each names the option; a refused bake leaves *out NULL. */
+    struct { const char *what; pn_fiv_options o; pn_status st; const char *names; } bad[12];
+    size_t nbad = 0;
+#define BAD(field, value, status, name)                                                                              \
+    do {                                                                                                             \
+        bad[nbad].o = small_fiv_options();                                                                           \
+        bad[nbad].o.field = value;                                                                                   \
+        bad[nbad].what = "pn_fiv_bake with " #field " = " #value;                                                  \
+        bad[nbad].st = status;                                                                                       \
+        bad[nbad].names = name;                                                                                      \
+        ++nbad;                                                                                                      \
+    } while (0)
+    BAD(theta, 2, PN_ERROR_INVALID_ARGUMENT, "theta");
+    BAD(phi, 3, PN_ERROR_INVALID_ARGUMENT, "phi");
+    BAD(radii, 1, PN_ERROR_INVALID_ARGUMENT, "radii");
+    BAD(inner_radius, 1.0f, PN_ERROR_INVALID_ARGUMENT, "inner_radius");
+    BAD(inner_radius, NAN, PN_ERROR_INVALID_ARGUMENT, "inner_radius");
+    BAD(error_target, 0.0f, PN_ERROR_INVALID_ARGUMENT, "error_target");
+    BAD(error_target, 0.6f, PN_ERROR_INVALID_ARGUMENT, "error_target");
+    BAD(face_size, 257, PN_ERROR_INVALID_ARGUMENT, "face_size");
+    BAD(sun_supersampling, 0, PN_ERROR_INVALID_ARGUMENT, "sun_supersampling");
+    BAD(sun_threshold, 0.0f, PN_ERROR_INVALID_ARGUMENT, "sun_threshold");
+    BAD(precision, 2, PN_ERROR_INVALID_ARGUMENT, "precision");
+    BAD(radii, 256, PN_ERROR_INVALID_SIZE, "2^28");
+#undef BAD
+    bad[nbad - 1].o.theta = 1025;
+    bad[nbad - 1].o.phi = 2048;
+    for (size_t i = 0; i < nbad; ++i) {
+        fiv = (pn_fiv)(uintptr_t)1;
+        expect_error(bad[i].what, pn_fiv_bake(r.env, r.mesh, &bad[i].o, NULL, NULL, NULL, &fiv), bad[i].st, ctx,
+                     bad[i].names, NULL);
+        CHECK("a refused pn_fiv_bake sets *out to NULL", fiv == NULL);
+    }
+
+    /* A mesh whose triangles all have zero area hides nothing. */
+    {
+        pn_mesh flat = NULL;
+        const float pos[9] = {0, 0, 0, 1, 0, 0, 2, 0, 0};
+        const uint32_t idx[6] = {0, 1, 2, 1, 1, 1};
+        if (expect_ok("collinear mesh", pn_mesh_create(ctx, &flat), ctx) &&
+            expect_ok("collinear geometry", pn_mesh_set_geometry(flat, pos, 3, idx, 2, NULL), ctx) &&
+            expect_ok("collinear commit", pn_mesh_commit(flat), ctx))
+            expect_error("pn_fiv_bake of a degenerate mesh", pn_fiv_bake(r.env, flat, &opt, NULL, NULL, NULL, &fiv),
+                         PN_ERROR_EMPTY_INPUT, ctx, "nonzero area", NULL);
+        if (flat)
+            pn_mesh_release(flat);
+    }
+
+    /* Files: a missing or foreign file is PN_ERROR_FILE naming the path. */
+    char dir[] = "/tmp/pn_contract_fiv_XXXXXX";
+    if (!mkdtemp(dir)) {
+        report(0, "mkdtemp", "%s", dir);
+        rig_release(&r);
+        return;
+    }
+    char path[256], missing[256], garbage[256], nodir[256];
+    snprintf(path, sizeof path, "%s/box.pnfiv", dir);
+    snprintf(missing, sizeof missing, "%s/missing.pnfiv", dir);
+    snprintf(garbage, sizeof garbage, "%s/garbage.pnfiv", dir);
+    snprintf(nodir, sizeof nodir, "%s/no/such/folder.pnfiv", dir);
+    fiv = (pn_fiv)(uintptr_t)1;
+    expect_error("pn_fiv_load of a missing file", pn_fiv_load(ctx, missing, &fiv), PN_ERROR_FILE, ctx, "missing.pnfiv",
+                 NULL);
+    CHECK("a failed pn_fiv_load sets *out to NULL", fiv == NULL);
+    FILE *g = fopen(garbage, "wb");
+    if (g) {
+        fputs("not an occlusion field at all", g);
+        fclose(g);
+    }
+    expect_error("pn_fiv_load of a foreign file", pn_fiv_load(ctx, garbage, &fiv), PN_ERROR_FILE, ctx, "garbage.pnfiv",
+                 "magic", NULL);
+    expect_error("pn_fiv_load of a folder", pn_fiv_load(ctx, dir, &fiv), PN_ERROR_FILE, ctx, NULL);
+    expect_error("pn_fiv_bake to a foreign checkpoint", pn_fiv_bake(r.env, r.mesh, &opt, garbage, NULL, NULL, &fiv),
+                 PN_ERROR_FILE, ctx, "garbage.pnfiv", "untouched", NULL);
+    {
+        FILE *check = fopen(garbage, "rb");
+        char back[64] = "";
+        if (check) {
+            size_t got = fread(back, 1, sizeof back - 1, check);
+            back[got] = '\0';
+            fclose(check);
+        }
+        CHECK("a foreign checkpoint is left untouched", !strcmp(back, "not an occlusion field at all"));
+    }
+    expect_error("pn_fiv_bake to an unwritable path", pn_fiv_bake(r.env, r.mesh, &opt, nodir, NULL, NULL, &fiv),
+                 PN_ERROR_FILE, ctx, "folder.pnfiv", NULL);
+
+    /* Cancel after the first sphere, then resume from the checkpoint. */
+    uint64_t first = 0;
+    expect_error("a progress callback that returns nonzero cancels the bake",
+                 pn_fiv_bake(r.env, r.mesh, &opt, path, stop_after_first, &first, &fiv), PN_ERROR_CANCELLED, ctx,
+                 "1 of 3", NULL);
+    CHECK("the first progress call comes after one sphere", first == (uint64_t)opt.theta * opt.phi);
+    expect_error("pn_fiv_load of an unfinished bake", pn_fiv_load(ctx, path, &fiv), PN_ERROR_FILE, ctx, "unfinished",
+                 NULL);
+    first = 0;
+    pn_fiv baked = NULL, loaded = NULL, fresh = NULL;
+    if (expect_ok("resumed bake", pn_fiv_bake(r.env, r.mesh, &opt, path, record_first, &first, &baked), ctx)) {
+        CHECK("the resumed bake starts at the second sphere", first == 2 * (uint64_t)opt.theta * opt.phi);
+        expect_ok("pn_fiv_get_info", pn_fiv_get_info(baked, &info), ctx);
+        CHECK("info describes the grid", info.options.theta == 5 && info.options.phi == 8 && info.options.radii == 3 &&
+                                             info.sample_count == 120 && info.stored_bytes == 120 * 36 &&
+                                             info.radius > 0.86f && info.radius < 0.87f && info.outer > info.inner);
+        const size_t bytes = 120 * 9 * sizeof(float);
+        float *a = malloc(bytes), *b = malloc(bytes);
+        expect_error("pn_fiv_read with the wrong size", pn_fiv_read(baked, a, bytes - 4), PN_ERROR_INVALID_SIZE, ctx,
+                     NULL);
+        expect_error("pn_fiv_read(host = NULL)", pn_fiv_read(baked, NULL, bytes), PN_ERROR_INVALID_ARGUMENT, ctx,
+                     "host", NULL);
+        expect_error("pn_fiv_get_info(info = NULL)", pn_fiv_get_info(baked, NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
+                     "info", NULL);
+        expect_error("pn_fiv_save(path = NULL)", pn_fiv_save(baked, NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
+                     "pn_fiv_save", "path", NULL);
+        expect_error("pn_fiv_save to an unwritable path", pn_fiv_save(baked, nodir), PN_ERROR_FILE, ctx,
+                     "folder.pnfiv", NULL);
+        if (a && b &&
+            expect_ok("uninterrupted bake", pn_fiv_bake(r.env, r.mesh, &opt, NULL, NULL, NULL, &fresh), ctx) &&
+            expect_ok("load the finished bake", pn_fiv_load(ctx, path, &loaded), ctx)) {
+            pn_fiv_read(baked, a, bytes);
+            pn_fiv_read(fresh, b, bytes);
+            CHECK("a resumed bake equals an uninterrupted one", !memcmp(a, b, bytes));
+            pn_fiv_read(loaded, b, bytes);
+            CHECK("a loaded bake equals the baked one", !memcmp(a, b, bytes));
+            /* The innermost sphere (0.2 R) is inside the box: NaN; the others are finite. */
+            int inside_nan = 1, outside_finite = 1;
+            for (size_t i = 0; i < 120 * 9; ++i) {
+                if (i < 40 * 9)
+                    inside_nan &= isnan(a[i]) != 0;
+                else
+                    outside_finite &= isfinite(a[i]) != 0;
+            }
+            CHECK("samples inside the geometry are NaN", inside_nan && info.inside_count == 40);
+            CHECK("samples outside the geometry are finite", outside_finite);
+        }
+        free(a);
+        free(b);
+
+        /* Two fields of one mesh; a rotated instance; another env map. */
+        pn_fiv two[2] = {baked, loaded ? loaded : baked};
+        expect_error("two fields for one mesh", pn_scene_set_fivs(r.scene, two, 2), PN_ERROR_INVALID_ARGUMENT, ctx,
+                     "one field per mesh", NULL);
+        pn_renderer fivr = NULL;
+        if (expect_ok("pn_scene_set_fivs", pn_scene_set_fivs(r.scene, &baked, 1), ctx) &&
+            expect_ok("fiv renderer", pn_renderer_create(ctx, "fiv", &fivr), ctx)) {
+            expect_error("overlap 3", pn_renderer_set_int(fivr, "overlap", 3), PN_ERROR_INVALID_ARGUMENT, ctx,
+                         "overlap", NULL);
+            expect_error("cull_threshold -1", pn_renderer_set_float(fivr, "cull_threshold", -1.0f),
+                         PN_ERROR_INVALID_ARGUMENT, ctx, "cull_threshold", NULL);
+            expect_ok("fiv commit", pn_renderer_commit(fivr), ctx);
+            expect_ok("fiv scene commit", pn_scene_commit(r.scene), ctx);
+            expect_ok("fiv render_gbuffer", pn_scene_render_gbuffer(r.scene, r.gbuffer), ctx);
+            expect_ok("fiv execute", pn_renderer_execute(fivr, r.scene, r.gbuffer, r.image), ctx);
+            const float c = 0.70710678f;
+            const float rotated[12] = {c, 0, c, 0, 0, 1, 0, 0, -c, 0, c, 0};
+            const float identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+            expect_ok("rotate the occluder", pn_scene_set_instance_transform(r.scene, r.instance, rotated), ctx);
+            expect_ok("commit", pn_scene_commit(r.scene), ctx);
+            expect_error("a rotated occluder instance", pn_renderer_execute(fivr, r.scene, r.gbuffer, r.image),
+                         PN_ERROR_UNSUPPORTED, ctx, "rotat", NULL);
+            expect_ok("unrotate the occluder", pn_scene_set_instance_transform(r.scene, r.instance, identity), ctx);
+            expect_ok("commit", pn_scene_commit(r.scene), ctx);
+            expect_ok("set intensity", pn_envmap_set_float(r.env, "intensity", 2.0f), ctx);
+            expect_ok("commit env", pn_envmap_commit(r.env), ctx);
+            expect_error("a field baked under another env map", pn_renderer_execute(fivr, r.scene, r.gbuffer, r.image),
+                         PN_ERROR_INVALID_ARGUMENT, ctx, "env map", NULL);
+            expect_error("pn_fiv_bake to a checkpoint of another env map",
+                         pn_fiv_bake(r.env, r.mesh, &opt, path, NULL, NULL, &fiv),
+                         PN_ERROR_INVALID_ARGUMENT, ctx, "another env map", NULL);
+            pn_context_finish(ctx);
+        }
+        if (fivr)
+            pn_renderer_release(fivr);
+        expect_ok("retain a field", pn_fiv_retain(baked), ctx);
+        expect_ok("release it (1 of 2)", pn_fiv_release(baked), ctx);
+        pn_scene_set_fivs(r.scene, NULL, 0);
+        expect_ok("release it (2 of 2)", pn_fiv_release(baked), ctx);
+    }
+    if (loaded)
+        pn_fiv_release(loaded);
+    if (fresh)
+        pn_fiv_release(fresh);
+    remove(path);
+    remove(garbage);
+    rmdir(dir);
+    rig_release(&r);
+}
+
 int main(void)
 {
     setvbuf(stdout, NULL, _IOLBF, 0);
@@ -1879,6 +2171,7 @@ int main(void)
     test_mesh(ctx);
     test_scene(ctx);
     test_renderer(ctx);
+    test_fiv(ctx);
     test_gbuffer(ctx);
     test_error_routing(ctx, ctx2);
     test_many_pending_errors();
