@@ -1683,10 +1683,15 @@ static void test_from_cl(void)
      * objects (successfully or not) leaves the cl_context's reference count (held by every cl_mem, program
      * and kernel) where it was. */
     exercise(ctx, clc);
+    clFinish(q); /* commands still in flight hold references to the buffers they use */
     const cl_uint baseline = refcount_of(clc);
     for (int i = 0; i < 5; ++i)
         exercise(ctx, clc);
-    report(refcount_of(clc) == baseline, "no OpenCL objects leaked by create/use/release of every object kind",
+    clFinish(q);
+    /* PoCL drops the references of finished commands asynchronously, even
+     * after clFinish, so the count may fall below the baseline; a leak can
+     * only raise it. */
+    report(refcount_of(clc) <= baseline, "no OpenCL objects leaked by create/use/release of every object kind",
            "cl_context reference count %u -> %u", baseline, refcount_of(clc));
 
     pn_context_release(ctx);
