@@ -10,7 +10,7 @@ STAMP_PKG := $(VENV)/.penumbra-installed
 export DRJIT_LIBLLVM_PATH ?= /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
 SOURCES := $(shell find capi kernels python cmake -type f) CMakeLists.txt pyproject.toml
 
-.PHONY: all deps venv install demo test test-c test-python bench clean
+.PHONY: all deps venv install demo test test-c test-python bench bench-fiv-scaling clean
 
 all: install
 
@@ -59,6 +59,11 @@ bench: install
 	@for s in $(BENCH_SCENES); do \
 	  $(VENV)/bin/penumbra bench $$s --out bench/results/$$(basename $$s .toml) --readme README.md || exit 1; \
 	done
+
+# fiv's per-frame cost against the number of occluders (1, 10, 30, 60 bunnies, 512x512),
+# next to the paper's Table 2: bench/results/fiv_scaling/.
+bench-fiv-scaling: install
+	$(VENV)/bin/penumbra bench --fiv-scaling --out bench/results/fiv_scaling
 
 clean:
 	rm -rf build out

@@ -9,9 +9,11 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from penumbra.bench import (README_BEGIN, README_END, RESULT_KEYS, BenchOptions, _mitsuba_time_at, readme_row, run,
+from penumbra.bench import (PAPER_FPS, README_BEGIN, README_END, README_FIV, README_HEADER, RESULT_KEYS, SWEEPS,
+                            BenchOptions, _mitsuba_time_at, fiv_scaling, fiv_scaling_scene, readme_row, run,
                             update_readme)
 from penumbra.cli import main
 from penumbra.errors import InputError
@@ -26,7 +28,9 @@ def tiny_bench(tmp_path_factory, shared_data):
     pytest.importorskip("mitsuba")
     out = tmp_path_factory.mktemp("bench")
     opts = BenchOptions(frames=5, reference_face_size=8, reference_sun_supersampling=1, spp=(1, 4),
-                        sweeps={"unshadowed": [{}], "reference": [{"face_size": 4}, {"face_size": 8}]})
+                        sweeps={"unshadowed": [{}], "reference": [{"face_size": 4}, {"face_size": 8}],
+                                "fiv": [{"samples": [8, 5, 4], "face_size": 8},
+                                        {"samples": [8, 5, 4], "face_size": 8, "overlap": 0}]})
     res = run(SCENE, out, opts, overrides=TINY, log=lambda m: None)
     return out, res
 
@@ -45,6 +49,7 @@ def test_results_json_schema(tiny_bench):
     rows = data["results"]
     methods = [r["method"] for r in rows]
     assert methods.count("unshadowed") == 1 and methods.count("reference") == 2 and methods.count("mitsuba") == 2
+    assert methods.count("fiv") == 2
     for r in rows:
         for key in ("method", "params", "time_ms", "nrmse", "rel_rms", "max_abs"):
             assert key in r, key
@@ -90,6 +95,88 @@ def test_readme_table_is_refreshed(tiny_bench, tmp_path):
         bad = tmp_path / "bad.md"
         bad.write_text("no table\n")
         update_readme(bad, "| a |")
+
+
+def test_bench_sweeps_fiv(tiny_bench):
+    out, _ = tiny_bench
+    rows = [r for r in json.loads((out / "results.json").read_text())["results"] if r["method"] == "fiv"]
+    assert [r["params"] for r in rows] == [{"samples": [8, 5, 4], "face_size": 8},
+                                           {"samples": [8, 5, 4], "face_size": 8, "overlap": 0}]
+    for r in rows:
+        assert r["fiv_fields"] == 1 and r["fiv_bytes"] == 8 * 5 * 4 * 9 * 2  # the bunny; the ground is no occluder
+        assert r["floor_ratio"] > 0 and math.isfinite(r["mitsuba_speedup"])
+    assert rows[0]["bake_s"] > 0  # baked in this run, into the bench's cache folder
+    assert len(list((out / "cache" / "fiv").glob("*.pnfiv"))) == 1
+    text = (out / "report.md").read_text()
+    assert "| fiv | samples=8x5x4, face_size=8 |" in text and "fiv precomputation" in text
+    assert (out / "fiv.png").is_file() and (out / "fiv_error.png").is_file()
+
+
+def test_default_sweeps_include_fiv():
+    assert "fiv" in BenchOptions().methods and "fiv" in SWEEPS
+    grids = [p["samples"] for p in SWEEPS["fiv"]]
+    assert [32, 17, 15] in grids and [64, 33, 30] in grids and README_FIV in SWEEPS["fiv"]
+    assert {p.get("overlap", 1) for p in SWEEPS["fiv"]} == {0, 1, 2}
+
+
+def test_readme_row_has_fiv_columns(tiny_bench):
+    _, res = tiny_bench
+    fake = [dict(r) for r in res["results"] if r["method"] != "fiv"] + [
+        {"method": "fiv", "params": dict(README_FIV), "time_ms": 2.5, "shade_ms": 1.0, "floor_ratio": 12.0,
+         "nrmse": 0.0123, "mitsuba_speedup": 40.0, "mitsuba_speedup_bound": ""},
+        {"method": "fiv", "params": {**README_FIV, "overlap": 0}, "time_ms": 9.9, "shade_ms": 9.0,
+         "floor_ratio": 99.0, "nrmse": 0.5, "mitsuba_speedup": 1.0}]
+    row = readme_row(res["summary"], fake)
+    cells = [c.strip() for c in row.split("|")[1:-1]]
+    header = [c.strip() for c in README_HEADER.splitlines()[0].split("|")[1:-1]]
+    assert len(cells) == len(header)
+    assert header[4].startswith("fiv (64x33x30)") and cells[4] == "2.50 / 0.0123 / 12.0"  # the exact setting
+    assert "fiv samples=64x33x30 40x" in cells[6]
+
+
+def test_fiv_scaling_scene_nests_and_shares_one_mesh():
+    a, b = fiv_scaling_scene(10, "m.obj", "e.hdr"), fiv_scaling_scene(30, "m.obj", "e.hdr")
+    assert b["object"][:11] == a["object"]  # the ground and the first ten bunnies
+    bunnies = [o for o in b["object"] if o.get("mesh")]
+    assert len(bunnies) == 30 and {o["mesh"] for o in bunnies} == {"m.obj"}
+    assert all(isinstance(o["scale"], float) and "rotate_deg" not in o for o in bunnies)  # one field serves all
+    xz = np.array([[o["translate"][0], o["translate"][2]] for o in bunnies])
+    d = np.linalg.norm(xz[:, None] - xz[None], axis=-1) + np.eye(30) * 9
+    assert d.min() > 1.2  # no two bunnies intersect
+    with pytest.raises(InputError, match="1 to 64"):
+        fiv_scaling_scene(65, "m.obj", "e.hdr")
+
+
+def test_fiv_scaling_writes_results(tmp_path, shared_data):
+    res = fiv_scaling(tmp_path, counts=(1, 3), samples=(8, 5, 4), resolution=24, frames=5, data_dir=shared_data,
+                      mitsuba_count=None, overrides=["environment.face_size=16", "fiv.face_size=8"],
+                      log=lambda m: None)
+    data = json.loads((tmp_path / "results.json").read_text())
+    assert [r["occluders"] for r in data["results"]] == [1, 3]
+    for r in data["results"]:
+        assert r["fields"] == 1  # every bunny shares the one field
+        assert r["fiv_shade_ms"] > 0 and r["floor_ms"] > 0
+        assert r["ratio_to_floor"] == pytest.approx(r["fiv_shade_ms"] / r["floor_ms"])
+        assert r["fps_shading"] == pytest.approx(1000 / r["fiv_shade_ms"])
+    assert data["results"][0]["paper_fps"] == PAPER_FPS[1] == 112 and data["results"][1]["paper_fps"] is None
+    assert data["summary"]["samples_phi_theta_radii"] == [8, 5, 4] and data["summary"]["bake"]["baked_now"]
+    assert data["equal_error"] is None and res["results"] == data["results"]
+    text = (tmp_path / "report.md").read_text()
+    assert "fiv / floor" in text and "paper fps" in text and "| 3 |" in text
+    # The scenes are real scene files (paths relative to them, the bake cache beside them).
+    from penumbra.scenefile import load_scene
+
+    desc = load_scene(tmp_path / "scenes" / "bunnies_3.toml")
+    assert sum(o.is_occluder for o in desc.objects) == 3
+    assert Path(desc.objects[1].mesh) == (shared_data / "meshes" / "bunny_odedstein_3k.obj").resolve()
+    assert len(list((tmp_path / "cache" / "fiv").glob("*.pnfiv"))) == 1
+
+
+def test_cli_bench_needs_a_scene_or_fiv_scaling(capsys, tmp_path):
+    assert main(["bench", "--out", str(tmp_path)]) == 2
+    assert "needs a scene file" in capsys.readouterr().err
+    assert main(["bench", str(SCENE), "--fiv-scaling", "--out", str(tmp_path)]) == 2
+    assert "no scene file" in capsys.readouterr().err
 
 
 def test_mitsuba_time_at_equal_error():

@@ -1,5 +1,6 @@
-"""The ``penumbra`` command (penumbra.cli): ``info``, ``render`` and ``demo``,
-run in-process through ``main([...])`` and once as a subprocess for the exit
+"""The ``penumbra`` command (penumbra.cli): ``info``, ``render``, ``demo``,
+``bake-fiv`` and ``fiv-info`` (and ``render --method fiv`` with its bake
+cache), run in-process through ``main([...])`` and once as a subprocess for the exit
 codes. Scenes use the real shared data (the Stanford bunny, the Pisa probe)."""
 
 from __future__ import annotations
@@ -233,11 +234,18 @@ def test_render_input_errors_exit_2(capsys, bunny_scene, tmp_path, argv, words):
 # ---------------------------------------------------------------- demo
 
 
-def test_demo_writes_every_image_and_a_table(capsys, tmp_path):
+def test_demo_writes_every_image_and_a_table(capsys, tmp_path, monkeypatch):
+    monkeypatch.setenv("PENUMBRA_CACHE", str(tmp_path / "cache"))
     out_dir = tmp_path / "demo"
-    code, out, err = run_cli(capsys, "demo", "--out", out_dir, "--frames", "1", "--set", "camera.resolution=[64,48]")
+    # A tiny fiv grid: the demo bakes the four shapes of the built-in scene.
+    code, out, err = run_cli(capsys, "demo", "--out", out_dir, "--frames", "1", "--set", "camera.resolution=[64,48]",
+                             "--set", "fiv.samples=[8,5,4]", "--set", "fiv.face_size=8")
     assert code == 0, err
-    names = ["unshadowed"] + [f"gbuffer_{v}" for v in ("normals", "albedo", "depth")]
+    assert "fiv: 4 occlusion field(s)" in out and "8x5x4" in out
+    assert len(list((tmp_path / "cache" / "fiv").glob("*.pnfiv"))) == 4
+    rows = [line for line in out.splitlines() if line.startswith("fiv ")]
+    assert len(rows) == 1 and all(float(x) > 0 for x in rows[0].split()[1:])
+    names = ["unshadowed", "fiv"] + [f"gbuffer_{v}" for v in ("normals", "albedo", "depth")]
     for name in names:
         img = read_exr(out_dir / f"{name}.exr")
         assert img.shape == (48, 64, 3), name
@@ -252,6 +260,195 @@ def test_demo_writes_every_image_and_a_table(capsys, tmp_path):
     # The normals view maps n to 0.5 + 0.5 n: the ground plane (n = +y) is (0.5, 1, 0.5).
     normals = read_exr(out_dir / "gbuffer_normals.exr")
     np.testing.assert_allclose(normals[-1, 32], [0.5, 1.0, 0.5], atol=1e-5)
+
+
+# ---------------------------------------------------------------- fiv: bake-fiv, fiv-info, render --method fiv
+
+TINY_FIV = ["--samples", "8,5,4", "--face-size", "8"]
+
+
+def test_bake_fiv_writes_a_loadable_file(capsys, shared_data, tmp_path, ctx):
+    out_file = tmp_path / "bunny.pnfiv"
+    code, out, err = run_cli(capsys, "bake-fiv", shared_data / BUNNY, "--env", shared_data / PISA, *TINY_FIV,
+                             "--precision", "float32", "-o", out_file)
+    assert code == 0, err
+    assert "8x5x4" in out and "rays" in out and str(out_file) in out
+    field = penumbra.FivField.load(ctx, out_file)
+    info = field.info()
+    assert info["samples"] == (5, 8, 4) and info["precision"] == "float32" and info["face_size"] == 8
+    assert f"memory: {info['stored_bytes']} bytes" in out
+    assert info["stored_bytes"] == 8 * 5 * 4 * 9 * 4
+    # Again to the same file: the finished bake is found and kept.
+    mtime = out_file.stat().st_mtime_ns
+    code, out, err = run_cli(capsys, "bake-fiv", shared_data / BUNNY, "--env", shared_data / PISA, *TINY_FIV,
+                             "--precision", "float32", "-o", out_file)
+    assert code == 0, err
+    assert "already holds this finished bake" in out and out_file.stat().st_mtime_ns == mtime
+
+
+def test_fiv_info_prints_the_grid(capsys, shared_data, tmp_path):
+    out_file = tmp_path / "b.pnfiv"
+    assert run_cli(capsys, "bake-fiv", shared_data / BUNNY, "--env", shared_data / PISA, *TINY_FIV,
+                   "-o", out_file)[0] == 0
+    code, out, err = run_cli(capsys, "fiv-info", out_file)
+    assert code == 0, err
+    assert "grid:        8x5x4 (phi x theta x radii) = 160 samples" in out
+    assert "float16" in out and "face_size 8" in out and "mesh hash" in out and "env hash" in out
+    code, out, err = run_cli(capsys, "fiv-info", out_file, "--json")
+    assert code == 0, err
+    data = json.loads(out)
+    assert data["samples_phi_theta_radii"] == [8, 5, 4] and data["sample_count"] == 160
+    assert data["file_bytes"] == out_file.stat().st_size
+
+
+def test_bake_fiv_resumes_an_interrupted_bake(capsys, shared_data, tmp_path, ctx, monkeypatch):
+    import penumbra.cli as cli
+
+    class StopAfterOneSphere(cli._BakeBars):
+        def __call__(self, label, done, total):
+            super().__call__(label, done, total)
+            return True  # as Ctrl-C does: stop after this sphere (with a checkpoint)
+
+    out_file = tmp_path / "r.pnfiv"
+    argv = ["bake-fiv", shared_data / BUNNY, "--env", shared_data / PISA, *TINY_FIV, "-o", out_file]
+    monkeypatch.setattr(cli, "_BakeBars", StopAfterOneSphere)
+    code, out, err = run_cli(capsys, *argv)
+    assert code == 130 and "interrupted" in err and "1 of 4 spheres" in err
+    assert cli.fiv_file_header(out_file)["spheres_done"] == 1
+    code, out, err = run_cli(capsys, "fiv-info", out_file)
+    assert code == 2 and "unfinished" in err and "1 of 4" in err
+    monkeypatch.undo()
+    code, out, err = run_cli(capsys, *argv)
+    assert code == 0, err
+    assert "resuming" in out and "1 of 4 spheres" in out and "finished" in out
+    # The resumed bake equals one baked in one go.
+    whole = tmp_path / "whole.pnfiv"
+    assert run_cli(capsys, "bake-fiv", shared_data / BUNNY, "--env", shared_data / PISA, *TINY_FIV, "-o", whole)[0] == 0
+    a = penumbra.FivField.load(ctx, out_file).samples()
+    b = penumbra.FivField.load(ctx, whole).samples()
+    np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+    np.testing.assert_array_equal(np.nan_to_num(a), np.nan_to_num(b))
+
+
+@pytest.mark.parametrize("extra, words", [
+    (["--samples", "8,5,1"], ["--samples[2] (radii)"]),
+    (["--samples", "8,5,4", "--inner-radius", "1.5"], ["--inner-radius"]),
+    (["--samples", "8,5,4", "--env-intensity", "-1"], ["--env-intensity"]),
+])
+def test_bake_fiv_bad_options_exit_2(capsys, shared_data, tmp_path, extra, words):
+    code, out, err = run_cli(capsys, "bake-fiv", shared_data / BUNNY, "--env", shared_data / PISA, *extra,
+                             "-o", tmp_path / "x.pnfiv")
+    assert code == 2 and err.startswith("penumbra: error:")
+    for w in words:
+        assert w in err, err
+    assert not (tmp_path / "x.pnfiv").exists()
+
+
+def test_bake_fiv_refuses_a_file_of_another_bake(capsys, shared_data, tmp_path):
+    out_file = tmp_path / "b.pnfiv"
+    assert run_cli(capsys, "bake-fiv", shared_data / BUNNY, "--env", shared_data / PISA, *TINY_FIV,
+                   "-o", out_file)[0] == 0
+    before = out_file.read_bytes()
+    code, out, err = run_cli(capsys, "bake-fiv", shared_data / BUNNY, "--env", "sky", *TINY_FIV, "-o", out_file)
+    assert code == 2 and "another env map" in err
+    assert out_file.read_bytes() == before
+    with pytest.raises(SystemExit):
+        main(["bake-fiv", str(shared_data / BUNNY), "--env", "sky", "--samples", "8,5", "-o", "x"])
+    assert "PHI,THETA,RADII" in capsys.readouterr().err
+
+
+FIV_SCENE = """
+[environment]
+map = "{envmap}"
+face_size = 16
+irradiance_face_size = 8
+
+[camera]
+position = [0.0, 1.6, 3.2]
+look_at = [0.0, 0.0, 0.0]
+fov_deg = 50
+resolution = [32, 24]
+
+[render]
+method = "fiv"
+background = 0
+
+[fiv]
+samples = [8, 5, 4]
+face_size = 8
+{cache}
+
+[[object]]
+name = "bunny"
+mesh = "{mesh}"
+translate = [0.0, 0.769, 0.0]
+
+[[object]]
+name = "ground"
+primitive = "plane"
+params = {{ size = [6.0, 6.0] }}
+"""
+
+
+def fiv_scene(tmp_path: Path, shared_data: Path, cache: str = "") -> Path:
+    path = tmp_path / "fiv.toml"
+    path.write_text(FIV_SCENE.format(envmap=(shared_data / PISA).as_posix(), mesh=(shared_data / BUNNY).as_posix(),
+                                     cache=cache))
+    return path
+
+
+def test_render_fiv_bakes_on_demand_then_reuses_the_cache(capsys, shared_data, tmp_path, monkeypatch):
+    monkeypatch.setenv("PENUMBRA_CACHE", str(tmp_path / "cache"))
+    scene = fiv_scene(tmp_path, shared_data)
+    code, out, err = run_cli(capsys, "render", scene, "-o", tmp_path / "a.exr", "--json", tmp_path / "a.json",
+                             "--frames", "1")
+    assert code == 0, err
+    assert "fiv: 1 occlusion field(s): bunny: 8x5x4" in out and "baked in" in out
+    files = list((tmp_path / "cache" / "fiv").glob("*.pnfiv"))
+    assert len(files) == 1  # the ground plane is no occluder
+    mtime = files[0].stat().st_mtime_ns
+    code, out, err = run_cli(capsys, "render", scene, "-o", tmp_path / "b.exr", "--frames", "1")
+    assert code == 0, err
+    assert "from the cache" in out and "baked in" not in out
+    assert files[0].stat().st_mtime_ns == mtime and len(list((tmp_path / "cache" / "fiv").glob("*"))) == 1
+    a, b = read_exr(tmp_path / "a.exr"), read_exr(tmp_path / "b.exr")
+    np.testing.assert_array_equal(a, b)
+    assert json.loads((tmp_path / "a.json").read_text())["method"] == "fiv"
+    # The bunny's shadow darkens the ground against unshadowed.
+    code, _, err = run_cli(capsys, "render", scene, "--method", "unshadowed", "-o", tmp_path / "u.exr",
+                           "--frames", "1")
+    assert code == 0, err
+    u = read_exr(tmp_path / "u.exr")
+    assert np.isfinite(a).all() and a.min() >= 0 and a.max() > 0
+    assert a.sum() < 0.97 * u.sum()
+
+
+def test_render_fiv_uses_the_scenes_cache_folder(capsys, shared_data, tmp_path, monkeypatch):
+    monkeypatch.setenv("PENUMBRA_CACHE", str(tmp_path / "unused"))
+    scene = fiv_scene(tmp_path, shared_data, cache='cache = "bakes"')
+    code, out, err = run_cli(capsys, "render", scene, "-o", tmp_path / "a.exr", "--frames", "1",
+                             "--set", "fiv.precision=float32")
+    assert code == 0, err
+    assert len(list((tmp_path / "bakes").glob("*float32.pnfiv"))) == 1  # beside the scene file
+    assert not (tmp_path / "unused").exists()
+
+
+def test_render_fiv_rotated_occluder_gets_its_own_field(capsys, shared_data, tmp_path, monkeypatch):
+    monkeypatch.setenv("PENUMBRA_CACHE", str(tmp_path / "cache"))
+    scene = fiv_scene(tmp_path, shared_data)
+    code, out, err = run_cli(capsys, "render", scene, "-o", tmp_path / "r.exr", "--frames", "1",
+                             "--set", "object.bunny.rotate_deg=[0,40,0]")
+    assert code == 0, err
+    assert "fiv: 1 occlusion field(s)" in out
+    code, out, err = run_cli(capsys, "render", scene, "-o", tmp_path / "s.exr", "--frames", "1")
+    assert code == 0, err
+    assert len(list((tmp_path / "cache" / "fiv").glob("*.pnfiv"))) == 2  # one per orientation
+
+
+def test_render_fiv_bad_fiv_table_exits_2(capsys, shared_data, tmp_path):
+    scene = fiv_scene(tmp_path, shared_data)
+    code, out, err = run_cli(capsys, "render", scene, "--set", "fiv.samples=[8,5]", "--frames", "1")
+    assert code == 2 and "[fiv] samples" in err
 
 
 # ---------------------------------------------------------------- the example scene
@@ -301,3 +498,8 @@ def test_exit_codes_as_a_subprocess(bunny_scene, tmp_path):
 
     usage = cli("render")  # argparse: the scene argument is missing
     assert usage.returncode == 2 and "usage:" in usage.stderr
+
+    # python -m penumbra is the same command.
+    version = subprocess.run([sys.executable, "-m", "penumbra", "--version"], capture_output=True, text=True,
+                             env=env, timeout=120)
+    assert version.returncode == 0 and version.stdout.startswith("penumbra ")

@@ -14,6 +14,7 @@ from penumbra.errors import InputError
 from penumbra.scenefile import (
     CameraDesc,
     EnvironmentDesc,
+    FivDesc,
     ObjectDesc,
     SceneDescription,
     apply_overrides,
@@ -43,6 +44,16 @@ resolution = [320, 200]
 method = "unshadowed"
 background = 0
 
+[fiv]
+samples = [64, 33, 30]
+precision = "float32"
+inner_radius = 0.3
+error_target = 0.02
+face_size = 16
+sun_supersampling = 2
+sun_threshold = 0.05
+cache = "bakes"
+
 [[object]]
 name = "bunny"
 mesh = "meshes/bunny.obj"
@@ -54,6 +65,7 @@ specular = 0.25
 shininess = 64.0
 roughness = 0.5
 lobe = "ggx"
+occluder = false
 
 [[object]]
 name = "ball"
@@ -62,6 +74,7 @@ params = { radius = 0.5, subdivisions = 3 }
 scale = 2
 albedo = 0.4
 lobe = "blinn_phong"
+occluder = true
 """
 
 
@@ -126,6 +139,13 @@ def test_every_documented_key_parses(tmp_path):
     assert ball.scale == (2.0, 2.0, 2.0)        # one number: uniform scale
     assert ball.albedo == (0.4, 0.4, 0.4)       # one number: grey
     assert ball.lobe == "blinn_phong"
+    assert (b.occluder, b.is_occluder, ball.occluder, ball.is_occluder) == (False, False, True, True)
+
+    f = s.fiv
+    assert f.samples == (64, 33, 30) and all(isinstance(v, int) for v in f.samples)
+    assert (f.precision, f.inner_radius, f.error_target, f.face_size, f.sun_supersampling, f.sun_threshold) == \
+        ("float32", 0.3, 0.02, 16, 2, 0.05)
+    assert f.cache == str(tmp_path / "bakes")   # relative to the scene file
 
 
 def test_numbers_come_back_as_floats():
@@ -187,6 +207,10 @@ def test_defaults_of_an_empty_scene():
     assert s.objects == []
     assert s.render == {}
     assert s.source == "<dict>"
+    assert s.fiv == FivDesc()
+    f = s.fiv
+    assert (f.samples, f.precision, f.inner_radius, f.error_target, f.face_size, f.sun_supersampling,
+            f.sun_threshold, f.cache) == ((32, 17, 15), "float16", 0.2, 0.01, 32, 4, 0.1, None)
 
 
 def test_object_defaults():
@@ -205,6 +229,92 @@ def test_default_scene_file_loads():
     assert s.render.get("method") == "unshadowed"
     assert [o.name for o in s.objects] == ["ground", "sphere", "box", "torus", "knot"]
     assert all(o.primitive is not None and o.mesh is None for o in s.objects)
+    # The shapes cast fiv shadows (the demo bakes them); the ground does not.
+    assert [o.name for o in s.objects if o.is_occluder] == ["sphere", "box", "torus", "knot"]
+    assert s.fiv.samples == (32, 17, 15)
+
+
+# ---------------------------------------------------------------- fiv
+
+
+def test_occluder_defaults_by_kind():
+    o = parse_scene(scene_with(object=[{"name": "m", "mesh": "m.obj"}, {"name": "p", "primitive": "plane"},
+                                       {"name": "b", "primitive": "box", "occluder": True},
+                                       {"name": "n", "mesh": "n.obj", "occluder": False}])).objects
+    assert [(x.name, x.occluder, x.is_occluder) for x in o] == \
+        [("m", True, True), ("p", False, False), ("b", True, True), ("n", False, False)]
+    # Built by hand, without parse_scene: None means "by kind".
+    assert ObjectDesc(name="x", mesh="x.obj").is_occluder and not ObjectDesc(name="y", primitive="box").is_occluder
+
+
+def test_fiv_bake_options_are_in_the_bindings_order():
+    f = parse_scene({"fiv": {"samples": [64, 33, 30], "precision": "float32"}}).fiv
+    opts = f.bake_options()
+    assert opts["samples"] == (33, 64, 30)  # penumbra.FivOptions takes (theta, phi, radii)
+    assert opts["precision"] == "float32" and opts["face_size"] == 32
+
+
+def test_fiv_samples_boundaries_that_are_allowed():
+    assert parse_scene({"fiv": {"samples": [4, 3, 2]}}).fiv.samples == (4, 3, 2)
+    assert parse_scene({"fiv": {"samples": [2048, 1025, 2]}}).fiv.samples == (2048, 1025, 2)
+    f = parse_scene({"fiv": {"error_target": 0.5, "sun_threshold": 1.0, "face_size": 256, "sun_supersampling": 8}}).fiv
+    assert (f.error_target, f.sun_threshold, f.face_size * f.sun_supersampling) == (0.5, 1.0, 2048)
+
+
+@pytest.mark.parametrize("fiv, key", [
+    ({"sample": [32, 17, 15]}, "unknown key"),
+    ({"samples": [32, 17]}, "samples"),
+    ({"samples": "32x17x15"}, "samples"),
+    ({"samples": [32, 17, 15.0]}, "samples[2] (radii)"),
+    ({"samples": [3, 17, 15]}, "samples[0] (phi)"),
+    ({"samples": [32, 2, 15]}, "samples[1] (theta)"),
+    ({"samples": [32, 17, 1]}, "samples[2] (radii)"),
+    ({"samples": [32, 17, 257]}, "samples[2] (radii)"),
+    ({"samples": [2048, 1025, 256]}, "2^28"),
+    ({"precision": "half"}, "precision"),
+    ({"precision": 16}, "precision"),
+    ({"inner_radius": 0}, "inner_radius"),
+    ({"inner_radius": 1.0}, "inner_radius"),
+    ({"error_target": 0.0}, "error_target"),
+    ({"error_target": 0.6}, "error_target"),
+    ({"face_size": 0}, "face_size"),
+    ({"face_size": 32.0}, "face_size"),
+    ({"sun_supersampling": 17}, "sun_supersampling"),
+    ({"face_size": 256, "sun_supersampling": 16}, "2048"),
+    ({"sun_threshold": 0}, "sun_threshold"),
+    ({"sun_threshold": 1.5}, "sun_threshold"),
+    ({"cache": 3}, "cache"),
+])
+def test_fiv_table_errors_name_the_key(fiv, key):
+    msg = parse_error({"fiv": fiv})
+    assert "[fiv]" in msg and key in msg, msg
+
+
+def test_fiv_must_be_a_table():
+    assert "[fiv] must be a table" in parse_error({"fiv": [1, 2]})
+
+
+@pytest.mark.parametrize("value", [1, "yes", None])
+def test_occluder_must_be_a_boolean(value):
+    msg = parse_error(scene_with(object=[obj(name="o", occluder=value)]))
+    assert "[object 'o'] occluder" in msg and "true or false" in msg
+
+
+def test_objects_sharing_a_mesh_must_agree_on_occluder():
+    msg = parse_error(scene_with(object=[{"name": "a", "mesh": "m.obj"}, {"name": "b", "mesh": "m.obj",
+                                                                         "occluder": False}]))
+    assert "'b'" in msg and "'a'" in msg and "occluder" in msg and "share" in msg
+    msg = parse_error(scene_with(object=[obj(name="a", occluder=True), obj(name="b")]))
+    assert "'b'" in msg and "primitive and params" in msg
+    # Different params are different meshes: no conflict.
+    parse_scene(scene_with(object=[obj(name="a", occluder=True), obj(name="b", params={"size": [1, 2, 1]})]))
+
+
+def test_fiv_overrides_are_checked(tmp_path):
+    path = write_scene(tmp_path / "s.toml", "[fiv]\nsamples = [32, 17, 15]\n")
+    assert load_scene(path, ["fiv.samples=[8,5,4]", "fiv.precision=float32"]).fiv.samples == (8, 5, 4)
+    with pytest.raises(InputError, match=r"\[fiv\] samples\[0\]"):
+        load_scene(path, ["fiv.samples=[1,5,4]"])
 
 
 # ---------------------------------------------------------------- paths

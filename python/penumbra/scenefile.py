@@ -22,6 +22,7 @@ from .errors import InputError
 PROCEDURAL_ENVS = ("sky", "constant", "directional", "area_lights")
 PRIMITIVES = ("sphere", "box", "plane", "torus", "cylinder", "cone", "torus_knot")
 LOBES = ("phong", "blinn_phong", "ggx")
+FIV_PRECISIONS = ("float16", "float32")
 
 
 @dataclass
@@ -57,6 +58,12 @@ class ObjectDesc:
     shininess: float = 100.0
     roughness: float = 0.3
     lobe: str = "phong"
+    occluder: bool | None = None     # casts `fiv` shadows; None: True for a mesh file, False for a primitive
+
+    @property
+    def is_occluder(self) -> bool:
+        """Whether the `fiv` method bakes a field for this object (docs/scene-format.md)."""
+        return self.mesh is not None if self.occluder is None else bool(self.occluder)
 
     def transform(self) -> np.ndarray:
         """4x4 object-to-world matrix: scale, then rotate about x, y, z (in that order), then translate."""
@@ -89,6 +96,28 @@ class LightDesc:
 
 
 @dataclass
+class FivDesc:
+    """``[fiv]``: how the ``fiv`` method bakes occlusion fields (docs/fiv.md).
+    ``samples`` is (phi, theta, radii), the paper's notation ("32x17x15")."""
+
+    samples: tuple[int, int, int] = (32, 17, 15)
+    precision: str = "float16"
+    inner_radius: float = 0.2
+    error_target: float = 0.01
+    face_size: int = 32
+    sun_supersampling: int = 4
+    sun_threshold: float = 0.1
+    cache: str | None = None         # bake folder (resolved); None: $PENUMBRA_CACHE/fiv or ~/.cache/penumbra/fiv
+
+    def bake_options(self) -> dict[str, Any]:
+        """The bake options as keyword arguments of ``penumbra.FivOptions`` (samples as theta, phi, radii)."""
+        phi, theta, radii = self.samples
+        return {"samples": (theta, phi, radii), "precision": self.precision, "inner_radius": self.inner_radius,
+                "error_target": self.error_target, "face_size": self.face_size,
+                "sun_supersampling": self.sun_supersampling, "sun_threshold": self.sun_threshold}
+
+
+@dataclass
 class SceneDescription:
     environment: EnvironmentDesc
     camera: CameraDesc
@@ -96,6 +125,7 @@ class SceneDescription:
     lights: list[LightDesc] = field(default_factory=list)
     render: dict[str, Any] = field(default_factory=dict)  # method = "...", other keys: method parameters
     source: str = "<dict>"
+    fiv: FivDesc = field(default_factory=FivDesc)
 
 
 # ---------------------------------------------------------------- checking
@@ -135,6 +165,12 @@ def _string(table: str, key: str, v: Any, choices: tuple[str, ...] | None = None
         raise InputError(f"{_where(table, key)} must be a string, got {v!r}")
     if choices is not None and v not in choices:
         raise InputError(f"{_where(table, key)} = {v!r} is not one of {', '.join(choices)}")
+    return v
+
+
+def _boolean(table: str, key: str, v: Any) -> bool:
+    if not isinstance(v, bool):
+        raise InputError(f"{_where(table, key)} must be true or false, got {v!r}")
     return v
 
 
@@ -186,7 +222,7 @@ def _camera(d: dict) -> CameraDesc:
 
 
 _OBJECT_KEYS = {"name", "mesh", "primitive", "params", "translate", "rotate_deg", "scale", "albedo", "specular",
-                "shininess", "roughness", "lobe"}
+                "shininess", "roughness", "lobe", "occluder"}
 
 
 def _object(d: dict, index: int, base: Path) -> ObjectDesc:
@@ -216,7 +252,57 @@ def _object(d: dict, index: int, base: Path) -> ObjectDesc:
     o.shininess = _number(t, "shininess", d.get("shininess", o.shininess), lo=0.0)
     o.roughness = _number(t, "roughness", d.get("roughness", o.roughness), lo=0.0, hi=1.0, lo_open=True)
     o.lobe = _string(t, "lobe", d.get("lobe", o.lobe), LOBES)
+    o.occluder = _boolean(t, "occluder", d.get("occluder", o.mesh is not None))
     return o
+
+
+FIV_SAMPLE_LIMITS = (("phi", 4, 2048), ("theta", 3, 1025), ("radii", 2, 256))  # as pn_fiv_options
+
+
+def _fiv(d: dict, base: Path) -> FivDesc:
+    t = "fiv"
+    _check_keys(t, d, {"samples", "precision", "inner_radius", "error_target", "face_size", "sun_supersampling",
+                       "sun_threshold", "cache"})
+    f = FivDesc()
+    samples = d.get("samples", list(f.samples))
+    if not isinstance(samples, (list, tuple)) or len(samples) != 3:
+        raise InputError(f"{_where(t, 'samples')} must be [phi, theta, radii] (the paper's notation, e.g. "
+                         f"[32, 17, 15]), got {samples!r}")
+    f.samples = tuple(_integer(t, f"samples[{i}] ({name})", v, lo, hi)
+                      for i, ((name, lo, hi), v) in enumerate(zip(FIV_SAMPLE_LIMITS, samples)))
+    if math.prod(f.samples) > 1 << 28:
+        raise InputError(f"{_where(t, 'samples')} = {list(f.samples)} has more than 2^28 samples")
+    f.precision = _string(t, "precision", d.get("precision", f.precision), FIV_PRECISIONS)
+    f.inner_radius = _number(t, "inner_radius", d.get("inner_radius", f.inner_radius), lo=0.0, hi=1.0, lo_open=True)
+    if f.inner_radius >= 1.0:
+        raise InputError(f"{_where(t, 'inner_radius')} = {f.inner_radius} must be < 1 (bounding radii)")
+    f.error_target = _number(t, "error_target", d.get("error_target", f.error_target), lo=0.0, hi=0.5, lo_open=True)
+    f.face_size = _integer(t, "face_size", d.get("face_size", f.face_size), 1, 256)
+    f.sun_supersampling = _integer(t, "sun_supersampling", d.get("sun_supersampling", f.sun_supersampling), 1, 16)
+    if f.face_size * f.sun_supersampling > 2048:
+        raise InputError(f"[fiv] face_size {f.face_size} x sun_supersampling {f.sun_supersampling} must be <= 2048")
+    f.sun_threshold = _number(t, "sun_threshold", d.get("sun_threshold", f.sun_threshold), lo=0.0, hi=1.0,
+                              lo_open=True)
+    if "cache" in d:
+        f.cache = _resolve(base, _string(t, "cache", d["cache"]))
+    return f
+
+
+def _geometry_key(o: ObjectDesc) -> tuple:
+    """Objects with equal keys share one mesh (render.build_scene)."""
+    return (o.mesh, o.primitive, repr(sorted(o.params.items())))
+
+
+def _check_occluders(objects: list[ObjectDesc]) -> None:
+    # A field applies to every instance of its mesh, so instances of one mesh cannot differ.
+    flags: dict[tuple, ObjectDesc] = {}
+    for o in objects:
+        first = flags.setdefault(_geometry_key(o), o)
+        if first.is_occluder != o.is_occluder:
+            raise InputError(f"[object '{o.name}'] occluder = {str(o.is_occluder).lower()} but [object '{first.name}'] "
+                             f"has the same {'mesh' if o.mesh else 'primitive and params'} with occluder = "
+                             f"{str(first.is_occluder).lower()}: objects that share a mesh share its occlusion field, "
+                             "so they must agree")
 
 
 def _light(d: dict, index: int) -> LightDesc:
@@ -235,8 +321,8 @@ def _light(d: dict, index: int) -> LightDesc:
 def parse_scene(data: dict, base_dir: str | Path = ".", source: str = "<dict>") -> SceneDescription:
     """Checks a scene given as a dict (the parsed TOML) and returns its description."""
     base = Path(base_dir)
-    _check_keys("scene", data, {"environment", "camera", "object", "light", "render"})
-    for table in ("environment", "camera", "render"):
+    _check_keys("scene", data, {"environment", "camera", "object", "light", "render", "fiv"})
+    for table in ("environment", "camera", "render", "fiv"):
         if table in data and not isinstance(data[table], dict):
             raise InputError(f"[{table}] must be a table")
     objects = data.get("object", [])
@@ -247,6 +333,7 @@ def parse_scene(data: dict, base_dir: str | Path = ".", source: str = "<dict>") 
     dup = {n for n in names if names.count(n) > 1}
     if dup:
         raise InputError(f"object names must be unique; repeated: {', '.join(sorted(dup))}")
+    _check_occluders(descs)
     lights = data.get("light", [])
     if not isinstance(lights, list):
         raise InputError("lights are given as [[light]] tables")
@@ -255,7 +342,8 @@ def parse_scene(data: dict, base_dir: str | Path = ".", source: str = "<dict>") 
         _string("render", "method", render["method"])
     return SceneDescription(environment=_environment(data.get("environment", {}), base),
                             camera=_camera(data.get("camera", {})), objects=descs,
-                            lights=[_light(x, i) for i, x in enumerate(lights)], render=render, source=source)
+                            lights=[_light(x, i) for i, x in enumerate(lights)], render=render, source=source,
+                            fiv=_fiv(data.get("fiv", {}), base))
 
 
 def apply_overrides(data: dict, overrides: list[str]) -> dict:

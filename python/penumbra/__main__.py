@@ -1,0 +1,7 @@
+"""``python -m penumbra``: the ``penumbra`` command (penumbra.cli)."""
+
+import sys
+
+from .cli import main
+
+sys.exit(main())
