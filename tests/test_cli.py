@@ -286,10 +286,18 @@ def test_bake_fiv_writes_a_loadable_file(capsys, shared_data, tmp_path, ctx):
     assert "already holds this finished bake" in out and out_file.stat().st_mtime_ns == mtime
 
 
-def test_fiv_info_prints_the_grid(capsys, shared_data, tmp_path):
-    out_file = tmp_path / "b.pnfiv"
-    assert run_cli(capsys, "bake-fiv", shared_data / BUNNY, "--env", shared_data / PISA, *TINY_FIV,
-                   "-o", out_file)[0] == 0
+@pytest.fixture(scope="module")
+def tiny_fiv_file(tmp_path_factory, shared_data) -> Path:
+    """The bunny's 8x5x4 field under the Pisa probe, baked once by bake-fiv."""
+    out_file = tmp_path_factory.mktemp("fiv") / "bunny.pnfiv"
+    assert main([str(a) for a in ("bake-fiv", shared_data / BUNNY, "--env", shared_data / PISA, *TINY_FIV,
+                                  "-o", out_file)]) == 0
+    return out_file
+
+
+def test_fiv_info_prints_the_grid(capsys, tiny_fiv_file):
+    out_file = tiny_fiv_file
+    capsys.readouterr()
     code, out, err = run_cli(capsys, "fiv-info", out_file)
     assert code == 0, err
     assert "grid:        8x5x4 (phi x theta x radii) = 160 samples" in out
@@ -344,10 +352,9 @@ def test_bake_fiv_bad_options_exit_2(capsys, shared_data, tmp_path, extra, words
     assert not (tmp_path / "x.pnfiv").exists()
 
 
-def test_bake_fiv_refuses_a_file_of_another_bake(capsys, shared_data, tmp_path):
+def test_bake_fiv_refuses_a_file_of_another_bake(capsys, shared_data, tmp_path, tiny_fiv_file):
     out_file = tmp_path / "b.pnfiv"
-    assert run_cli(capsys, "bake-fiv", shared_data / BUNNY, "--env", shared_data / PISA, *TINY_FIV,
-                   "-o", out_file)[0] == 0
+    out_file.write_bytes(tiny_fiv_file.read_bytes())  # a bake under the Pisa probe
     before = out_file.read_bytes()
     code, out, err = run_cli(capsys, "bake-fiv", shared_data / BUNNY, "--env", "sky", *TINY_FIV, "-o", out_file)
     assert code == 2 and "another env map" in err

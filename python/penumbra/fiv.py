@@ -78,7 +78,7 @@ class FivField:
         def trampoline(_user, done, total):
             try:
                 return 1 if progress(int(done), int(total)) else 0
-            except Exception:  # an exception cannot cross the C boundary: stop the bake instead
+            except BaseException:  # nothing (not even Ctrl-C) may cross the C boundary: stop the bake instead
                 return 1
 
         cb = _native.PROGRESS(trampoline) if progress else _native.PROGRESS()
