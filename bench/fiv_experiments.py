@@ -11,14 +11,22 @@ the paper's NRMSE (penumbra.metrics.compare: RMSE / (max - min of the
 reference) over the evaluated pixels, all three channels).
 
   a  bunny (35,947 vertices) on a plane, sunny map, grids 32x17x15, 64x33x30,
-     128x65x30 (256x129x30 with --big); NRMSE over the plane's pixels
-  b  env maps: one directional light (1 degree disc), two area lights (green,
-     red), outdoor HDR (sunny); plane pixels
-  c  two bunnies with overlapping shadows: overlap = 0, 1, 2; plane pixels
+     128x65x30 (256x129x30 with --big), a float32 and an inner_radius 0.9
+     variant; NRMSE over the plane's pixels
+  b  env maps: one directional light (1 degree disc; also 256x129x30 with
+     --big), two area lights (green, red), outdoor HDR (sunny), and a softer
+     outdoor map (forest); plane pixels
+  c  two bunnies with overlapping shadows: overlap = 0, 1, 2 (x partial = 1, 0),
+     plus a check that the kernel combines occluders as docs/fiv.md says
   d  chess queen sunk 1/5 of its height below the plane: partial = 0, 1
   e  self-shadowing on the bunny (no plane): self_shadow = 1, 0; bunny pixels
-  f  bake time, rays and stored bytes against the paper's Table 1
+  f  bake time, rays and stored bytes against the paper's Table 1; the same
+     bakes under the directional map (almost no rays) give the non-ray time
   g  the bake's ray throughput against Embree (embreex) on the same rays
+
+a-e also evaluate "oracle" diagnostics: fiv's formulas with the exact
+occlusion at each pixel (Python ray casting over the bake's own directions)
+instead of the grid, which splits the error into grid and formula parts.
 
 Run from the repository root:
 
@@ -26,9 +34,11 @@ Run from the repository root:
       python bench/fiv_experiments.py [--quick] [--only a,b] [--big] [--out bench/results/fiv]
 
 Writes OUT/results.json (merged: --only updates its experiments), OUT/report.md
-(from results.json) and small PNGs (fiv result, reference, error heat map).
-Bakes and reference images are cached in OUT/cache or $PENUMBRA_CACHE/fiv-experiments
-(never committed: OUT/.gitignore), so a rerun only renders `fiv`.
+(from results.json; --report-only rewrites it) and small PNGs (fiv result,
+reference, error heat map). --quick writes to OUT/quick/. Bakes and reference
+images are cached in OUT/cache or $PENUMBRA_CACHE/fiv-experiments (never
+committed: OUT/.gitignore), so a rerun only renders. A full run from an empty
+cache takes about an hour on 2 cores (--big: the 256x129x30 bakes, ~20 min more).
 Data files are read from ../shared/data beside the checkout, never copied.
 """
 
@@ -85,6 +95,7 @@ PAPER_TABLE1 = {  # samples (phi x theta x rho) -> (minutes, MB), Bunny, 35,947 
 }
 ALBEDO = (0.8, 0.8, 0.8)
 FOV = 40.0
+MIB = float(1 << 20)
 HEAT_FRACTION = 0.1   # heat maps saturate at this fraction of the reference's range over the evaluated pixels
 
 
@@ -388,7 +399,7 @@ class Runner:
 
     # ---- one experiment scene: renders and metrics
     def evaluate(self, exp: str, built: Built, fields: list, variants: list[tuple[str, dict]], mask_of: str,
-                 extra_masks: dict[str, str] | None = None, oracle=None) -> dict:
+                 extra_masks: dict[str, str] | None = None, oracle=None, scene_stem: str | None = None) -> dict:
         """Renders `fiv` for each (label, params) variant, plus `unshadowed` and
         the reference; NRMSE etc. over the pixels of object `mask_of`.
         `oracle(gbuffer planes, mask, unshadowed irradiance)` may add
@@ -407,11 +418,12 @@ class Runner:
         p99 = float(np.percentile(ref[fg].mean(axis=1), 99.0)) if fg.any() else 1.0
         exposure = math.log2(0.85 / max(p99, 1e-12))
         stem = f"{self.prefix}{exp}"
-        write_png(self.out / f"{stem}_reference.png", shrink(ref, self.args.png_size), exposure)
+        sstem = f"{self.prefix}{scene_stem or exp}"   # the reference and unshadowed images, once per scene
+        write_png(self.out / f"{sstem}_reference.png", shrink(ref, self.args.png_size), exposure)
         heat = HEAT_FRACTION * span
         out = {"pixels": int(mask.sum()), "evaluated": mask_of, "reference_seconds": ref_s,
                "reference_range": span, "heat_scale": heat, "exposure": exposure,
-               "reference_png": f"{stem}_reference.png", "variants": {}}
+               "reference_png": f"{sstem}_reference.png", "variants": {}}
         runs = [("unshadowed", {}, uns_img, uns_ms)] + [(lab, prm, *self._fiv(built, prm)) for lab, prm in variants]
         if oracle is not None and not self.args.no_oracle:
             t0 = time.perf_counter()
@@ -431,13 +443,18 @@ class Runner:
             for extra, em in masks.items():
                 if extra != mask_of and em.any():
                     v[f"nrmse_{extra}"] = compare(ref, img[..., :3], em)["nrmse"]
-            safe = "".join(ch for ch in label.replace(" ", "_") if ch.isalnum() or ch in "_-+")
-            v["png"] = f"{stem}_{safe}.png"
-            v["error_png"] = f"{stem}_{safe}_error.png"
-            write_png(self.out / v["png"], shrink(img[..., :3], self.args.png_size), exposure)
-            write_png(self.out / v["error_png"], shrink(error_heatmap(ref, img[..., :3], mask, heat), self.args.png_size))
+            safe = "".join(ch for ch in label.replace(" ", "_").replace("+", "plus") if ch.isalnum() or ch in "_-")
+            v["png"] = f"{sstem if label == 'unshadowed' else stem}_{safe}.png"
+            v["error_png"] = f"{sstem if label == 'unshadowed' else stem}_{safe}_error.png"
+            if params.get("oracle"):
+                v["png"] = None     # diagnostics: the error map only
+            else:
+                write_png(self.out / v["png"], shrink(img[..., :3], self.args.png_size), exposure)
+            heat_img = error_heatmap(ref, img[..., :3], mask, heat)
+            write_png(self.out / v["error_png"], shrink(heat_img, self.args.png_size))
             out["variants"][label] = v
-            log(f"  {exp} {label}: NRMSE {m['nrmse']:.4f} (rel RMS {m['rel_rms']:.4f}, mean err {v['mean_error']:+.4g})")
+            log(f"  {exp} {label}: NRMSE {m['nrmse']:.4f} (rel RMS {m['rel_rms']:.4f}, "
+                f"mean err {v['mean_error']:+.4g})")
         return out
 
     def _fiv(self, built, params):
@@ -603,19 +620,27 @@ def to_image(mask, alb, E):
     return img
 
 
-def plane_oracle(setup: OracleSetup, case_b_scale: float | None = None):
-    """One occluder over a receiver: fiv's case-A formula with the exact N . FIV_occ at each
-    pixel ('exact field'), and DifMap minus the exact occluded irradiance of the positive
-    hemisphere ('exact FIV+', what the paper's partial correction approximates)."""
+def case_b_scale(setup: OracleSetup, name: str, P, N) -> np.ndarray:
+    """fiv's partial-occluder factor per pixel: (d + R) / 2R for -R < d < R, d = (c - p) . N."""
+    c, R = setup.spheres[name]
+    d = np.sum((np.asarray(c) - P) * N, axis=1)
+    return np.where(d >= R, 1.0, np.where(d <= -R, 0.0, (d + R) / (2 * R)))[:, None]
+
+
+def plane_oracle(setup: OracleSetup):
+    """One occluder over a receiver: fiv's formula with the exact N . FIV_occ at each pixel,
+    without and with the partial-occluder factor ('exact field partial=0/1'), and DifMap
+    minus the exact occluded irradiance of the positive hemisphere ('exact FIV+', what the
+    paper's partial correction approximates)."""
     def fn(gbuf, mask, e_dif):
         P, N, alb = pixels(gbuf, mask)
         o = setup.run(setup.names, P, N)
         E0 = e_dif[mask]
-        out = [("exact field", to_image(mask, alb, E0 - np.maximum(o["signed"], 0.0)))]
-        if case_b_scale is not None:
-            out.append(("exact field partial=1", to_image(mask, alb, E0 - case_b_scale * np.maximum(o["signed"], 0.0))))
-        out.append(("exact FIV+", to_image(mask, alb, E0 - o["positive"])))
-        return out
+        occ = np.maximum(o["signed"], 0.0)
+        scale = case_b_scale(setup, setup.names[0], P, N)
+        return [("exact field partial=1", to_image(mask, alb, E0 - scale * occ)),
+                ("exact field partial=0", to_image(mask, alb, E0 - occ)),
+                ("exact FIV+", to_image(mask, alb, E0 - o["positive"]))]
     return fn
 
 
@@ -625,30 +650,34 @@ def overlap_oracle(setup: OracleSetup):
     def fn(gbuf, mask, e_dif):
         P, N, alb = pixels(gbuf, mask)
         E0 = e_dif[mask]
-        I = [np.maximum(setup.run([n], P, N)["signed"], 0.0) for n in setup.names]
+        raw = [np.maximum(setup.run([n], P, N)["signed"], 0.0) for n in setup.names]
+        scales = [case_b_scale(setup, n, P, N) for n in setup.names]
         joint = setup.run(setup.names, P, N)
-        total = sum(I)
-        largest = np.maximum.reduce(I)
         disc = []
         for n in setup.names:
             c, R = setup.spheres[n]
             v = c - P
             rho = np.linalg.norm(v, axis=1)
             disc.append((v / rho[:, None], np.minimum(R / rho, 1.0)))
-        corr = total.copy()
-        for a in range(len(I)):
-            for b in range(a + 1, len(I)):
-                (da, ra), (db, rb) = disc[a], disc[b]
-                lens = lens_area(ra, rb, np.linalg.norm(da - db, axis=1))
-                corr -= (lens / (math.pi * (ra * ra + rb * rb)))[:, None] * (I[a] + I[b])
-        corr = np.clip(corr, largest, total)
-        vis = np.ones_like(E0)
-        for i in I:
-            vis *= np.clip(1.0 - i / np.maximum(E0, 1e-30), 0.0, 1.0)
-        return [("exact fields overlap=0", to_image(mask, alb, E0 - total)),
-                ("exact fields overlap=1", to_image(mask, alb, E0 - corr)),
-                ("exact fields overlap=2", to_image(mask, alb, E0 * vis)),
-                ("exact joint FIV+", to_image(mask, alb, E0 - joint["positive"]))]
+        out = []
+        for partial in (1, 0):
+            I = [i * s if partial else i for i, s in zip(raw, scales)]
+            total = sum(I)
+            largest = np.maximum.reduce(I)
+            corr = total.copy()
+            for a in range(len(I)):
+                for b in range(a + 1, len(I)):
+                    (da, ra), (db, rb) = disc[a], disc[b]
+                    lens = lens_area(ra, rb, np.linalg.norm(da - db, axis=1))
+                    corr -= (lens / (math.pi * (ra * ra + rb * rb)))[:, None] * (I[a] + I[b])
+            corr = np.clip(corr, largest, total)
+            vis = np.ones_like(E0)
+            for i in I:
+                vis *= np.clip(1.0 - i / np.maximum(E0, 1e-30), 0.0, 1.0)
+            out += [(f"exact fields overlap=0 partial={partial}", to_image(mask, alb, E0 - total)),
+                    (f"exact fields overlap=1 partial={partial}", to_image(mask, alb, E0 - corr)),
+                    (f"exact fields overlap=2 partial={partial}", to_image(mask, alb, E0 * vis))]
+        return out + [("exact joint FIV+", to_image(mask, alb, E0 - joint["positive"]))]
     return fn
 
 
@@ -683,20 +712,23 @@ def exp_a(r: Runner) -> dict:
     for g in grids:
         f, rec = r.field(b, "bunny", g)
         oracle = plane_oracle(OracleSetup(r, b, ["bunny"], f)) if g == grids[0] else None
-        ev = r.evaluate(f"a_{grid_name(g)}", b, [f], [("fiv", {})], "ground", {"bunny": "bunny"}, oracle)
+        ev = r.evaluate(f"a_{grid_name(g)}", b, [f], [("fiv", {}), ("fiv partial=0", {"partial": 0})], "ground",
+                        {"bunny": "bunny"}, oracle, scene_stem="a")
         ev["bake"] = rec
         res["grids"][grid_name(g)] = ev
     # Diagnostic: the same grid with every sphere outside the bounding sphere (inner_radius 0.9
     # instead of 0.2), i.e. finer radial steps where the plane's receivers are.
     g = grids[-1] if r.quick else (128, 65, 30)
     f, rec = r.field(b, "bunny", g, inner_radius=0.9)
-    ev = r.evaluate(f"a_{grid_name(g)}_inner09", b, [f], [("fiv", {})], "ground", {"bunny": "bunny"})
+    ev = r.evaluate(f"a_{grid_name(g)}_inner09", b, [f], [("fiv", {}), ("fiv partial=0", {"partial": 0})], "ground",
+                    {"bunny": "bunny"}, scene_stem="a")
     ev["bake"] = rec
     ev["inner_radius"] = 0.9
     res["grids"][grid_name(g) + " inner_radius=0.9"] = ev
     # float32 storage at the smallest grid: is half precision costing accuracy?
     f, rec = r.field(b, "bunny", grids[0], precision="float32")
-    ev = r.evaluate(f"a_{grid_name(grids[0])}_f32", b, [f], [("fiv", {})], "ground", {"bunny": "bunny"})
+    ev = r.evaluate(f"a_{grid_name(grids[0])}_f32", b, [f], [("fiv", {}), ("fiv partial=0", {"partial": 0})],
+                    "ground", {"bunny": "bunny"}, scene_stem="a")
     ev["bake"] = rec
     res["grids"][grid_name(grids[0]) + " float32"] = ev
     return res
@@ -708,10 +740,19 @@ def exp_b(r: Runner) -> dict:
         data = plane_scene([standing(BUNNY, "bunny")], env, r.res)
         b = Built(r.ctx, data, env)
         f, rec = r.field(b, "bunny", r.main_grid)
-        ev = r.evaluate(f"b_{env}", b, [f], [("fiv", {})], "ground", oracle=plane_oracle(OracleSetup(r, b, ["bunny"], f)))
+        ev = r.evaluate(f"b_{env}", b, [f], [("fiv", {}), ("fiv partial=0", {"partial": 0})], "ground",
+                        oracle=plane_oracle(OracleSetup(r, b, ["bunny"], f)))
         ev["bake"] = rec
         ev["scene"] = data
         res["envs"][env] = ev
+        if env == "directional" and r.args.big and not r.quick:
+            # the hard shadow at the paper's finest grid (a cheap bake: almost no rays)
+            g = (256, 129, 30)
+            f2, rec2 = r.field(b, "bunny", g)
+            ev2 = r.evaluate(f"b_{env}_{grid_name(g)}", b, [f2], [("fiv", {}), ("fiv partial=0", {"partial": 0})],
+                             "ground", scene_stem=f"b_{env}")
+            ev2.update(bake=rec2, scene=data, grid=grid_name(g))
+            res["envs"][f"{env} {grid_name(g)}"] = ev2
     return res
 
 
@@ -725,21 +766,81 @@ def two_bunnies(env: str) -> list[dict]:
     return [standing(BUNNY, "bunny_a", (0.0, 0.0)), standing(BUNNY, "bunny_b", (float(b[0]), float(b[1])))]
 
 
+def overlap_kernel_check(r: Runner, data: dict, env: str, field: FivField, both: Built) -> dict:
+    """Does the kernel combine occluders as docs/fiv.md says? Renders each bunny alone
+    (same camera and plane) to get its I_i = E_dif - E_i from the kernel, combines them in
+    Python by the documented sum / disc / multiplied rules, and compares with the kernel's
+    two-bunny image, over plane pixels that no bunny hides in any of the three renders."""
+    setup = OracleSetup(r, both, ["bunny_a", "bunny_b"], field)
+    out = {}
+    for partial in (1, 0):
+        imgs, masks = {}, {}
+        for name in ("bunny_a", "bunny_b"):
+            one = {"camera": data["camera"], "object": [o for o in data["object"] if o["name"] in (name, "ground")]}
+            b1 = Built(r.ctx, one, env)
+            set_scene_fields(b1.scene, [field])
+            b1.scene.commit()
+            img, g, _ = shade(b1, "fiv", background=0, partial=partial, planes=True)
+            imgs[name], masks[name] = img[..., :3].astype(np.float64), g["instance"] == b1.instance_ids["ground"]
+            uns, _, _ = shade(b1, "unshadowed", background=0)
+        g2 = None
+        res = {}
+        for overlap in (0, 1, 2):
+            img2, g2, _ = shade(both, "fiv", background=0, partial=partial, overlap=overlap, planes=True)
+            m = (g2["instance"] == both.instance_ids["ground"]) & masks["bunny_a"] & masks["bunny_b"]
+            alb = g2["albedo"][..., :3][m].astype(np.float64) / math.pi
+            E0 = uns[..., :3][m] / alb
+            I = [np.maximum(E0 - imgs[n][m] / alb, 0.0) for n in ("bunny_a", "bunny_b")]
+            P, N, _ = pixels(g2, m)
+            total = I[0] + I[1]
+            if overlap == 0:
+                E = E0 - total
+            elif overlap == 1:
+                disc = []
+                for n in ("bunny_a", "bunny_b"):
+                    c, R = setup.spheres[n]
+                    v = c - P
+                    rho = np.linalg.norm(v, axis=1)
+                    disc.append((v / rho[:, None], np.minimum(R / rho, 1.0)))
+                (da, ra), (db, rb) = disc
+                lens = lens_area(ra, rb, np.linalg.norm(da - db, axis=1))
+                corr = total - (lens / (math.pi * (ra * ra + rb * rb)))[:, None] * total
+                E = E0 - np.clip(corr, np.maximum(I[0], I[1]), total)
+            else:
+                E = E0 * np.clip(1 - I[0] / E0, 0, 1) * np.clip(1 - I[1] / E0, 0, 1)
+            pred = alb * np.maximum(E, 0.0)
+            # pixels where a single-bunny render was clamped at 0 cannot be inverted exactly
+            ok = np.all(imgs["bunny_a"][m] > 0, axis=1) & np.all(imgs["bunny_b"][m] > 0, axis=1)
+            diff = np.abs(pred - img2[..., :3][m])[ok]
+            res[f"overlap={overlap}"] = {"max_abs": float(diff.max()), "mean_abs": float(diff.mean()),
+                                         "ref_range": float(img2[..., :3][m].max() - img2[..., :3][m].min()),
+                                         "pixels": int(ok.sum())}
+        out[f"partial={partial}"] = res
+    log(f"  kernel check {env}: " + ", ".join(f"{p} {k} max {v['max_abs']:.2e}" for p, d in out.items()
+                                               for k, v in d.items()))
+    return out
+
+
 def exp_c(r: Runner) -> dict:
     res = {"grid": grid_name(r.main_grid), "envs": {}}
     for env in ("sunny", "area"):
         data = plane_scene(two_bunnies(env), env, r.res)
         b = Built(r.ctx, data, env)
         f, rec = r.field(b, "bunny_a", r.main_grid)
-        variants = [("overlap=0", {"overlap": 0}), ("overlap=1", {"overlap": 1}), ("overlap=2", {"overlap": 2})]
+        variants = [(f"overlap={o}" + ("" if p else " partial=0"), {"overlap": o, "partial": p})
+                    for p in (1, 0) for o in (0, 1, 2)]
         ev = r.evaluate(f"c_{env}", b, [f], variants, "ground",
                         oracle=overlap_oracle(OracleSetup(r, b, ["bunny_a", "bunny_b"], f)))
         ev["scene"] = data
+        ev["kernel_check"] = overlap_kernel_check(r, data, env, f, b)
         # where the two shadows overlap: both bunnies' bounding cones hold the key light(s)
         res["envs"][env] = ev
-    best = {env: min(((k, v["nrmse"]) for k, v in e["variants"].items() if k.startswith("overlap")),
-                     key=lambda kv: kv[1])[0] for env, e in res["envs"].items()}
-    res["most_accurate"] = best
+    res["most_accurate"] = {env: min(((k, v["nrmse"]) for k, v in e["variants"].items()
+                                      if k.startswith("overlap") and "partial" not in k),
+                                     key=lambda kv: kv[1])[0] for env, e in res["envs"].items()}
+    res["most_accurate_partial0"] = {env: min(((k, v["nrmse"]) for k, v in e["variants"].items()
+                                               if k.startswith("overlap") and "partial=0" in k),
+                                              key=lambda kv: kv[1])[0] for env, e in res["envs"].items()}
     return res
 
 
@@ -753,7 +854,7 @@ def exp_d(r: Runner) -> dict:
     d_plane = info["centre"][1] + t[1]
     scale = (d_plane + info["radius"]) / (2 * info["radius"])
     ev = r.evaluate("d_queen", b, [f], [("partial=0", {"partial": 0}), ("partial=1", {"partial": 1})], "ground",
-                    oracle=plane_oracle(OracleSetup(r, b, ["queen"], f), scale))
+                    oracle=plane_oracle(OracleSetup(r, b, ["queen"], f)))
     ev.update(scene=data, bake=rec, grid=grid_name(r.main_grid), centre_height=d_plane, radius=info["radius"],
               case_b_scale=(d_plane + info["radius"]) / (2 * info["radius"]), sink_fraction=0.2,
               queen_height=float(hi[1] - lo[1]))
@@ -804,7 +905,7 @@ def exp_f(r: Runner) -> dict:
     # time outside ray tracing (inside tests by winding number, env records, read-back, checkpoints).
     bd = Built(r.ctx, data, "directional")
     for g in grids:
-        _, recd = r.field(bd, "bunny", g)
+        _, recd = r.field(bd, "bunny", g, fresh=r.args.fresh_bakes)
         if "rays" in recd and "bake_seconds" in recd:
             row = rows[grid_name(g)]
             row["nontrace_seconds"] = recd["bake_seconds"]
@@ -894,7 +995,8 @@ def exp_g(r: Runner) -> dict:
            "embree_s": em_s, "embree_mrays_per_s": len(o) / em_s / 1e6, "embree_threads": 1,
            "penumbra_occluded_s": pn_s, "penumbra_occluded_mrays_per_s": len(o) / pn_s / 1e6,
            "bake_mrays_per_s": bake_rate, "bake_record": rec, "bake_trace_mrays_per_s": trace_rate,
-           "bake_nontrace_seconds": recd.get("bake_seconds"), "bake_trace_over_embree": trace_rate / (len(o) / em_s / 1e6),
+           "bake_nontrace_seconds": recd.get("bake_seconds"),
+           "bake_trace_over_embree": trace_rate / (len(o) / em_s / 1e6),
            "bake_over_embree": bake_rate / (len(o) / em_s / 1e6),
            "note": "Embree: embreex EmbreeScene.run, one rtcOccluded1 per ray on one thread; bake: PoCL on all "
                    "cores, its rate includes the inside tests, cone culling and read-back"}
@@ -951,8 +1053,8 @@ def variant_table(e: dict, paper: dict | None = None, bar: dict | None = None) -
         star = "*" if v["params"].get("oracle") else ""
         ms = "-" if not math.isfinite(v.get("shade_ms", float("nan"))) else f"{v['shade_ms']:.1f}"
         L.append(f"| {k}{star} | {paper.get(k, '-')} | {f4(v['nrmse'])} | {f4(v['rel_rms'])} | "
-                 f"{v['mean_error'] / e['reference_range']:+.4f} | {ms} | [img]({v['png']}), "
-                 f"[error]({v['error_png']}) |")
+                 f"{v['mean_error'] / e['reference_range']:+.4f} | {ms} | "
+                 f"{'' if not v.get('png') else '[img](' + v['png'] + '), '}[error]({v['error_png']}) |")
     L.append(f"\nReference: [{e['reference_png']}]({e['reference_png']}) ({e['pixels']} evaluated pixels, "
              f"{e['reference_seconds']:.0f} s to render).")
     return L
@@ -975,34 +1077,44 @@ def report(results: dict) -> str:
              f"the same range. Heat maps saturate at {HEAT_FRACTION:g} x the reference's range; grey = not "
              f"evaluated. Env maps: `sunny` = immenstadter_horn_1k (Poly Haven; stands in for the paper's "
              f"Eucalyptus Grove), `directional` = black with one {2 * DIRECTIONAL_RADIUS_DEG:g} degree disc, "
-             f"`area` = black with a green and a red rectangular area light, `forest` = forest_slope_1k. Fields: grids phi x theta x rho (the "
-             f"paper's notation), env directions 6x32x32 with 4x4 sub-texels for the sun, float16 unless noted.")
+             f"`area` = black with a green and a red rectangular area light, `forest` = forest_slope_1k. "
+             f"Fields: grids phi x theta x rho (the paper's notation), env directions 6x32x32 with 4x4 "
+             f"sub-texels for the sun, float16 unless noted.")
     L += ["", ORACLE_NOTE, ""]
     if "a" in ex:
         a = ex["a"]
         paper = {"32x17x15": 0.023, "64x33x30": 0.008, "256x129x30": 0.007}
-        L += [f"## a. {TITLES['a']}", "", "Bunny (35,947 vertices) on a plane under the sunny map; NRMSE over the "
-              "plane's pixels (the bunny's own pixels excluded).", "",
-              "| samples | paper NRMSE | fiv NRMSE | exact field* | unshadowed | bake s | images |",
+        ex_p1 = ex_p0 = None
+        for e in a["grids"].values():
+            if "exact field partial=1" in e["variants"]:
+                ex_p1 = e["variants"]["exact field partial=1"]["nrmse"]
+                ex_p0 = e["variants"]["exact field partial=0"]["nrmse"]
+        L += [f"## a. {TITLES['a']}", "", "Bunny (35,947 vertices) resting on a plane under the sunny map; NRMSE over "
+              "the plane's pixels (the bunny's own pixels excluded). `fiv` with its defaults (partial = 1) and with "
+              "partial = 0: the bunny's bounding sphere (centre 0.077 above the plane, R = 0.105) straddles the "
+              "plane, so every plane pixel is case B and partial = 1 scales the whole shadow by "
+              "(d + R) / 2R = 0.87.", "",
+              f"Exact field* (grid-independent): partial=1 {f4(ex_p1)}, partial=0 {f4(ex_p0)}.", "",
+              "| samples | paper NRMSE | fiv NRMSE | fiv partial=0 | unshadowed | bake s | images |",
               "|---|---|---|---|---|---|---|"]
-        exact = None
         for g, e in a["grids"].items():
             v = e["variants"]["fiv"]
+            v0 = e["variants"].get("fiv partial=0", {})
             u = e["variants"]["unshadowed"]
-            if "exact field" in e["variants"]:
-                exact = e["variants"]["exact field"]["nrmse"]
             bake = e.get("bake", {}).get("bake_seconds")
-            L.append(f"| {g} | {paper.get(g, '-')} | {f4(v['nrmse'])} | {f4(exact)} | {f4(u['nrmse'])} | "
-                     f"{'-' if bake is None else f'{bake:.0f}'} | [fiv]({v['png']}), [ref]({e['reference_png']}), "
-                     f"[error]({v['error_png']}) |")
-        L += ["", "The exact-field row does not depend on the grid. The same renders over the bunny's own pixels "
-              "(self-shadowing; the ground plane is no occluder for `fiv`, so the light from below the horizon that "
-              "the plane hides in the reference is not removed there):", "",
-              "| samples | fiv NRMSE (bunny pixels) | unshadowed |", "|---|---|---|"]
+            L.append(f"| {g} | {paper.get(g, '-')} | {f4(v['nrmse'])} | {f4(v0.get('nrmse'))} | {f4(u['nrmse'])} | "
+                     f"{'-' if bake is None else f'{bake:.0f}'} | [fiv]({v['png']}), "
+                     f"[partial=0]({v0.get('png')}), [ref]({e['reference_png']}), [error]({v['error_png']}), "
+                     f"[error partial=0]({v0.get('error_png')}) |")
+        L += ["", "The same renders over the bunny's own pixels (self-shadowing; the ground plane is no occluder "
+              "for `fiv`, so the light from below the horizon that the plane hides in the reference is not removed "
+              "there):", "", "| samples | fiv NRMSE (bunny pixels) | unshadowed |", "|---|---|---|"]
         for g, e in a["grids"].items():
             L.append(f"| {g} | {f4(e['variants']['fiv'].get('nrmse_bunny'))} | "
                      f"{f4(e['variants']['unshadowed'].get('nrmse_bunny'))} |")
         L.append("")
+        first = next(iter(a["grids"].values()))
+        L += [f"### a. all variants at {next(iter(a['grids']))}", ""] + variant_table(first, paper) + [""]
     if "b" in ex:
         b = ex["b"]
         paper = {"directional": 0.1, "area": 0.035, "sunny": 0.022, "forest": 0.022}
@@ -1010,15 +1122,18 @@ def report(results: dict) -> str:
         L += [f"## b. {TITLES['b']}", "", f"Bunny on the plane, grid {b['grid']}, NRMSE over the plane's pixels. "
               "`forest` (forest_slope_1k, a softer outdoor map with a hazy sun) is an extra row: the paper's "
               "Eucalyptus Grove has no hard sun, and neither Poly Haven map is it.", "",
-              "| env map | paper NRMSE | bar | fiv NRMSE | met | exact field* | unshadowed | mean error / range | images |",
-              "|---|---|---|---|---|---|---|---|---|"]
+              "| env map | paper NRMSE | bar | fiv NRMSE | met | fiv partial=0 | exact field* partial=1 / 0 | "
+              "unshadowed | images |", "|---|---|---|---|---|---|---|---|---|"]
         for env, e in b["envs"].items():
-            v = e["variants"]["fiv"]
-            ex_ = e["variants"].get("exact field", {}).get("nrmse")
-            L.append(f"| {env} | {paper[env]} | {bar[env]} | {f4(v['nrmse'])} | "
-                     f"{'yes' if v['nrmse'] <= bar[env] else 'no'} | {f4(ex_)} | "
-                     f"{f4(e['variants']['unshadowed']['nrmse'])} | "
-                     f"{v['mean_error'] / e['reference_range']:+.4f} | [fiv]({v['png']}), "
+            vs = e["variants"]
+            v = vs["fiv"]
+            v0 = vs.get("fiv partial=0", {}).get("nrmse")
+            exs = f"{f4(vs.get('exact field partial=1', {}).get('nrmse'))} / " \
+                  f"{f4(vs.get('exact field partial=0', {}).get('nrmse'))}"
+            base = env.split()[0]
+            L.append(f"| {env} | {paper[base]} | {bar[base]} | {f4(v['nrmse'])} | "
+                     f"{'yes' if v['nrmse'] <= bar[base] else 'no'} | {f4(v0)} | {exs} | "
+                     f"{f4(vs['unshadowed']['nrmse'])} | [fiv]({v['png']}), "
                      f"[ref]({e['reference_png']}), [error]({v['error_png']}) |")
         L.append("")
         for env, e in b["envs"].items():
@@ -1027,16 +1142,29 @@ def report(results: dict) -> str:
         c = ex["c"]
         L += [f"## c. {TITLES['c']}", "", f"Two bunnies, the second inside the first one's shadow; grid {c['grid']}, "
               "NRMSE over the plane's pixels. Paper (Fig. 15): correction off 0.027, on 0.019.", "",
-              "| env map | overlap=0 (sum) | overlap=1 (disc correction) | overlap=2 (multiplied) | most accurate "
-              "| exact fields*: sum / disc / multiplied / joint |", "|---|---|---|---|---|---|"]
+              "| env map | partial | overlap=0 (sum) | overlap=1 (disc correction) | overlap=2 (multiplied) | "
+              "most accurate | exact fields* sum / disc / multiplied | exact joint* |",
+              "|---|---|---|---|---|---|---|---|"]
         for env, e in c["envs"].items():
             vs = e["variants"]
-            exs = " / ".join(f4(vs.get(k, {}).get("nrmse")) for k in
-                             ("exact fields overlap=0", "exact fields overlap=1", "exact fields overlap=2",
-                              "exact joint FIV+"))
-            L.append(f"| {env} | {f4(vs['overlap=0']['nrmse'])} | {f4(vs['overlap=1']['nrmse'])} | "
-                     f"{f4(vs['overlap=2']['nrmse'])} | {c['most_accurate'][env]} | {exs} |")
+            for p in (1, 0):
+                suf = "" if p else " partial=0"
+                exs = " / ".join(f4(vs.get(f"exact fields overlap={o} partial={p}", {}).get("nrmse")) for o in range(3))
+                best = c["most_accurate"][env] if p else c.get("most_accurate_partial0", {}).get(env, "-")
+                L.append(f"| {env} | {p} | {f4(vs.get('overlap=0' + suf, {}).get('nrmse'))} | "
+                         f"{f4(vs.get('overlap=1' + suf, {}).get('nrmse'))} | "
+                         f"{f4(vs.get('overlap=2' + suf, {}).get('nrmse'))} | {best} | {exs} | "
+                         f"{f4(vs.get('exact joint FIV+', {}).get('nrmse'))} |")
         L.append("")
+        checks = [f"{env} {p} {k}: {v['max_abs']:.1e}" for env, e in c["envs"].items()
+                  for p, d in e.get("kernel_check", {}).items() for k, v in d.items()]
+        if checks:
+            worst = max(v["max_abs"] / max(v["ref_range"], 1e-30) for e in c["envs"].values()
+                        for d in e.get("kernel_check", {}).values() for v in d.values())
+            L += ["Kernel check: each bunny rendered alone gives the kernel's own I_i; combining them in Python by "
+                  "the rules of docs/fiv.md (sum, disc lens correction with its clamp, multiplied visibilities) "
+                  "reproduces the kernel's two-bunny images to a largest difference of "
+                  f"{worst:.1e} of the image range ({'; '.join(checks)}).", ""]
         for env, e in c["envs"].items():
             L += [f"### c. {env}", ""] + variant_table(e, {"overlap=0": 0.027, "overlap=1": 0.019}) + [""]
     if "d" in ex:
@@ -1061,8 +1189,8 @@ def report(results: dict) -> str:
               "a 2.4 GHz Core 2 Duo (2 cores) in 2008, memory in float32. 'non-ray s': the same bake under the "
               "directional map, which traces almost no rays (inside tests by winding number, env records, "
               "read-back, checkpoints); 'trace M rays/s' = rays / (bake s - non-ray s).", "",
-              "| samples | paper min | paper MB | bake s | bake min | rays | M rays/s | non-ray s | trace M rays/s "
-              "| rays/sample | inside samples | float16 MB | float32 MB |",
+              "| samples | paper min | paper MiB | bake s | bake min | rays | M rays/s | non-ray s | trace M rays/s "
+              "| rays/sample | inside samples | float16 MiB | float32 MiB |",
               "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for g, row in f["rows"].items():
             p = row.get("paper") or ("-", "-")
@@ -1071,17 +1199,18 @@ def report(results: dict) -> str:
             L.append(f"| {g} | {p[0]} | {p[1]} | {row['bake_seconds']:.1f} | {row['bake_seconds'] / 60:.2f} | "
                      f"{row['rays'] / 1e6:.1f} M | {row['mrays_per_s']:.2f} | {'-' if nt is None else f'{nt:.1f}'} | "
                      f"{'-' if tr is None else f'{tr:.2f}'} | {row['rays_per_sample']:.0f} | "
-                     f"{row['inside_count']} | {row['float16_bytes'] / 1e6:.3f} | {row['float32_bytes'] / 1e6:.3f} |")
+                     f"{row['inside_count']} | {row['float16_bytes'] / MIB:.3f} | {row['float32_bytes'] / MIB:.3f} |")
         if "extrapolated" in f:
             x = f["extrapolated"]
             p = PAPER_TABLE1["256x129x30"]
             L.append(f"| 256x129x30 (extrapolated) | {p[0]} | {p[1]} | {x['bake_seconds']:.0f} | "
                      f"{x['bake_seconds'] / 60:.1f} | {x['rays'] / 1e6:.0f} M | - | - | - | - | - | "
-                     f"{x['float16_bytes'] / 1e6:.3f} | {x['float32_bytes'] / 1e6:.3f} |")
+                     f"{x['float16_bytes'] / MIB:.3f} | {x['float32_bytes'] / MIB:.3f} |")
         ck = f["float32_check"]
         L += ["", f"stored_bytes of a float32 bake at {ck['grid']}: {ck['stored_bytes_float32']} "
-              f"(9 x 4 bytes x samples = {ck['expected']}). MB = 10^6 bytes. Bake times are wall clock of one "
-              f"bake each, on shared cores.", ""]
+              f"(9 x 4 bytes x samples = {ck['expected']}). MiB = 2^20 bytes: the paper's 'MB' (its 0.28 / 2.17 / "
+              f"8.56 / 34.0 are 9 float32 per sample in MiB). Bake times are wall clock of one bake each; the "
+              f"cores are shared with other work.", ""]
     if "g" in ex:
         g = ex["g"]
         L += [f"## g. {TITLES['g']}", "",
@@ -1109,6 +1238,7 @@ def main(argv=None) -> int:
     ap.add_argument("--only", default="", help=f"comma-separated experiments ({','.join(EXPERIMENTS)})")
     ap.add_argument("--resolution", type=int, default=0, help="image side in pixels (default 256, quick 96)")
     ap.add_argument("--big", action="store_true", help="also bake 256x129x30 (about 20 min on 2 cores)")
+    ap.add_argument("--report-only", action="store_true", help="rewrite report.md from results.json")
     ap.add_argument("--png-size", type=int, default=256, help="PNGs are box-filtered down to at most this width")
     ap.add_argument("--no-oracle", action="store_true", help="skip the exact-occlusion oracle variants")
     ap.add_argument("--fresh-bakes", action="store_true", help="experiment f: rebake even when cached")
@@ -1122,6 +1252,11 @@ def main(argv=None) -> int:
         newest = max(p.stat().st_mtime for p in (REPO / "kernels").rglob("*.cl"))
         if newest > lib.stat().st_mtime:
             log(f"WARNING: kernels/ changed after {lib} was built; rebuild (cmake --build build/dev)")
+    if args.report_only:
+        out = Path(args.out) / ("quick" if args.quick else "")
+        res = json.loads((out / "results.json").read_text())
+        atomic_write_text(out / "report.md", report(res))
+        return 0
     r = Runner(args)
     path = r.out / "results.json"
     results = json.loads(path.read_text()) if path.exists() else {"experiments": {}}
