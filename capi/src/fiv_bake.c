@@ -89,6 +89,7 @@ static pn_status resume_from(pn_fiv f, const char *path)
         f->radii_done = old->radii_done;
         f->inside_count = old->inside_count;
         f->outer_max = old->outer_max;
+        f->value_scale = old->value_scale;
     }
     pn_fiv_destroy(old);
     if (differs)
@@ -210,25 +211,28 @@ pn_status pn_fiv_do_bake(pn_envmap env, pn_mesh mesh, const pn_fiv_options *opti
     f->env_hash = env->content_hash;
     f->mesh_vertices = mesh->vertex_count;
     f->mesh_triangles = mesh->triangle_count;
+    /* A finished bake of the same inputs is loaded before any env work. */
+    if (path && (st = resume_from(f, path))) {
+        pn_fiv_destroy(f);
+        return st;
+    }
+    if (f->radii_done == options->radii) {
+        *out = f;
+        return PN_SUCCESS;
+    }
     float *records = NULL;
     size_t record_count = 0;
     st = pn_envmap_direction_records(env, (int)options->face_size, (int)options->sun_supersampling,
                                      options->sun_threshold, &records, &record_count);
     if (!st) {
-        /* Half storage scales by the env's total power per channel, a bound on any |FIV| component. */
+        /* Half storage scales by the env's total power per channel, a bound
+         * on any |FIV| component (the same value a resumed file holds). */
         double power[3] = {0, 0, 0};
         for (size_t r = 0; r < record_count; ++r)
             for (int c = 0; c < 3; ++c)
                 power[c] += (double)records[8 * r + 4 + c] * records[8 * r + 3];
         double largest = fmax(power[0], fmax(power[1], power[2]));
         f->value_scale = largest > 0.0 ? (float)largest : 1.0f;
-    }
-    if (!st && path)
-        st = resume_from(f, path);
-    if (!st && f->radii_done == options->radii) {
-        free(records);
-        *out = f;
-        return PN_SUCCESS;
     }
     pn_scene scene = NULL;
     bake_state b = {0};
