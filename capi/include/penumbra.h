@@ -82,6 +82,7 @@ typedef struct pn_gbuffer_impl *pn_gbuffer;
 typedef struct pn_image_impl *pn_image;
 typedef struct pn_renderer_impl *pn_renderer;
 typedef struct pn_fiv_impl *pn_fiv;
+typedef struct pn_heightfield_impl *pn_heightfield;
 
 /* ---------------------------------------------------------------- errors */
 
@@ -276,6 +277,13 @@ PN_API pn_status pn_scene_set_lights(pn_scene scene, const pn_sphere_light *ligh
  * PN_ERROR_INVALID_ARGUMENT). */
 PN_API pn_status pn_scene_set_fivs(pn_scene scene, const pn_fiv *fields, uint32_t count);
 
+/* Declares which instances are height fields (docs/heightfield.md): field i
+ * is instance instances[i] (normally a mesh from pn_heightfield_build_mesh
+ * with an identity transform). The `heightfield` method shades those
+ * instances' pixels; fields are retained; count 0 removes them; at most 16. */
+PN_API pn_status pn_scene_set_heightfields(pn_scene scene, const pn_heightfield *fields, const uint32_t *instances,
+                                           uint32_t count);
+
 /* Uploads per-mesh BVHs when the set of meshes changed and rebuilds the
  * top-level BVH over instances (cheap: done every frame for moving objects). */
 PN_API pn_status pn_scene_commit(pn_scene scene);
@@ -410,6 +418,53 @@ PN_API pn_status pn_fiv_get_info(pn_fiv fiv, pn_fiv_info *info);
  * (k, i, j) at ((k * theta + i) * phi + j) * 9; NaN for samples inside. */
 PN_API pn_status pn_fiv_read(pn_fiv fiv, float *host, size_t bytes);
 
+/* ---------------------------------------------------------- height fields */
+
+/* A height field (docs/heightfield.md): width x depth heights, row-major,
+ * h[j * width + i]; vertex (i, j) is the world point
+ * (origin.x + i sx, origin.y + height_scale h, origin.z + j sz) with
+ * sx = size[0] / (width - 1), sz = size[1] / (depth - 1). New heights each
+ * frame (set_heights + commit) cost one pyramid rebuild; nothing is baked. */
+typedef struct pn_heightfield_placement {
+    float origin[3];
+    float size[2];            /* world extent along x (columns) and z (rows), > 0 */
+    float height_scale;       /* world y per height unit */
+} pn_heightfield_placement;
+
+PN_API pn_status pn_heightfield_create(pn_context ctx, pn_heightfield *out);
+PN_API pn_status pn_heightfield_retain(pn_heightfield hf);
+PN_API pn_status pn_heightfield_release(pn_heightfield hf);
+/* Copies the heights; width, depth >= 2; NaN/Inf are refused (count and first position). */
+PN_API pn_status pn_heightfield_set_heights(pn_heightfield hf, const float *heights, uint32_t width, uint32_t depth);
+/* Default: origin 0, size (width - 1, depth - 1), height_scale 1. */
+PN_API pn_status pn_heightfield_set_placement(pn_heightfield hf, const pn_heightfield_placement *placement);
+/* Per-vertex RGB albedo in [0, 1] (width * depth * 3 floats), multiplied into
+ * the per-vertex outputs; NULL / 0 removes it (white). */
+PN_API pn_status pn_heightfield_set_albedo(pn_heightfield hf, const float *rgb, size_t count);
+PN_API pn_status pn_heightfield_commit(pn_heightfield hf);
+/* A new committed triangle mesh of the committed heights in world space (two
+ * triangles per cell, counter-clockwise from above, the method's normals), for
+ * the G-buffer ray caster and the reference renderer. */
+PN_API pn_status pn_heightfield_build_mesh(pn_heightfield hf, pn_mesh *out);
+
+/* Per-vertex outputs of a `heightfield` renderer (pn_renderer_read_heightfield). */
+typedef enum pn_heightfield_output {
+    PN_HF_ENV = 0,              /* float4 per vertex: outgoing radiance from the environment (rgb, 1) */
+    PN_HF_LIGHT = 1,            /* float4 per vertex: from light `light` */
+    PN_HF_TOTAL = 2,            /* float4 per vertex: environment + every light */
+    PN_HF_ENV_HORIZONS = 3,     /* azimuths floats per vertex: horizon elevation (radians) */
+    PN_HF_LIGHT_HORIZONS = 4,   /* ... for light `light` */
+    PN_HF_ENV_VISIBILITY = 5,   /* bands^2 floats per vertex: SH visibility */
+    PN_HF_LIGHT_VISIBILITY = 6, /* ... for light `light` */
+    PN_HF_NORMALS = 7           /* float4 per vertex: the method's world normal */
+} pn_heightfield_output;
+
+/* Computes (for the scene as it is now) and reads one per-vertex output of
+ * height field `field` of the scene into host memory (vertex (i, j) at
+ * j * width + i). Blocking. The renderer must be a committed `heightfield`. */
+PN_API pn_status pn_renderer_read_heightfield(pn_renderer renderer, pn_scene scene, uint32_t field,
+                                              pn_heightfield_output what, uint32_t light, float *host, size_t bytes);
+
 /* -------------------------------------------------------------- renderer */
 
 /* Shading methods by name; unknown names give PN_ERROR_INVALID_ARGUMENT
@@ -436,7 +491,17 @@ PN_API pn_status pn_fiv_read(pn_fiv fiv, float *host, size_t bytes);
  *     "cull_threshold"     float  skip occluders whose extrapolated contribution is below this share of the
  *                                 env's reference irradiance, [0, 1] (1e-3)
  *
- * "unshadowed", "reference" and "fiv" also take
+ * "heightfield" environment and spherical-light lighting with soft self-shadows on the scene's
+ *               height fields (docs/heightfield.md); other pixels get `unshadowed`.
+ *     "level_step"         int    pyramid levels per octave, 1..8 (4)
+ *     "level_offset"       float  octaves finer than the sample spacing, [0, 8] (2)
+ *     "azimuths"           int    horizon directions, 4..256 (32)
+ *     "bands"              int    SH bands, 3..6 (4)
+ *     "exact_horizon"      int    1: horizons by marching the full-resolution field (for measuring) (0)
+ *     "light_threshold"    float  skip a light where radiance x solid angle is below this share of the
+ *                                 env's reference irradiance, [0, 1] (1e-4)
+ *
+ * "unshadowed", "reference", "fiv" and "heightfield" also take
  *     "background"         int    1: background pixels show the environment, 0: black (1)
  */
 PN_API uint32_t pn_method_count(void);

@@ -708,3 +708,98 @@ pn_status pn_fiv_read(pn_fiv fiv, float *host, size_t bytes)
     CHECK_PTR(fiv->obj.ctx, host);
     return pn_fiv_do_read(fiv, host, bytes);
 }
+
+/* ---------------------------------------------------------- height fields */
+
+pn_status pn_heightfield_create(pn_context ctx, pn_heightfield *out)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    CHECK_PTR(ctx, out);
+    pn_heightfield hf = new_object(ctx, sizeof *hf, PN_MAGIC_HEIGHTFIELD, "a height field");
+    if (!hf)
+        return PN_ERROR_OUT_OF_MEMORY;
+    hf->placement.height_scale = 1.0f;
+    *out = hf;
+    return PN_SUCCESS;
+}
+
+pn_status pn_heightfield_retain(pn_heightfield hf)
+{
+    CHECK_HANDLE(hf, PN_MAGIC_HEIGHTFIELD, "height field");
+    return retain(&hf->obj);
+}
+
+pn_status pn_heightfield_release(pn_heightfield hf)
+{
+    CHECK_HANDLE(hf, PN_MAGIC_HEIGHTFIELD, "height field");
+    RELEASE(hf, pn_heightfield_destroy);
+}
+
+pn_status pn_heightfield_set_heights(pn_heightfield hf, const float *heights, uint32_t width, uint32_t depth)
+{
+    CHECK_HANDLE(hf, PN_MAGIC_HEIGHTFIELD, "height field");
+    CHECK_PTR(hf->obj.ctx, heights);
+    const bool sized = hf->placement.size[0] > 0.0f;
+    pn_status st = pn_heightfield_do_set_heights(hf, heights, width, depth);
+    if (!st && !sized) { /* default placement: one world unit per grid step */
+        hf->placement.size[0] = (float)(width - 1);
+        hf->placement.size[1] = (float)(depth - 1);
+    }
+    return st;
+}
+
+pn_status pn_heightfield_set_placement(pn_heightfield hf, const pn_heightfield_placement *placement)
+{
+    CHECK_HANDLE(hf, PN_MAGIC_HEIGHTFIELD, "height field");
+    CHECK_PTR(hf->obj.ctx, placement);
+    return pn_heightfield_do_set_placement(hf, placement);
+}
+
+pn_status pn_heightfield_set_albedo(pn_heightfield hf, const float *rgb, size_t count)
+{
+    CHECK_HANDLE(hf, PN_MAGIC_HEIGHTFIELD, "height field");
+    return pn_heightfield_do_set_albedo(hf, rgb, count);
+}
+
+pn_status pn_heightfield_commit(pn_heightfield hf)
+{
+    CHECK_HANDLE(hf, PN_MAGIC_HEIGHTFIELD, "height field");
+    return pn_heightfield_do_commit(hf);
+}
+
+pn_status pn_heightfield_build_mesh(pn_heightfield hf, pn_mesh *out)
+{
+    CHECK_HANDLE(hf, PN_MAGIC_HEIGHTFIELD, "height field");
+    CHECK_PTR(hf->obj.ctx, out);
+    *out = NULL;
+    pn_mesh mesh;
+    pn_status st = pn_mesh_create(hf->obj.ctx, &mesh);
+    if (st)
+        return st;
+    if ((st = pn_heightfield_do_build_mesh(hf, mesh))) {
+        pn_mesh_release(mesh);
+        return st;
+    }
+    *out = mesh;
+    return PN_SUCCESS;
+}
+
+pn_status pn_scene_set_heightfields(pn_scene scene, const pn_heightfield *fields, const uint32_t *instances,
+                                    uint32_t count)
+{
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    if (count) {
+        CHECK_PTR(scene->obj.ctx, fields);
+        CHECK_PTR(scene->obj.ctx, instances);
+    }
+    return pn_scene_do_set_heightfields(scene, fields, instances, count);
+}
+
+pn_status pn_renderer_read_heightfield(pn_renderer renderer, pn_scene scene, uint32_t field,
+                                       pn_heightfield_output what, uint32_t light, float *host, size_t bytes)
+{
+    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    CHECK_PTR(renderer->obj.ctx, host);
+    return pn_renderer_do_read_heightfield(renderer, scene, field, what, light, host, bytes);
+}

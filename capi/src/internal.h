@@ -21,6 +21,7 @@ enum {
     PN_MAGIC_IMAGE = 0x504e494d,
     PN_MAGIC_RENDERER = 0x504e5245,
     PN_MAGIC_FIV = 0x504e4656,
+    PN_MAGIC_HEIGHTFIELD = 0x504e4846,
     PN_MAGIC_DEAD = 0x44454144
 };
 
@@ -56,7 +57,7 @@ const char *pn_status_name_of(pn_status status);
 /* ---------------------------------------------------------------- context */
 
 #define PN_MAX_PROGRAMS 16
-#define PN_MAX_KERNELS 32
+#define PN_MAX_KERNELS 48
 
 typedef struct pn_program_entry {
     const char *stage;
@@ -200,6 +201,9 @@ struct pn_scene_impl {
     pn_fiv *fivs;                     /* occlusion fields (retained), one per mesh */
     uint32_t fiv_count;
     uint64_t fiv_version;             /* a new pn_next_version() at each pn_scene_set_fivs */
+    pn_heightfield *hfs;              /* height fields (retained) and the instance each one is */
+    uint32_t *hf_instances;
+    uint32_t hf_count;
 };
 
 void pn_scene_destroy(pn_scene scene);
@@ -306,11 +310,85 @@ typedef struct pn_fiv_frame {
 pn_status pn_fiv_prepare(pn_fiv_cache *cache, pn_scene scene, float cull_threshold, pn_fiv_frame *frame);
 void pn_fiv_cache_release(pn_fiv_cache *cache);
 
+/* ------------------------------------------------------------ height fields */
+
+#define PN_SH_MAX_BANDS 6
+#define PN_SH_WEDGE_ANGLES 64  /* horizon angles per axis of a wedge table */
+#define PN_HF_MAX_FIELDS 16
+
+struct pn_heightfield_impl {
+    pn_object obj;
+    uint32_t width, depth;    /* columns (x), rows (z) */
+    float *heights;           /* width * depth, row-major */
+    float *albedo;            /* width * depth * 3, or NULL (white) */
+    pn_heightfield_placement placement;
+    bool committed;
+    uint64_t version;         /* a new pn_next_version() at each commit */
+    float hmin, hmax;         /* of the heights, at commit */
+};
+
+void pn_heightfield_destroy(pn_heightfield hf);
+pn_status pn_heightfield_do_set_heights(pn_heightfield hf, const float *heights, uint32_t width, uint32_t depth);
+pn_status pn_heightfield_do_set_placement(pn_heightfield hf, const pn_heightfield_placement *placement);
+pn_status pn_heightfield_do_set_albedo(pn_heightfield hf, const float *rgb, size_t count);
+pn_status pn_heightfield_do_commit(pn_heightfield hf);
+pn_status pn_heightfield_do_build_mesh(pn_heightfield hf, pn_mesh mesh);
+pn_status pn_scene_do_set_heightfields(pn_scene scene, const pn_heightfield *fields, const uint32_t *instances,
+                                       uint32_t count);
+void pn_scene_release_heightfields(pn_scene scene);
+
+/* Float64 SH tables (sh_tables.c). */
+void pn_sh_eval64(int nb, double cos_polar, double sin_polar, double phi, double *out);
+void pn_sh_clamped_cosine64(int nb, double *a);
+pn_status pn_sh_wedge_table(pn_context ctx, int n_phi, int nb, bool light, float **out);
+pn_status pn_sh_triple_product(pn_context ctx, int nb, double **out);
+
+/* The `heightfield` method's parameters. */
+typedef struct pn_hf_settings {
+    int level_step, azimuths, bands, exact, exact_unoccluded;
+    float level_offset, light_threshold;
+} pn_hf_settings;
+
+/* Per bound field: the pyramid and per-vertex outputs. */
+typedef struct pn_hf_state {
+    uint64_t version;         /* field version the pyramid holds (0: none) */
+    int level_step;
+    cl_int4 grid;             /* W, D, levels, level offset in samples */
+    cl_float8 geom;           /* x0, y0, z0, sx, sz, level step, s0, 0 */
+    size_t pyramid_floats;
+    bool has_albedo;
+    uint32_t light_capacity;
+    cl_mem pyr, levels, normals, albedo, out_env, out_lights, out_total;
+} pn_hf_state;
+
+typedef struct pn_hf_cache {
+    pn_hf_state fields[PN_HF_MAX_FIELDS];
+    int tables_nphi, tables_nb;
+    cl_mem env_table, light_table;
+    int gamma_nb, gamma_count;
+    double *gamma;            /* dense nc^3 */
+    cl_mem gamma_index, gamma_value;
+    uint64_t m_env_version;
+    int m_nb, m_nphi;
+    cl_mem m;                 /* 3 x nc x nc */
+    float u[3 * PN_SH_MAX_BANDS * PN_SH_MAX_BANDS]; /* Hᵀ M per channel (exact_unoccluded) */
+    cl_mem u_buf;
+    cl_mem up_irradiance;     /* irradiance map of the env's upper half */
+    int up_size;
+    float env_ref;            /* π x the env's mean radiance */
+    uint32_t lights_culled;   /* light passes skipped in the last frame */
+} pn_hf_cache;
+
+pn_status pn_hf_execute(pn_hf_cache *c, pn_scene scene, const pn_hf_settings *set, pn_gbuffer gb, pn_image image);
+pn_status pn_hf_read(pn_hf_cache *c, pn_scene scene, const pn_hf_settings *set, uint32_t field,
+                     pn_heightfield_output what, uint32_t light, float *host, size_t bytes);
+void pn_hf_cache_release(pn_hf_cache *c);
+
 /* --------------------------------------------------------------- renderer */
 
 typedef struct pn_method pn_method;
 
-#define PN_MAX_METHOD_PARAMS 8
+#define PN_MAX_METHOD_PARAMS 12
 
 struct pn_renderer_impl {
     pn_object obj;
@@ -324,6 +402,7 @@ struct pn_renderer_impl {
     uint64_t dir_env_version;
     float dir_key[3];                   /* face size, sun supersampling, sun threshold */
     pn_fiv_cache fiv;                   /* `fiv`: fields, FIV(Env), occluder records */
+    pn_hf_cache hf;                     /* `heightfield`: tables, pyramids, per-vertex outputs */
 };
 
 uint32_t pn_renderer_method_count(void);
@@ -333,6 +412,8 @@ void pn_renderer_destroy(pn_renderer renderer);
 pn_status pn_renderer_param_int(pn_renderer r, const char *name, int32_t *value, bool set);
 pn_status pn_renderer_param_float(pn_renderer r, const char *name, float *value, bool set);
 pn_status pn_renderer_do_execute(pn_renderer r, pn_scene scene, pn_gbuffer gbuffer, pn_image image);
+pn_status pn_renderer_do_read_heightfield(pn_renderer r, pn_scene scene, uint32_t field, pn_heightfield_output what,
+                                          uint32_t light, float *host, size_t bytes);
 
 /* ------------------------------------------------------------------ utils */
 

@@ -27,6 +27,7 @@ struct pn_method {
 enum { P_BACKGROUND = 0 };
 enum { P_FACE_SIZE = 1, P_SUN_SUPERSAMPLING, P_SUN_THRESHOLD, P_LIGHT_SAMPLES, P_VISIBILITY, P_RAY_OFFSET };
 enum { P_OVERLAP = 1, P_PARTIAL, P_SELF_SHADOW, P_TRILINEAR, P_CULL_THRESHOLD };
+enum { P_LEVEL_STEP = 1, P_LEVEL_OFFSET, P_AZIMUTHS, P_BANDS, P_EXACT_HORIZON, P_LIGHT_THRESHOLD, P_EXACT_UNOCCLUDED };
 
 static const pn_param unshadowed_params[] = {
     {"background", true, 1, 0, 1},
@@ -49,6 +50,17 @@ static const pn_param fiv_params[] = {
     {"self_shadow", true, 1, 0, 1},
     {"trilinear", true, 1, 0, 1},        /* 0: nearest sample */
     {"cull_threshold", false, 1e-3f, 0, 1},
+};
+
+static const pn_param heightfield_params[] = {
+    {"background", true, 1, 0, 1},
+    {"level_step", true, 4, 1, 8},
+    {"level_offset", false, 2, 0, 8},
+    {"azimuths", true, 32, 4, 256},
+    {"bands", true, 4, 3, 6},
+    {"exact_horizon", true, 0, 0, 1},
+    {"light_threshold", false, 1e-4f, 0, 1},
+    {"exact_unoccluded", true, 1, 0, 1},  /* 0: the seed's all-SH environment product */
 };
 
 static cl_float4 camera_position(pn_scene scene)
@@ -193,12 +205,47 @@ static pn_status execute_fiv(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_im
     return pn_enqueue_1d(ctx, k, "shade_fiv", (size_t)count, 64);
 }
 
+static pn_hf_settings hf_settings(pn_renderer r)
+{
+    pn_hf_settings s = {(int)r->params[P_LEVEL_STEP], (int)r->params[P_AZIMUTHS], (int)r->params[P_BANDS],
+                        (int)r->params[P_EXACT_HORIZON], (int)r->params[P_EXACT_UNOCCLUDED],
+                        r->params[P_LEVEL_OFFSET], r->params[P_LIGHT_THRESHOLD]};
+    return s;
+}
+
+/* Pixels that are not on a height field (and the background) get `unshadowed`. */
+static pn_status execute_heightfield(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image)
+{
+    const pn_hf_settings set = hf_settings(r);
+    pn_status st = execute_unshadowed(r, scene, gb, image);
+    return st ? st : pn_hf_execute(&r->hf, scene, &set, gb, image);
+}
+
+pn_status pn_renderer_do_read_heightfield(pn_renderer r, pn_scene scene, uint32_t field, pn_heightfield_output what,
+                                          uint32_t light, float *host, size_t bytes)
+{
+    pn_context ctx = r->obj.ctx;
+    if (r->method->execute != execute_heightfield)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "pn_renderer_read_heightfield needs a heightfield renderer (this is %s)",
+                       r->method->name);
+    if (!r->committed)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "renderer changed since its last commit; call pn_renderer_commit");
+    if (scene->obj.ctx != ctx)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "renderer and scene must share one context");
+    pn_status st = pn_scene_ready(scene, true);
+    if (st)
+        return st;
+    const pn_hf_settings set = hf_settings(r);
+    return pn_hf_read(&r->hf, scene, &set, field, what, light, host, bytes);
+}
+
 #define PARAMS(table) table, (int)(sizeof table / sizeof table[0])
 static const pn_method methods[] = {
     {"unshadowed", "unshadowed", execute_unshadowed, PARAMS(unshadowed_params)},
     {"reference", "reference", execute_reference, PARAMS(reference_params)},
     {"floor", "floor", execute_floor, NULL, 0},
     {"fiv", "fiv", execute_fiv, PARAMS(fiv_params)},
+    {"heightfield", "heightfield", execute_heightfield, PARAMS(heightfield_params)},
 };
 #define METHOD_COUNT (sizeof methods / sizeof methods[0])
 
@@ -232,6 +279,7 @@ pn_status pn_renderer_new(pn_context ctx, const char *method, pn_renderer *out)
     r->obj.ctx = ctx;
     r->method = found;
     r->fiv.env_version = UINT64_MAX;
+    r->hf.m_env_version = UINT64_MAX;
     for (int i = 0; i < found->param_count; ++i)
         r->params[i] = found->params[i].fallback;
     *out = r;
@@ -242,6 +290,7 @@ void pn_renderer_destroy(pn_renderer r)
 {
     pn_mem_release(&r->dir_records);
     pn_fiv_cache_release(&r->fiv);
+    pn_hf_cache_release(&r->hf);
     r->obj.magic = PN_MAGIC_DEAD;
     free(r);
 }

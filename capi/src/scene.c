@@ -30,6 +30,7 @@ void pn_scene_destroy(pn_scene scene)
     pn_mem_release(&scene->light_buffer);
     free(scene->lights);
     pn_scene_release_fivs(scene);
+    pn_scene_release_heightfields(scene);
     scene->obj.magic = PN_MAGIC_DEAD;
     free(scene);
 }

@@ -70,6 +70,10 @@ class FivInfo(ctypes.Structure):
                 ("stored_bytes", ctypes.c_uint64), ("rays", ctypes.c_uint64), ("bake_seconds", ctypes.c_double)]
 
 
+class HeightfieldPlacement(ctypes.Structure):
+    _fields_ = [("origin", ctypes.c_float * 3), ("size", ctypes.c_float * 2), ("height_scale", ctypes.c_float)]
+
+
 # int (*)(void *user, uint64_t done, uint64_t total): nonzero stops the bake.
 PROGRESS = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_uint64, ctypes.c_uint64)
 
@@ -137,6 +141,14 @@ _SIGNATURES = {
     "pn_fiv_release": [_H],
     "pn_fiv_get_info": [_H, ctypes.POINTER(FivInfo)],
     "pn_fiv_read": [_H, _P, _size],
+    "pn_heightfield_create": [_H, _OUT], "pn_heightfield_release": [_H],
+    "pn_heightfield_set_heights": [_H, _P, _u32, _u32],
+    "pn_heightfield_set_placement": [_H, ctypes.POINTER(HeightfieldPlacement)],
+    "pn_heightfield_set_albedo": [_H, _P, _size],
+    "pn_heightfield_commit": [_H],
+    "pn_heightfield_build_mesh": [_H, _OUT],
+    "pn_scene_set_heightfields": [_H, ctypes.POINTER(ctypes.c_void_p), ctypes.POINTER(_u32), _u32],
+    "pn_renderer_read_heightfield": [_H, _H, _u32, ctypes.c_int, _u32, _P, _size],
 }
 
 

@@ -206,6 +206,14 @@ class Mesh(_Handle):
                    len(f), None if n is None else _ptr(n))
         self._call("pn_mesh_commit", self._h)
 
+    @classmethod
+    def _adopt(cls, ctx: Context, handle: ctypes.c_void_p) -> "Mesh":
+        """Wraps a mesh handle the library created (its reference becomes ours)."""
+        mesh = cls.__new__(cls)
+        _Handle.__init__(mesh, ctx)
+        mesh._h = handle
+        return mesh
+
     @property
     def info(self) -> dict:
         i = _native.MeshInfo()
@@ -425,6 +433,67 @@ class Image(_Handle):
         return out
 
 
+HEIGHTFIELD_OUTPUTS = {"env": 0, "light": 1, "total": 2, "env_horizons": 3, "light_horizons": 4,
+                       "env_visibility": 5, "light_visibility": 6, "normals": 7}
+
+
+class HeightFieldHandle(_Handle):
+    """A height field in the library (pn_heightfield, docs/heightfield.md):
+    heights (D rows along +z, W columns along +x), placement and an optional
+    per-vertex albedo map. ``set_heights`` each frame makes it dynamic."""
+
+    _release = "pn_heightfield_release"
+
+    def __init__(self, ctx: Context, heights, origin=(0.0, 0.0, 0.0), size=None, height_scale: float = 1.0,
+                 albedo=None):
+        super().__init__(ctx)
+        call("pn_heightfield_create", ctx._h, ctx._h, ctypes.byref(self._h))
+        h = self._heights(heights)
+        depth, width = h.shape
+        self.shape = h.shape
+        size = (width - 1.0, depth - 1.0) if size is None else size
+        p = _native.HeightfieldPlacement((ctypes.c_float * 3)(*[float(x) for x in origin]),
+                                         (ctypes.c_float * 2)(*[float(x) for x in size]), float(height_scale))
+        self._call("pn_heightfield_set_placement", self._h, ctypes.byref(p))
+        self._call("pn_heightfield_set_heights", self._h, _ptr(h), width, depth)
+        if albedo is not None:
+            a = np.ascontiguousarray(albedo, dtype=np.float32)
+            if a.shape != (depth, width, 3):
+                raise InputError(f"albedo map must have shape {(depth, width, 3)}, got {a.shape}")
+            self._call("pn_heightfield_set_albedo", self._h, _ptr(a), a.size)
+        self._call("pn_heightfield_commit", self._h)
+
+    @staticmethod
+    def _heights(heights) -> np.ndarray:
+        h = np.ascontiguousarray(heights, dtype=np.float32)
+        if h.ndim != 2:
+            raise InputError(f"heights must be a 2D array (rows along z, columns along x), got shape {h.shape}")
+        return h
+
+    def set_heights(self, heights) -> None:
+        """New heights of the same size (a new frame of a dynamic terrain)."""
+        h = self._heights(heights)
+        if h.shape != self.shape:
+            raise InputError(f"new heights have shape {h.shape}, the field is {self.shape}")
+        self._call("pn_heightfield_set_heights", self._h, _ptr(h), h.shape[1], h.shape[0])
+        self._call("pn_heightfield_commit", self._h)
+
+    def mesh(self) -> Mesh:
+        """The committed heights as a triangle mesh in world space."""
+        out = ctypes.c_void_p()
+        self._call("pn_heightfield_build_mesh", self._h, ctypes.byref(out))
+        return Mesh._adopt(self._ctx, out)
+
+
+def set_scene_heightfields(scene: Scene, fields: Sequence[tuple[HeightFieldHandle, int]]) -> None:
+    """Declares which instances of ``scene`` are height fields: (field, instance id) pairs."""
+    n = len(fields)
+    handles = (ctypes.c_void_p * max(n, 1))(*[f._h.value for f, _ in fields])
+    ids = (ctypes.c_uint32 * max(n, 1))(*[int(i) for _, i in fields])
+    call("pn_scene_set_heightfields", scene._ctx._h, scene._h, handles if n else None, ids if n else None, n)
+    scene._heightfields = list(fields)  # keep them alive with the scene
+
+
 class Renderer(_Handle):
     """A shading method by name (``"unshadowed"``) with its parameters."""
 
@@ -462,3 +531,22 @@ class Renderer(_Handle):
 
     def execute(self, scene: Scene, gbuffer: GBuffer, image: Image) -> None:
         self._call("pn_renderer_execute", self._h, scene._h, gbuffer._h, image._h)
+
+    def read_heightfield(self, scene: Scene, what: str = "total", field: int = 0, light: int = 0) -> np.ndarray:
+        """A per-vertex output of a ``heightfield`` renderer, computed for the
+        scene as it is now (pn_renderer_read_heightfield): (D, W, k) float32
+        with k = 4 (radiance rgb, 1 / normals), azimuths (horizons, radians) or
+        bands² (SH visibility). ``what`` is one of HEIGHTFIELD_OUTPUTS."""
+        if what not in HEIGHTFIELD_OUTPUTS:
+            raise InputError(f"unknown height-field output '{what}' (one of {', '.join(HEIGHTFIELD_OUTPUTS)})")
+        fields = getattr(scene, "_heightfields", [])
+        if not 0 <= field < len(fields):
+            raise InputError(f"height field {field}: the scene has {len(fields)}")
+        depth, width = fields[field][0].shape
+        per = {"env_horizons": "azimuths", "light_horizons": "azimuths", "env_visibility": "bands",
+               "light_visibility": "bands"}.get(what)
+        k = 4 if per is None else self.get(per) if per == "azimuths" else self.get("bands") ** 2
+        out = np.empty((depth, width, k), np.float32)
+        self._call("pn_renderer_read_heightfield", self._h, scene._h, field, HEIGHTFIELD_OUTPUTS[what], light,
+                   _ptr(out), out.nbytes)
+        return out

@@ -14,7 +14,8 @@ from typing import Any, Callable
 import numpy as np
 
 from . import _native, procedural
-from .core import Camera, Context, EnvMap, GBuffer, Image, Material, Mesh, Renderer, Scene
+from .core import (Camera, Context, EnvMap, GBuffer, HeightFieldHandle, Image, Material, Mesh, Renderer, Scene,
+                   set_scene_heightfields)
 from .errors import InputError
 from .imageio import read_envmap
 from .meshio import load_mesh
@@ -79,6 +80,31 @@ class BuiltScene:
     fiv_records: list[dict] = field(default_factory=list)     # per field: objects, baked, bake_s, rays, ...
     _flattened: dict[str, Mesh] = field(default_factory=dict)  # occluders whose rotation is baked into a mesh
     _flat_meshes: dict[tuple, Mesh] = field(default_factory=dict)
+    # Height fields ([[heightfield]]): name -> (native field, instance id).
+    heightfields: dict[str, tuple[HeightFieldHandle, int]] = field(default_factory=dict)
+
+
+def add_heightfields(ctx: Context, scene: Scene, desc: SceneDescription,
+                     meshes: list[Mesh]) -> dict[str, tuple[HeightFieldHandle, int]]:
+    """Adds each [[heightfield]] as a native height field and as triangles
+    (an instance, so the G-buffer and the reference renderer see it), and
+    declares them to the scene for the ``heightfield`` method. An albedo map
+    goes to the field (per vertex) and the instance gets a white material; a
+    constant albedo goes to the material."""
+    out = {}
+    for d in desc.heightfields:
+        data = d.load()
+        albedo = data.albedo
+        has_map = albedo is not None and np.ndim(albedo) == 3
+        native = HeightFieldHandle(ctx, data.heights, origin=data.origin, size=data.size,
+                                   height_scale=data.height_scale, albedo=albedo if has_map else None)
+        mesh = native.mesh()
+        meshes.append(mesh)
+        material = Material(albedo=(1.0, 1.0, 1.0) if has_map else (albedo if albedo is not None else (0.8, 0.8, 0.8)))
+        out[d.name] = (native, scene.add(mesh, None, material))
+    if out:
+        set_scene_heightfields(scene, list(out.values()))
+    return out
 
 
 def build_scene(desc: SceneDescription, ctx: Context) -> BuiltScene:
@@ -99,13 +125,15 @@ def build_scene(desc: SceneDescription, ctx: Context) -> BuiltScene:
                             roughness=obj.roughness, lobe=obj.lobe)
         ids[obj.name] = scene.add(cache[key], obj.transform(), material)
         by_object[obj.name], materials[obj.name] = cache[key], material
+    heightfields = add_heightfields(ctx, scene, desc, meshes)
     c = desc.camera
     camera = Camera(position=c.position, look_at=c.look_at, up=c.up, fov_deg=c.fov_deg, resolution=c.resolution)
     scene.set_camera(camera)
     if desc.lights:
         scene.set_lights([light.row() for light in desc.lights])
     scene.commit()
-    return BuiltScene(ctx, envmap, meshes, scene, ids, camera, desc=desc, object_meshes=by_object, materials=materials)
+    return BuiltScene(ctx, envmap, meshes, scene, ids, camera, desc=desc, object_meshes=by_object, materials=materials,
+                      heightfields=heightfields)
 
 
 # ------------------------------------------------------------------ fiv fields

@@ -18,6 +18,8 @@ from typing import Any
 import numpy as np
 
 from .errors import InputError
+from .heightfield import (ALBEDO_EXTENSIONS, HEIGHT_EXTENSIONS, TERRAINS, HeightField, check_terrain_params, load_albedo,
+                          load_heights, make_terrain)
 
 PROCEDURAL_ENVS = ("sky", "constant", "directional", "area_lights")
 PRIMITIVES = ("sphere", "box", "plane", "torus", "cylinder", "cone", "torus_knot")
@@ -118,6 +120,46 @@ class FivDesc:
 
 
 @dataclass
+class HeightfieldDesc:
+    """``[[heightfield]]``: a height field from a file or a procedural terrain, placed in the
+    world (docs/scene-format.md, docs/heightfield.md). :meth:`load` makes the :class:`HeightField`."""
+
+    name: str
+    file: str | None = None          # resolved height map path, or None for a terrain
+    terrain: str | None = None       # one of heightfield.TERRAINS
+    size_px: tuple[int, int] | None = None  # [W, D] of a terrain (parse default: (256, 256)); None for a file
+    params: dict[str, Any] = field(default_factory=dict)  # arguments of the terrain
+    origin: tuple[float, float, float] = (-5.0, 0.0, -5.0)  # vertex (0, 0); parse default: centred on x = z = 0
+    size: tuple[float, float] = (10.0, 10.0)   # (size_x, size_z)
+    height_scale: float = 1.0
+    albedo: tuple[float, float, float] = (0.8, 0.8, 0.8)
+    albedo_map: str | None = None    # resolved albedo map path (replaces albedo)
+
+    def load(self) -> HeightField:
+        """Reads or makes the heights (and albedo map); errors name this table."""
+        t = f"[heightfield '{self.name}']"
+        try:
+            if self.file is not None:
+                heights = load_heights(self.file)
+            else:
+                try:
+                    heights = make_terrain(self.terrain, *(self.size_px or HEIGHTFIELD_DEFAULT_SIZE_PX), **self.params)
+                except InputError as exc:
+                    raise InputError(f"params: {exc}") from None
+            albedo = self.albedo
+            if self.albedo_map is not None:
+                albedo = load_albedo(self.albedo_map)
+                if albedo.shape[:2] != heights.shape:
+                    raise InputError(f"albedo_map {self.albedo_map} is {albedo.shape[1]} x {albedo.shape[0]} "
+                                     f"pixels but the heights are {heights.shape[1]} x {heights.shape[0]} "
+                                     "(W x D): it needs one texel per height sample")
+            return HeightField(heights, origin=self.origin, size=self.size, height_scale=self.height_scale,
+                               albedo=albedo)
+        except InputError as exc:
+            raise InputError(f"{t} {exc}") from None
+
+
+@dataclass
 class SceneDescription:
     environment: EnvironmentDesc
     camera: CameraDesc
@@ -126,6 +168,7 @@ class SceneDescription:
     render: dict[str, Any] = field(default_factory=dict)  # method = "...", other keys: method parameters
     source: str = "<dict>"
     fiv: FivDesc = field(default_factory=FivDesc)
+    heightfields: list[HeightfieldDesc] = field(default_factory=list)
 
 
 # ---------------------------------------------------------------- checking
@@ -318,10 +361,66 @@ def _light(d: dict, index: int) -> LightDesc:
                      radiance=_vector(t, "radiance", d["radiance"], broadcast=True, lo=0.0))
 
 
+_HEIGHTFIELD_KEYS = {"name", "file", "terrain", "size_px", "params", "origin", "size", "height_scale", "albedo",
+                     "albedo_map"}
+HEIGHTFIELD_MAX_SIZE_PX = 8192
+HEIGHTFIELD_DEFAULT_SIZE_PX = (256, 256)  # the seed's texture resolution
+
+
+def _file_key(t: str, key: str, d: dict, base: Path, extensions: tuple[str, ...]) -> str:
+    value = _string(t, key, d[key])
+    if Path(value).suffix.lower() not in extensions:
+        raise InputError(f"{_where(t, key)} = {value!r} must be a {', '.join(extensions)} file")
+    return _resolve(base, value)
+
+
+def _heightfield(d: dict, index: int, base: Path) -> HeightfieldDesc:
+    if not isinstance(d, dict):
+        raise InputError(f"[[heightfield]] #{index} must be a table")
+    name = d.get("name", f"heightfield{index}")
+    t = f"heightfield '{name}'"
+    _check_keys(t, d, _HEIGHTFIELD_KEYS)
+    h = HeightfieldDesc(name=_string(t, "name", name))
+    if ("file" in d) == ("terrain" in d):
+        raise InputError(f"[{t}] needs exactly one of 'file' (a {', '.join(HEIGHT_EXTENSIONS)} height map) or "
+                         f"'terrain' ({', '.join(TERRAINS)})")
+    if "file" in d:
+        for key in ("size_px", "params"):
+            if key in d:
+                raise InputError(f"{_where(t, key)} only applies to a 'terrain' (a file has its own size)")
+        h.file = _file_key(t, "file", d, base, HEIGHT_EXTENSIONS)
+    else:
+        h.terrain = _string(t, "terrain", d["terrain"], tuple(TERRAINS))
+        px = d.get("size_px", list(HEIGHTFIELD_DEFAULT_SIZE_PX))
+        if not isinstance(px, (list, tuple)) or len(px) != 2:
+            raise InputError(f"{_where(t, 'size_px')} must be [W, D] (samples along x and z), got {px!r}")
+        h.size_px = tuple(_integer(t, f"size_px[{i}]", v, 2, HEIGHTFIELD_MAX_SIZE_PX) for i, v in enumerate(px))
+        params = d.get("params", {})
+        if not isinstance(params, dict):
+            raise InputError(f"{_where(t, 'params')} must be a table")
+        try:
+            check_terrain_params(h.terrain, params)
+        except InputError as exc:
+            raise InputError(f"{_where(t, 'params')}: {exc}") from None
+        h.params = dict(params)
+    size = d.get("size", list(h.size))
+    if not isinstance(size, (list, tuple)) or len(size) != 2:
+        raise InputError(f"{_where(t, 'size')} must be [size_x, size_z], got {size!r}")
+    h.size = tuple(_number(t, f"size[{i}]", v, lo=0.0, lo_open=True) for i, v in enumerate(size))
+    h.origin = _vector(t, "origin", d.get("origin", [-h.size[0] / 2, 0.0, -h.size[1] / 2]))
+    h.height_scale = _number(t, "height_scale", d.get("height_scale", h.height_scale))
+    if "albedo" in d and "albedo_map" in d:
+        raise InputError(f"[{t}] has both 'albedo' and 'albedo_map'; give one (the map replaces the constant)")
+    h.albedo = _vector(t, "albedo", d.get("albedo", h.albedo), broadcast=True, lo=0.0, hi=1.0)
+    if "albedo_map" in d:
+        h.albedo_map = _file_key(t, "albedo_map", d, base, ALBEDO_EXTENSIONS)
+    return h
+
+
 def parse_scene(data: dict, base_dir: str | Path = ".", source: str = "<dict>") -> SceneDescription:
     """Checks a scene given as a dict (the parsed TOML) and returns its description."""
     base = Path(base_dir)
-    _check_keys("scene", data, {"environment", "camera", "object", "light", "render", "fiv"})
+    _check_keys("scene", data, {"environment", "camera", "object", "light", "render", "fiv", "heightfield"})
     for table in ("environment", "camera", "render", "fiv"):
         if table in data and not isinstance(data[table], dict):
             raise InputError(f"[{table}] must be a table")
@@ -337,19 +436,28 @@ def parse_scene(data: dict, base_dir: str | Path = ".", source: str = "<dict>") 
     lights = data.get("light", [])
     if not isinstance(lights, list):
         raise InputError("lights are given as [[light]] tables")
+    heightfields = data.get("heightfield", [])
+    if not isinstance(heightfields, list):
+        raise InputError("height fields are given as [[heightfield]] tables")
+    hdescs = [_heightfield(x, i, base) for i, x in enumerate(heightfields)]
+    hnames = [x.name for x in hdescs]
+    hdup = {n for n in hnames if hnames.count(n) > 1}
+    if hdup:
+        raise InputError(f"height field names must be unique; repeated: {', '.join(sorted(hdup))}")
     render = dict(data.get("render", {}))
     if "method" in render:
         _string("render", "method", render["method"])
     return SceneDescription(environment=_environment(data.get("environment", {}), base),
                             camera=_camera(data.get("camera", {})), objects=descs,
                             lights=[_light(x, i) for i, x in enumerate(lights)], render=render, source=source,
-                            fiv=_fiv(data.get("fiv", {}), base))
+                            fiv=_fiv(data.get("fiv", {}), base), heightfields=hdescs)
 
 
 def apply_overrides(data: dict, overrides: list[str]) -> dict:
     """Applies ``--set`` overrides ``table.key=value`` (value in TOML syntax, bare
     words taken as strings) to the parsed TOML. Objects are addressed by name or
-    index: ``object.bunny.albedo=[1,0,0]``, ``object.0.translate=[0,1,0]``."""
+    index: ``object.bunny.albedo=[1,0,0]``, ``object.0.translate=[0,1,0]``; height fields
+    likewise: ``heightfield.0.height_scale=2``."""
     data = copy.deepcopy(data)
     for item in overrides:
         if "=" not in item:
@@ -360,14 +468,18 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict:
         except tomllib.TOMLDecodeError:
             value = raw
         parts = key.strip().split(".")
-        if parts[0] == "object":
+        if parts[0] in ("object", "heightfield"):
+            kind = "object" if parts[0] == "object" else "height field"
             if len(parts) != 3:
-                raise InputError(f"--set {key}: objects are set as object.NAME_OR_INDEX.key")
-            objs = data.setdefault("object", [])
+                raise InputError(f"--set {key}: {kind}s are set as {parts[0]}.NAME_OR_INDEX.key")
+            objs = data.setdefault(parts[0], [])
+            if not isinstance(objs, list):
+                raise InputError(f"--set {key}: {parts[0]} is not a list of [[{parts[0]}]] tables")
             sel = parts[1]
-            match = [o for i, o in enumerate(objs) if o.get("name") == sel or str(i) == sel]
+            match = [o for i, o in enumerate(objs)
+                     if isinstance(o, dict) and (o.get("name") == sel or str(i) == sel)]
             if not match:
-                raise InputError(f"--set {key}: there is no object named or numbered '{sel}'")
+                raise InputError(f"--set {key}: there is no {kind} named or numbered '{sel}'")
             match[0][parts[2]] = value
         elif len(parts) == 2:
             data.setdefault(parts[0], {})[parts[1]] = value

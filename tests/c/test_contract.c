@@ -234,6 +234,14 @@ static pn_status rig_render(rig *r)
     return st;
 }
 
+static pn_status rig_render_with(rig *r, pn_renderer renderer)
+{
+    pn_status st = pn_scene_render_gbuffer(r->scene, r->gbuffer);
+    if (!st)
+        st = pn_renderer_execute(renderer, r->scene, r->gbuffer, r->image);
+    return st;
+}
+
 /* ------------------------------------------------------------ the tests */
 
 static void test_status_names(void)
@@ -2154,6 +2162,111 @@ static void test_fiv(pn_context ctx)
     rig_release(&r);
 }
 
+static void test_heightfield(pn_context ctx)
+{
+    pn_heightfield hf = (pn_heightfield)(uintptr_t)1;
+    pn_mesh mesh = NULL;
+    float heights[20] = {0};
+    expect_error("NULL context: pn_heightfield_create", pn_heightfield_create(NULL, &hf), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_heightfield_create", NULL);
+    expect_error("NULL height field: pn_heightfield_set_heights", pn_heightfield_set_heights(NULL, heights, 5, 4),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_heightfield_set_heights", NULL);
+    expect_error("NULL height field: pn_heightfield_commit", pn_heightfield_commit(NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_heightfield_commit", NULL);
+    expect_error("NULL height field: pn_heightfield_build_mesh", pn_heightfield_build_mesh(NULL, &mesh),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_heightfield_build_mesh", NULL);
+    expect_error("NULL scene: pn_scene_set_heightfields", pn_scene_set_heightfields(NULL, NULL, NULL, 0),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_scene_set_heightfields", NULL);
+    if (!expect_ok("pn_heightfield_create", pn_heightfield_create(ctx, &hf), ctx))
+        return;
+    expect_error("height field without heights: commit", pn_heightfield_commit(hf), PN_ERROR_NOT_COMMITTED, ctx,
+                 "no heights", NULL);
+    expect_error("1 x 5 heights", pn_heightfield_set_heights(hf, heights, 1, 5), PN_ERROR_INVALID_SIZE, ctx,
+                 "at least 2 x 2", NULL);
+    heights[7] = NAN;
+    heights[9] = INFINITY;
+    expect_error("NaN height", pn_heightfield_set_heights(hf, heights, 5, 4), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "2 non-finite", "row 1, column 2", NULL);
+    heights[7] = heights[9] = 0.0f;
+    pn_heightfield_placement bad = {{0, 0, 0}, {4, 0}, 1};
+    expect_error("zero height-field size", pn_heightfield_set_placement(hf, &bad), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "size[1]", NULL);
+    expect_ok("pn_heightfield_set_heights", pn_heightfield_set_heights(hf, heights, 5, 4), ctx);
+    float albedo[60];
+    for (int i = 0; i < 60; ++i)
+        albedo[i] = 1.0f;
+    expect_error("albedo map of the wrong size", pn_heightfield_set_albedo(hf, albedo, 59), PN_ERROR_INVALID_SIZE, ctx,
+                 "needs 60", NULL);
+    albedo[5] = 1.5f;
+    expect_error("albedo above 1", pn_heightfield_set_albedo(hf, albedo, 60), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "outside [0, 1]", NULL);
+    expect_error("mesh of an uncommitted height field", pn_heightfield_build_mesh(hf, &mesh), PN_ERROR_NOT_COMMITTED,
+                 ctx, "pn_heightfield_commit", NULL);
+    expect_ok("pn_heightfield_commit", pn_heightfield_commit(hf), ctx);
+    if (!expect_ok("pn_heightfield_build_mesh", pn_heightfield_build_mesh(hf, &mesh), ctx))
+        goto done;
+    pn_mesh_info info;
+    pn_mesh_get_info(mesh, &info);
+    CHECK("height-field mesh: 20 vertices, 24 triangles", info.vertex_count == 20 && info.triangle_count == 24);
+
+    rig r;
+    if (!rig_create(ctx, &r, 8, 8, 8))
+        goto done;
+    uint32_t id = 0, ids[2];
+    pn_renderer hr = NULL, un = NULL;
+    pn_material mat = pn_material_default();
+    pn_heightfield two[2] = {hf, hf};
+    expect_ok("add the height-field mesh", pn_scene_add_instance(r.scene, mesh, NULL, &mat, &id), ctx);
+    ids[0] = ids[1] = id;
+    expect_error("two fields on one instance", pn_scene_set_heightfields(r.scene, two, ids, 2),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "both claim instance", NULL);
+    expect_ok("pn_scene_commit", pn_scene_commit(r.scene), ctx);
+    expect_ok("heightfield renderer", pn_renderer_create(ctx, "heightfield", &hr), ctx);
+    expect_error("azimuths above 256", pn_renderer_set_int(hr, "azimuths", 300), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "azimuths", NULL);
+    pn_renderer_commit(hr);
+    expect_error("heightfield method without height fields", pn_renderer_execute(hr, r.scene, r.gbuffer, r.image),
+                 PN_ERROR_NOT_COMMITTED, ctx, "no height fields", NULL);
+    expect_ok("pn_scene_set_heightfields", pn_scene_set_heightfields(r.scene, &hf, &id, 1), ctx);
+    float out[80];
+    expect_ok("read the env pass", pn_renderer_read_heightfield(hr, r.scene, 0, PN_HF_ENV, 0, out, sizeof out), ctx);
+    /* A flat field under a constant env of radiance 1 with white albedo: L_o = 1,
+     * up to the irradiance map's sum over the face-8 cube (texel-centre
+     * cosines: within 2e-3 of π; the unshadowed method's own error). */
+    int flat = 1;
+    for (int v = 0; v < 20; ++v)
+        flat &= near(out[4 * v], 1.0f, 2e-3f) && near(out[4 * v + 2], 1.0f, 2e-3f);
+    CHECK("flat field, constant env: outgoing radiance 1", flat);
+    /* The seed's all-SH product holds a constant env exactly (only l = 0). */
+    pn_renderer_set_int(hr, "exact_unoccluded", 0);
+    pn_renderer_commit(hr);
+    expect_ok("read the env pass, all-SH", pn_renderer_read_heightfield(hr, r.scene, 0, PN_HF_ENV, 0, out, sizeof out),
+              ctx);
+    flat = 1;
+    for (int v = 0; v < 20; ++v)
+        flat &= near(out[4 * v], 1.0f, 1e-4f);
+    CHECK("flat field, constant env, all-SH: outgoing radiance 1", flat);
+    expect_error("read into a small buffer", pn_renderer_read_heightfield(hr, r.scene, 0, PN_HF_ENV, 0, out, 16),
+                 PN_ERROR_INVALID_SIZE, ctx, "needs 320 bytes", NULL);
+    expect_error("read field 1 of 1", pn_renderer_read_heightfield(hr, r.scene, 1, PN_HF_ENV, 0, out, sizeof out),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "height field 1", NULL);
+    expect_error("read light 0 of none", pn_renderer_read_heightfield(hr, r.scene, 0, PN_HF_LIGHT, 0, out, sizeof out),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "light 0", NULL);
+    expect_ok("unshadowed renderer", pn_renderer_create(ctx, "unshadowed", &un), ctx);
+    pn_renderer_commit(un);
+    expect_error("read from an unshadowed renderer",
+                 pn_renderer_read_heightfield(un, r.scene, 0, PN_HF_ENV, 0, out, sizeof out), PN_ERROR_INVALID_ARGUMENT,
+                 ctx, "needs a heightfield renderer", NULL);
+    expect_ok("heightfield execute", rig_render_with(&r, hr), ctx);
+    pn_renderer_release(un);
+    pn_renderer_release(hr);
+    rig_release(&r);
+done:
+    if (mesh)
+        pn_mesh_release(mesh);
+    pn_heightfield_release(hf);
+}
+
 int main(void)
 {
     setvbuf(stdout, NULL, _IOLBF, 0);
@@ -2177,6 +2290,7 @@ int main(void)
     test_scene(ctx);
     test_renderer(ctx);
     test_fiv(ctx);
+    test_heightfield(ctx);
     test_gbuffer(ctx);
     test_error_routing(ctx, ctx2);
     test_many_pending_errors();

@@ -1,0 +1,723 @@
+/* Height fields (docs/heightfield.md): the pn_heightfield object, its
+ * triangle mesh, the scene's list of height-field instances, and the
+ * `heightfield` renderer's per-frame work — pyramid, per-vertex environment
+ * and spherical-light passes, G-buffer shading and the probes the tests read.
+ * Nothing is baked: new heights cost one pyramid rebuild. */
+#include "internal.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define PI 3.14159265358979323846
+#define HF_MAX_LEVELS 128   /* kernels/heightfield.cl */
+
+/* ------------------------------------------------------------- the object */
+
+void pn_heightfield_destroy(pn_heightfield hf)
+{
+    free(hf->heights);
+    free(hf->albedo);
+    hf->obj.magic = PN_MAGIC_DEAD;
+    free(hf);
+}
+
+pn_status pn_heightfield_do_set_heights(pn_heightfield hf, const float *heights, uint32_t width, uint32_t depth)
+{
+    pn_context ctx = hf->obj.ctx;
+    if (width < 2 || depth < 2)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "a height field needs at least 2 x 2 heights (got %u x %u)", width,
+                       depth);
+    if ((uint64_t)width * depth > (uint64_t)INT32_MAX / 4)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "a height field of %u x %u heights is too large", width, depth);
+    const size_t n = (size_t)width * depth;
+    size_t bad = 0, first = 0;
+    for (size_t k = 0; k < n; ++k)
+        if (!isfinite(heights[k]) && bad++ == 0)
+            first = k;
+    if (bad)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                       "height field has %zu non-finite heights (NaN or Inf), the first at row %zu, column %zu", bad,
+                       first / width, first % width);
+    float *copy = pn_malloc(ctx, n * sizeof(float), "height-field heights");
+    if (!copy)
+        return PN_ERROR_OUT_OF_MEMORY;
+    memcpy(copy, heights, n * sizeof(float));
+    if (hf->albedo && (width != hf->width || depth != hf->depth)) {
+        free(hf->albedo); /* an albedo map of the old size no longer fits */
+        hf->albedo = NULL;
+    }
+    free(hf->heights);
+    hf->heights = copy;
+    hf->width = width;
+    hf->depth = depth;
+    hf->committed = false;
+    return PN_SUCCESS;
+}
+
+pn_status pn_heightfield_do_set_placement(pn_heightfield hf, const pn_heightfield_placement *p)
+{
+    pn_context ctx = hf->obj.ctx;
+    for (int i = 0; i < 3; ++i)
+        if (!isfinite(p->origin[i]))
+            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "height-field origin[%d] = %g is not finite", i,
+                           (double)p->origin[i]);
+    for (int i = 0; i < 2; ++i)
+        if (!(p->size[i] > 0.0f && isfinite(p->size[i])))
+            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "height-field size[%d] = %g must be finite and > 0", i,
+                           (double)p->size[i]);
+    if (!isfinite(p->height_scale))
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "height-field height_scale = %g is not finite",
+                       (double)p->height_scale);
+    hf->placement = *p;
+    hf->committed = false;
+    return PN_SUCCESS;
+}
+
+pn_status pn_heightfield_do_set_albedo(pn_heightfield hf, const float *rgb, size_t count)
+{
+    pn_context ctx = hf->obj.ctx;
+    if (!rgb || !count) {
+        free(hf->albedo);
+        hf->albedo = NULL;
+        hf->committed = false;
+        return PN_SUCCESS;
+    }
+    const size_t n = (size_t)hf->width * hf->depth * 3;
+    if (!hf->heights)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "set the heights before the albedo map (it is sized by them)");
+    if (count != n)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "albedo map has %zu floats; a %u x %u height field needs %zu (RGB)",
+                       count, hf->width, hf->depth, n);
+    for (size_t k = 0; k < n; ++k)
+        if (!(rgb[k] >= 0.0f && rgb[k] <= 1.0f))
+            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                           "albedo map value %g at row %zu, column %zu is outside [0, 1]", (double)rgb[k],
+                           k / 3 / hf->width, k / 3 % hf->width);
+    float *copy = pn_malloc(ctx, n * sizeof(float), "a height-field albedo map");
+    if (!copy)
+        return PN_ERROR_OUT_OF_MEMORY;
+    memcpy(copy, rgb, n * sizeof(float));
+    free(hf->albedo);
+    hf->albedo = copy;
+    hf->committed = false;
+    return PN_SUCCESS;
+}
+
+pn_status pn_heightfield_do_commit(pn_heightfield hf)
+{
+    if (!hf->heights)
+        return pn_fail(hf->obj.ctx, PN_ERROR_NOT_COMMITTED, "height field has no heights (pn_heightfield_set_heights)");
+    hf->hmin = INFINITY;
+    hf->hmax = -INFINITY;
+    for (size_t k = 0; k < (size_t)hf->width * hf->depth; ++k) {
+        hf->hmin = fminf(hf->hmin, hf->heights[k]);
+        hf->hmax = fmaxf(hf->hmax, hf->heights[k]);
+    }
+    hf->version = pn_next_version();
+    hf->committed = true;
+    return PN_SUCCESS;
+}
+
+/* World heights H = height_scale h and the grid spacing. */
+static void spacing(pn_heightfield hf, float *sx, float *sz)
+{
+    *sx = hf->placement.size[0] / (float)(hf->width - 1);
+    *sz = hf->placement.size[1] / (float)(hf->depth - 1);
+}
+
+pn_status pn_heightfield_do_build_mesh(pn_heightfield hf, pn_mesh mesh)
+{
+    pn_context ctx = hf->obj.ctx;
+    if (!hf->committed)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "height field changed since its last commit; call pn_heightfield_commit");
+    const uint32_t w = hf->width, d = hf->depth;
+    const uint64_t tris = 2ull * (w - 1) * (d - 1);
+    if (tris > UINT32_MAX / 3)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "a %u x %u height field has too many triangles for a mesh", w, d);
+    float sx, sz;
+    spacing(hf, &sx, &sz);
+    const float *o = hf->placement.origin, hs = hf->placement.height_scale;
+    float *pos = pn_malloc(ctx, pn_mul_size((size_t)w * d, 3, sizeof(float)), "height-field mesh vertices");
+    float *nrm = pn_malloc(ctx, pn_mul_size((size_t)w * d, 3, sizeof(float)), "height-field mesh normals");
+    uint32_t *idx = pn_malloc(ctx, pn_mul_size((size_t)tris, 3, sizeof(uint32_t)), "height-field mesh triangles");
+    pn_status st = pos && nrm && idx ? PN_SUCCESS : PN_ERROR_OUT_OF_MEMORY;
+    for (uint32_t j = 0; !st && j < d; ++j)
+        for (uint32_t i = 0; i < w; ++i) {
+            const size_t k = (size_t)j * w + i;
+            const uint32_t i0 = i ? i - 1 : 0, i1 = i + 1 < w ? i + 1 : i, j0 = j ? j - 1 : 0, j1 = j + 1 < d ? j + 1 : j;
+            const float dx = hs * (hf->heights[(size_t)j * w + i1] - hf->heights[(size_t)j * w + i0]) / ((float)(i1 - i0) * sx);
+            const float dz = hs * (hf->heights[(size_t)j1 * w + i] - hf->heights[(size_t)j0 * w + i]) / ((float)(j1 - j0) * sz);
+            const float len = sqrtf(dx * dx + 1.0f + dz * dz);
+            pos[3 * k] = o[0] + (float)i * sx;
+            pos[3 * k + 1] = o[1] + hs * hf->heights[k];
+            pos[3 * k + 2] = o[2] + (float)j * sz;
+            nrm[3 * k] = -dx / len;
+            nrm[3 * k + 1] = 1.0f / len;
+            nrm[3 * k + 2] = -dz / len;
+        }
+    size_t t = 0;
+    for (uint32_t j = 0; !st && j + 1 < d; ++j)
+        for (uint32_t i = 0; i + 1 < w; ++i) {
+            /* Counter-clockwise seen from +y: (a, c, b) and (b, c, e). */
+            const uint32_t a = j * w + i, b = a + 1, c = a + w, e = c + 1;
+            const uint32_t tri[6] = {a, c, b, b, c, e};
+            memcpy(idx + t, tri, sizeof tri);
+            t += 6;
+        }
+    if (!st)
+        st = pn_mesh_do_set_geometry(mesh, pos, w * d, idx, (uint32_t)tris, nrm);
+    if (!st)
+        st = pn_mesh_do_commit(mesh);
+    free(pos);
+    free(nrm);
+    free(idx);
+    return st;
+}
+
+/* --------------------------------------------------------- scene binding */
+
+void pn_scene_release_heightfields(pn_scene scene)
+{
+    for (uint32_t i = 0; i < scene->hf_count; ++i)
+        pn_heightfield_release(scene->hfs[i]);
+    free(scene->hfs);
+    free(scene->hf_instances);
+    scene->hfs = NULL;
+    scene->hf_instances = NULL;
+    scene->hf_count = 0;
+}
+
+pn_status pn_scene_do_set_heightfields(pn_scene scene, const pn_heightfield *fields, const uint32_t *instances,
+                                       uint32_t count)
+{
+    pn_context ctx = scene->obj.ctx;
+    if (count > PN_HF_MAX_FIELDS)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "pn_scene_set_heightfields: %u height fields (at most %d)", count,
+                       PN_HF_MAX_FIELDS);
+    for (uint32_t i = 0; i < count; ++i) {
+        if (!fields[i] || fields[i]->obj.magic != PN_MAGIC_HEIGHTFIELD)
+            return pn_fail(NULL, PN_ERROR_NULL_HANDLE,
+                           "pn_scene_set_heightfields: fields[%u] is NULL or not a height field", i);
+        if (fields[i]->obj.ctx != ctx)
+            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "pn_scene_set_heightfields: fields[%u] belongs to another context",
+                           i);
+        for (uint32_t j = 0; j < i; ++j)
+            if (instances[j] == instances[i])
+                return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                               "pn_scene_set_heightfields: fields[%u] and fields[%u] both claim instance %u", j, i,
+                               instances[i]);
+    }
+    pn_heightfield *copy = NULL;
+    uint32_t *ids = NULL;
+    if (count && (!(copy = pn_malloc(ctx, count * sizeof *copy, "the scene's height fields")) ||
+                  !(ids = pn_malloc(ctx, count * sizeof *ids, "the scene's height-field instances")))) {
+        free(copy);
+        return PN_ERROR_OUT_OF_MEMORY;
+    }
+    for (uint32_t i = 0; i < count; ++i) {
+        copy[i] = fields[i];
+        ids[i] = instances[i];
+        fields[i]->obj.refcount++;
+    }
+    pn_scene_release_heightfields(scene);
+    scene->hfs = copy;
+    scene->hf_instances = ids;
+    scene->hf_count = count;
+    return PN_SUCCESS;
+}
+
+/* ------------------------------------------------------------- renderer */
+
+void pn_hf_cache_release(pn_hf_cache *c)
+{
+    for (int i = 0; i < PN_HF_MAX_FIELDS; ++i) {
+        pn_hf_state *s = &c->fields[i];
+        cl_mem *mems[] = {&s->pyr, &s->levels, &s->normals, &s->albedo, &s->out_env, &s->out_lights, &s->out_total};
+        for (size_t k = 0; k < sizeof mems / sizeof mems[0]; ++k)
+            pn_mem_release(mems[k]);
+    }
+    pn_mem_release(&c->env_table);
+    pn_mem_release(&c->light_table);
+    pn_mem_release(&c->gamma_index);
+    pn_mem_release(&c->gamma_value);
+    pn_mem_release(&c->m);
+    pn_mem_release(&c->up_irradiance);
+    pn_mem_release(&c->u_buf);
+    free(c->gamma);
+    memset(c, 0, sizeof *c);
+}
+
+/* Wedge tables for (n_phi, bands) and the triple product for `bands`. */
+static pn_status prepare_tables(pn_context ctx, pn_hf_cache *c, int n_phi, int nb)
+{
+    pn_status st = PN_SUCCESS;
+    const int nc = nb * nb;
+    if (c->tables_nphi != n_phi || c->tables_nb != nb) {
+        float *env = NULL, *light = NULL;
+        const size_t bytes = (size_t)PN_SH_WEDGE_ANGLES * PN_SH_WEDGE_ANGLES * nc * sizeof(float);
+        pn_mem_release(&c->env_table);
+        pn_mem_release(&c->light_table);
+        c->tables_nphi = 0;
+        if (!(st = pn_sh_wedge_table(ctx, n_phi, nb, false, &env)) &&
+            !(st = pn_sh_wedge_table(ctx, n_phi, nb, true, &light)) &&
+            !(st = pn_alloc(ctx, bytes, CL_MEM_READ_ONLY, env, &c->env_table, "the environment wedge table")) &&
+            !(st = pn_alloc(ctx, bytes, CL_MEM_READ_ONLY, light, &c->light_table, "the light wedge table"))) {
+            c->tables_nphi = n_phi;
+            c->tables_nb = nb;
+        }
+        free(env);
+        free(light);
+        if (st)
+            return st;
+    }
+    if (c->gamma_nb != nb) {
+        free(c->gamma);
+        c->gamma = NULL;
+        pn_mem_release(&c->gamma_index);
+        pn_mem_release(&c->gamma_value);
+        c->gamma_nb = 0;
+        c->m_env_version = UINT64_MAX;
+        if ((st = pn_sh_triple_product(ctx, nb, &c->gamma)))
+            return st;
+        size_t count = 0;
+        for (size_t q = 0; q < (size_t)nc * nc * nc; ++q)
+            count += c->gamma[q] != 0.0;
+        cl_int *index = malloc(count * 4 * sizeof(cl_int));
+        float *value = malloc(count * sizeof(float));
+        if (!index || !value) {
+            free(index);
+            free(value);
+            return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for the sparse SH triple product");
+        }
+        size_t g = 0;
+        for (int i = 0; i < nc; ++i)
+            for (int j = 0; j < nc; ++j)
+                for (int k = 0; k < nc; ++k) {
+                    const double v = c->gamma[((size_t)i * nc + j) * nc + k];
+                    if (v != 0.0) {
+                        cl_int e[4] = {i, j, k, 0};
+                        memcpy(index + 4 * g, e, sizeof e);
+                        value[g++] = (float)v;
+                    }
+                }
+        if (!(st = pn_alloc(ctx, count * 4 * sizeof(cl_int), CL_MEM_READ_ONLY, index, &c->gamma_index,
+                            "the SH triple-product indices")) &&
+            !(st = pn_alloc(ctx, count * sizeof(float), CL_MEM_READ_ONLY, value, &c->gamma_value,
+                            "the SH triple-product values"))) {
+            c->gamma_count = (int)count;
+            c->gamma_nb = nb;
+        }
+        free(index);
+        free(value);
+    }
+    return st;
+}
+
+/* The env map in SH (float64 over its cube texels with exact solid angles)
+ * folded into M_jk = Σ_i L_i Γ_ijk per channel; the exact irradiance of the
+ * env's upper half (an irradiance map of the cube with the texels below the
+ * horizontal plane black) and u = Hᵀ M, H = the upper hemisphere as the
+ * summed wedges at horizon 0, which the `exact_unoccluded` split subtracts;
+ * and the reference irradiance (π × mean radiance) that scales the light
+ * threshold. */
+static pn_status prepare_env(pn_context ctx, pn_hf_cache *c, pn_envmap env, int nb, int n_phi)
+{
+    if (c->m_env_version == env->version && c->m_nb == nb && c->m_nphi == n_phi)
+        return PN_SUCCESS;
+    const int f = env->committed_face_size, nc = nb * nb, mi = env->committed_irradiance_size;
+    const size_t texels = 6u * (size_t)f * f;
+    float *rad = malloc(texels * 4 * sizeof(float)), *dirs = malloc(texels * 4 * sizeof(float));
+    float *m = malloc((size_t)3 * nc * nc * sizeof(float)), *table = NULL;
+    cl_mem cube = NULL, cube_dirs = NULL;
+    pn_status st = rad && dirs && m ? PN_SUCCESS : pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for the env's SH");
+    if (!st)
+        st = pn_envmap_sample_cube(env, f, rad, dirs);
+    if (!st)
+        st = pn_sh_wedge_table(ctx, n_phi, nb, false, &table);
+    if (!st) {
+        double l[PN_SH_MAX_BANDS * PN_SH_MAX_BANDS][3] = {{0}}, y[PN_SH_MAX_BANDS * PN_SH_MAX_BANDS], power = 0.0;
+        double h[PN_SH_MAX_BANDS * PN_SH_MAX_BANDS] = {0};
+        for (size_t t = 0; t < texels; ++t) {
+            const float *d = dirs + 4 * t, *r = rad + 4 * t;
+            /* SH frame: (x, -z, y) of the world direction. */
+            const double x = d[0], yy = -(double)d[2], z = d[1];
+            pn_sh_eval64(nb, z, sqrt(fmax(0.0, 1.0 - z * z)), atan2(yy, x), y);
+            for (int q = 0; q < nc; ++q)
+                for (int ch = 0; ch < 3; ++ch)
+                    l[q][ch] += (double)r[ch] * d[3] * y[q];
+            power += (r[0] + r[1] + r[2]) / 3.0 * d[3];
+        }
+        /* H: table(0, 0) turned to every azimuth and summed (as the kernel sums V). */
+        for (int k = 0; k < n_phi; ++k) {
+            const double a = 2.0 * PI * k / n_phi;
+            for (int lb = 0; lb < nb; ++lb) {
+                h[lb * lb + lb] += table[lb * lb + lb];
+                for (int mm = 1; mm <= lb; ++mm) {
+                    const double p = table[lb * lb + lb + mm], q = table[lb * lb + lb - mm];
+                    h[lb * lb + lb + mm] += p * cos(mm * a) - q * sin(mm * a);
+                    h[lb * lb + lb - mm] += p * sin(mm * a) + q * cos(mm * a);
+                }
+            }
+        }
+        for (int ch = 0; ch < 3; ++ch)
+            for (int k = 0; k < nc; ++k) {
+                double uk = 0.0;
+                for (int j = 0; j < nc; ++j) {
+                    double s = 0.0;
+                    for (int i = 0; i < nc; ++i)
+                        s += l[i][ch] * c->gamma[((size_t)i * nc + j) * nc + k];
+                    m[((size_t)ch * nc + j) * nc + k] = (float)s;
+                    uk += h[j] * s;
+                }
+                c->u[ch * PN_SH_MAX_BANDS * PN_SH_MAX_BANDS + k] = (float)uk;
+            }
+        c->env_ref = (float)(power / 4.0);
+        pn_mem_release(&c->m);
+        pn_mem_release(&c->u_buf);
+        if (!(st = pn_alloc(ctx, (size_t)3 * nc * nc * sizeof(float), CL_MEM_READ_ONLY, m, &c->m,
+                            "the env's SH product matrices")))
+            st = pn_alloc(ctx, sizeof c->u, CL_MEM_READ_ONLY, c->u, &c->u_buf, "the upper hemisphere's SH product");
+    }
+    /* The upper half's irradiance map, by the env map's own irradiance kernel. */
+    for (size_t t = 0; !st && t < texels; ++t)
+        if (dirs[4 * t + 1] <= 0.0f)
+            rad[4 * t] = rad[4 * t + 1] = rad[4 * t + 2] = 0.0f;
+    cl_kernel k;
+    if (!st && !(st = pn_alloc(ctx, texels * 16, CL_MEM_READ_ONLY, rad, &cube, "the env's upper half")) &&
+        !(st = pn_alloc(ctx, texels * 16, CL_MEM_READ_ONLY, dirs, &cube_dirs, "the env's directions")) &&
+        !(st = pn_context_kernel(ctx, "envmap", "envmap_irradiance", &k))) {
+        pn_mem_release(&c->up_irradiance);
+        const cl_int ct = (cl_int)texels, cm = mi;
+        size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof ct, sizeof cm, sizeof(cl_mem)};
+        const void *vals[] = {&cube, &cube_dirs, &ct, &cm, &c->up_irradiance};
+        if (!(st = pn_alloc(ctx, 6u * (size_t)mi * mi * 16, CL_MEM_READ_WRITE, NULL, &c->up_irradiance,
+                            "the upper-half irradiance map")) &&
+            !(st = pn_set_args(ctx, k, "envmap_irradiance", 5, sizes, vals)) &&
+            !(st = pn_enqueue_1d(ctx, k, "envmap_irradiance", 6u * (size_t)mi * mi, 64))) {
+            c->up_size = mi;
+            c->m_env_version = env->version;
+            c->m_nb = nb;
+            c->m_nphi = n_phi;
+        }
+    }
+    if (cube || cube_dirs)
+        clFinish(ctx->queue); /* the kernel reads them before they go */
+    pn_mem_release(&cube);
+    pn_mem_release(&cube_dirs);
+    free(rad);
+    free(dirs);
+    free(m);
+    free(table);
+    return st;
+}
+
+static int level_count(int ls, uint32_t w, uint32_t d)
+{
+    const uint32_t res = w > d ? w : d;
+    return (int)ceil(ls * log2((double)res) - 1e-9) + 1;
+}
+
+/* Pyramid (level 0 = world heights, then tent decimation on the device),
+ * normals and albedo of field i, rebuilt when the field or ls changes. */
+static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf, const pn_hf_settings *set)
+{
+    if (!hf->committed)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "height field changed since its last commit; call pn_heightfield_commit");
+    const uint32_t w = hf->width, d = hf->depth;
+    const int n = level_count(set->level_step, w, d);
+    if (n > HF_MAX_LEVELS)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                       "heightfield: level_step %d on a %u x %u field needs %d pyramid levels (at most %d)",
+                       set->level_step, w, d, n, HF_MAX_LEVELS);
+    float sx, sz;
+    spacing(hf, &sx, &sz);
+    const float *o = hf->placement.origin;
+    const float geom[8] = {o[0], o[1], o[2], sx, sz, (float)set->level_step, sx < sz ? sx : sz, 0.0f};
+    memcpy(s->geom.s, geom, sizeof geom);
+    s->grid.s[0] = (cl_int)w;
+    s->grid.s[1] = (cl_int)d;
+    s->grid.s[2] = n;
+    s->grid.s[3] = (cl_int)lround(set->level_step * set->level_offset);
+    if (s->version == hf->version && s->level_step == set->level_step)
+        return PN_SUCCESS;
+    cl_int4 *levels = malloc((size_t)n * sizeof *levels);
+    if (!levels)
+        return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for the pyramid levels");
+    size_t total = 0;
+    const double sr = pow(2.0, 1.0 / set->level_step);
+    for (int k = 0; k < n; ++k) {
+        const double f = pow(sr, k);
+        const long ck = k ? lround((w - 1) / f) : (long)(w - 1), ek = k ? lround((d - 1) / f) : (long)(d - 1);
+        levels[k].s[0] = (cl_int)total;
+        levels[k].s[1] = (cl_int)(ck < 1 ? 1 : ck);
+        levels[k].s[2] = (cl_int)(ek < 1 ? 1 : ek);
+        levels[k].s[3] = 0;
+        total += (size_t)(levels[k].s[1] + 1) * (levels[k].s[2] + 1);
+    }
+    s->pyramid_floats = total;
+    const size_t base = (size_t)w * d;
+    float *heights = malloc(base * sizeof(float));
+    pn_status st = heights ? PN_SUCCESS : pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for the world heights");
+    for (size_t k = 0; !st && k < base; ++k)
+        heights[k] = hf->placement.height_scale * hf->heights[k];
+    s->version = 0;
+    if (!st) {
+        cl_mem *mems[] = {&s->pyr, &s->levels, &s->normals, &s->albedo, &s->out_env, &s->out_total};
+        for (size_t k = 0; k < sizeof mems / sizeof mems[0]; ++k)
+            pn_mem_release(mems[k]);
+    }
+    if (!st && !(st = pn_alloc(ctx, total * sizeof(float), CL_MEM_READ_WRITE, NULL, &s->pyr, "the height pyramid")) &&
+        !(st = pn_alloc(ctx, (size_t)n * sizeof *levels, CL_MEM_READ_ONLY, levels, &s->levels, "the pyramid levels")) &&
+        !(st = pn_alloc(ctx, base * 16, CL_MEM_READ_WRITE, NULL, &s->normals, "height-field normals")) &&
+        !(st = pn_alloc(ctx, base * 16, CL_MEM_READ_WRITE, NULL, &s->out_env, "height-field env radiance")) &&
+        !(st = pn_alloc(ctx, base * 16, CL_MEM_READ_WRITE, NULL, &s->out_total, "height-field total radiance")) &&
+        !(st = pn_alloc(ctx, hf->albedo ? base * 3 * sizeof(float) : 16, CL_MEM_READ_ONLY, hf->albedo, &s->albedo,
+                        "a height-field albedo map"))) {
+        cl_int err = clEnqueueWriteBuffer(ctx->queue, s->pyr, CL_TRUE, 0, base * sizeof(float), heights, 0, NULL, NULL);
+        if (err != CL_SUCCESS)
+            st = pn_fail_cl(ctx, err, "uploading the height field");
+    }
+    free(heights);
+    cl_kernel k;
+    const cl_float wm1 = (cl_float)(w - 1), dm1 = (cl_float)(d - 1);
+    if (!st)
+        st = pn_context_kernel(ctx, "heightfield", "hf_decimate", &k);
+    for (int q = 1; !st && q < n; ++q) {
+        size_t sizes[] = {sizeof(cl_mem), sizeof(cl_int4), sizeof(cl_int4), sizeof wm1, sizeof dm1};
+        const void *vals[] = {&s->pyr, &levels[q - 1], &levels[q], &wm1, &dm1};
+        if (!(st = pn_set_args(ctx, k, "hf_decimate", 5, sizes, vals)))
+            st = pn_enqueue_1d(ctx, k, "hf_decimate", (size_t)(levels[q].s[1] + 1) * (levels[q].s[2] + 1), 64);
+    }
+    free(levels);
+    if (!st && !(st = pn_context_kernel(ctx, "heightfield", "hf_normals", &k))) {
+        size_t sizes[] = {sizeof(cl_mem), sizeof s->grid, sizeof s->geom, sizeof(cl_mem)};
+        const void *vals[] = {&s->pyr, &s->grid, &s->geom, &s->normals};
+        if (!(st = pn_set_args(ctx, k, "hf_normals", 4, sizes, vals)))
+            st = pn_enqueue_1d(ctx, k, "hf_normals", base, 64);
+    }
+    if (!st) {
+        s->version = hf->version;
+        s->level_step = set->level_step;
+        s->has_albedo = hf->albedo != NULL;
+        s->light_capacity = 0;
+        pn_mem_release(&s->out_lights);
+    }
+    return st;
+}
+
+/* Everything the passes and probes read, for every field of the scene. */
+static pn_status prepare(pn_context ctx, pn_hf_cache *c, pn_scene scene, const pn_hf_settings *set)
+{
+    if (!scene->hf_count)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED,
+                       "heightfield: the scene has no height fields (pn_scene_set_heightfields)");
+    pn_status st;
+    if ((st = prepare_tables(ctx, c, set->azimuths, set->bands)) || (st = prepare_env(ctx, c, scene->env, set->bands, set->azimuths)))
+        return st;
+    for (uint32_t i = 0; i < scene->hf_count; ++i)
+        if ((st = prepare_field(ctx, &c->fields[i], scene->hfs[i], set)))
+            return st;
+    return PN_SUCCESS;
+}
+
+static void cosine_zh(int nb, cl_float8 *out)
+{
+    double a[PN_SH_MAX_BANDS];
+    pn_sh_clamped_cosine64(nb, a);
+    for (int l = 0; l < 8; ++l)
+        out->s[l] = l < nb ? (float)a[l] : 0.0f;
+}
+
+/* Nearest distance from the light's centre to the field's bounding box. */
+static float light_distance(pn_heightfield hf, const pn_sphere_light *l)
+{
+    const float *o = hf->placement.origin, hs = hf->placement.height_scale;
+    const float lo = fminf(hs * hf->hmin, hs * hf->hmax), hi = fmaxf(hs * hf->hmin, hs * hf->hmax);
+    const float bmin[3] = {o[0], o[1] + lo, o[2]}, bmax[3] = {o[0] + hf->placement.size[0], o[1] + hi,
+                                                               o[2] + hf->placement.size[1]};
+    float d2 = 0.0f;
+    for (int a = 0; a < 3; ++a) {
+        const float e = fmaxf(fmaxf(bmin[a] - l->position[a], l->position[a] - bmax[a]), 0.0f);
+        d2 += e * e;
+    }
+    return sqrtf(d2);
+}
+
+static pn_status run_passes(pn_context ctx, pn_hf_cache *c, pn_scene scene, const pn_hf_settings *set)
+{
+    pn_status st;
+    cl_kernel kenv, klight;
+    if ((st = pn_context_kernel(ctx, "heightfield", "hf_env", &kenv)) ||
+        (st = pn_context_kernel(ctx, "heightfield", "hf_light", &klight)))
+        return st;
+    cl_float8 czh;
+    cosine_zh(set->bands, &czh);
+    const cl_int n_phi = set->azimuths, nb = set->bands, exact = set->exact;
+    const uint32_t lights = scene->light_count;
+    c->lights_culled = 0;
+    for (uint32_t f = 0; f < scene->hf_count; ++f) {
+        pn_hf_state *s = &c->fields[f];
+        pn_heightfield hf = scene->hfs[f];
+        const size_t base = (size_t)hf->width * hf->depth;
+        const cl_int has_albedo = s->has_albedo, split = set->exact_unoccluded, up_size = c->up_size;
+        size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof s->grid, sizeof s->geom, sizeof(cl_mem),
+                          sizeof(cl_mem), sizeof has_albedo, sizeof n_phi, sizeof nb, sizeof exact, sizeof(cl_mem),
+                          sizeof(cl_mem), sizeof czh, sizeof split, sizeof(cl_mem), sizeof up_size, sizeof(cl_mem),
+                          sizeof(cl_mem), sizeof(cl_mem)};
+        const void *vals[] = {&s->pyr, &s->levels, &s->grid, &s->geom, &s->normals, &s->albedo, &has_albedo, &n_phi,
+                              &nb, &exact, &c->env_table, &c->m, &czh, &split, &c->up_irradiance, &up_size, &c->u_buf,
+                              &s->out_env, &s->out_total};
+        if ((st = pn_set_args(ctx, kenv, "hf_env", 19, sizes, vals)) ||
+            (st = pn_enqueue_1d(ctx, kenv, "hf_env", base, 64)))
+            return st;
+        if (s->light_capacity < lights) {
+            pn_mem_release(&s->out_lights);
+            s->light_capacity = 0;
+            if ((st = pn_alloc(ctx, pn_mul_size(base, lights, 16), CL_MEM_READ_WRITE, NULL, &s->out_lights,
+                               "height-field light radiance")))
+                return st;
+            s->light_capacity = lights;
+        }
+        const float threshold = set->light_threshold * c->env_ref;
+        for (uint32_t li = 0; li < lights; ++li) {
+            const pn_sphere_light *l = &scene->lights[li];
+            const float le = fmaxf(fmaxf(l->radiance[0], l->radiance[1]), l->radiance[2]);
+            const float dist = light_distance(hf, l);
+            float cap = 2.0f; /* 1 - cos of the largest half-angle the light subtends over the field */
+            if (dist > l->radius) {
+                const float q = l->radius * l->radius / (dist * dist);
+                cap = q / (1.0f + sqrtf(1.0f - q));
+            }
+            const cl_int out_offset = (cl_int)(li * base);
+            if (le <= 0.0f || le * 2.0f * (float)PI * cap < threshold) {
+                /* Negligible everywhere on this field: no pass. */
+                const cl_float4 zero = {{0.0f, 0.0f, 0.0f, 0.0f}};
+                cl_int err = clEnqueueFillBuffer(ctx->queue, s->out_lights, &zero, sizeof zero, li * base * 16,
+                                                 base * 16, 0, NULL, NULL);
+                if (err != CL_SUCCESS)
+                    return pn_fail_cl(ctx, err, "clearing a culled light's output");
+                c->lights_culled++;
+                continue;
+            }
+            const cl_float4 light = {{l->position[0], l->position[1], l->position[2], l->radius}};
+            const cl_float4 radiance = {{l->radiance[0], l->radiance[1], l->radiance[2], 0.0f}};
+            const cl_int gamma_count = c->gamma_count;
+            size_t lsizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof s->grid, sizeof s->geom, sizeof(cl_mem),
+                               sizeof(cl_mem), sizeof has_albedo, sizeof n_phi, sizeof nb, sizeof exact,
+                               sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof gamma_count, sizeof czh,
+                               sizeof light, sizeof radiance, sizeof threshold, sizeof out_offset, sizeof(cl_mem),
+                               sizeof(cl_mem)};
+            const void *lvals[] = {&s->pyr, &s->levels, &s->grid, &s->geom, &s->normals, &s->albedo, &has_albedo,
+                                   &n_phi, &nb, &exact, &c->light_table, &c->gamma_index, &c->gamma_value,
+                                   &gamma_count, &czh, &light, &radiance, &threshold, &out_offset, &s->out_lights,
+                                   &s->out_total};
+            if ((st = pn_set_args(ctx, klight, "hf_light", 21, lsizes, lvals)) ||
+                (st = pn_enqueue_1d(ctx, klight, "hf_light", base, 64)))
+                return st;
+        }
+    }
+    return PN_SUCCESS;
+}
+
+pn_status pn_hf_execute(pn_hf_cache *c, pn_scene scene, const pn_hf_settings *set, pn_gbuffer gb, pn_image image)
+{
+    pn_context ctx = scene->obj.ctx;
+    pn_status st;
+    cl_kernel k;
+    if ((st = prepare(ctx, c, scene, set)) || (st = run_passes(ctx, c, scene, set)) ||
+        (st = pn_context_kernel(ctx, "heightfield", "hf_shade", &k)))
+        return st;
+    const cl_int count = (cl_int)(gb->width * gb->height);
+    for (uint32_t f = 0; f < scene->hf_count; ++f) {
+        pn_hf_state *s = &c->fields[f];
+        const cl_uint instance = scene->hf_instances[f];
+        size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count, sizeof instance,
+                          sizeof s->grid, sizeof s->geom, sizeof(cl_mem), sizeof(cl_mem)};
+        const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_ALBEDO],
+                              &gb->planes[PN_GBUFFER_INSTANCE], &count, &instance, &s->grid, &s->geom,
+                              &s->out_total, &image->buffer};
+        if ((st = pn_set_args(ctx, k, "hf_shade", 9, sizes, vals)) ||
+            (st = pn_enqueue_1d(ctx, k, "hf_shade", (size_t)count, 64)))
+            return st;
+    }
+    return PN_SUCCESS;
+}
+
+pn_status pn_hf_read(pn_hf_cache *c, pn_scene scene, const pn_hf_settings *set, uint32_t field,
+                     pn_heightfield_output what, uint32_t light, float *host, size_t bytes)
+{
+    pn_context ctx = scene->obj.ctx;
+    pn_status st;
+    if (field >= scene->hf_count)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "height field %u: the scene has %u", field, scene->hf_count);
+    const bool needs_light = what == PN_HF_LIGHT || what == PN_HF_LIGHT_HORIZONS || what == PN_HF_LIGHT_VISIBILITY;
+    if (needs_light && light >= scene->light_count)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "light %u: the scene has %u lights", light, scene->light_count);
+    if ((st = prepare(ctx, c, scene, set)))
+        return st;
+    pn_hf_state *s = &c->fields[field];
+    pn_heightfield hf = scene->hfs[field];
+    const size_t base = (size_t)hf->width * hf->depth;
+    size_t per = 0;
+    switch (what) {
+    case PN_HF_ENV:
+    case PN_HF_LIGHT:
+    case PN_HF_TOTAL:
+    case PN_HF_NORMALS:
+        per = 4;
+        break;
+    case PN_HF_ENV_HORIZONS:
+    case PN_HF_LIGHT_HORIZONS:
+        per = (size_t)set->azimuths;
+        break;
+    case PN_HF_ENV_VISIBILITY:
+    case PN_HF_LIGHT_VISIBILITY:
+        per = (size_t)set->bands * set->bands;
+        break;
+    default:
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "unknown height-field output %d", (int)what);
+    }
+    const size_t need = pn_mul_size(base, per, sizeof(float));
+    if (bytes < need)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "height-field output needs %zu bytes, the buffer has %zu", need, bytes);
+    cl_mem src = NULL, temp = NULL;
+    size_t offset = 0;
+    if (what == PN_HF_ENV || what == PN_HF_LIGHT || what == PN_HF_TOTAL) {
+        if ((st = run_passes(ctx, c, scene, set)))
+            return st;
+        src = what == PN_HF_ENV ? s->out_env : what == PN_HF_TOTAL ? s->out_total : s->out_lights;
+        offset = what == PN_HF_LIGHT ? light * base * 16 : 0;
+    } else if (what == PN_HF_NORMALS) {
+        src = s->normals;
+    } else {
+        cl_kernel k;
+        const bool env = what == PN_HF_ENV_HORIZONS || what == PN_HF_ENV_VISIBILITY;
+        const cl_int n_phi = set->azimuths, nb = set->bands, exact = set->exact;
+        const cl_int mode = what == PN_HF_ENV_HORIZONS || what == PN_HF_LIGHT_HORIZONS ? 0 : 1;
+        cl_float4 lv = {{0.0f, 0.0f, 0.0f, -1.0f}};
+        if (!env) {
+            const pn_sphere_light *l = &scene->lights[light];
+            cl_float4 t = {{l->position[0], l->position[1], l->position[2], l->radius}};
+            lv = t;
+        }
+        if ((st = pn_context_kernel(ctx, "heightfield", "hf_probe", &k)) ||
+            (st = pn_alloc(ctx, need, CL_MEM_READ_WRITE, NULL, &temp, "a height-field probe")))
+            return st;
+        size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof s->grid, sizeof s->geom, sizeof n_phi, sizeof nb,
+                          sizeof exact, sizeof(cl_mem), sizeof lv, sizeof mode, sizeof(cl_mem)};
+        const void *vals[] = {&s->pyr, &s->levels, &s->grid, &s->geom, &n_phi, &nb, &exact,
+                              env ? &c->env_table : &c->light_table, &lv, &mode, &temp};
+        if ((st = pn_set_args(ctx, k, "hf_probe", 11, sizes, vals)) ||
+            (st = pn_enqueue_1d(ctx, k, "hf_probe", base, 64))) {
+            pn_mem_release(&temp);
+            return st;
+        }
+        src = temp;
+    }
+    cl_int err = clEnqueueReadBuffer(ctx->queue, src, CL_TRUE, offset, need, host, 0, NULL, NULL);
+    pn_mem_release(&temp);
+    if (err != CL_SUCCESS)
+        return pn_fail_cl(ctx, err, "reading a height-field output");
+    return PN_SUCCESS;
+}

@@ -1,0 +1,157 @@
+/* Spherical-harmonic tables of the `heightfield` method, in float64
+ * (docs/heightfield.md): visibility wedge tables, the triple-product tensor,
+ * the clamped-cosine zonal harmonics and the env map's projection. Computed
+ * on the host once per (n_phi, bands) and uploaded as float. */
+#include "internal.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define PI 3.14159265358979323846
+
+/* Gauss–Legendre nodes and weights on [-1, 1] (Newton on the recurrence). */
+static void gauss_legendre(int n, double *x, double *w)
+{
+    for (int i = 0; i < n; ++i) {
+        double z = cos(PI * (i + 0.75) / (n + 0.5)), dp = 1.0;
+        for (int it = 0; it < 100; ++it) {
+            double p0 = 1.0, p1 = z;
+            for (int k = 2; k <= n; ++k) {
+                double p2 = ((2.0 * k - 1.0) * z * p1 - (k - 1.0) * p0) / k;
+                p0 = p1;
+                p1 = p2;
+            }
+            dp = n * (z * p1 - p0) / (z * z - 1.0);
+            double dz = p1 / dp;
+            z -= dz;
+            if (fabs(dz) < 1e-15)
+                break;
+        }
+        x[i] = z;
+        w[i] = 2.0 / ((1.0 - z * z) * dp * dp);
+    }
+}
+
+/* All y_lm (l < nb) at polar cosine ct, sine st and azimuth phi; index l*l + l + m.
+ * Associated Legendre with the Condon–Shortley phase, by the standard recurrences. */
+void pn_sh_eval64(int nb, double ct, double st, double phi, double *out)
+{
+    double p[PN_SH_MAX_BANDS][PN_SH_MAX_BANDS]; /* p[l][m] */
+    p[0][0] = 1.0;
+    for (int m = 1; m < nb; ++m)
+        p[m][m] = -(2.0 * m - 1.0) * st * p[m - 1][m - 1];
+    for (int m = 0; m + 1 < nb; ++m)
+        p[m + 1][m] = (2.0 * m + 1.0) * ct * p[m][m];
+    for (int m = 0; m < nb; ++m)
+        for (int l = m + 2; l < nb; ++l)
+            p[l][m] = ((2.0 * l - 1.0) * ct * p[l - 1][m] - (l + m - 1.0) * p[l - 2][m]) / (l - m);
+    for (int l = 0; l < nb; ++l) {
+        for (int m = 0; m <= l; ++m) {
+            double ratio = 1.0; /* (l - m)! / (l + m)! */
+            for (int q = l - m + 1; q <= l + m; ++q)
+                ratio /= q;
+            double k = sqrt((2.0 * l + 1.0) / (4.0 * PI) * ratio);
+            if (m == 0) {
+                out[l * l + l] = k * p[l][0];
+            } else {
+                out[l * l + l + m] = sqrt(2.0) * k * p[l][m] * cos(m * phi);
+                out[l * l + l - m] = sqrt(2.0) * k * p[l][m] * sin(m * phi);
+            }
+        }
+    }
+}
+
+/* 2π ∫_0^1 P_l(t) t dt: the clamped cosine's zonal coefficient z_l times sqrt(4π/(2l+1)). */
+void pn_sh_clamped_cosine64(int nb, double *a)
+{
+    double x[16], w[16];
+    gauss_legendre(16, x, w);
+    for (int l = 0; l < nb; ++l) {
+        double s = 0.0;
+        for (int i = 0; i < 16; ++i) {
+            double t = 0.5 * (x[i] + 1.0), p0 = 1.0, p1 = t, pl = l == 0 ? 1.0 : t;
+            for (int k = 2; k <= l; ++k) {
+                pl = ((2.0 * k - 1.0) * t * p1 - (k - 1.0) * p0) / k;
+                p0 = p1;
+                p1 = pl;
+            }
+            s += 0.5 * w[i] * pl * t;
+        }
+        a[l] = 2.0 * PI * s;
+    }
+}
+
+pn_status pn_sh_wedge_table(pn_context ctx, int n_phi, int nb, bool light, float **out)
+{
+    const int nc = nb * nb, T = PN_SH_WEDGE_ANGLES, NP = 24, NT = 32;
+    float *table = pn_malloc(ctx, (size_t)T * T * nc * sizeof(float), "a visibility wedge table");
+    if (!table)
+        return PN_ERROR_OUT_OF_MEMORY;
+    const double lo = light ? -0.5 * PI : 0.0, hi = 0.5 * PI, dphi = 2.0 * PI / n_phi;
+    double xp[24], wp[24], xt[32], wt[32], y[PN_SH_MAX_BANDS * PN_SH_MAX_BANDS], acc[PN_SH_MAX_BANDS * PN_SH_MAX_BANDS];
+    gauss_legendre(NP, xp, wp);
+    gauss_legendre(NT, xt, wt);
+    for (int a = 0; a < T; ++a) {
+        const double wl = lo + a * (hi - lo) / (T - 1);
+        for (int b = 0; b < T; ++b) {
+            const double wr = lo + b * (hi - lo) / (T - 1);
+            memset(acc, 0, sizeof acc);
+            for (int i = 0; i < NP; ++i) {
+                const double phi = 0.5 * dphi * (xp[i] + 1.0), f = phi / dphi;
+                double horizon = wl + f * (wr - wl);
+                if (!light && horizon < 0.0)
+                    horizon = 0.0;
+                /* Visible: elevation above the horizon = polar angle in [0, pi/2 - horizon];
+                 * integrated in the polar angle, where the integrand is smooth. */
+                const double top = 0.5 * PI - horizon;
+                for (int j = 0; j < NT; ++j) {
+                    const double th = 0.5 * top * (xt[j] + 1.0), wgt = 0.25 * dphi * wp[i] * top * wt[j] * sin(th);
+                    pn_sh_eval64(nb, cos(th), sin(th), phi, y);
+                    for (int c = 0; c < nc; ++c)
+                        acc[c] += wgt * y[c];
+                }
+            }
+            for (int c = 0; c < nc; ++c)
+                table[((size_t)a * T + b) * nc + c] = (float)acc[c];
+        }
+    }
+    *out = table;
+    return PN_SUCCESS;
+}
+
+/* Γ_ijk = ∫ y_i y_j y_k dω, exact by Gauss–Legendre in cos ϑ (polynomial of
+ * degree ≤ 3(nb-1) once the azimuthal integral is non-zero) and a uniform
+ * azimuth rule with more nodes than the highest frequency. */
+pn_status pn_sh_triple_product(pn_context ctx, int nb, double **out)
+{
+    const int nc = nb * nb, NZ = 3 * PN_SH_MAX_BANDS, NF = 6 * PN_SH_MAX_BANDS;
+    double *g = calloc((size_t)nc * nc * nc, sizeof(double));
+    double *y = malloc((size_t)NZ * NF * nc * sizeof(double));
+    if (!g || !y) {
+        free(g);
+        free(y);
+        return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for the SH triple-product tensor");
+    }
+    double xz[3 * PN_SH_MAX_BANDS], wz[3 * PN_SH_MAX_BANDS];
+    gauss_legendre(NZ, xz, wz);
+    for (int i = 0; i < NZ; ++i)
+        for (int f = 0; f < NF; ++f)
+            pn_sh_eval64(nb, xz[i], sqrt(1.0 - xz[i] * xz[i]), 2.0 * PI * (f + 0.5) / NF, y + ((size_t)i * NF + f) * nc);
+    for (int q = 0; q < NZ * NF; ++q) {
+        const double wq = wz[q / NF] * 2.0 * PI / NF;
+        const double *yq = y + (size_t)q * nc;
+        for (int i = 0; i < nc; ++i)
+            for (int j = 0; j < nc; ++j) {
+                const double yij = wq * yq[i] * yq[j];
+                for (int k = 0; k < nc; ++k)
+                    g[((size_t)i * nc + j) * nc + k] += yij * yq[k];
+            }
+    }
+    for (size_t i = 0; i < (size_t)nc * nc * nc; ++i)
+        if (fabs(g[i]) < 1e-12)
+            g[i] = 0.0;
+    free(y);
+    *out = g;
+    return PN_SUCCESS;
+}

@@ -1,0 +1,360 @@
+/* `heightfield` method: environment and spherical-light lighting with soft
+ * self-shadows on dynamic height fields (Snyder and Nowrouzezahrai's pyramid
+ * horizon search and SH visibility wedges; local lights after the seed's
+ * chapter 4.3). Every formula is specified in docs/heightfield.md.
+ *
+ * Per frame: hf_decimate builds the pyramid level by level (tent filter),
+ * hf_normals the vertex normals; hf_env and hf_light compute per-vertex
+ * outgoing radiance (horizons -> SH visibility -> SH product with the
+ * clamped cosine -> dot with the lighting); hf_shade maps G-buffer pixels on
+ * the height field to those per-vertex results.
+ *
+ * Per-field constants: grid = (W, D, levels, level offset in samples),
+ * geom = (x0, y0, z0, sx, sz, level step, s0, 0). Pyramid levels are
+ * concatenated in `pyr`; level k is levels[k] = (offset, cells x, cells z, 0),
+ * level 0 being the world heights H (height_scale x input). */
+#include "common/sh.cl"
+#include "common/sphere_maps.cl"
+
+#define HF_MAX_LEVELS 128
+#define HF_MAX_AZIMUTHS 256
+#define HF_TABLE 64
+
+/* Uniform cubic B-spline weights at t in [0, 1). */
+inline float4 hf_bspline(float t)
+{
+    const float t2 = t * t, t3 = t2 * t, s = 1.0f - t;
+    return (float4)(s * s * s, 3.0f * t3 - 6.0f * t2 + 4.0f, -3.0f * t3 + 3.0f * t2 + 3.0f * t + 1.0f, t3) /
+           6.0f;
+}
+
+/* H_k at base coordinates (u, v): the B-spline of level k's values, indices
+ * clamped (the terrain continues beyond its border at the border's height). */
+inline float hf_level_sample(global const float *pyr, int4 lev, float u, float v, float inv_wm1, float inv_dm1)
+{
+    const float a = u * (float)lev.y * inv_wm1, b = v * (float)lev.z * inv_dm1;
+    const float fa = floor(a), fb = floor(b);
+    const float4 wa = hf_bspline(a - fa), wb = hf_bspline(b - fb);
+    const int ia = (int)fa - 1, ib = (int)fb - 1, row = lev.y + 1;
+    float wav[4] = {wa.x, wa.y, wa.z, wa.w}, wbv[4] = {wb.x, wb.y, wb.z, wb.w};
+    float sum = 0.0f;
+    for (int q = 0; q < 4; ++q) {
+        const int jb = clamp(ib + q, 0, lev.z);
+        global const float *r = pyr + lev.x + jb * row;
+        float s = 0.0f;
+        for (int p = 0; p < 4; ++p)
+            s += wav[p] * r[clamp(ia + p, 0, lev.y)];
+        sum += wbv[q] * s;
+    }
+    return sum;
+}
+
+kernel void hf_decimate(global float *pyr, int4 src, int4 dst, float wm1, float dm1)
+{
+    const int gid = get_global_id(0), row = dst.y + 1;
+    if (gid >= row * (dst.z + 1))
+        return;
+    const int a = gid % row, b = gid / row;
+    /* Distances in base units; the tent's radius is the destination spacing. */
+    const float ru = wm1 / (float)dst.y, rv = dm1 / (float)dst.z, hu = wm1 / (float)src.y, hv = dm1 / (float)src.z;
+    const float u = (float)a * ru, v = (float)b * rv;
+    const int a0 = max((int)floor((u - ru) / hu), 0), a1 = min((int)ceil((u + ru) / hu), src.y);
+    const int b0 = max((int)floor((v - rv) / hv), 0), b1 = min((int)ceil((v + rv) / hv), src.z);
+    float sum = 0.0f, wsum = 0.0f;
+    for (int qb = b0; qb <= b1; ++qb) {
+        const float wv = fmax(1.0f - fabs((float)qb * hv - v) / rv, 0.0f);
+        if (wv <= 0.0f)
+            continue;
+        for (int qa = a0; qa <= a1; ++qa) {
+            const float w = wv * fmax(1.0f - fabs((float)qa * hu - u) / ru, 0.0f);
+            sum += w * pyr[src.x + qb * (src.y + 1) + qa];
+            wsum += w;
+        }
+    }
+    pyr[dst.x + gid] = sum / wsum;
+}
+
+/* Central differences of H (one-sided on the border): n = normalize(-dH/dx, 1, -dH/dz). */
+kernel void hf_normals(global const float *pyr, int4 grid, float8 geom, global float4 *normals)
+{
+    const int gid = get_global_id(0), w = grid.x, d = grid.y;
+    if (gid >= w * d)
+        return;
+    const int i = gid % w, j = gid / w;
+    const int i0 = max(i - 1, 0), i1 = min(i + 1, w - 1), j0 = max(j - 1, 0), j1 = min(j + 1, d - 1);
+    const float dx = (pyr[j * w + i1] - pyr[j * w + i0]) / ((float)(i1 - i0) * geom.s3);
+    const float dz = (pyr[j1 * w + i] - pyr[j0 * w + i]) / ((float)(j1 - j0) * geom.s4);
+    normals[gid] = (float4)(normalize((float3)(-dx, 1.0f, -dz)), 0.0f);
+}
+
+/* Elevations of one azimuth from the pyramid: samples at d_m = s0 sr^m (only
+ * d_m < limit), level m - offset, B-spline maximum over knots and midpoints
+ * with repeated ends. `hp` holds H_k at the receiver. -pi/2 without samples. */
+inline float hf_horizon_pyramid(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                                const float *hp, float u0, float v0, float cu, float cv, float limit,
+                                float inv_wm1, float inv_dm1)
+{
+    float w[HF_MAX_LEVELS];
+    int count = 0;
+    for (int m = 0; m < grid.z; ++m) {
+        const float d = geom.s6 * exp2((float)m / geom.s5);
+        if (!(d < limit))
+            break;
+        const int k = clamp(m - grid.w, 0, grid.z - 1);
+        const float h = hf_level_sample(pyr, levels[k], u0 + d * cu, v0 + d * cv, inv_wm1, inv_dm1);
+        w[count++] = atan((h - hp[k]) / d);
+    }
+    if (count == 0)
+        return -M_PI_2_F;
+    float best = -M_PI_2_F;
+    for (int m = 0; m < count; ++m) {
+        const float a = w[max(m - 1, 0)], b = w[m], c = w[min(m + 1, count - 1)];
+        best = fmax(best, (a + 4.0f * b + c) / 6.0f);
+        if (m + 1 < count)
+            best = fmax(best, (a + 23.0f * b + 23.0f * c + w[min(m + 2, count - 1)]) / 48.0f);
+    }
+    return best;
+}
+
+/* The exact-horizon mode: the base field (bilinear) marched in steps of s0 / 2
+ * up to the border (and below `limit`). */
+inline float hf_horizon_exact(global const float *pyr, int4 grid, float8 geom, float h0, float u0, float v0,
+                              float cu, float cv, float limit)
+{
+    const int w = grid.x;
+    const float step = 0.5f * geom.s6, umax = (float)(grid.x - 1), vmax = (float)(grid.y - 1);
+    float best = -M_PI_2_F;
+    for (int s = 1;; ++s) {
+        const float t = step * (float)s, u = u0 + t * cu, v = v0 + t * cv;
+        if (!(t < limit) || u < 0.0f || v < 0.0f || u > umax || v > vmax)
+            break;
+        const int iu = min((int)u, grid.x - 2), iv = min((int)v, grid.y - 2);
+        const float fu = u - (float)iu, fv = v - (float)iv;
+        const float h = mix(mix(pyr[iv * w + iu], pyr[iv * w + iu + 1], fu),
+                            mix(pyr[(iv + 1) * w + iu], pyr[(iv + 1) * w + iu + 1], fu), fv);
+        best = fmax(best, atan((h - h0) / t));
+    }
+    return best;
+}
+
+/* Horizon angles of vertex gid for every azimuth (environment: clamped at 0;
+ * light: only what lies nearer than `limit`). */
+inline void hf_vertex_horizons(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                               int gid, int n_phi, int exact, float limit, int env, float *om)
+{
+    const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
+    const float u0 = (float)(gid % grid.x), v0 = (float)(gid / grid.x);
+    float hp[HF_MAX_LEVELS];
+    if (!exact) {
+        const int top = max(grid.z - 1 - grid.w, 0);
+        for (int k = 0; k <= top; ++k)
+            hp[k] = hf_level_sample(pyr, levels[k], u0, v0, inv_wm1, inv_dm1);
+    }
+    const float dphi = 2.0f * M_PI_F / (float)n_phi;
+    for (int k = 0; k < n_phi; ++k) {
+        float s, c;
+        s = sincos(dphi * (float)k, &c);
+        /* Azimuth in the SH frame: world direction (cos, 0, -sin); base units per world unit. */
+        const float cu = c / geom.s3, cv = -s / geom.s4;
+        const float h = exact ? hf_horizon_exact(pyr, grid, geom, pyr[gid], u0, v0, cu, cv, limit)
+                              : hf_horizon_pyramid(pyr, levels, grid, geom, hp, u0, v0, cu, cv, limit, inv_wm1,
+                                                   inv_dm1);
+        om[k] = env ? fmax(h, 0.0f) : h;
+    }
+}
+
+/* V = sum over azimuths of the wedge table, bilinear at (ω_k, ω_k+1), turned to φ_k. */
+inline void hf_visibility(const float *om, int n_phi, global const float *table, int nb, float lo, float *v)
+{
+    const int nc = nb * nb;
+    const float scale = (float)(HF_TABLE - 1) / (0.5f * M_PI_F - lo), dphi = 2.0f * M_PI_F / (float)n_phi;
+    for (int q = 0; q < nc; ++q)
+        v[q] = 0.0f;
+    float c[PN_SH_MAX_COEFFS];
+    for (int k = 0; k < n_phi; ++k) {
+        const float fa = clamp((om[k] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
+        const float fb = clamp((om[(k + 1) % n_phi] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
+        const int ia = min((int)fa, HF_TABLE - 2), ib = min((int)fb, HF_TABLE - 2);
+        const float ta = fa - (float)ia, tb = fb - (float)ib;
+        global const float *t00 = table + (ia * HF_TABLE + ib) * nc, *t01 = t00 + nc;
+        global const float *t10 = t00 + HF_TABLE * nc, *t11 = t10 + nc;
+        for (int q = 0; q < nc; ++q)
+            c[q] = mix(mix(t00[q], t01[q], tb), mix(t10[q], t11[q], tb), ta);
+        float sn, cs;
+        sn = sincos(dphi * (float)k, &cs);
+        pn_sh_zrotate(c, nb, cs, sn);
+        for (int q = 0; q < nc; ++q)
+            v[q] += c[q];
+    }
+}
+
+/* Clamped cosine about the world normal n, in SH: C_lm = A_l y_lm(n). */
+inline void hf_cosine(float3 n, int nb, float8 cosine_zh, float *cvec)
+{
+    const float a[8] = {cosine_zh.s0, cosine_zh.s1, cosine_zh.s2, cosine_zh.s3,
+                        cosine_zh.s4, cosine_zh.s5, cosine_zh.s6, cosine_zh.s7};
+    pn_sh_eval((float3)(n.x, -n.z, n.y), nb, cvec);
+    for (int l = 0; l < nb; ++l)
+        for (int q = l * l; q < (l + 1) * (l + 1); ++q)
+            cvec[q] *= a[l];
+}
+
+inline float3 hf_albedo(global const float *albedo, int has_albedo, int gid)
+{
+    return has_albedo ? vload3(gid, albedo) : (float3)(1.0f);
+}
+
+/* Environment pass: E = V^T M C per channel (M_jk = Σ_i L_i Γ_ijk). With
+ * `split`, the SH estimate of the unoccluded upper hemisphere (u·C, u = Hᵀ M)
+ * is replaced by the exact irradiance of the env's upper half, so SH carries
+ * only what the terrain blocks: E = E_up(n) - (H - V)^T M C. Clamped at 0;
+ * writes albedo / π E and starts the total with it. */
+kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                   global const float4 *normals, global const float *albedo, int has_albedo, int n_phi, int nb,
+                   int exact, global const float *table, global const float *m, float8 cosine_zh, int split,
+                   global const float4 *up_irradiance, int up_size, global const float *u,
+                   global float4 *out_env, global float4 *out_total)
+{
+    const int gid = get_global_id(0);
+    if (gid >= grid.x * grid.y)
+        return;
+    const int nc = nb * nb;
+    float om[HF_MAX_AZIMUTHS], v[PN_SH_MAX_COEFFS], cvec[PN_SH_MAX_COEFFS];
+    hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, exact, INFINITY, 1, om);
+    hf_visibility(om, n_phi, table, nb, 0.0f, v);
+    const float3 n = normals[gid].xyz;
+    hf_cosine(n, nb, cosine_zh, cvec);
+    const float3 up = split ? pn_cube_grid_lookup(up_irradiance, up_size, n) : (float3)(0.0f);
+    const float upv[3] = {up.x, up.y, up.z};
+    float e[3];
+    for (int ch = 0; ch < 3; ++ch) {
+        global const float *mc = m + ch * nc * nc;
+        float sum = 0.0f;
+        for (int j = 0; j < nc; ++j) {
+            float row = 0.0f;
+            for (int k = 0; k < nc; ++k)
+                row += mc[j * nc + k] * cvec[k];
+            sum += v[j] * row;
+        }
+        if (split) {
+            float uc = 0.0f;
+            for (int k = 0; k < nc; ++k)
+                uc += u[ch * PN_SH_MAX_COEFFS + k] * cvec[k];
+            sum += upv[ch] - uc;
+        }
+        e[ch] = fmax(sum, 0.0f);
+    }
+    const float4 out = (float4)(hf_albedo(albedo, has_albedo, gid) * (float3)(e[0], e[1], e[2]) * M_1_PI_F, 1.0f);
+    out_env[gid] = out;
+    out_total[gid] = out;
+}
+
+/* Cap of light (centre c, radius r) seen from p: s = 1 - cos α (2 inside the light). */
+inline float hf_cap(float3 rel, float r)
+{
+    const float d2 = dot(rel, rel);
+    if (d2 <= r * r)
+        return 2.0f;
+    const float q = r * r / d2;
+    return q / (1.0f + sqrt(1.0f - q));
+}
+
+/* One spherical light: E = Le Σ_i z_l(i) y_i(ĉ - p) T_i, T_i = Σ Γ_ijk V_j C_k
+ * (sparse Γ), clamped at 0. Vertices where the light cannot matter (its cap
+ * entirely below the tangent plane, or Le Ω below `threshold`) get 0
+ * without a horizon search. Adds albedo / π E to the total. */
+kernel void hf_light(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                     global const float4 *normals, global const float *albedo, int has_albedo, int n_phi, int nb,
+                     int exact, global const float *table, global const int4 *gamma_index,
+                     global const float *gamma_value, int gamma_count, float8 cosine_zh, float4 light,
+                     float4 radiance, float threshold, int out_offset, global float4 *out_light,
+                     global float4 *out_total)
+{
+    const int gid = get_global_id(0);
+    if (gid >= grid.x * grid.y)
+        return;
+    const int nc = nb * nb;
+    const int i = gid % grid.x, j = gid / grid.x;
+    const float3 p = (float3)(geom.s0 + (float)i * geom.s3, geom.s1 + pyr[gid], geom.s2 + (float)j * geom.s4);
+    const float3 rel = light.xyz - p, n = normals[gid].xyz;
+    const float s = hf_cap(rel, light.w), dist = length(rel);
+    const float le = fmax(fmax(radiance.x, radiance.y), radiance.z);
+    /* Cap below the tangent plane: angle(n, ĉ - p) >= π/2 + α. */
+    const float sin_alpha = sqrt(fmax(0.0f, s * (2.0f - s)));
+    const float cos_n = dist > 0.0f ? dot(n, rel) / dist : 1.0f;
+    const bool below = s < 2.0f && cos_n <= -sin_alpha; /* cos(π/2 + α) = -sin α */
+    float e = 0.0f;
+    if (!below && le * 2.0f * M_PI_F * s >= threshold) {
+        float om[HF_MAX_AZIMUTHS], v[PN_SH_MAX_COEFFS], cvec[PN_SH_MAX_COEFFS], t[PN_SH_MAX_COEFFS];
+        float y[PN_SH_MAX_COEFFS], z[PN_SH_MAX_BANDS];
+        const float limit = sqrt(rel.x * rel.x + rel.z * rel.z);
+        hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, exact, limit, 0, om);
+        hf_visibility(om, n_phi, table, nb, -M_PI_2_F, v);
+        hf_cosine(n, nb, cosine_zh, cvec);
+        for (int q = 0; q < nc; ++q)
+            t[q] = 0.0f;
+        for (int g = 0; g < gamma_count; ++g) {
+            const int4 ijk = gamma_index[g];
+            t[ijk.x] += gamma_value[g] * v[ijk.y] * cvec[ijk.z];
+        }
+        const float3 dir = dist > 0.0f ? rel / dist : (float3)(0.0f, 1.0f, 0.0f);
+        pn_sh_eval((float3)(dir.x, -dir.z, dir.y), nb, y);
+        pn_sh_cap(s, nb, z);
+        for (int l = 0; l < nb; ++l)
+            for (int q = l * l; q < (l + 1) * (l + 1); ++q)
+                e += z[l] * y[q] * t[q];
+        e = fmax(e, 0.0f);
+    }
+    const float4 out = (float4)(hf_albedo(albedo, has_albedo, gid) * radiance.xyz * e * M_1_PI_F, 1.0f);
+    out_light[out_offset + gid] = out;
+    out_total[gid] += (float4)(out.xyz, 0.0f);
+}
+
+/* What the tests and the error-splitting experiments read: horizons
+ * (n_phi per vertex) or SH visibility (nb*nb per vertex), for the
+ * environment (light.w < 0) or for one light. */
+kernel void hf_probe(global const float *pyr, global const int4 *levels, int4 grid, float8 geom, int n_phi,
+                     int nb, int exact, global const float *table, float4 light, int what, global float *out)
+{
+    const int gid = get_global_id(0);
+    if (gid >= grid.x * grid.y)
+        return;
+    const bool env = light.w < 0.0f;
+    float limit = INFINITY;
+    if (!env) {
+        const int i = gid % grid.x, j = gid / grid.x;
+        const float3 p = (float3)(geom.s0 + (float)i * geom.s3, geom.s1 + pyr[gid], geom.s2 + (float)j * geom.s4);
+        const float3 rel = light.xyz - p;
+        limit = sqrt(rel.x * rel.x + rel.z * rel.z);
+    }
+    float om[HF_MAX_AZIMUTHS];
+    hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, exact, limit, env, om);
+    if (what == 0) {
+        for (int k = 0; k < n_phi; ++k)
+            out[(size_t)gid * n_phi + k] = om[k];
+        return;
+    }
+    float v[PN_SH_MAX_COEFFS];
+    hf_visibility(om, n_phi, table, nb, env ? 0.0f : -M_PI_2_F, v);
+    for (int q = 0; q < nb * nb; ++q)
+        out[(size_t)gid * nb * nb + q] = v[q];
+}
+
+/* G-buffer pixels on the height field's instance: the per-vertex outgoing
+ * radiance (total), bilinear at the pixel's (x, z), times the pixel's albedo. */
+kernel void hf_shade(global const float4 *position, global const float4 *albedo, global const uint *instance_id,
+                     int count, uint instance, int4 grid, float8 geom, global const float4 *total,
+                     global float4 *image)
+{
+    const int gid = get_global_id(0);
+    if (gid >= count || instance_id[gid] != instance)
+        return;
+    const float3 p = position[gid].xyz;
+    const float u = clamp((p.x - geom.s0) / geom.s3, 0.0f, (float)(grid.x - 1));
+    const float v = clamp((p.z - geom.s2) / geom.s4, 0.0f, (float)(grid.y - 1));
+    const int iu = min((int)u, grid.x - 2), iv = min((int)v, grid.y - 2), w = grid.x;
+    const float fu = u - (float)iu, fv = v - (float)iv;
+    const float3 l = mix(mix(total[iv * w + iu].xyz, total[iv * w + iu + 1].xyz, fu),
+                         mix(total[(iv + 1) * w + iu].xyz, total[(iv + 1) * w + iu + 1].xyz, fu), fv);
+    image[gid] = (float4)(fmax(albedo[gid].xyz * l, 0.0f), 1.0f);
+}
