@@ -485,7 +485,7 @@ PN_API pn_status pn_renderer_read_heightfield(pn_renderer renderer, pn_scene sce
  * "fiv"         Fullsphere Irradiance Vectors (docs/fiv.md): diffuse env lighting with soft shadows and
  *               self-shadows from the occlusion fields of pn_scene_set_fivs.
  *     "overlap"            int    several occluders: 0 sum, 1 unit-bounding-disc correction, 2 multiplied visibility
- *     "partial"            int    1: occluders straddling the receiver plane scaled by (d + R) / 2R (1)
+ *     "partial"            int    1: occluders straddling the receiver plane scaled by (d + R) / 2R (0)
  *     "self_shadow"        int    1: pixels on an occluder use its own field (fullsphere equality) (1)
  *     "trilinear"          int    1: trilinear interpolation of the 8 nearest samples, 0: nearest (1)
  *     "cull_threshold"     float  skip occluders whose extrapolated contribution is below this share of the

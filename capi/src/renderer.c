@@ -46,7 +46,7 @@ static const pn_param reference_params[] = {
 static const pn_param fiv_params[] = {
     {"background", true, 1, 0, 1},
     {"overlap", true, 1, 0, 2},          /* 0 sum, 1 unit-bounding-disc correction, 2 multiplied visibility */
-    {"partial", true, 1, 0, 1},          /* case B scaled by (d + R) / 2R */
+    {"partial", true, 0, 0, 1},          /* case B scaled by (d + R) / 2R (the paper's; off: see docs/fiv.md) */
     {"self_shadow", true, 1, 0, 1},
     {"trilinear", true, 1, 0, 1},        /* 0: nearest sample */
     {"cull_threshold", false, 1e-3f, 0, 1},
