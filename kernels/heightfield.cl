@@ -28,9 +28,12 @@ inline float4 hf_bspline(float t)
            6.0f;
 }
 
-/* H_k at base coordinates (u, v): the B-spline of level k's values, indices
- * clamped (the terrain continues beyond its border at the border's height). */
-inline float hf_level_sample(global const float *pyr, int4 lev, float u, float v, float inv_wm1, float inv_dm1)
+/* H_k - ref at base coordinates (u, v): the B-spline of level k's values,
+ * indices clamped (the terrain continues beyond its border at the border's
+ * height). Taking `ref` (the receiver's height) off every value keeps
+ * differences exact: a flat field gives exactly 0, at any altitude. */
+inline float hf_level_sample(global const float *pyr, int4 lev, float u, float v, float inv_wm1, float inv_dm1,
+                             float ref)
 {
     const float a = u * (float)lev.y * inv_wm1, b = v * (float)lev.z * inv_dm1;
     const float fa = floor(a), fb = floor(b);
@@ -43,7 +46,7 @@ inline float hf_level_sample(global const float *pyr, int4 lev, float u, float v
         global const float *r = pyr + lev.x + jb * row;
         float s = 0.0f;
         for (int p = 0; p < 4; ++p)
-            s += wav[p] * r[clamp(ia + p, 0, lev.y)];
+            s += wav[p] * (r[clamp(ia + p, 0, lev.y)] - ref);
         sum += wbv[q] * s;
     }
     return sum;
@@ -60,6 +63,8 @@ kernel void hf_decimate(global float *pyr, int4 src, int4 dst, float wm1, float 
     const float u = (float)a * ru, v = (float)b * rv;
     const int a0 = max((int)floor((u - ru) / hu), 0), a1 = min((int)ceil((u + ru) / hu), src.y);
     const int b0 = max((int)floor((v - rv) / hv), 0), b1 = min((int)ceil((v + rv) / hv), src.z);
+    /* Averaged relative to one source value, so a constant field stays exactly constant. */
+    const float anchor = pyr[src.x + clamp((int)round(v / hv), 0, src.z) * (src.y + 1) + clamp((int)round(u / hu), 0, src.y)];
     float sum = 0.0f, wsum = 0.0f;
     for (int qb = b0; qb <= b1; ++qb) {
         const float wv = fmax(1.0f - fabs((float)qb * hv - v) / rv, 0.0f);
@@ -67,11 +72,11 @@ kernel void hf_decimate(global float *pyr, int4 src, int4 dst, float wm1, float 
             continue;
         for (int qa = a0; qa <= a1; ++qa) {
             const float w = wv * fmax(1.0f - fabs((float)qa * hu - u) / ru, 0.0f);
-            sum += w * pyr[src.x + qb * (src.y + 1) + qa];
+            sum += w * (pyr[src.x + qb * (src.y + 1) + qa] - anchor);
             wsum += w;
         }
     }
-    pyr[dst.x + gid] = sum / wsum;
+    pyr[dst.x + gid] = anchor + sum / wsum;
 }
 
 /* Central differences of H (one-sided on the border): n = normalize(-dH/dx, 1, -dH/dz). */
@@ -91,7 +96,7 @@ kernel void hf_normals(global const float *pyr, int4 grid, float8 geom, global f
  * d_m < limit), level m - offset, B-spline maximum over knots and midpoints
  * with repeated ends. `hp` holds H_k at the receiver. -pi/2 without samples. */
 inline float hf_horizon_pyramid(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
-                                const float *hp, float u0, float v0, float cu, float cv, float limit,
+                                const float *hp, float ref, float u0, float v0, float cu, float cv, float limit,
                                 float inv_wm1, float inv_dm1)
 {
     float w[HF_MAX_LEVELS];
@@ -101,7 +106,7 @@ inline float hf_horizon_pyramid(global const float *pyr, global const int4 *leve
         if (!(d < limit))
             break;
         const int k = clamp(m - grid.w, 0, grid.z - 1);
-        const float h = hf_level_sample(pyr, levels[k], u0 + d * cu, v0 + d * cv, inv_wm1, inv_dm1);
+        const float h = hf_level_sample(pyr, levels[k], u0 + d * cu, v0 + d * cv, inv_wm1, inv_dm1, ref);
         w[count++] = atan((h - hp[k]) / d);
     }
     if (count == 0)
@@ -126,10 +131,12 @@ inline float hf_horizon_exact(global const float *pyr, int4 grid, float8 geom, f
     float best = -M_PI_2_F;
     for (int s = 1;; ++s) {
         const float t = step * (float)s, u = u0 + t * cu, v = v0 + t * cv;
-        if (!(t < limit) || u < 0.0f || v < 0.0f || u > umax || v > vmax)
+        /* A step landing on the border (up to float rounding) still counts. */
+        if (!(t < limit) || u < -1e-4f || v < -1e-4f || u > umax + 1e-4f || v > vmax + 1e-4f)
             break;
-        const int iu = min((int)u, grid.x - 2), iv = min((int)v, grid.y - 2);
-        const float fu = u - (float)iu, fv = v - (float)iv;
+        const float uc = clamp(u, 0.0f, umax), vc = clamp(v, 0.0f, vmax);
+        const int iu = min((int)uc, grid.x - 2), iv = min((int)vc, grid.y - 2);
+        const float fu = uc - (float)iu, fv = vc - (float)iv;
         const float h = mix(mix(pyr[iv * w + iu], pyr[iv * w + iu + 1], fu),
                             mix(pyr[(iv + 1) * w + iu], pyr[(iv + 1) * w + iu + 1], fu), fv);
         best = fmax(best, atan((h - h0) / t));
@@ -137,28 +144,50 @@ inline float hf_horizon_exact(global const float *pyr, int4 grid, float8 geom, f
     return best;
 }
 
+/* H_k - H_0 at the receiver for every level a sample can use. */
+inline void hf_receiver_levels(global const float *pyr, global const int4 *levels, int4 grid, int gid, float *hp)
+{
+    const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
+    const float u0 = (float)(gid % grid.x), v0 = (float)(gid / grid.x);
+    const int top = max(grid.z - 1 - grid.w, 0);
+    for (int k = 0; k <= top; ++k)
+        hp[k] = hf_level_sample(pyr, levels[k], u0, v0, inv_wm1, inv_dm1, pyr[gid]);
+}
+
+/* The horizon of vertex gid at azimuth phi (SH frame: world direction
+ * (cos, 0, -sin)), by the pyramid (hp from hf_receiver_levels) or exactly. */
+inline float hf_horizon_at(global const float *pyr, global const int4 *levels, int4 grid, float8 geom, int gid,
+                           const float *hp, int exact, float phi, float limit)
+{
+    const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
+    const float u0 = (float)(gid % grid.x), v0 = (float)(gid / grid.x);
+    float s, c;
+    s = sincos(phi, &c);
+    const float cu = c / geom.s3, cv = -s / geom.s4; /* base units per world unit */
+    return exact ? hf_horizon_exact(pyr, grid, geom, pyr[gid], u0, v0, cu, cv, limit)
+                 : hf_horizon_pyramid(pyr, levels, grid, geom, hp, pyr[gid], u0, v0, cu, cv, limit, inv_wm1,
+                                      inv_dm1);
+}
+
+/* Share of a disc of angular radius r, centred at elevation e, above a
+ * horizon at elevation h (the area above a chord). */
+inline float hf_disc_above(float e, float h, float r)
+{
+    const float x = clamp((e - h) / fmax(r, 1e-6f), -1.0f, 1.0f);
+    return clamp(0.5f + (x * sqrt(1.0f - x * x) + asin(x)) * M_1_PI_F, 0.0f, 1.0f);
+}
+
 /* Horizon angles of vertex gid for every azimuth (environment: clamped at 0;
  * light: only what lies nearer than `limit`). */
 inline void hf_vertex_horizons(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
                                int gid, int n_phi, int exact, float limit, int env, float *om)
 {
-    const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
-    const float u0 = (float)(gid % grid.x), v0 = (float)(gid / grid.x);
     float hp[HF_MAX_LEVELS];
-    if (!exact) {
-        const int top = max(grid.z - 1 - grid.w, 0);
-        for (int k = 0; k <= top; ++k)
-            hp[k] = hf_level_sample(pyr, levels[k], u0, v0, inv_wm1, inv_dm1);
-    }
+    if (!exact)
+        hf_receiver_levels(pyr, levels, grid, gid, hp);
     const float dphi = 2.0f * M_PI_F / (float)n_phi;
     for (int k = 0; k < n_phi; ++k) {
-        float s, c;
-        s = sincos(dphi * (float)k, &c);
-        /* Azimuth in the SH frame: world direction (cos, 0, -sin); base units per world unit. */
-        const float cu = c / geom.s3, cv = -s / geom.s4;
-        const float h = exact ? hf_horizon_exact(pyr, grid, geom, pyr[gid], u0, v0, cu, cv, limit)
-                              : hf_horizon_pyramid(pyr, levels, grid, geom, hp, u0, v0, cu, cv, limit, inv_wm1,
-                                                   inv_dm1);
+        const float h = hf_horizon_at(pyr, levels, grid, geom, gid, hp, exact, dphi * (float)k, limit);
         om[k] = env ? fmax(h, 0.0f) : h;
     }
 }
@@ -204,6 +233,29 @@ inline float3 hf_albedo(global const float *albedo, int has_albedo, int gid)
     return has_albedo ? vload3(gid, albedo) : (float3)(1.0f);
 }
 
+/* The sun texels as directional lights: each is visible by the fraction of
+ * its disc (angular radius r) above the horizon at its azimuth (linear
+ * between the two nearest azimuths, as the wedges are), times N·s. */
+inline float3 hf_sun(const float *om, int n_phi, float3 n, global const float4 *sun, int suns)
+{
+    float3 e = (float3)(0.0f);
+    const float scale = (float)n_phi / (2.0f * M_PI_F);
+    for (int i = 0; i < suns; ++i) {
+        const float4 d = sun[2 * i], p = sun[2 * i + 1];
+        const float c = dot(n, d.xyz);
+        if (c <= 0.0f)
+            continue;
+        /* SH frame: azimuth of (x, -z); elevation asin(y). */
+        float a = atan2(-d.z, d.x) * scale;
+        a = a < 0.0f ? a + (float)n_phi : a;
+        const int k = min((int)a, n_phi - 1);
+        const float horizon = mix(om[k], om[(k + 1) % n_phi], a - (float)k);
+        const float vis = hf_disc_above(asin(clamp(d.y, -1.0f, 1.0f)), horizon, d.w);
+        e += p.xyz * (c * vis);
+    }
+    return e;
+}
+
 /* Environment pass: E = V^T M C per channel (M_jk = Σ_i L_i Γ_ijk). With
  * `split`, the SH estimate of the unoccluded upper hemisphere (u·C, u = Hᵀ M)
  * is replaced by the exact irradiance of the env's upper half, so SH carries
@@ -213,7 +265,7 @@ kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid
                    global const float4 *normals, global const float *albedo, int has_albedo, int n_phi, int nb,
                    int exact, global const float *table, global const float *m, float8 cosine_zh, int split,
                    global const float4 *up_irradiance, int up_size, global const float *u,
-                   global float4 *out_env, global float4 *out_total)
+                   global const float4 *sun, int suns, global float4 *out_env, global float4 *out_total)
 {
     const int gid = get_global_id(0);
     if (gid >= grid.x * grid.y)
@@ -240,10 +292,16 @@ kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid
             float uc = 0.0f;
             for (int k = 0; k < nc; ++k)
                 uc += u[ch * PN_SH_MAX_COEFFS + k] * cvec[k];
-            sum += upv[ch] - uc;
+            /* Terrain only takes light away: SH ringing of the blocked part
+             * must not lift E above the unoccluded upper-hemisphere irradiance. */
+            sum = fmin(sum + upv[ch] - uc, upv[ch]);
         }
         e[ch] = fmax(sum, 0.0f);
     }
+    const float3 direct = hf_sun(om, n_phi, n, sun, suns);
+    e[0] += direct.x;
+    e[1] += direct.y;
+    e[2] += direct.z;
     const float4 out = (float4)(hf_albedo(albedo, has_albedo, gid) * (float3)(e[0], e[1], e[2]) * M_1_PI_F, 1.0f);
     out_env[gid] = out;
     out_total[gid] = out;
@@ -259,6 +317,50 @@ inline float hf_cap(float3 rel, float r)
     return q / (1.0f + sqrt(1.0f - q));
 }
 
+/* Irradiance from a spherical light of unit radiance with angular radius
+ * asin(sqrt(sin2)) at angle acos(c) from the normal, clipped by the tangent
+ * plane (the closed form of Lagarde and de Rousiers, "Moving Frostbite to
+ * PBR", 2014, for a sphere or disc light). */
+inline float hf_sphere_irradiance(float c, float sin2)
+{
+    if (c * c > sin2)
+        return c > 0.0f ? M_PI_F * sin2 * c : 0.0f;
+    const float sn = sqrt(fmax(1.0f - c * c, 0.0f)), x = sqrt(fmax(1.0f / sin2 - 1.0f, 0.0f));
+    const float y = clamp(-x * c / fmax(sn, 1e-7f), -1.0f, 1.0f), sy = sn * sqrt(1.0f - y * y);
+    return fmax((c * acos(y) - x * sy) * sin2 + atan2(sy, x), 0.0f);
+}
+
+/* `light_visibility = 1`: the light's exact clipped irradiance times the
+ * share of its disc above the horizon, the horizon taken (only nearer than
+ * the light) at three azimuths across the disc. Visibility as a direct
+ * horizon test needs no SH of a small cap, which 4 bands smear widely. */
+inline float hf_light_horizon(global const float *pyr, global const int4 *levels, int4 grid, float8 geom, int gid,
+                              int exact, float3 rel, float r, float3 n)
+{
+    const float d2 = dot(rel, rel), dist = sqrt(d2);
+    if (d2 <= r * r)
+        return M_PI_F; /* inside the light: light from every direction of the hemisphere */
+    const float sin2 = r * r / d2, alpha = asin(sqrt(sin2)), c = dot(n, rel) / dist;
+    const float irr = hf_sphere_irradiance(c, sin2);
+    if (irr <= 0.0f)
+        return 0.0f;
+    const float limit = sqrt(rel.x * rel.x + rel.z * rel.z);
+    if (!(limit > 0.0f))
+        return irr; /* straight above: no terrain between */
+    float hp[HF_MAX_LEVELS];
+    if (!exact)
+        hf_receiver_levels(pyr, levels, grid, gid, hp);
+    const float elev = asin(clamp(rel.y / dist, -1.0f, 1.0f)), phi = atan2(-rel.z, rel.x);
+    /* The disc's azimuthal half-width, seen from p. */
+    const float spread = fmin(alpha / fmax(cos(elev), 1e-3f), M_PI_F);
+    float vis = 0.0f;
+    for (int q = -1; q <= 1; ++q) {
+        const float h = hf_horizon_at(pyr, levels, grid, geom, gid, hp, exact, phi + 0.5f * spread * (float)q, limit);
+        vis += hf_disc_above(elev, h, alpha);
+    }
+    return irr * vis / 3.0f;
+}
+
 /* One spherical light: E = Le Σ_i z_l(i) y_i(ĉ - p) T_i, T_i = Σ Γ_ijk V_j C_k
  * (sparse Γ), clamped at 0. Vertices where the light cannot matter (its cap
  * entirely below the tangent plane, or Le Ω below `threshold`) get 0
@@ -267,7 +369,7 @@ kernel void hf_light(global const float *pyr, global const int4 *levels, int4 gr
                      global const float4 *normals, global const float *albedo, int has_albedo, int n_phi, int nb,
                      int exact, global const float *table, global const int4 *gamma_index,
                      global const float *gamma_value, int gamma_count, float8 cosine_zh, float4 light,
-                     float4 radiance, float threshold, int out_offset, global float4 *out_light,
+                     float4 radiance, float threshold, int mode, int out_offset, global float4 *out_light,
                      global float4 *out_total)
 {
     const int gid = get_global_id(0);
@@ -284,7 +386,9 @@ kernel void hf_light(global const float *pyr, global const int4 *levels, int4 gr
     const float cos_n = dist > 0.0f ? dot(n, rel) / dist : 1.0f;
     const bool below = s < 2.0f && cos_n <= -sin_alpha; /* cos(π/2 + α) = -sin α */
     float e = 0.0f;
-    if (!below && le * 2.0f * M_PI_F * s >= threshold) {
+    if (!below && le * 2.0f * M_PI_F * s >= threshold && mode == 1) {
+        e = hf_light_horizon(pyr, levels, grid, geom, gid, exact, rel, light.w, n);
+    } else if (!below && le * 2.0f * M_PI_F * s >= threshold) {
         float om[HF_MAX_AZIMUTHS], v[PN_SH_MAX_COEFFS], cvec[PN_SH_MAX_COEFFS], t[PN_SH_MAX_COEFFS];
         float y[PN_SH_MAX_COEFFS], z[PN_SH_MAX_BANDS];
         const float limit = sqrt(rel.x * rel.x + rel.z * rel.z);

@@ -244,6 +244,7 @@ void pn_hf_cache_release(pn_hf_cache *c)
     pn_mem_release(&c->m);
     pn_mem_release(&c->up_irradiance);
     pn_mem_release(&c->u_buf);
+    pn_mem_release(&c->sun);
     free(c->gamma);
     memset(c, 0, sizeof *c);
 }
@@ -314,6 +315,69 @@ static pn_status prepare_tables(pn_context ctx, pn_hf_cache *c, int n_phi, int n
     return st;
 }
 
+static int by_power_desc(const void *a, const void *b)
+{
+    const float pa = ((const float *)a)[7], pb = ((const float *)b)[7];
+    return pa < pb ? 1 : pa > pb ? -1 : 0;
+}
+
+/* Texels brighter than sun_threshold x the env's mean radiance (the sun) are
+ * taken out of the env's texels (rad is changed: they become black there) and
+ * kept as directional lights, at most PN_HF_MAX_SUN of the most powerful:
+ * records (direction, angular radius | radiance x solid angle, power). Their
+ * visibility is then a test against the horizon instead of a low-order SH
+ * product, which smears a sun over the whole sky. */
+static pn_status split_sun(pn_context ctx, pn_hf_cache *c, float *rad, const float *dirs, size_t texels,
+                           float sun_threshold)
+{
+    double power = 0.0, omega = 0.0;
+    for (size_t t = 0; t < texels; ++t) {
+        power += (rad[4 * t] + rad[4 * t + 1] + rad[4 * t + 2]) / 3.0 * dirs[4 * t + 3];
+        omega += dirs[4 * t + 3];
+    }
+    const double mean = power / omega;
+    size_t count = 0;
+    float *found = NULL;
+    for (int pass = 0; pass < 2; ++pass) {
+        size_t k = 0;
+        for (size_t t = 0; t < texels; ++t) {
+            const float *r = rad + 4 * t, *d = dirs + 4 * t;
+            const double lum = (r[0] + r[1] + r[2]) / 3.0;
+            if (!(sun_threshold > 0.0f && mean > 0.0 && lum >= sun_threshold * mean))
+                continue;
+            if (pass == 1) {
+                float *o = found + 8 * k;
+                o[0] = d[0], o[1] = d[1], o[2] = d[2], o[3] = sqrtf(d[3] / (float)PI); /* disc of that solid angle */
+                o[4] = r[0] * d[3], o[5] = r[1] * d[3], o[6] = r[2] * d[3], o[7] = (float)(lum * d[3]);
+            }
+            ++k;
+        }
+        if (pass == 0 && !(count = k))
+            break;
+        if (pass == 0 && !(found = pn_malloc(ctx, count * 8 * sizeof(float), "the env's sun texels")))
+            return PN_ERROR_OUT_OF_MEMORY;
+    }
+    c->sun_count = 0;
+    if (!count) {
+        free(found);
+        return PN_SUCCESS;
+    }
+    qsort(found, count, 8 * sizeof(float), by_power_desc);
+    if (count > PN_HF_MAX_SUN)
+        count = PN_HF_MAX_SUN;
+    /* Black where the kept ones were (matched by direction). */
+    for (size_t t = 0; t < texels; ++t)
+        for (size_t k = 0; k < count; ++k)
+            if (found[8 * k] == dirs[4 * t] && found[8 * k + 1] == dirs[4 * t + 1] && found[8 * k + 2] == dirs[4 * t + 2])
+                rad[4 * t] = rad[4 * t + 1] = rad[4 * t + 2] = 0.0f;
+    pn_mem_release(&c->sun);
+    pn_status st = pn_alloc(ctx, count * 8 * sizeof(float), CL_MEM_READ_ONLY, found, &c->sun, "the env's sun texels");
+    if (!st)
+        c->sun_count = (int)count;
+    free(found);
+    return st;
+}
+
 /* The env map in SH (float64 over its cube texels with exact solid angles)
  * folded into M_jk = Σ_i L_i Γ_ijk per channel; the exact irradiance of the
  * env's upper half (an irradiance map of the cube with the texels below the
@@ -321,9 +385,9 @@ static pn_status prepare_tables(pn_context ctx, pn_hf_cache *c, int n_phi, int n
  * summed wedges at horizon 0, which the `exact_unoccluded` split subtracts;
  * and the reference irradiance (π × mean radiance) that scales the light
  * threshold. */
-static pn_status prepare_env(pn_context ctx, pn_hf_cache *c, pn_envmap env, int nb, int n_phi)
+static pn_status prepare_env(pn_context ctx, pn_hf_cache *c, pn_envmap env, int nb, int n_phi, float sun_threshold)
 {
-    if (c->m_env_version == env->version && c->m_nb == nb && c->m_nphi == n_phi)
+    if (c->m_env_version == env->version && c->m_nb == nb && c->m_nphi == n_phi && c->m_sun == sun_threshold)
         return PN_SUCCESS;
     const int f = env->committed_face_size, nc = nb * nb, mi = env->committed_irradiance_size;
     const size_t texels = 6u * (size_t)f * f;
@@ -335,6 +399,8 @@ static pn_status prepare_env(pn_context ctx, pn_hf_cache *c, pn_envmap env, int 
         st = pn_envmap_sample_cube(env, f, rad, dirs);
     if (!st)
         st = pn_sh_wedge_table(ctx, n_phi, nb, false, &table);
+    if (!st)
+        st = split_sun(ctx, c, rad, dirs, texels, sun_threshold);
     if (!st) {
         double l[PN_SH_MAX_BANDS * PN_SH_MAX_BANDS][3] = {{0}}, y[PN_SH_MAX_BANDS * PN_SH_MAX_BANDS], power = 0.0;
         double h[PN_SH_MAX_BANDS * PN_SH_MAX_BANDS] = {0};
@@ -399,6 +465,7 @@ static pn_status prepare_env(pn_context ctx, pn_hf_cache *c, pn_envmap env, int 
             c->m_env_version = env->version;
             c->m_nb = nb;
             c->m_nphi = n_phi;
+            c->m_sun = sun_threshold;
         }
     }
     if (cube || cube_dirs)
@@ -445,9 +512,8 @@ static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf
     if (!levels)
         return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for the pyramid levels");
     size_t total = 0;
-    const double sr = pow(2.0, 1.0 / set->level_step);
     for (int k = 0; k < n; ++k) {
-        const double f = pow(sr, k);
+        const double f = pow(2.0, (double)k / set->level_step); /* exact at multiples of ls */
         const long ck = k ? lround((w - 1) / f) : (long)(w - 1), ek = k ? lround((d - 1) / f) : (long)(d - 1);
         levels[k].s[0] = (cl_int)total;
         levels[k].s[1] = (cl_int)(ck < 1 ? 1 : ck);
@@ -513,7 +579,7 @@ static pn_status prepare(pn_context ctx, pn_hf_cache *c, pn_scene scene, const p
         return pn_fail(ctx, PN_ERROR_NOT_COMMITTED,
                        "heightfield: the scene has no height fields (pn_scene_set_heightfields)");
     pn_status st;
-    if ((st = prepare_tables(ctx, c, set->azimuths, set->bands)) || (st = prepare_env(ctx, c, scene->env, set->bands, set->azimuths)))
+    if ((st = prepare_tables(ctx, c, set->azimuths, set->bands)) || (st = prepare_env(ctx, c, scene->env, set->bands, set->azimuths, set->sun_threshold)))
         return st;
     for (uint32_t i = 0; i < scene->hf_count; ++i)
         if ((st = prepare_field(ctx, &c->fields[i], scene->hfs[i], set)))
@@ -561,14 +627,16 @@ static pn_status run_passes(pn_context ctx, pn_hf_cache *c, pn_scene scene, cons
         pn_heightfield hf = scene->hfs[f];
         const size_t base = (size_t)hf->width * hf->depth;
         const cl_int has_albedo = s->has_albedo, split = set->exact_unoccluded, up_size = c->up_size;
+        const cl_int suns = c->sun_count;
+        cl_mem sun = c->sun ? c->sun : c->u_buf; /* any valid buffer when there is no sun */
         size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof s->grid, sizeof s->geom, sizeof(cl_mem),
                           sizeof(cl_mem), sizeof has_albedo, sizeof n_phi, sizeof nb, sizeof exact, sizeof(cl_mem),
                           sizeof(cl_mem), sizeof czh, sizeof split, sizeof(cl_mem), sizeof up_size, sizeof(cl_mem),
-                          sizeof(cl_mem), sizeof(cl_mem)};
+                          sizeof(cl_mem), sizeof suns, sizeof(cl_mem), sizeof(cl_mem)};
         const void *vals[] = {&s->pyr, &s->levels, &s->grid, &s->geom, &s->normals, &s->albedo, &has_albedo, &n_phi,
                               &nb, &exact, &c->env_table, &c->m, &czh, &split, &c->up_irradiance, &up_size, &c->u_buf,
-                              &s->out_env, &s->out_total};
-        if ((st = pn_set_args(ctx, kenv, "hf_env", 19, sizes, vals)) ||
+                              &sun, &suns, &s->out_env, &s->out_total};
+        if ((st = pn_set_args(ctx, kenv, "hf_env", 21, sizes, vals)) ||
             (st = pn_enqueue_1d(ctx, kenv, "hf_env", base, 64)))
             return st;
         if (s->light_capacity < lights) {
@@ -602,17 +670,17 @@ static pn_status run_passes(pn_context ctx, pn_hf_cache *c, pn_scene scene, cons
             }
             const cl_float4 light = {{l->position[0], l->position[1], l->position[2], l->radius}};
             const cl_float4 radiance = {{l->radiance[0], l->radiance[1], l->radiance[2], 0.0f}};
-            const cl_int gamma_count = c->gamma_count;
+            const cl_int gamma_count = c->gamma_count, mode = set->light_visibility;
             size_t lsizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof s->grid, sizeof s->geom, sizeof(cl_mem),
                                sizeof(cl_mem), sizeof has_albedo, sizeof n_phi, sizeof nb, sizeof exact,
                                sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof gamma_count, sizeof czh,
-                               sizeof light, sizeof radiance, sizeof threshold, sizeof out_offset, sizeof(cl_mem),
-                               sizeof(cl_mem)};
+                               sizeof light, sizeof radiance, sizeof threshold, sizeof mode, sizeof out_offset,
+                               sizeof(cl_mem), sizeof(cl_mem)};
             const void *lvals[] = {&s->pyr, &s->levels, &s->grid, &s->geom, &s->normals, &s->albedo, &has_albedo,
                                    &n_phi, &nb, &exact, &c->light_table, &c->gamma_index, &c->gamma_value,
-                                   &gamma_count, &czh, &light, &radiance, &threshold, &out_offset, &s->out_lights,
-                                   &s->out_total};
-            if ((st = pn_set_args(ctx, klight, "hf_light", 21, lsizes, lvals)) ||
+                                   &gamma_count, &czh, &light, &radiance, &threshold, &mode, &out_offset,
+                                   &s->out_lights, &s->out_total};
+            if ((st = pn_set_args(ctx, klight, "hf_light", 22, lsizes, lvals)) ||
                 (st = pn_enqueue_1d(ctx, klight, "hf_light", base, 64)))
                 return st;
         }

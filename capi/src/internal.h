@@ -315,6 +315,7 @@ void pn_fiv_cache_release(pn_fiv_cache *cache);
 #define PN_SH_MAX_BANDS 6
 #define PN_SH_WEDGE_ANGLES 64  /* horizon angles per axis of a wedge table */
 #define PN_HF_MAX_FIELDS 16
+#define PN_HF_MAX_SUN 256   /* sun texels lit as directional lights */
 
 struct pn_heightfield_impl {
     pn_object obj;
@@ -345,8 +346,8 @@ pn_status pn_sh_triple_product(pn_context ctx, int nb, double **out);
 
 /* The `heightfield` method's parameters. */
 typedef struct pn_hf_settings {
-    int level_step, azimuths, bands, exact, exact_unoccluded;
-    float level_offset, light_threshold;
+    int level_step, azimuths, bands, exact, exact_unoccluded, light_visibility;
+    float level_offset, light_threshold, sun_threshold;
 } pn_hf_settings;
 
 /* Per bound field: the pyramid and per-vertex outputs. */
@@ -370,6 +371,9 @@ typedef struct pn_hf_cache {
     cl_mem gamma_index, gamma_value;
     uint64_t m_env_version;
     int m_nb, m_nphi;
+    float m_sun;              /* sun_threshold the env data was split with */
+    cl_mem sun;               /* PN_HF_MAX_SUN at most: 2 float4 per sun texel */
+    int sun_count;
     cl_mem m;                 /* 3 x nc x nc */
     float u[3 * PN_SH_MAX_BANDS * PN_SH_MAX_BANDS]; /* Hᵀ M per channel (exact_unoccluded) */
     cl_mem u_buf;

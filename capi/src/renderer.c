@@ -27,7 +27,8 @@ struct pn_method {
 enum { P_BACKGROUND = 0 };
 enum { P_FACE_SIZE = 1, P_SUN_SUPERSAMPLING, P_SUN_THRESHOLD, P_LIGHT_SAMPLES, P_VISIBILITY, P_RAY_OFFSET };
 enum { P_OVERLAP = 1, P_PARTIAL, P_SELF_SHADOW, P_TRILINEAR, P_CULL_THRESHOLD };
-enum { P_LEVEL_STEP = 1, P_LEVEL_OFFSET, P_AZIMUTHS, P_BANDS, P_EXACT_HORIZON, P_LIGHT_THRESHOLD, P_EXACT_UNOCCLUDED };
+enum { P_LEVEL_STEP = 1, P_LEVEL_OFFSET, P_AZIMUTHS, P_BANDS, P_EXACT_HORIZON, P_LIGHT_THRESHOLD, P_EXACT_UNOCCLUDED,
+       P_HF_SUN_THRESHOLD, P_LIGHT_VISIBILITY };
 
 static const pn_param unshadowed_params[] = {
     {"background", true, 1, 0, 1},
@@ -61,6 +62,8 @@ static const pn_param heightfield_params[] = {
     {"exact_horizon", true, 0, 0, 1},
     {"light_threshold", false, 1e-4f, 0, 1},
     {"exact_unoccluded", true, 1, 0, 1},  /* 0: the seed's all-SH environment product */
+    {"sun_threshold", false, 50, 0, 1e9f}, /* x mean radiance: directional sun texels; 0: none */
+    {"light_visibility", true, 1, 0, 1},   /* 0: the seed's SH wedges, 1: horizon test + exact cap */
 };
 
 static cl_float4 camera_position(pn_scene scene)
@@ -209,7 +212,8 @@ static pn_hf_settings hf_settings(pn_renderer r)
 {
     pn_hf_settings s = {(int)r->params[P_LEVEL_STEP], (int)r->params[P_AZIMUTHS], (int)r->params[P_BANDS],
                         (int)r->params[P_EXACT_HORIZON], (int)r->params[P_EXACT_UNOCCLUDED],
-                        r->params[P_LEVEL_OFFSET], r->params[P_LIGHT_THRESHOLD]};
+                        (int)r->params[P_LIGHT_VISIBILITY],
+                        r->params[P_LEVEL_OFFSET], r->params[P_LIGHT_THRESHOLD], r->params[P_HF_SUN_THRESHOLD]};
     return s;
 }
 
