@@ -317,15 +317,17 @@ def terrain_scene_error(ctx, env, heights, height_scale, lights=(), res=64, **pa
 
 
 def test_against_reference_sunny_fbm(ctx, sunny_env):
-    """fBm mountains under a sunny sky against the ray-cast reference:
-    measured NRMSE 0.05 (unshadowed: 0.16); bounds 1.3x and half the
-    unshadowed error."""
-    err, base = terrain_scene_error(ctx, sunny_env, make_terrain("fbm", 49, 49, seed=2, frequency=2.0), 3.0)
-    assert err < 0.5 * base, (err, base)
+    """fBm mountains under a sunny sky (immenstadter_horn) against the
+    ray-cast reference, 64x64 terrain pixels: measured NRMSE 0.029
+    (unshadowed 0.070); bound 1.3x measured."""
+    err, base = terrain_scene_error(ctx, sunny_env, make_terrain("fbm", 49, 49, seed=2, frequency=2.0), 5.0)
+    assert err < 0.038 and err < 0.5 * base, (err, base)
 
 
-def test_against_reference_overcast_cones_with_light(ctx, overcast_env):
-    """Cones under a soft dawn sky plus one spherical light between them."""
-    h = make_terrain("cones", 41, 41, count=3, radius=0.3, height=1.0)
-    err, base = terrain_scene_error(ctx, overcast_env, h, 2.5, lights=[light_row((0.0, 0.8, 0.0), 0.15, (30,) * 3)])
-    assert err < 0.5 * base, (err, base)
+def test_against_reference_dawn_grating_with_light(ctx, overcast_env):
+    """A sine grating under a soft dawn sky (kiara_1_dawn) plus one spherical
+    light above it: measured NRMSE 0.054 (unshadowed, which has no lights:
+    0.120); bound 1.3x measured."""
+    h = make_terrain("sine_grating", 49, 49, period=0.25)
+    err, base = terrain_scene_error(ctx, overcast_env, h, 1.5, lights=[light_row((0.0, 1.5, 0.0), 0.15, (30,) * 3)])
+    assert err < 0.070 and err < 0.5 * base, (err, base)
