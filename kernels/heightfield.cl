@@ -99,7 +99,10 @@ inline float hf_horizon_pyramid(global const float *pyr, global const int4 *leve
                                 const float *hp, float ref, float u0, float v0, float cu, float cv, float limit,
                                 float inv_wm1, float inv_dm1)
 {
-    float w[HF_MAX_LEVELS];
+    /* A window of four elevations slides along the samples: with w0..w3 =
+     * ω_{m-2}..ω_{m+1}, the knot at m-1 and the midpoint between m-2 and m-1
+     * are complete. Ends repeat (ω_{-1} = ω_0, ω_count = ω_{count-1}). */
+    float w0 = 0.0f, w1 = 0.0f, w2 = 0.0f, best = -M_PI_2_F;
     int count = 0;
     for (int m = 0; m < grid.z; ++m) {
         const float d = geom.s6 * exp2((float)m / geom.s5);
@@ -107,17 +110,25 @@ inline float hf_horizon_pyramid(global const float *pyr, global const int4 *leve
             break;
         const int k = clamp(m - grid.w, 0, grid.z - 1);
         const float h = hf_level_sample(pyr, levels[k], u0 + d * cu, v0 + d * cv, inv_wm1, inv_dm1, ref);
-        w[count++] = atan((h - hp[k]) / d);
+        const float w3 = atan((h - hp[k]) / d);
+        if (count == 0)
+            w0 = w1 = w2 = w3; /* ω_{-1} = ω_0 */
+        else {
+            best = fmax(best, (w1 + 4.0f * w2 + w3) / 6.0f);                        /* knot m-1 */
+            if (count >= 2)
+                best = fmax(best, (w0 + 23.0f * w1 + 23.0f * w2 + w3) / 48.0f);     /* midpoint m-2 / m-1 */
+        }
+        w0 = w1;
+        w1 = w2;
+        w2 = w3;
+        ++count;
     }
     if (count == 0)
         return -M_PI_2_F;
-    float best = -M_PI_2_F;
-    for (int m = 0; m < count; ++m) {
-        const float a = w[max(m - 1, 0)], b = w[m], c = w[min(m + 1, count - 1)];
-        best = fmax(best, (a + 4.0f * b + c) / 6.0f);
-        if (m + 1 < count)
-            best = fmax(best, (a + 23.0f * b + 23.0f * c + w[min(m + 2, count - 1)]) / 48.0f);
-    }
+    /* Close the end: ω_count = ω_{count-1} (= w2), one more slide. */
+    best = fmax(best, (w1 + 5.0f * w2) / 6.0f);                                     /* knot count-1 */
+    if (count >= 2)
+        best = fmax(best, (w0 + 23.0f * w1 + 24.0f * w2) / 48.0f);                  /* midpoint count-2 / count-1 */
     return best;
 }
 
