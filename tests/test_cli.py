@@ -245,7 +245,7 @@ def test_demo_writes_every_image_and_a_table(capsys, tmp_path, monkeypatch):
     assert len(list((tmp_path / "cache" / "fiv").glob("*.pnfiv"))) == 4
     rows = [line for line in out.splitlines() if line.startswith("fiv ")]
     assert len(rows) == 1 and all(float(x) > 0 for x in rows[0].split()[1:])
-    names = ["unshadowed", "fiv"] + [f"gbuffer_{v}" for v in ("normals", "albedo", "depth")]
+    names = ["unshadowed", "fiv", "heightfield"] + [f"gbuffer_{v}" for v in ("normals", "albedo", "depth")]
     for name in names:
         img = read_exr(out_dir / f"{name}.exr")
         assert img.shape == (48, 64, 3), name
@@ -479,6 +479,34 @@ def test_example_scene_renders(capsys, tmp_path, monkeypatch):
     assert np.isfinite(img).all() and img.min() >= 0
     assert img[18, 24].max() > 0.05  # the bunny in the middle is lit
     assert png_size(tmp_path / "bunny.png") == (48, 36)
+
+
+CONES_SCENE = Path(__file__).resolve().parents[1] / "examples" / "scenes" / "cones_dawn_lights.toml"
+
+
+def test_heightfield_example_renders_with_its_lights(capsys, tmp_path, monkeypatch):
+    """The cones example with --method heightfield: terrain pixels lit by the
+    dawn sky and both lights (the centre light makes the middle bright), the
+    same scene without lights darker there."""
+    monkeypatch.chdir(tmp_path)
+    small = ["--set", "camera.resolution=[48,36]", "--set", "heightfield.cones.size_px=[65,65]", "--frames", "1"]
+    code, out, err = run_cli(capsys, "render", CONES_SCENE, "--method", "heightfield", "-o", "lit.exr", *small)
+    assert code == 0, err
+    assert "heightfield on" in out
+    lit = read_exr(tmp_path / "lit.exr")
+    assert lit.shape == (36, 48, 3) and np.isfinite(lit).all() and lit.min() >= 0
+    code, out, err = run_cli(capsys, "render", CONES_SCENE, "--method", "heightfield", "-o", "dark.exr", *small,
+                             "--set", "light.0.radiance=[0,0,0]", "--set", "light.1.radiance=[0,0,0]")
+    assert code == 0, err
+    dark = read_exr(tmp_path / "dark.exr")
+    assert lit[18, 24].mean() > 1.5 * dark[18, 24].mean()
+
+
+def test_heightfield_bad_terrain_parameter_exits_2(capsys, tmp_path):
+    code, out, err = run_cli(capsys, "render", CONES_SCENE, "--method", "heightfield", "-o", tmp_path / "x.exr",
+                             "--set", "heightfield.cones.params={height=1}")
+    assert code == 2
+    assert "cones_circle" in err and "height" in err
 
 
 # ---------------------------------------------------------------- exit codes of the real command

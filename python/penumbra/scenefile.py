@@ -457,7 +457,7 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict:
     """Applies ``--set`` overrides ``table.key=value`` (value in TOML syntax, bare
     words taken as strings) to the parsed TOML. Objects are addressed by name or
     index: ``object.bunny.albedo=[1,0,0]``, ``object.0.translate=[0,1,0]``; height fields
-    likewise: ``heightfield.0.height_scale=2``."""
+    likewise: ``heightfield.0.height_scale=2``; lights by index: ``light.0.radius=0.2``."""
     data = copy.deepcopy(data)
     for item in overrides:
         if "=" not in item:
@@ -468,8 +468,8 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict:
         except tomllib.TOMLDecodeError:
             value = raw
         parts = key.strip().split(".")
-        if parts[0] in ("object", "heightfield"):
-            kind = "object" if parts[0] == "object" else "height field"
+        if parts[0] in ("object", "heightfield", "light"):
+            kind = {"object": "object", "heightfield": "height field", "light": "light"}[parts[0]]
             if len(parts) != 3:
                 raise InputError(f"--set {key}: {kind}s are set as {parts[0]}.NAME_OR_INDEX.key")
             objs = data.setdefault(parts[0], [])
@@ -481,10 +481,15 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict:
             if not match:
                 raise InputError(f"--set {key}: there is no {kind} named or numbered '{sel}'")
             match[0][parts[2]] = value
-        elif len(parts) == 2:
-            data.setdefault(parts[0], {})[parts[1]] = value
-        elif len(parts) == 3:
-            data.setdefault(parts[0], {}).setdefault(parts[1], {})[parts[2]] = value
+        elif len(parts) in (2, 3):
+            table = data.setdefault(parts[0], {})
+            if not isinstance(table, dict):
+                raise InputError(f"--set {key}: {parts[0]} is not a table")
+            if len(parts) == 3:
+                table = table.setdefault(parts[1], {})
+                if not isinstance(table, dict):
+                    raise InputError(f"--set {key}: {parts[0]}.{parts[1]} is not a table")
+            table[parts[-1]] = value
         else:
             raise InputError(f"--set {key}: expected table.key (e.g. camera.fov_deg=30)")
     return data
