@@ -202,6 +202,7 @@ void pn_context_destroy(pn_context ctx)
         clReleaseProgram(ctx->programs[i].program);
     clReleaseCommandQueue(ctx->queue);
     clReleaseContext(ctx->cl_ctx);
+    pn_sh_cache_release(ctx);
     pn_error_forget(ctx->serial);
     ctx->obj.magic = PN_MAGIC_DEAD;
     free(ctx);

@@ -245,7 +245,6 @@ void pn_hf_cache_release(pn_hf_cache *c)
     pn_mem_release(&c->up_irradiance);
     pn_mem_release(&c->u_buf);
     pn_mem_release(&c->sun);
-    free(c->gamma);
     memset(c, 0, sizeof *c);
 }
 
@@ -255,7 +254,7 @@ static pn_status prepare_tables(pn_context ctx, pn_hf_cache *c, int n_phi, int n
     pn_status st = PN_SUCCESS;
     const int nc = nb * nb;
     if (c->tables_nphi != n_phi || c->tables_nb != nb) {
-        float *env = NULL, *light = NULL;
+        const float *env = NULL, *light = NULL;
         const size_t bytes = (size_t)PN_SH_WEDGE_ANGLES * PN_SH_WEDGE_ANGLES * nc * sizeof(float);
         pn_mem_release(&c->env_table);
         pn_mem_release(&c->light_table);
@@ -267,23 +266,20 @@ static pn_status prepare_tables(pn_context ctx, pn_hf_cache *c, int n_phi, int n
             c->tables_nphi = n_phi;
             c->tables_nb = nb;
         }
-        free(env);
-        free(light);
         if (st)
             return st;
     }
     if (c->gamma_nb != nb) {
-        free(c->gamma);
-        c->gamma = NULL;
         pn_mem_release(&c->gamma_index);
         pn_mem_release(&c->gamma_value);
         c->gamma_nb = 0;
         c->m_env_version = UINT64_MAX;
-        if ((st = pn_sh_triple_product(ctx, nb, &c->gamma)))
+        const double *gamma;
+        if ((st = pn_sh_triple_product(ctx, nb, &gamma)))
             return st;
         size_t count = 0;
         for (size_t q = 0; q < (size_t)nc * nc * nc; ++q)
-            count += c->gamma[q] != 0.0;
+            count += gamma[q] != 0.0;
         cl_int *index = malloc(count * 4 * sizeof(cl_int));
         float *value = malloc(count * sizeof(float));
         if (!index || !value) {
@@ -295,7 +291,7 @@ static pn_status prepare_tables(pn_context ctx, pn_hf_cache *c, int n_phi, int n
         for (int i = 0; i < nc; ++i)
             for (int j = 0; j < nc; ++j)
                 for (int k = 0; k < nc; ++k) {
-                    const double v = c->gamma[((size_t)i * nc + j) * nc + k];
+                    const double v = gamma[((size_t)i * nc + j) * nc + k];
                     if (v != 0.0) {
                         cl_int e[4] = {i, j, k, 0};
                         memcpy(index + 4 * g, e, sizeof e);
@@ -392,13 +388,17 @@ static pn_status prepare_env(pn_context ctx, pn_hf_cache *c, pn_envmap env, int 
     const int f = env->committed_face_size, nc = nb * nb, mi = env->committed_irradiance_size;
     const size_t texels = 6u * (size_t)f * f;
     float *rad = malloc(texels * 4 * sizeof(float)), *dirs = malloc(texels * 4 * sizeof(float));
-    float *m = malloc((size_t)3 * nc * nc * sizeof(float)), *table = NULL;
+    float *m = malloc((size_t)3 * nc * nc * sizeof(float));
+    const float *table = NULL;
+    const double *gamma = NULL;
     cl_mem cube = NULL, cube_dirs = NULL;
     pn_status st = rad && dirs && m ? PN_SUCCESS : pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for the env's SH");
     if (!st)
         st = pn_envmap_sample_cube(env, f, rad, dirs);
     if (!st)
         st = pn_sh_wedge_table(ctx, n_phi, nb, false, &table);
+    if (!st)
+        st = pn_sh_triple_product(ctx, nb, &gamma);
     if (!st)
         st = split_sun(ctx, c, rad, dirs, texels, sun_threshold);
     if (!st) {
@@ -432,7 +432,7 @@ static pn_status prepare_env(pn_context ctx, pn_hf_cache *c, pn_envmap env, int 
                 for (int j = 0; j < nc; ++j) {
                     double s = 0.0;
                     for (int i = 0; i < nc; ++i)
-                        s += l[i][ch] * c->gamma[((size_t)i * nc + j) * nc + k];
+                        s += l[i][ch] * gamma[((size_t)i * nc + j) * nc + k];
                     m[((size_t)ch * nc + j) * nc + k] = (float)s;
                     uk += h[j] * s;
                 }
@@ -475,7 +475,6 @@ static pn_status prepare_env(pn_context ctx, pn_hf_cache *c, pn_envmap env, int 
     free(rad);
     free(dirs);
     free(m);
-    free(table);
     return st;
 }
 
@@ -579,6 +578,7 @@ static pn_status prepare(pn_context ctx, pn_hf_cache *c, pn_scene scene, const p
         return pn_fail(ctx, PN_ERROR_NOT_COMMITTED,
                        "heightfield: the scene has no height fields (pn_scene_set_heightfields)");
     pn_status st;
+    pn_sh_cache_begin(ctx);
     if ((st = prepare_tables(ctx, c, set->azimuths, set->bands)) || (st = prepare_env(ctx, c, scene->env, set->bands, set->azimuths, set->sun_threshold)))
         return st;
     for (uint32_t i = 0; i < scene->hf_count; ++i)

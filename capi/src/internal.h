@@ -69,6 +69,15 @@ typedef struct pn_kernel_entry {
     cl_kernel kernel;
 } pn_kernel_entry;
 
+/* Host SH tables of the heightfield method (sh_tables.c), kept per context:
+ * computed once in float64, shared by every renderer of the context. */
+#define PN_SH_CACHE 16
+typedef struct pn_sh_cache_entry {
+    int n_phi, bands, kind;   /* kind: 0 env wedges, 1 light wedges, 2 triple product (n_phi 0) */
+    void *data;               /* float table or double tensor */
+    uint64_t stamp;           /* operation that last used it: never evicted during that operation */
+} pn_sh_cache_entry;
+
 struct pn_context_impl {
     pn_object obj;
     uint64_t serial; /* keys the per-thread error slots */
@@ -82,6 +91,9 @@ struct pn_context_impl {
     int program_count;
     pn_kernel_entry kernels[PN_MAX_KERNELS];
     int kernel_count;
+    pn_sh_cache_entry sh_cache[PN_SH_CACHE];
+    int sh_cache_next;        /* round-robin slot to reuse when full */
+    uint64_t sh_operation;    /* pn_sh_cache_begin count */
 };
 
 pn_status pn_context_new(const char *config, cl_context cl_ctx, cl_command_queue queue, pn_context *out);
@@ -341,8 +353,13 @@ void pn_scene_release_heightfields(pn_scene scene);
 /* Float64 SH tables (sh_tables.c). */
 void pn_sh_eval64(int nb, double cos_polar, double sin_polar, double phi, double *out);
 void pn_sh_clamped_cosine64(int nb, double *a);
-pn_status pn_sh_wedge_table(pn_context ctx, int n_phi, int nb, bool light, float **out);
-pn_status pn_sh_triple_product(pn_context ctx, int nb, double **out);
+/* The context's cached tables, owned by the context. A pointer stays valid
+ * until the next pn_sh_cache_begin (call it at the start of each operation
+ * that fetches tables; entries used since then are never evicted). */
+void pn_sh_cache_begin(pn_context ctx);
+pn_status pn_sh_wedge_table(pn_context ctx, int n_phi, int nb, bool light, const float **out);
+pn_status pn_sh_triple_product(pn_context ctx, int nb, const double **out);
+void pn_sh_cache_release(pn_context ctx);
 
 /* The `heightfield` method's parameters. */
 typedef struct pn_hf_settings {
@@ -367,7 +384,6 @@ typedef struct pn_hf_cache {
     int tables_nphi, tables_nb;
     cl_mem env_table, light_table;
     int gamma_nb, gamma_count;
-    double *gamma;            /* dense nc^3 */
     cl_mem gamma_index, gamma_value;
     uint64_t m_env_version;
     int m_nb, m_nphi;

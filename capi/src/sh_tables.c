@@ -82,34 +82,61 @@ void pn_sh_clamped_cosine64(int nb, double *a)
     }
 }
 
-pn_status pn_sh_wedge_table(pn_context ctx, int n_phi, int nb, bool light, float **out)
+/* Associated Legendre part of every y_lm at polar cosine ct, sine st: out[l*l + l + m]
+ * (m >= 0) = K_l^m P_l^m (times sqrt 2 for m > 0); the azimuthal factor is applied apart. */
+static void sh_polar64(int nb, double ct, double st, double *out)
+{
+    double y[PN_SH_MAX_BANDS * PN_SH_MAX_BANDS];
+    pn_sh_eval64(nb, ct, st, 0.0, y); /* at phi = 0: cos(m phi) = 1 */
+    for (int l = 0; l < nb; ++l)
+        for (int m = 0; m <= l; ++m)
+            out[l * l + l + m] = y[l * l + l + m];
+}
+
+static pn_status compute_wedge_table(pn_context ctx, int n_phi, int nb, bool light, float **out)
 {
     const int nc = nb * nb, T = PN_SH_WEDGE_ANGLES, NP = 24, NT = 32;
     float *table = pn_malloc(ctx, (size_t)T * T * nc * sizeof(float), "a visibility wedge table");
     if (!table)
         return PN_ERROR_OUT_OF_MEMORY;
     const double lo = light ? -0.5 * PI : 0.0, hi = 0.5 * PI, dphi = 2.0 * PI / n_phi;
-    double xp[24], wp[24], xt[32], wt[32], y[PN_SH_MAX_BANDS * PN_SH_MAX_BANDS], acc[PN_SH_MAX_BANDS * PN_SH_MAX_BANDS];
+    double xp[24], wp[24], xt[32], wt[32], p[PN_SH_MAX_BANDS * PN_SH_MAX_BANDS], acc[PN_SH_MAX_BANDS * PN_SH_MAX_BANDS];
+    double trig[24][2 * PN_SH_MAX_BANDS]; /* cos(m phi), sin(m phi) per azimuth node */
     gauss_legendre(NP, xp, wp);
     gauss_legendre(NT, xt, wt);
+    for (int i = 0; i < NP; ++i)
+        for (int m = 0; m < nb; ++m) {
+            const double phi = 0.5 * dphi * (xp[i] + 1.0);
+            trig[i][2 * m] = cos(m * phi);
+            trig[i][2 * m + 1] = sin(m * phi);
+        }
     for (int a = 0; a < T; ++a) {
         const double wl = lo + a * (hi - lo) / (T - 1);
         for (int b = 0; b < T; ++b) {
             const double wr = lo + b * (hi - lo) / (T - 1);
             memset(acc, 0, sizeof acc);
             for (int i = 0; i < NP; ++i) {
-                const double phi = 0.5 * dphi * (xp[i] + 1.0), f = phi / dphi;
-                double horizon = wl + f * (wr - wl);
+                double horizon = wl + 0.5 * (xp[i] + 1.0) * (wr - wl);
                 if (!light && horizon < 0.0)
                     horizon = 0.0;
                 /* Visible: elevation above the horizon = polar angle in [0, pi/2 - horizon];
                  * integrated in the polar angle, where the integrand is smooth. */
                 const double top = 0.5 * PI - horizon;
+                double polar[PN_SH_MAX_BANDS * PN_SH_MAX_BANDS] = {0};
                 for (int j = 0; j < NT; ++j) {
-                    const double th = 0.5 * top * (xt[j] + 1.0), wgt = 0.25 * dphi * wp[i] * top * wt[j] * sin(th);
-                    pn_sh_eval64(nb, cos(th), sin(th), phi, y);
-                    for (int c = 0; c < nc; ++c)
-                        acc[c] += wgt * y[c];
+                    const double th = 0.5 * top * (xt[j] + 1.0), wgt = 0.5 * top * wt[j] * sin(th);
+                    sh_polar64(nb, cos(th), sin(th), p);
+                    for (int l = 0; l < nb; ++l)
+                        for (int m = 0; m <= l; ++m)
+                            polar[l * l + l + m] += wgt * p[l * l + l + m];
+                }
+                const double wphi = 0.5 * dphi * wp[i];
+                for (int l = 0; l < nb; ++l) {
+                    acc[l * l + l] += wphi * polar[l * l + l];
+                    for (int m = 1; m <= l; ++m) {
+                        acc[l * l + l + m] += wphi * polar[l * l + l + m] * trig[i][2 * m];
+                        acc[l * l + l - m] += wphi * polar[l * l + l + m] * trig[i][2 * m + 1];
+                    }
                 }
             }
             for (int c = 0; c < nc; ++c)
@@ -123,7 +150,7 @@ pn_status pn_sh_wedge_table(pn_context ctx, int n_phi, int nb, bool light, float
 /* Γ_ijk = ∫ y_i y_j y_k dω, exact by Gauss–Legendre in cos ϑ (polynomial of
  * degree ≤ 3(nb-1) once the azimuthal integral is non-zero) and a uniform
  * azimuth rule with more nodes than the highest frequency. */
-pn_status pn_sh_triple_product(pn_context ctx, int nb, double **out)
+static pn_status compute_triple_product(pn_context ctx, int nb, double **out)
 {
     const int nc = nb * nb, NZ = 3 * PN_SH_MAX_BANDS, NF = 6 * PN_SH_MAX_BANDS;
     double *g = calloc((size_t)nc * nc * nc, sizeof(double));
@@ -154,4 +181,76 @@ pn_status pn_sh_triple_product(pn_context ctx, int nb, double **out)
     free(y);
     *out = g;
     return PN_SUCCESS;
+}
+
+/* ------------------------------------------------------------------ cache */
+
+void pn_sh_cache_begin(pn_context ctx)
+{
+    ctx->sh_operation++;
+}
+
+static void *cached(pn_context ctx, int n_phi, int nb, int kind)
+{
+    for (int i = 0; i < PN_SH_CACHE; ++i) {
+        pn_sh_cache_entry *e = &ctx->sh_cache[i];
+        if (e->data && e->n_phi == n_phi && e->bands == nb && e->kind == kind) {
+            e->stamp = ctx->sh_operation;
+            return e->data;
+        }
+    }
+    return NULL;
+}
+
+/* Keeps `data` in the context's cache: a free slot, else round-robin over the
+ * entries not used in the current operation (one operation uses at most 3). */
+static void remember(pn_context ctx, int n_phi, int nb, int kind, void *data)
+{
+    int slot = -1;
+    for (int i = 0; i < PN_SH_CACHE && slot < 0; ++i)
+        if (!ctx->sh_cache[i].data)
+            slot = i;
+    while (slot < 0) {
+        const int i = ctx->sh_cache_next;
+        ctx->sh_cache_next = (ctx->sh_cache_next + 1) % PN_SH_CACHE;
+        if (ctx->sh_cache[i].stamp != ctx->sh_operation)
+            slot = i;
+    }
+    free(ctx->sh_cache[slot].data);
+    pn_sh_cache_entry e = {n_phi, nb, kind, data, ctx->sh_operation};
+    ctx->sh_cache[slot] = e;
+}
+
+pn_status pn_sh_wedge_table(pn_context ctx, int n_phi, int nb, bool light, const float **out)
+{
+    float *t = cached(ctx, n_phi, nb, light ? 1 : 0);
+    if (!t) {
+        pn_status st = compute_wedge_table(ctx, n_phi, nb, light, &t);
+        if (st)
+            return st;
+        remember(ctx, n_phi, nb, light ? 1 : 0, t);
+    }
+    *out = t;
+    return PN_SUCCESS;
+}
+
+pn_status pn_sh_triple_product(pn_context ctx, int nb, const double **out)
+{
+    double *g = cached(ctx, 0, nb, 2);
+    if (!g) {
+        pn_status st = compute_triple_product(ctx, nb, &g);
+        if (st)
+            return st;
+        remember(ctx, 0, nb, 2, g);
+    }
+    *out = g;
+    return PN_SUCCESS;
+}
+
+void pn_sh_cache_release(pn_context ctx)
+{
+    for (int i = 0; i < PN_SH_CACHE; ++i) {
+        free(ctx->sh_cache[i].data);
+        ctx->sh_cache[i].data = NULL;
+    }
 }
