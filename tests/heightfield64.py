@@ -332,9 +332,11 @@ def tent_matrix(c_prev: int, c_new: int) -> np.ndarray:
     return w / w.sum(axis=1, keepdims=True)
 
 
-def pyramid(H, ls: int = 4) -> list[np.ndarray]:
+def pyramid(H, ls: int = 4, interpolating: bool = False) -> list[np.ndarray]:
     """Levels (Ek+1, Ck+1) (rows z, columns x); level 0 is H, level k the separable tent
-    decimation of level k-1 (the product weight normalises as the product of the two axes)."""
+    decimation of level k-1 (the product weight normalises as the product of the two axes).
+    interpolating: every level (after all decimations) replaced by the control points whose
+    clamped cubic B-spline passes through its values (`interpolating_points`)."""
     H = np.asarray(H, np.float64)
     D, W = H.shape
     cells = level_cells(W, D, ls)
@@ -342,7 +344,29 @@ def pyramid(H, ls: int = 4) -> list[np.ndarray]:
     for k in range(1, len(cells)):
         (cp, ep), (c, e) = cells[k - 1], cells[k]
         levels.append(tent_matrix(ep, e) @ levels[-1] @ tent_matrix(cp, c).T)
+    if interpolating:
+        levels = [interpolating_points(level) for level in levels]
     return levels
+
+
+def knot_matrix(n: int) -> np.ndarray:
+    """(n, n) values of the clamped uniform cubic B-spline at its knots from its control
+    points: (c_{i-1} + 4 c_i + c_{i+1}) / 6 with indices clamped, so (5, 1) / 6 at the ends."""
+    B = np.zeros((n, n))
+    for i in range(n):
+        B[i, i] += 4 / 6
+        B[i, max(i - 1, 0)] += 1 / 6
+        B[i, min(i + 1, n - 1)] += 1 / 6
+    return B
+
+
+def interpolating_points(level) -> np.ndarray:
+    """Control points c with knot_matrix(rows) c knot_matrix(cols)^T = level: the B-spline
+    through the level's values (a single value along an axis stays as it is)."""
+    level = np.asarray(level, np.float64)
+    e1, c1 = level.shape
+    out = np.linalg.solve(knot_matrix(e1), level)
+    return np.linalg.solve(knot_matrix(c1), out.T).T
 
 
 def pyramid_floats(W: int, D: int, ls: int) -> int:

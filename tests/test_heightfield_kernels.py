@@ -54,11 +54,12 @@ class Case:
         c = self.lights[k][0]
         return (c[0] - self.origin[0], c[2] - self.origin[2])
 
-    def twin_horizons(self, ls=4, lo=2.0, n_phi=32, light=None, exact=False):
+    def twin_horizons(self, ls=4, lo=4.0, n_phi=32, light=None, exact=False, interpolating=False):
         lxz = None if light is None else self.light_xz(light)
         if exact:
             return hf64.exact_horizons(self.H, self.sx, self.sz, n_phi, lxz)
-        return hf64.horizons(self.H, self.sx, self.sz, ls, lo, n_phi, lxz)
+        levels = hf64.pyramid(self.H, ls, interpolating)
+        return hf64.horizons(self.H, self.sx, self.sz, ls, lo, n_phi, lxz, levels)
 
     def env_records(self, sun_threshold=0.0):
         dirs, omega = self.env.cube_directions()
@@ -93,10 +94,13 @@ def cliff_case(ctx, sky):
 # ------------------------------------------------------------------ horizons
 
 
-@pytest.mark.parametrize("ls,lo,n_phi", [(4, 2.0, 32), (1, 0.0, 8), (2, 1.0, 16), (3, 2.5, 12), (4, 4.0, 24)])
-def test_pyramid_horizons(case, ls, lo, n_phi):
-    got = case.read("env_horizons", level_step=ls, level_offset=lo, azimuths=n_phi)
-    want = case.twin_horizons(ls, lo, n_phi)
+@pytest.mark.parametrize("ls,lo,n_phi,interp", [(4, 2.0, 32, 0), (4, 2.0, 32, 1), (1, 0.0, 8, 1), (2, 1.0, 16, 0),
+                                                (3, 2.5, 12, 1), (4, 4.0, 24, 0)])
+def test_pyramid_horizons(case, ls, lo, n_phi, interp):
+    """Both reconstructions: the seed's approximating B-spline (0, default)
+    and the interpolating one (1: control points solved per level)."""
+    got = case.read("env_horizons", level_step=ls, level_offset=lo, azimuths=n_phi, reconstruction=interp)
+    want = case.twin_horizons(ls, lo, n_phi, interpolating=bool(interp))
     np.testing.assert_allclose(got, want, atol=HORIZON_ATOL, rtol=0)
     assert want.max() > 0.2  # the terrain does shadow
 
@@ -118,9 +122,11 @@ def test_exact_horizons(case, cliff_case):
 
 
 def test_cliff_horizons(cliff_case):
-    """Vertical walls: the pyramid search follows the twin there too."""
-    got = cliff_case.read("env_horizons")
-    np.testing.assert_allclose(got, cliff_case.twin_horizons(), atol=HORIZON_ATOL, rtol=0)
+    """Vertical walls: the pyramid search follows the twin there too (the
+    interpolating B-spline overshoots beside steps; same in both)."""
+    for interp in (0, 1):
+        got = cliff_case.read("env_horizons", reconstruction=interp)
+        np.testing.assert_allclose(got, cliff_case.twin_horizons(interpolating=bool(interp)), atol=HORIZON_ATOL, rtol=0)
 
 
 def test_normals(case):
@@ -241,7 +247,7 @@ def sphere_irradiance(c, sin2):
     return np.where(c * c > sin2, full, part)
 
 
-def horizon_along(c, phi, limit, ls=4, lo=2.0):
+def horizon_along(c, phi, limit, ls=4, lo=4.0):
     """Pyramid horizons of every vertex at per-vertex azimuths phi (D, W), only d_m < limit."""
     D, W = c.H.shape
     levels = hf64.pyramid(c.H, ls)

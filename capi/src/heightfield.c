@@ -505,12 +505,14 @@ static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf
     s->grid.s[1] = (cl_int)d;
     s->grid.s[2] = n;
     s->grid.s[3] = (cl_int)lround(set->level_step * set->level_offset);
-    if (s->version == hf->version && s->level_step == set->level_step)
+    if (s->version == hf->version && s->level_step == set->level_step && s->reconstruction == set->reconstruction)
         return PN_SUCCESS;
     cl_int4 *levels = malloc((size_t)n * sizeof *levels);
     if (!levels)
         return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for the pyramid levels");
-    size_t total = 0;
+    /* pyr: the world heights (vertex gid at gid), then the levels' B-spline control points. */
+    const size_t base = (size_t)w * d;
+    size_t total = base;
     for (int k = 0; k < n; ++k) {
         const double f = pow(2.0, (double)k / set->level_step); /* exact at multiples of ls */
         const long ck = k ? lround((w - 1) / f) : (long)(w - 1), ek = k ? lround((d - 1) / f) : (long)(d - 1);
@@ -521,7 +523,6 @@ static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf
         total += (size_t)(levels[k].s[1] + 1) * (levels[k].s[2] + 1);
     }
     s->pyramid_floats = total;
-    const size_t base = (size_t)w * d;
     float *heights = malloc(base * sizeof(float));
     pn_status st = heights ? PN_SUCCESS : pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for the world heights");
     for (size_t k = 0; !st && k < base; ++k)
@@ -540,6 +541,9 @@ static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf
         !(st = pn_alloc(ctx, hf->albedo ? base * 3 * sizeof(float) : 16, CL_MEM_READ_ONLY, hf->albedo, &s->albedo,
                         "a height-field albedo map"))) {
         cl_int err = clEnqueueWriteBuffer(ctx->queue, s->pyr, CL_TRUE, 0, base * sizeof(float), heights, 0, NULL, NULL);
+        if (err == CL_SUCCESS) /* level 0 starts as the heights themselves */
+            err = clEnqueueWriteBuffer(ctx->queue, s->pyr, CL_TRUE, base * sizeof(float), base * sizeof(float), heights,
+                                       0, NULL, NULL);
         if (err != CL_SUCCESS)
             st = pn_fail_cl(ctx, err, "uploading the height field");
     }
@@ -554,6 +558,18 @@ static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf
         if (!(st = pn_set_args(ctx, k, "hf_decimate", 5, sizes, vals)))
             st = pn_enqueue_1d(ctx, k, "hf_decimate", (size_t)(levels[q].s[1] + 1) * (levels[q].s[2] + 1), 64);
     }
+    /* Interpolating reconstruction: every level's values become the control
+     * points whose B-spline passes through them (rows, then columns). */
+    if (!st && set->reconstruction)
+        st = pn_context_kernel(ctx, "heightfield", "hf_prefilter", &k);
+    for (int q = 0; !st && set->reconstruction && q < n; ++q)
+        for (cl_int rows = 1; !st && rows >= 0; --rows) {
+            size_t sizes[] = {sizeof(cl_mem), sizeof(cl_int4), sizeof rows};
+            const void *vals[] = {&s->pyr, &levels[q], &rows};
+            const size_t lines = (size_t)(rows ? levels[q].s[2] : levels[q].s[1]) + 1;
+            if (!(st = pn_set_args(ctx, k, "hf_prefilter", 3, sizes, vals)))
+                st = pn_enqueue_1d(ctx, k, "hf_prefilter", lines, 16);
+        }
     free(levels);
     if (!st && !(st = pn_context_kernel(ctx, "heightfield", "hf_normals", &k))) {
         size_t sizes[] = {sizeof(cl_mem), sizeof s->grid, sizeof s->geom, sizeof(cl_mem)};
@@ -564,6 +580,7 @@ static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf
     if (!st) {
         s->version = hf->version;
         s->level_step = set->level_step;
+        s->reconstruction = set->reconstruction;
         s->has_albedo = hf->albedo != NULL;
         s->light_capacity = 0;
         pn_mem_release(&s->out_lights);

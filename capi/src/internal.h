@@ -363,14 +363,14 @@ void pn_sh_cache_release(pn_context ctx);
 
 /* The `heightfield` method's parameters. */
 typedef struct pn_hf_settings {
-    int level_step, azimuths, bands, exact, exact_unoccluded, light_visibility;
+    int level_step, azimuths, bands, exact, exact_unoccluded, light_visibility, reconstruction;
     float level_offset, light_threshold, sun_threshold;
 } pn_hf_settings;
 
 /* Per bound field: the pyramid and per-vertex outputs. */
 typedef struct pn_hf_state {
     uint64_t version;         /* field version the pyramid holds (0: none) */
-    int level_step;
+    int level_step, reconstruction;
     cl_int4 grid;             /* W, D, levels, level offset in samples */
     cl_float8 geom;           /* x0, y0, z0, sx, sz, level step, s0, 0 */
     size_t pyramid_floats;

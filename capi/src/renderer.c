@@ -28,7 +28,7 @@ enum { P_BACKGROUND = 0 };
 enum { P_FACE_SIZE = 1, P_SUN_SUPERSAMPLING, P_SUN_THRESHOLD, P_LIGHT_SAMPLES, P_VISIBILITY, P_RAY_OFFSET };
 enum { P_OVERLAP = 1, P_PARTIAL, P_SELF_SHADOW, P_TRILINEAR, P_CULL_THRESHOLD };
 enum { P_LEVEL_STEP = 1, P_LEVEL_OFFSET, P_AZIMUTHS, P_BANDS, P_EXACT_HORIZON, P_LIGHT_THRESHOLD, P_EXACT_UNOCCLUDED,
-       P_HF_SUN_THRESHOLD, P_LIGHT_VISIBILITY };
+       P_HF_SUN_THRESHOLD, P_LIGHT_VISIBILITY, P_RECONSTRUCTION };
 
 static const pn_param unshadowed_params[] = {
     {"background", true, 1, 0, 1},
@@ -56,7 +56,7 @@ static const pn_param fiv_params[] = {
 static const pn_param heightfield_params[] = {
     {"background", true, 1, 0, 1},
     {"level_step", true, 4, 1, 8},
-    {"level_offset", false, 2, 0, 8},
+    {"level_offset", false, 4, 0, 8},
     {"azimuths", true, 32, 4, 256},
     {"bands", true, 4, 3, 6},
     {"exact_horizon", true, 0, 0, 1},
@@ -64,6 +64,7 @@ static const pn_param heightfield_params[] = {
     {"exact_unoccluded", true, 1, 0, 1},  /* 0: the seed's all-SH environment product */
     {"sun_threshold", false, 50, 0, 1e9f}, /* x mean radiance: directional sun texels; 0: none */
     {"light_visibility", true, 1, 0, 1},   /* 0: the seed's SH wedges, 1: horizon test + exact cap */
+    {"reconstruction", true, 0, 0, 1},     /* 0: the seed's approximating B-spline, 1: interpolating */
 };
 
 static cl_float4 camera_position(pn_scene scene)
@@ -212,7 +213,7 @@ static pn_hf_settings hf_settings(pn_renderer r)
 {
     pn_hf_settings s = {(int)r->params[P_LEVEL_STEP], (int)r->params[P_AZIMUTHS], (int)r->params[P_BANDS],
                         (int)r->params[P_EXACT_HORIZON], (int)r->params[P_EXACT_UNOCCLUDED],
-                        (int)r->params[P_LIGHT_VISIBILITY],
+                        (int)r->params[P_LIGHT_VISIBILITY], (int)r->params[P_RECONSTRUCTION],
                         r->params[P_LEVEL_OFFSET], r->params[P_LIGHT_THRESHOLD], r->params[P_HF_SUN_THRESHOLD]};
     return s;
 }
