@@ -388,7 +388,7 @@ inline float hf_light_horizon(global const float *pyr, global const int4 *levels
 {
     const float d2 = dot(rel, rel), dist = sqrt(d2);
     if (d2 <= r * r)
-        return M_PI_F; /* inside the light: light from every direction of the hemisphere */
+        return 0.0f; /* inside the light: its surface emits outwards only (as the reference's) */
     const float sin2 = r * r / d2, alpha = asin(sqrt(sin2)), c = dot(n, rel) / dist;
     const float irr = hf_sphere_irradiance(c, sin2);
     if (irr <= 0.0f)
@@ -430,10 +430,11 @@ kernel void hf_light(global const float *pyr, global const int4 *levels, int4 gr
     const float3 rel = light.xyz - p, n = normals[gid].xyz;
     const float s = hf_cap(rel, light.w), dist = length(rel);
     const float le = fmax(fmax(radiance.x, radiance.y), radiance.z);
-    /* Cap below the tangent plane: angle(n, ĉ - p) >= π/2 + α. */
     const float sin_alpha = sqrt(fmax(0.0f, s * (2.0f - s)));
     const float cos_n = dist > 0.0f ? dot(n, rel) / dist : 1.0f;
-    const bool below = s < 2.0f && cos_n <= -sin_alpha; /* cos(π/2 + α) = -sin α */
+    /* Cap below the tangent plane, or p inside the light (whose surface
+     * emits outwards only, as in the reference): nothing. */
+    const bool below = s >= 2.0f || cos_n <= -sin_alpha; /* cos(π/2 + α) = -sin α */
     float e = 0.0f;
     if (!below && le * 2.0f * M_PI_F * s >= threshold && mode == 1) {
         e = hf_light_horizon(pyr, levels, grid, geom, gid, exact, rel, light.w, n);

@@ -193,13 +193,20 @@ def test_light_exactly_over_a_vertex(ctx, constant_env):
 
 def test_very_far_and_very_near_lights(ctx, constant_env):
     """A light 10^4 units away is negligible and culled (exact zeros, no
-    NaN); a light whose sphere contains the receivers lights them finitely."""
+    NaN). Receivers inside a light's sphere get nothing from it (its surface
+    emits outwards only, as in the reference renderer and Mitsuba), in both
+    light modes; receivers just outside it are lit, finitely."""
     flat = np.zeros((9, 9), np.float32)
     far = Rig(ctx, flat, constant_env, lights=[light_row((1e4, 1e4, 0.0), 0.2, (1.0, 1.0, 1.0))])
     assert (far.read("light")[..., :3] == 0.0).all()
-    near = Rig(ctx, flat, constant_env, lights=[light_row((0.0, 0.5, 0.0), 3.0, (1.0, 1.0, 1.0))])
-    lit = near.read("light")[..., :3]
-    assert np.isfinite(lit).all() and (lit > 0).all()
+    near = Rig(ctx, flat, constant_env, lights=[light_row((0.0, 0.5, 0.0), 2.5, (1.0, 1.0, 1.0))])
+    d = np.hypot(*np.meshgrid(np.arange(9) - 4.0, np.arange(9) - 4.0))
+    inside = np.hypot(d, 0.5) < 2.5
+    assert inside.any() and (~inside).any()
+    for mode in (0, 1):
+        lit = near.read("light", light_visibility=mode)[..., 0]
+        assert np.isfinite(lit).all()
+        assert (lit[inside] == 0).all() and (lit[~inside] > 0).all(), mode
 
 
 def test_far_light_not_culled_without_threshold(ctx, constant_env):
