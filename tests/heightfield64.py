@@ -551,15 +551,15 @@ def shade_env(V, normals_world, L_env, nb: int) -> np.ndarray:
 
 def light_sh(points_world, centre, radius: float, radiance, nb: int) -> np.ndarray:
     """(..., nb*nb, 3) incident radiance of a spherical light: cap ZH of half-angle
-    asin(r / delta) rotated to c - p; p inside the sphere (delta < r): the whole sphere
-    (cos alpha = -1, where the direction does not matter)."""
+    asin(r / delta) rotated to c - p; p inside the sphere (delta <= r): nothing (the
+    sphere's surface emits outwards only, as in the reference renderer)."""
     vec = np.asarray(centre, np.float64) - np.asarray(points_world, np.float64)
     dist = np.linalg.norm(vec, axis=-1)
-    inside = dist < radius
-    safe = np.where(inside, 1.0, dist)  # keeps 0/0 out; inside points are overwritten below
-    cos_a = np.where(inside, -1.0, np.sqrt(np.maximum(0.0, 1.0 - (radius / safe) ** 2)))
+    inside = dist <= radius
+    safe = np.where(inside, 1.0, dist)  # keeps 0/0 out; inside points are zeroed below
+    cos_a = np.where(inside, 1.0, np.sqrt(np.maximum(0.0, 1.0 - (radius / safe) ** 2)))
     direction = np.where(inside[..., None], np.array([0.0, 1.0, 0.0]), vec / safe[..., None])
-    L = zh_rotate(cap_zh(cos_a, nb), world_to_sh(direction), nb)
+    L = zh_rotate(cap_zh(cos_a, nb), world_to_sh(direction), nb) * ~inside[..., None]
     return L[..., None] * np.broadcast_to(np.asarray(radiance, np.float64), (3,))
 
 

@@ -619,11 +619,11 @@ def test_flat_field_light_directly_above():
     _, (E,) = hf.shade(np.zeros((11, 11)), (0, 0, 0), (10.0, 10.0), 1.0, None, [(centre, radius, Le)], n_phi=16, nb=nb)
     ref = Le * np.dot(hf.cap_zh(math.sqrt(1 - (radius / 4.0) ** 2), nb), hf.clamped_cosine_zh(nb))
     np.testing.assert_allclose(E[5, 5], ref, rtol=1e-12)
-    # inside the light (its centre below the ground): the whole sphere shines, E = Le 2 sqrt(pi) z^cos_0
-    # = Le pi, where a hemisphere cap facing down would give Le (pi/2 - pi/2) = 0
+    # inside the light (its centre below the ground): its surface emits outwards only, as in the
+    # reference renderer, so the receiver gets nothing; the vertices outside the sphere do get light
     inside = ((1.0, -0.2, 1.0), 0.5, Le)
     _, (E,) = hf.shade(np.zeros((3, 3)), (0, 0, 0), (2.0, 2.0), 1.0, None, [inside], n_phi=8, nb=nb)
-    np.testing.assert_allclose(E[1, 1], Le * math.pi, rtol=1e-12)
+    assert (E[1, 1] == 0).all() and (E[0, 0] > 0).all()
 
 
 def smooth_field(n, seed=RNG_SEED):
