@@ -56,17 +56,19 @@ inline float hf_level_sample(global const float *pyr, int4 lev, float u, float v
     const float fa = floor(a), fb = floor(b);
     const float4 wa = hf_bspline(a - fa), wb = hf_bspline(b - fb);
     const int ia = (int)fa - 1, ib = (int)fb - 1, row = lev.y + 1;
-    float wav[4] = {wa.x, wa.y, wa.z, wa.w}, wbv[4] = {wb.x, wb.y, wb.z, wb.w};
-    float sum = 0.0f;
-    for (int q = 0; q < 4; ++q) {
-        const int jb = clamp(ib + q, 0, lev.z);
-        global const float *r = pyr + lev.x + jb * row;
-        float s = 0.0f;
-        for (int p = 0; p < 4; ++p)
-            s += wav[p] * (r[clamp(ia + p, 0, lev.y)] - ref);
-        sum += wbv[q] * s;
-    }
-    return sum;
+    const int a0 = clamp(ia, 0, lev.y), a1 = clamp(ia + 1, 0, lev.y), a2 = clamp(ia + 2, 0, lev.y),
+              a3 = clamp(ia + 3, 0, lev.y);
+    global const float *base = pyr + lev.x;
+    float4 rows;
+    global const float *r = base + clamp(ib, 0, lev.z) * row;
+    rows.x = wa.x * (r[a0] - ref) + wa.y * (r[a1] - ref) + wa.z * (r[a2] - ref) + wa.w * (r[a3] - ref);
+    r = base + clamp(ib + 1, 0, lev.z) * row;
+    rows.y = wa.x * (r[a0] - ref) + wa.y * (r[a1] - ref) + wa.z * (r[a2] - ref) + wa.w * (r[a3] - ref);
+    r = base + clamp(ib + 2, 0, lev.z) * row;
+    rows.z = wa.x * (r[a0] - ref) + wa.y * (r[a1] - ref) + wa.z * (r[a2] - ref) + wa.w * (r[a3] - ref);
+    r = base + clamp(ib + 3, 0, lev.z) * row;
+    rows.w = wa.x * (r[a0] - ref) + wa.y * (r[a1] - ref) + wa.z * (r[a2] - ref) + wa.w * (r[a3] - ref);
+    return dot(wb, rows);
 }
 
 kernel void hf_decimate(global float *pyr, int4 src, int4 dst, float wm1, float dm1)
