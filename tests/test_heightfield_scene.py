@@ -413,7 +413,10 @@ def test_cones_circle_layout_and_light():
     hf = HeightField(h, origin=(-5.0, 1.0, -4.0), size=(10.0, 8.0), height_scale=2.0)
     (x, y, z), r = cones_circle_light(hf, elevation=0.1, radius=0.02)
     assert (x, z) == (0.0, 0.0)
-    assert y == pytest.approx(1.0 + 0.2) and r == pytest.approx(0.16)
+    # 0.02 x 8 = 0.16 would reach below the ground 0.2 down: capped at half the lift.
+    assert y == pytest.approx(1.0 + 0.2) and r == pytest.approx(0.1)
+    (x, y, z), r = cones_circle_light(hf, elevation=0.1, radius=0.005)
+    assert r == pytest.approx(0.04)
 
 
 def test_sine_grating_period_and_direction():

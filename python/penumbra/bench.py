@@ -35,8 +35,17 @@ SWEEPS: dict[str, list[dict[str, Any]]] = {
     # overlap modes at the finer grid (1, the pair correction, is the default).
     "fiv": [{"samples": [32, 17, 15]}, {"samples": [64, 33, 30]}, {"samples": [64, 33, 30], "overlap": 0},
             {"samples": [64, 33, 30], "overlap": 2}],
+    # heightfield (docs/heightfield.md): azimuths, pyramid level step and SH
+    # bands from the cheapest up to the defaults (32, 4, 4), then the seed's
+    # all-SH product (exact_unoccluded 0) and 6 bands at the defaults.
+    "heightfield": [{"azimuths": 8, "level_step": 1, "bands": 3}, {"azimuths": 8}, {"azimuths": 16, "level_step": 2},
+                    {"azimuths": 16}, {}, {"exact_unoccluded": 0}, {"bands": 6}],
     "reference": [{"face_size": f} for f in (4, 8, 16, 32)],
 }
+# The methods of a run when none are given; run() keeps fiv only for scenes
+# with occluders (without any it shades like unshadowed) and heightfield only
+# for scenes with height fields (applicable_methods).
+DEFAULT_METHODS = ("unshadowed", "fiv", "heightfield", "reference")
 # The fiv setting the README table shows.
 README_FIV = {"samples": [64, 33, 30]}
 RESULT_KEYS = ("method", "params", "time_ms", "shade_ms", "floor_ratio", "nrmse", "rel_rms", "max_abs",
@@ -45,7 +54,7 @@ RESULT_KEYS = ("method", "params", "time_ms", "shade_ms", "floor_ratio", "nrmse"
 
 @dataclass
 class BenchOptions:
-    methods: tuple[str, ...] = ("unshadowed", "fiv", "reference")
+    methods: tuple[str, ...] = DEFAULT_METHODS   # the default is narrowed to the scene (applicable_methods)
     frames: int = 5
     reference_face_size: int = 64          # the ground truth the errors are measured against
     reference_sun_supersampling: int = 4
@@ -55,13 +64,31 @@ class BenchOptions:
     sweeps: dict[str, list[dict[str, Any]]] = field(default_factory=lambda: dict(SWEEPS))
 
 
+def applicable_methods(desc: SceneDescription, methods=DEFAULT_METHODS) -> tuple[str, ...]:
+    """``methods`` without those that have nothing of their own to do in the
+    scene: ``fiv`` without occluders (it would shade like ``unshadowed``) and
+    ``heightfield`` without height fields."""
+    skip = set()
+    if not any(obj.is_occluder for obj in desc.objects):
+        skip.add("fiv")
+    if not getattr(desc, "heightfields", None):
+        skip.add("heightfield")
+    return tuple(m for m in methods if m not in skip)
+
+
 def _reference_key(desc: SceneDescription, opts: BenchOptions) -> str:
-    """Cache key of the ground truth: the scene, the reference settings and
-    the kernel sources that compute it."""
+    """Cache key of the ground truth: the scene (height fields with the
+    contents of their height and albedo files), the reference settings and the
+    kernel sources that compute it."""
     from .kernels import kernel_dir
 
     h = hashlib.sha256()
-    h.update(repr((desc.environment, desc.camera, desc.objects, desc.lights)).encode())
+    heightfields = list(getattr(desc, "heightfields", None) or [])
+    h.update(repr((desc.environment, desc.camera, desc.objects, desc.lights, heightfields)).encode())
+    for d in heightfields:
+        for path in (d.file, d.albedo_map):
+            if path is not None and Path(path).is_file():
+                h.update(Path(path).read_bytes())
     h.update(repr((opts.reference_face_size, opts.reference_sun_supersampling, __version__)).encode())
     for path in sorted(Path(kernel_dir()).rglob("*.cl")):
         h.update(path.read_bytes())
@@ -115,13 +142,16 @@ def run(scene_path: str | Path, out_dir: str | Path, opts: BenchOptions | None =
     for m in opts.methods:
         if m not in METHODS:
             raise InputError(f"unknown method '{m}' (available: {', '.join(METHODS)})")
-        if m not in opts.sweeps:
-            raise InputError(f"method '{m}' has no benchmark sweep (swept: {', '.join(opts.sweeps)})")
     if opts.frames < 5:
         raise InputError(f"frames = {opts.frames}: the measuring protocol takes the median of at least 5")
+    desc = load_scene(scene_path, list(overrides))
+    # The default list keeps only the methods that apply to this scene; methods given explicitly all run.
+    methods = applicable_methods(desc, opts.methods) if tuple(opts.methods) == DEFAULT_METHODS else opts.methods
+    for m in methods:
+        if m not in opts.sweeps:
+            raise InputError(f"method '{m}' has no benchmark sweep (swept: {', '.join(opts.sweeps)})")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    desc = load_scene(scene_path, list(overrides))
     if desc.fiv.cache is None:  # fiv bakes beside the cached ground truth
         desc.fiv.cache = str(out / "cache" / "fiv")
     ctx = Context()
@@ -136,7 +166,7 @@ def run(scene_path: str | Path, out_dir: str | Path, opts: BenchOptions | None =
     log(f"floor: {floor_ms:.3f} ms shading, G-buffer {floor.timings_ms['gbuffer_median']:.2f} ms")
 
     results = []
-    for method in opts.methods:
+    for method in methods:
         for params in opts.sweeps[method]:
             res = render(built, method, frames=opts.frames, background=0, **params)
             err = compare(truth, res.image[..., :3], mask)
@@ -159,8 +189,12 @@ def run(scene_path: str | Path, out_dir: str | Path, opts: BenchOptions | None =
         r["mitsuba_speedup"] = t / r["time_ms"]
         r["mitsuba_speedup_bound"] = bound
 
-    rays = None
-    if opts.rays:
+    rays, rays_skipped = None, None
+    if opts.rays and getattr(desc, "heightfields", None):
+        # raybench builds Embree's scene from desc.objects only: it would miss the terrain.
+        rays_skipped = "the Embree comparison (penumbra.raybench) does not cover height fields"
+        log(f"rays: skipped ({rays_skipped})")
+    elif opts.rays:
         from .raybench import measure
 
         rays = measure(desc, built, repeats=opts.frames)
@@ -168,10 +202,12 @@ def run(scene_path: str | Path, out_dir: str | Path, opts: BenchOptions | None =
 
     summary = {"scene": str(scene_path), "device": ctx.device_name, "penumbra_version": __version__,
                "resolution": list(desc.camera.resolution), "pixels_measured": int(mask.sum()),
+               "methods": list(methods),
                "frames": opts.frames, "floor_ms": floor_ms, "gbuffer_ms": floor.timings_ms["gbuffer_median"],
                "ground_truth": {"method": "reference", "face_size": opts.reference_face_size,
                                 "sun_supersampling": opts.reference_sun_supersampling},
                "mitsuba": {k: v for k, v in mitsuba.items() if k != "images"}, "rays": rays,
+               **({"rays_skipped": rays_skipped} if rays_skipped else {}),
                "date": time.strftime("%Y-%m-%d")}
     _write_outputs(out, summary, results, mitsuba, truth, mask)
     return {"summary": summary, "results": results}
@@ -331,6 +367,8 @@ def report_markdown(summary: dict, results: list[dict], curve: list[dict]) -> st
             k = r[kind]
             lines.append(f"| {kind} | {k['rays']} | {k['penumbra_mrays_per_s']:.2f} | {k['embree_mrays_per_s']:.2f} | "
                          f"{k['ratio']:.2f} | {k['mismatch_count']} |")
+    elif s.get("rays_skipped"):
+        lines += ["", f"Ray throughput against Embree: skipped ({s['rays_skipped']})."]
     lines += ["", "Files: results.json, results.csv, pareto.png, ground_truth.exr/png, <method>.png and "
               "<method>_error.png (best setting, error heat map), mitsuba_<spp>spp.png.", ""]
     return "\n".join(lines)

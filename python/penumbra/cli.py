@@ -420,7 +420,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("scene", nargs="?", help="scene file (docs/scene-format.md)")
     b.add_argument("--out", required=True, metavar="DIR", help="output directory for results.json/csv, pareto.png, "
                    "report.md and images")
-    b.add_argument("--methods", default=None, help="comma-separated methods (default unshadowed,fiv,reference)")
+    b.add_argument("--methods", default=None, help="comma-separated methods (default: unshadowed, fiv if the scene has occluders, heightfield if it "
+                        "has height fields, reference)")
     b.add_argument("--frames", type=int, default=5, help="timed frames per setting after one warm-up (>= 5)")
     b.add_argument("--spp", type=_int_list, default=None, help="Mitsuba samples per pixel (default 1,2,4,...,1024)")
     b.add_argument("--face-sizes", type=_int_list, default=None,

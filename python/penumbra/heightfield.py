@@ -527,14 +527,18 @@ def cones_circle_light(field: HeightField, elevation: float = 0.1,
     Returns ``(position, light_radius)`` in world units: position = the centre
     of the field's x-z extent at the field's height there plus
     ``elevation * |height_scale|`` (0.1: a tenth of the tallest cone), and
-    light_radius = ``radius`` times the shorter world side.
+    light_radius = ``radius`` times the shorter world side, but at most half
+    the lift above the ground, so the sphere never cuts the terrain (a wide
+    field would otherwise make it larger than its lift).
     """
     elevation = _param_number("cones_circle_light", "elevation", elevation, 0.0)
     radius = _param_number("cones_circle_light", "radius", radius, 0.0, lo_open=True)
     x = field.origin[0] + field.size[0] / 2
     z = field.origin[2] + field.size[1] / 2
-    y = field.height_at(x, z) + elevation * abs(field.height_scale)
-    return (x, y, z), radius * min(field.size)
+    lift = elevation * abs(field.height_scale)
+    y = field.height_at(x, z) + lift
+    r = radius * min(field.size)
+    return (x, y, z), min(r, 0.5 * lift) if lift > 0 else r
 
 
 def sine_grating(width: int, depth: int, period: float = 0.125, angle_deg: float = 0.0) -> np.ndarray:

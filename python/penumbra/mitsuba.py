@@ -6,6 +6,16 @@
   (direct illumination only, like penumbra's reference).
 * :func:`export` writes the same scene as a standalone XML file with the PLY
   meshes and the EXR environment map it references.
+* Height fields (``[[heightfield]]``) go to Mitsuba as their triangle meshes
+  (:meth:`penumbra.heightfield.HeightField.to_mesh`: one vertex per sample,
+  world coordinates, the vertex normals penumbra uses) with a two-sided
+  diffuse BSDF: a constant ``albedo`` as its reflectance, an ``albedo_map`` as
+  per-vertex colour (the ``vertex_color`` mesh attribute, linear RGB,
+  interpolated across each triangle and read by a ``mesh_attribute``
+  texture; in the exported PLY as float ``r g b`` vertex properties).
+  penumbra's own G-buffer gives an albedo-mapped field's pixels a white
+  albedo (only the ``heightfield`` method applies the map, per vertex), so
+  ``reference`` and the other methods do not see the map that Mitsuba renders.
 * :class:`PixelCentreRenderer`, :func:`render` and :func:`render_timed` trace
   one ray through the centre of each pixel per sample, like penumbra's
   G-buffer, instead of ``mi.render``'s jittered, filtered film samples.
@@ -35,7 +45,7 @@ from .errors import InputError
 from .fileutil import atomic_write, atomic_write_text
 from .imageio import write_exr
 from .render import environment_latlong, object_geometry
-from .scenefile import CameraDesc, ObjectDesc, SceneDescription
+from .scenefile import CameraDesc, HeightfieldDesc, ObjectDesc, SceneDescription
 
 __all__ = ["DEFAULT_VARIANT", "FALLBACK_VARIANT", "PLUGIN_NAME", "select_variant", "register_plugin",
            "envmap_for_mitsuba", "scene_dict", "export", "load_file", "PixelCentreRenderer", "render",
@@ -341,6 +351,11 @@ def _clip_range(desc: SceneDescription, meshes: dict[tuple, tuple]) -> tuple[flo
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
         world = corners @ m[:3, :3].T + m[:3, 3]
         far = max(far, float(np.linalg.norm(world - p, axis=1).max()))
+    for d in _heightfield_descs(desc):  # world-space vertices
+        v = meshes[_heightfield_key(d)][0].astype(np.float64)
+        lo, hi = v.min(axis=0), v.max(axis=0)
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        far = max(far, float(np.linalg.norm(corners - p, axis=1).max()))
     for light in _lights(desc):
         far = max(far, float(np.linalg.norm(np.asarray(light.position) - p)) + light.radius)
     # Mitsuba starts camera rays on the near plane, penumbra at the eye: a
@@ -361,13 +376,58 @@ def _bsdf_dict(obj: ObjectDesc) -> dict:
             "lobe": obj.lobe, "shininess": obj.shininess, "roughness": obj.roughness}
 
 
-def _load_meshes(desc: SceneDescription) -> dict[tuple, tuple]:
+@dataclass
+class _Heightfield:
+    """A ``[[heightfield]]`` as Mitsuba gets it: its mesh (under ``key`` in the
+    meshes dict, world coordinates) and its albedo, constant or per vertex."""
+
+    name: str
+    key: tuple
+    albedo: tuple[float, float, float]        # the constant albedo (white with a map: unused)
+    colors: np.ndarray | None = None          # albedo map: float32 (W * D, 3) linear RGB in vertex order
+
+
+def _heightfield_descs(desc: SceneDescription) -> list[HeightfieldDesc]:
+    return list(getattr(desc, "heightfields", None) or [])
+
+
+def _heightfield_key(d: HeightfieldDesc) -> tuple:
+    # Not a (mesh, primitive, params) key of an object: the two never collide.
+    return ("[[heightfield]]", d.name)
+
+
+def _load_geometry(desc: SceneDescription) -> tuple[dict[tuple, tuple], list[_Heightfield]]:
+    """(meshes, height fields): (vertices, faces, normals) per distinct object
+    geometry (object space) and per height field (world space, identity
+    transform), and each height field's albedo."""
     meshes: dict[tuple, tuple] = {}
     for obj in desc.objects:
         key = _geometry_key(obj)
         if key not in meshes:
             meshes[key] = object_geometry(obj)
-    return meshes
+    fields = []
+    for d in _heightfield_descs(desc):
+        field = d.load()
+        mesh = field.to_mesh()
+        key = _heightfield_key(d)
+        meshes[key] = (mesh.vertices, mesh.faces, mesh.normals)
+        a = field.albedo
+        if a is not None and np.ndim(a) == 3:  # an albedo map: per-vertex colour
+            fields.append(_Heightfield(d.name, key, (1.0, 1.0, 1.0), field.vertex_albedo()))
+        else:  # the description's numbers (the loaded field holds them as float32)
+            rgb = np.broadcast_to(np.asarray(d.albedo if d.albedo is not None else 0.8, np.float64), (3,))
+            fields.append(_Heightfield(d.name, key, tuple(float(x) for x in rgb)))
+    return meshes, fields
+
+
+def _load_meshes(desc: SceneDescription) -> dict[tuple, tuple]:
+    return _load_geometry(desc)[0]
+
+
+def _heightfield_bsdf_dict(hf: _Heightfield) -> dict:
+    reflectance = ({"type": "mesh_attribute", "name": "vertex_color"} if hf.colors is not None
+                   else {"type": "rgb", "value": list(hf.albedo)})
+    return {"type": "twosided", "material": {"type": "diffuse", "reflectance": reflectance}}
 
 
 # --------------------------------------------------------------------------- #
@@ -397,7 +457,7 @@ def scene_dict(desc: SceneDescription, *, variant: str | None = None, hide_emitt
     register_plugin()
     mi = _mitsuba()
 
-    meshes = _load_meshes(desc)
+    meshes, fields = _load_geometry(desc)
     near, far = _clip_range(desc, meshes)
     c = desc.camera
     p, f, up = _camera_frame(c)
@@ -421,7 +481,11 @@ def scene_dict(desc: SceneDescription, *, variant: str | None = None, hide_emitt
                                                                       angle=float(desc.environment.rotation_deg))}
     for i, obj in enumerate(desc.objects):
         v, faces, n = meshes[_geometry_key(obj)]
-        d[f"object{i}"] = _world_mesh(mi, f"object{i}:{obj.name}", obj, v, faces, n)
+        d[f"object{i}"] = _world_mesh(mi, f"object{i}:{obj.name}", obj.transform(), _bsdf_dict(obj), v, faces, n)
+    for i, hf in enumerate(fields):
+        v, faces, n = meshes[hf.key]
+        d[f"heightfield{i}"] = _world_mesh(mi, f"heightfield{i}:{hf.name}", np.eye(4), _heightfield_bsdf_dict(hf),
+                                           v, faces, n, hf.colors)
     for i, light in enumerate(_lights(desc)):
         d[f"light{i}"] = _light_dict(light)
     return d
@@ -435,8 +499,10 @@ def _environment(desc: SceneDescription, supersample: int | None) -> np.ndarray 
     return envmap_for_mitsuba(latlong, supersample)
 
 
-def _world_mesh(mi, name: str, obj: ObjectDesc, vertices, faces, normals):
-    m = obj.transform()
+def _world_mesh(mi, name: str, transform: np.ndarray, bsdf: dict, vertices, faces, normals, colors=None):
+    """A ``mi.Mesh`` in world space: ``vertices`` placed by the 4x4 ``transform``,
+    the ``bsdf`` dict, and ``colors`` ((N, 3) linear RGB) as its ``vertex_color`` attribute."""
+    m = np.asarray(transform, np.float64)
     lin = m[:3, :3]
     v = vertices.astype(np.float64) @ lin.T + m[:3, 3]
     f = np.asarray(faces, np.uint32)
@@ -445,7 +511,7 @@ def _world_mesh(mi, name: str, obj: ObjectDesc, vertices, faces, normals):
         # on the side of the transformed normal, as penumbra does.
         f = f[:, ::-1]
     props = mi.Properties()
-    props["bsdf"] = mi.load_dict(_bsdf_dict(obj))
+    props["bsdf"] = mi.load_dict(bsdf)
     mesh = mi.Mesh(name, vertex_count=int(v.shape[0]), face_count=int(f.shape[0]), props=props,
                    has_vertex_normals=normals is not None, has_vertex_texcoords=False)
     params = mi.traverse(mesh)
@@ -461,6 +527,11 @@ def _world_mesh(mi, name: str, obj: ObjectDesc, vertices, faces, normals):
         length = np.linalg.norm(nw, axis=1, keepdims=True)
         put("vertex_normals", np.where(length > 0, nw / np.where(length > 0, length, 1.0), 0.0).astype(np.float32))
     params.update()
+    if colors is not None:
+        c = np.ascontiguousarray(colors, np.float32)
+        if c.shape != (v.shape[0], 3):
+            raise InputError(f"{name}: vertex colours must have shape {(v.shape[0], 3)}, got {c.shape}")
+        mesh.add_attribute("vertex_color", 3, type(params["vertex_positions"])(c.ravel()))
     return mesh
 
 
@@ -488,15 +559,20 @@ def _safe_name(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)[:48] or "mesh"
 
 
-def _write_ply(path: Path, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None) -> None:
-    """Binary little-endian PLY: float x y z (nx ny nz), uchar/int vertex_indices."""
-    props = ["x", "y", "z"] + (["nx", "ny", "nz"] if normals is not None else [])
+def _write_ply(path: Path, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None,
+               colors: np.ndarray | None = None) -> None:
+    """Binary little-endian PLY: float x y z (nx ny nz) (r g b), uchar/int vertex_indices.
+    Mitsuba reads float r g b as the ``vertex_color`` attribute, unscaled (linear)."""
+    props = (["x", "y", "z"] + (["nx", "ny", "nz"] if normals is not None else [])
+             + (["r", "g", "b"] if colors is not None else []))
     header = ["ply", "format binary_little_endian 1.0", f"comment {EXPORT_MARKER}",
               f"element vertex {len(vertices)}", *[f"property float {p}" for p in props],
               f"element face {len(faces)}", "property list uchar int vertex_indices", "end_header"]
     vdata = np.ascontiguousarray(vertices, "<f4")
     if normals is not None:
         vdata = np.ascontiguousarray(np.concatenate([vdata, np.asarray(normals, "<f4")], axis=1))
+    if colors is not None:
+        vdata = np.ascontiguousarray(np.concatenate([vdata, np.asarray(colors, "<f4")], axis=1))
     fdata = np.empty(len(faces), dtype=[("n", "u1"), ("i", "<i4", (3,))])
     fdata["n"] = 3
     fdata["i"] = faces
@@ -552,7 +628,7 @@ def export(desc: SceneDescription, out_dir: str | os.PathLike, *, spp: int = 256
     out = Path(out_dir).expanduser()
     if out.exists() and not out.is_dir():
         raise InputError(f"{out} exists and is not a directory")
-    meshes = _load_meshes(desc)
+    meshes, fields = _load_geometry(desc)
     near, far = _clip_range(desc, meshes)
     p, f, up = _camera_frame(desc.camera)
     env = _environment(desc, envmap_supersample)
@@ -567,8 +643,10 @@ def export(desc: SceneDescription, out_dir: str | os.PathLike, *, spp: int = 256
         if key not in mesh_files:
             suffix = "_mirrored" if key[1] else ""
             mesh_files[key] = f"meshes/mesh{len(mesh_files):03d}_{_safe_name(obj.name)}{suffix}.ply"
+    # Height fields: one PLY each, in world coordinates (no to_world).
+    field_files = [f"meshes/heightfield{i:03d}_{_safe_name(hf.name)}.ply" for i, hf in enumerate(fields)]
     targets = [out / "scene.xml"] + ([out / "envmap.exr"] if env is not None else [])
-    targets += [out / rel for rel in mesh_files.values()]
+    targets += [out / rel for rel in mesh_files.values()] + [out / rel for rel in field_files]
     if not overwrite:
         owned = _previous_export_files(out)
         conflicts = [t for t in targets if (t.exists() or t.is_symlink()) and t.resolve() not in owned]
@@ -584,6 +662,10 @@ def export(desc: SceneDescription, out_dir: str | os.PathLike, *, spp: int = 256
     for (key, mirrored), rel in mesh_files.items():
         v, faces, n = meshes[key]
         _write_ply(out / rel, v, faces[:, ::-1] if mirrored else faces, n)
+        written.append(out / rel)
+    for hf, rel in zip(fields, field_files):
+        v, faces, n = meshes[hf.key]
+        _write_ply(out / rel, v, faces, n, hf.colors)
         written.append(out / rel)
 
     c = desc.camera
@@ -633,6 +715,14 @@ def export(desc: SceneDescription, out_dir: str | os.PathLike, *, spp: int = 256
                   '        </transform>',
                   *_bsdf_xml(obj),
                   '    </shape>']
+    for i, (hf, rel) in enumerate(zip(fields, field_files)):
+        normals = meshes[hf.key][2]
+        lines += [f'    <shape type="ply" id="heightfield{i}">',
+                  f'        <!-- heightfield {hf.name.replace("--", "- -")} -->',
+                  f'        <string name="filename" value="{rel}"/>',
+                  f'        <boolean name="face_normals" value="{"false" if normals is not None else "true"}"/>',
+                  *_heightfield_bsdf_xml(hf),
+                  '    </shape>']
     for i, light in enumerate(_lights(desc)):
         x, y, z = light.position
         lines += [f'    <shape type="sphere" id="light{i}">',
@@ -673,6 +763,17 @@ def _bsdf_xml(obj: ObjectDesc) -> list[str]:
             f'            <float name="shininess" value="{_fmt(obj.shininess)}"/>',
             f'            <float name="roughness" value="{_fmt(obj.roughness)}"/>',
             '        </bsdf>']
+
+
+def _heightfield_bsdf_xml(hf: _Heightfield) -> list[str]:
+    if hf.colors is not None:  # the PLY's r g b: the vertex_color attribute
+        reflectance = ['                <texture type="mesh_attribute" name="reflectance">',
+                       '                    <string name="name" value="vertex_color"/>',
+                       '                </texture>']
+    else:
+        reflectance = [f'                <rgb name="reflectance" value="{_vec(hf.albedo)}"/>']
+    return ['        <bsdf type="twosided">', '            <bsdf type="diffuse">', *reflectance,
+            '            </bsdf>', '        </bsdf>']
 
 
 def load_file(path: str | os.PathLike, *, variant: str | None = None, **params):
