@@ -50,9 +50,7 @@ import hashlib
 import json
 import math
 import os
-import platform
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -66,6 +64,10 @@ import penumbra  # noqa: E402
 from penumbra import procedural  # noqa: E402
 from penumbra.core import Camera, Context, EnvMap, GBuffer, Image, Material, Mesh, Renderer, Scene  # noqa: E402
 from penumbra.fileutil import atomic_write, atomic_write_text  # noqa: E402
+
+sys.path.insert(0, str(REPO / "bench"))
+from experiment_tools import f4, library_in_use, log, rewrite_report  # noqa: E402
+from experiment_tools import machine as _machine  # noqa: E402
 from penumbra.fiv import FivField, FivOptions, envmap_hash, mesh_hash, set_scene_fields  # noqa: E402
 from penumbra.imageio import read_envmap, write_png  # noqa: E402
 from penumbra.metrics import compare, error_heatmap  # noqa: E402
@@ -97,10 +99,6 @@ ALBEDO = (0.8, 0.8, 0.8)
 FOV = 40.0
 MIB = float(1 << 20)
 HEAT_FRACTION = 0.1   # heat maps saturate at this fraction of the reference's range over the evaluated pixels
-
-
-def log(msg: str) -> None:
-    print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
 
 
 def grid_name(g: tuple[int, int, int]) -> str:
@@ -1014,25 +1012,7 @@ RUNNERS = {"a": exp_a, "b": exp_b, "c": exp_c, "d": exp_d, "e": exp_e, "f": exp_
 # --------------------------------------------------------------------------- #
 
 def machine() -> dict:
-    cpu = ""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
-                                text=True).stdout.strip()
-    except OSError:
-        commit = ""
-    return {"cpu": cpu, "cores": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
-            "penumbra": penumbra.__version__, "git_head": commit}
-
-
-def f4(x) -> str:
-    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.4f}"
+    return _machine(penumbra.__version__)
 
 
 ORACLE_NOTE = ("Rows marked * are diagnostics, not renderer output: fiv's formulas evaluated in Python with the "
@@ -1247,16 +1227,9 @@ def main(argv=None) -> int:
     for s in only:
         if s not in RUNNERS:
             ap.error(f"unknown experiment {s!r} (one of {', '.join(EXPERIMENTS)})")
-    lib = Path(os.environ.get("PENUMBRA_LIBRARY", ""))
-    if lib.is_file():
-        newest = max(p.stat().st_mtime for p in (REPO / "kernels").rglob("*.cl"))
-        if newest > lib.stat().st_mtime:
-            log(f"WARNING: kernels/ changed after {lib} was built; rebuild (cmake --build build/dev)")
+    library_in_use(list((REPO / "kernels").rglob("*.cl")))
     if args.report_only:
-        out = Path(args.out) / ("quick" if args.quick else "")
-        res = json.loads((out / "results.json").read_text())
-        atomic_write_text(out / "report.md", report(res))
-        return 0
+        return rewrite_report(Path(args.out) / ("quick" if args.quick else ""), report, atomic_write_text)
     r = Runner(args)
     path = r.out / "results.json"
     results = json.loads(path.read_text()) if path.exists() else {"experiments": {}}

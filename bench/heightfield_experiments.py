@@ -55,9 +55,7 @@ import hashlib
 import json
 import math
 import os
-import platform
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -71,6 +69,10 @@ import penumbra  # noqa: E402
 from penumbra import procedural  # noqa: E402
 from penumbra.core import Camera, Context, EnvMap, GBuffer, Image, Renderer, Scene  # noqa: E402
 from penumbra.fileutil import atomic_write, atomic_write_text  # noqa: E402
+
+sys.path.insert(0, str(REPO / "bench"))
+from experiment_tools import f4, git, library_in_use, log, rewrite_report  # noqa: E402
+from experiment_tools import machine as _machine  # noqa: E402
 from penumbra.heightfield import cones_circle_light  # noqa: E402
 from penumbra.imageio import read_envmap, write_png  # noqa: E402
 from penumbra.metrics import compare, error_heatmap  # noqa: E402
@@ -109,10 +111,6 @@ TITLES = {"a": "terrains x env maps, and env + spherical lights",
 EXPERIMENTS = tuple(TITLES)
 
 
-def log(msg: str) -> None:
-    print(f"[{time.strftime('%H:%M:%S')}] {msg}", flush=True)
-
-
 def key_of(obj) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
@@ -129,10 +127,6 @@ def kernel_hash() -> str:
 
 def fmt_params(p: dict) -> str:
     return ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in p.items()) or "defaults"
-
-
-def f4(x) -> str:
-    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.4f}"
 
 
 # --------------------------------------------------------------------------- #
@@ -758,24 +752,8 @@ RUNNERS = {"a": exp_a, "b": exp_b, "c": exp_c, "d": exp_d}
 # --------------------------------------------------------------------------- #
 
 def machine() -> dict:
-    cpu = ""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-
-    def git(*a):
-        try:
-            return subprocess.run(["git", *a], cwd=REPO, capture_output=True, text=True).stdout.rstrip("\n")
-        except OSError:
-            return ""
     dirty = [line[3:] for line in git("status", "--porcelain", "--", "kernels", "capi").splitlines() if line.strip()]
-    return {"cpu": cpu, "cores": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version(),
-            "penumbra": penumbra.__version__, "git_head": git("rev-parse", "--short", "HEAD"),
-            "uncommitted_kernels_capi": dirty,
+    return {**_machine(penumbra.__version__), "uncommitted_kernels_capi": dirty,
             "heightfield_cl_sha": hashlib.sha256((REPO / "kernels" / "heightfield.cl").read_bytes()).hexdigest()[:12]}
 
 
@@ -870,7 +848,7 @@ def report(results: dict) -> str:
         if h:
             lt = h["light"]
             p = h.get("png", {})
-            L += ["", f"`cones_circle_light(field)` with its defaults puts the seed's light {lt['radius']:.2f} "
+            L += ["", f"Before `cones_circle_light` capped its radius at half its lift (this run's results), `cones_circle_light(field)` with its defaults put the seed's light {lt['radius']:.2f} "
                   f"units in radius at ({lt['x']:.2f}, {lt['y']:.2f}, {lt['z']:.2f}), only 0.15 above the ground: "
                   "the sphere cuts the ground (the rows above use radius 0.1). Receivers inside the sphere get "
                   "nothing from it in the reference (its back faces do not emit; Mitsuba's area emitters are "
@@ -972,24 +950,16 @@ def main(argv=None) -> int:
     for s in only:
         if s not in RUNNERS:
             ap.error(f"unknown experiment {s!r} (one of {', '.join(EXPERIMENTS)})")
-    lib = Path(os.environ.get("PENUMBRA_LIBRARY", ""))
-    if lib.is_file():
-        newest = max(p.stat().st_mtime for p in list((REPO / "kernels").rglob("*.cl"))
-                     + list((REPO / "capi" / "src").glob("*.[ch]")))
-        if newest > lib.stat().st_mtime:
-            log(f"WARNING: kernels/ or capi/ changed after {lib} was built; rebuild it")
+    lib = library_in_use(list((REPO / "kernels").rglob("*.cl")) + list((REPO / "capi" / "src").glob("*.[ch]")))
     if args.report_only:
-        out = Path(args.out) / ("quick" if args.quick else "")
-        res = json.loads((out / "results.json").read_text())
-        atomic_write_text(out / "report.md", report(res))
-        return 0
+        return rewrite_report(Path(args.out) / ("quick" if args.quick else ""), report, atomic_write_text)
     run = Runner(args)
     path = run.out / "results.json"
     results = json.loads(path.read_text()) if path.exists() else {"experiments": {}}
     results["meta"] = {"date": _dt.date.today().isoformat(), "device": run.ctx.device_name, "machine": machine(),
                        "quick": args.quick, "field": run.n, "resolution": run.res, "reference": run.ref_params,
                        "light_reference": run.light_ref_params, "heightfield_defaults": run.params,
-                       "library": str(lib) if lib.is_file() else None}
+                       "library": str(lib) if lib else None}
     for s in only:
         log(f"experiment {s}: {TITLES[s]}")
         t0 = time.perf_counter()
