@@ -494,12 +494,19 @@ PN_API pn_status pn_renderer_read_heightfield(pn_renderer renderer, pn_scene sce
  * "heightfield" environment and spherical-light lighting with soft self-shadows on the scene's
  *               height fields (docs/heightfield.md); other pixels get `unshadowed`.
  *     "level_step"         int    pyramid levels per octave, 1..8 (4)
- *     "level_offset"       float  octaves finer than the sample spacing, [0, 8] (2)
+ *     "level_offset"       float  octaves finer than the sample spacing, [0, 8] (4)
  *     "azimuths"           int    horizon directions, 4..256 (32)
  *     "bands"              int    SH bands, 3..6 (4)
  *     "exact_horizon"      int    1: horizons by marching the full-resolution field (for measuring) (0)
  *     "light_threshold"    float  skip a light where radiance x solid angle is below this share of the
  *                                 env's reference irradiance, [0, 1] (1e-4)
+ *     "exact_unoccluded"   int    1: the unoccluded part from the exact upper-hemisphere irradiance, SH only
+ *                                 for what the terrain blocks; 0: the seed's all-SH product (1)
+ *     "sun_threshold"      float  env texels brighter than this x the mean radiance are lit as directional
+ *                                 lights with a horizon test; 0: none, [0, 1e9] (50)
+ *     "light_visibility"   int    spherical lights: 1 horizon test x exact cap irradiance, 0 the seed's SH
+ *                                 wedges (1)
+ *     "reconstruction"     int    pyramid levels: 0 the seed's approximating B-spline, 1 interpolating (0)
  *
  * "unshadowed", "reference", "fiv" and "heightfield" also take
  *     "background"         int    1: background pixels show the environment, 0: black (1)
