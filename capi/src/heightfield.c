@@ -245,6 +245,7 @@ void pn_hf_cache_release(pn_hf_cache *c)
     pn_mem_release(&c->up_irradiance);
     pn_mem_release(&c->u_buf);
     pn_mem_release(&c->sun);
+    free(c->outputs_lights);
     memset(c, 0, sizeof *c);
 }
 
@@ -627,6 +628,40 @@ static float light_distance(pn_heightfield hf, const pn_sphere_light *l)
     return sqrtf(d2);
 }
 
+/* Whether the per-vertex outputs already hold this scene state. */
+static bool outputs_current(const pn_hf_cache *c, pn_scene scene, const pn_hf_settings *set)
+{
+    if (!c->outputs_valid || memcmp(&c->outputs_settings, set, sizeof *set) ||
+        c->outputs_env != scene->env->version || c->outputs_field_count != scene->hf_count ||
+        c->outputs_light_count != scene->light_count ||
+        (scene->light_count &&
+         memcmp(c->outputs_lights, scene->lights, scene->light_count * sizeof *scene->lights)))
+        return false;
+    for (uint32_t f = 0; f < scene->hf_count; ++f)
+        if (c->outputs_fields[f] != scene->hfs[f]->version)
+            return false;
+    return true;
+}
+
+static void remember_outputs(pn_context ctx, pn_hf_cache *c, pn_scene scene, const pn_hf_settings *set)
+{
+    c->outputs_valid = false;
+    free(c->outputs_lights);
+    c->outputs_lights = NULL;
+    const size_t bytes = scene->light_count * sizeof *scene->lights;
+    if (bytes && !(c->outputs_lights = pn_malloc(ctx, bytes, "the lights of the last height-field passes")))
+        return; /* not remembered: the next read recomputes */
+    if (bytes)
+        memcpy(c->outputs_lights, scene->lights, bytes);
+    c->outputs_settings = *set;
+    c->outputs_env = scene->env->version;
+    c->outputs_field_count = scene->hf_count;
+    c->outputs_light_count = scene->light_count;
+    for (uint32_t f = 0; f < scene->hf_count; ++f)
+        c->outputs_fields[f] = scene->hfs[f]->version;
+    c->outputs_valid = true;
+}
+
 static pn_status run_passes(pn_context ctx, pn_hf_cache *c, pn_scene scene, const pn_hf_settings *set)
 {
     pn_status st;
@@ -634,6 +669,7 @@ static pn_status run_passes(pn_context ctx, pn_hf_cache *c, pn_scene scene, cons
     if ((st = pn_context_kernel(ctx, "heightfield", "hf_env", &kenv)) ||
         (st = pn_context_kernel(ctx, "heightfield", "hf_light", &klight)))
         return st;
+    c->outputs_valid = false;
     cl_float8 czh;
     cosine_zh(set->bands, &czh);
     const cl_int n_phi = set->azimuths, nb = set->bands, exact = set->exact;
@@ -713,6 +749,7 @@ pn_status pn_hf_execute(pn_hf_cache *c, pn_scene scene, const pn_hf_settings *se
     if ((st = prepare(ctx, c, scene, set)) || (st = run_passes(ctx, c, scene, set)) ||
         (st = pn_context_kernel(ctx, "heightfield", "hf_shade", &k)))
         return st;
+    remember_outputs(ctx, c, scene, set);
     const cl_int count = (cl_int)(gb->width * gb->height);
     for (uint32_t f = 0; f < scene->hf_count; ++f) {
         pn_hf_state *s = &c->fields[f];
@@ -769,8 +806,11 @@ pn_status pn_hf_read(pn_hf_cache *c, pn_scene scene, const pn_hf_settings *set, 
     cl_mem src = NULL, temp = NULL;
     size_t offset = 0;
     if (what == PN_HF_ENV || what == PN_HF_LIGHT || what == PN_HF_TOTAL) {
-        if ((st = run_passes(ctx, c, scene, set)))
-            return st;
+        if (!outputs_current(c, scene, set)) {
+            if ((st = run_passes(ctx, c, scene, set)))
+                return st;
+            remember_outputs(ctx, c, scene, set);
+        }
         src = what == PN_HF_ENV ? s->out_env : what == PN_HF_TOTAL ? s->out_total : s->out_lights;
         offset = what == PN_HF_LIGHT ? light * base * 16 : 0;
     } else if (what == PN_HF_NORMALS) {

@@ -397,6 +397,13 @@ typedef struct pn_hf_cache {
     int up_size;
     float env_ref;            /* π x the env's mean radiance */
     uint32_t lights_culled;   /* light passes skipped in the last frame */
+    /* What the per-vertex outputs were last computed for: reads of the same
+     * state reuse them (pn_renderer_execute always recomputes: a frame). */
+    bool outputs_valid;
+    pn_hf_settings outputs_settings;
+    uint64_t outputs_env, outputs_fields[PN_HF_MAX_FIELDS];
+    pn_sphere_light *outputs_lights;
+    uint32_t outputs_light_count, outputs_field_count;
 } pn_hf_cache;
 
 pn_status pn_hf_execute(pn_hf_cache *c, pn_scene scene, const pn_hf_settings *set, pn_gbuffer gb, pn_image image);
