@@ -62,3 +62,16 @@ def rewrite_report(out: Path, report: Callable[[dict], str], write_text: Callabl
     """--report-only: report.md again from out/results.json."""
     write_text(out / "report.md", report(json.loads((out / "results.json").read_text())))
     return 0
+
+
+def output_folder(out: str | Path, quick: bool, ignored: str, write_text: Callable[[Path, str], None]) -> Path:
+    """The results folder (its quick/ subfolder for smoke runs, which never
+    overwrite the real results), with a .gitignore for the machine-made
+    caches (`ignored` says what they are) and smoke runs."""
+    base = Path(out)
+    base.mkdir(parents=True, exist_ok=True)
+    if not (base / ".gitignore").exists():
+        write_text(base / ".gitignore", f"# {ignored} and smoke runs: never committed\ncache/\nquick/\n")
+    folder = base / "quick" if quick else base
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder

@@ -66,7 +66,7 @@ from penumbra.core import Camera, Context, EnvMap, GBuffer, Image, Material, Mes
 from penumbra.fileutil import atomic_write, atomic_write_text  # noqa: E402
 
 sys.path.insert(0, str(REPO / "bench"))
-from experiment_tools import f4, library_in_use, log, rewrite_report  # noqa: E402
+from experiment_tools import f4, output_folder, library_in_use, log, rewrite_report  # noqa: E402
 from experiment_tools import machine as _machine  # noqa: E402
 from penumbra.fiv import FivField, FivOptions, envmap_hash, mesh_hash, set_scene_fields  # noqa: E402
 from penumbra.imageio import read_envmap, write_png  # noqa: E402
@@ -303,16 +303,10 @@ class Built:
 class Runner:
     def __init__(self, args):
         self.args = args
-        base = Path(args.out)
-        base.mkdir(parents=True, exist_ok=True)
-        gi = base / ".gitignore"
-        if not gi.exists():
-            atomic_write_text(gi, "# bakes and reference images (large, machine-made) and smoke runs: never committed\n"
-                                  "cache/\nquick/\n")
-        self.out = base / "quick" if args.quick else base   # a smoke run never overwrites the real results
-        self.out.mkdir(parents=True, exist_ok=True)
+        self.out = output_folder(args.out, args.quick, "bakes and reference images (large, machine-made)",
+                                 atomic_write_text)
         env_cache = os.environ.get("PENUMBRA_CACHE")
-        self.cache = Path(env_cache) / "fiv-experiments" if env_cache else base / "cache"
+        self.cache = Path(env_cache) / "fiv-experiments" if env_cache else Path(args.out) / "cache"
         self.cache.mkdir(parents=True, exist_ok=True)
         self.ctx = Context()
         self.quick = args.quick

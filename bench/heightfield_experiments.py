@@ -71,7 +71,7 @@ from penumbra.core import Camera, Context, EnvMap, GBuffer, Image, Renderer, Sce
 from penumbra.fileutil import atomic_write, atomic_write_text  # noqa: E402
 
 sys.path.insert(0, str(REPO / "bench"))
-from experiment_tools import f4, git, library_in_use, log, rewrite_report  # noqa: E402
+from experiment_tools import f4, output_folder, git, library_in_use, log, rewrite_report  # noqa: E402
 from experiment_tools import machine as _machine  # noqa: E402
 from penumbra.heightfield import cones_circle_light  # noqa: E402
 from penumbra.imageio import read_envmap, write_png  # noqa: E402
@@ -252,15 +252,8 @@ class Case:
 class Runner:
     def __init__(self, args):
         self.args = args
-        base = Path(args.out)
-        base.mkdir(parents=True, exist_ok=True)
-        gi = base / ".gitignore"
-        if not gi.exists():
-            atomic_write_text(gi, "# reference images (machine-made, cached) and smoke runs: never committed\n"
-                                  "cache/\nquick/\n")
-        self.out = base / "quick" if args.quick else base
-        self.out.mkdir(parents=True, exist_ok=True)
-        self.cache = base / "cache"
+        self.out = output_folder(args.out, args.quick, "reference images (machine-made, cached)", atomic_write_text)
+        self.cache = Path(args.out) / "cache"
         self.cache.mkdir(parents=True, exist_ok=True)
         self.quick = args.quick
         self.ctx = Context()

@@ -248,6 +248,16 @@ class HeightField:
 # --------------------------------------------------------------------------- #
 
 
+def _map_file(path: str | os.PathLike, extensions, what: str) -> tuple[Path, str]:
+    """(path, lower-case extension) of a readable map file with one of `extensions`."""
+    path = Path(path)
+    ext = path.suffix.lower()
+    if ext not in extensions:
+        raise InputError(f"{path}: unsupported {what} extension {path.suffix!r} (expected {', '.join(extensions)})")
+    _require_file(path)
+    return path, ext
+
+
 def _require_file(path: Path) -> None:
     if not path.exists():
         raise InputError(f"{path}: file not found")
@@ -341,12 +351,7 @@ def load_heights(path: str | os.PathLike) -> np.ndarray:
     colour PNGs are refused. Raises :class:`InputError` naming the file for a
     missing, unreadable or corrupt file, another layout, W or D < 2, or NaN/Inf.
     """
-    path = Path(path)
-    ext = path.suffix.lower()
-    if ext not in HEIGHT_EXTENSIONS:
-        raise InputError(f"{path}: unsupported height map extension {path.suffix!r} "
-                         f"(expected {', '.join(HEIGHT_EXTENSIONS)})")
-    _require_file(path)
+    path, ext = _map_file(path, HEIGHT_EXTENSIONS, "height map")
     if ext == ".npy":
         a = _load_npy(path)
         if a.ndim == 3 and a.shape[2] == 1:
@@ -370,12 +375,7 @@ def load_albedo(path: str | os.PathLike) -> np.ndarray:
     to linear. ``.exr``: R, G, B (or Y), linear. ``.npy``: (D, W, 3) or (D, W)
     grey, linear. Range and finiteness are checked by :class:`HeightField`.
     """
-    path = Path(path)
-    ext = path.suffix.lower()
-    if ext not in ALBEDO_EXTENSIONS:
-        raise InputError(f"{path}: unsupported albedo map extension {path.suffix!r} "
-                         f"(expected {', '.join(ALBEDO_EXTENSIONS)})")
-    _require_file(path)
+    path, ext = _map_file(path, ALBEDO_EXTENSIONS, "albedo map")
     if ext == ".npy":
         a = _load_npy(path)
         if a.ndim == 2:
