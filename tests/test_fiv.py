@@ -203,11 +203,23 @@ def test_bounding_cone_changes_nothing(torus_twin):
     assert t["rays"] < 0.6 * t["n_points"] * t["records"]
 
 
-@pytest.mark.parametrize("shape", ["sphere", "torus"])
+def _open_torus():
+    """A 2,048-triangle torus with a quarter of its faces removed: a mesh
+    with holes, whose winding number takes every value between 0 and 1."""
+    t = procedural.torus(1.0, 0.35, 32, 32)
+    return procedural.Mesh(t.vertices, t.faces[len(t.faces) // 4:], None)
+
+
+@pytest.mark.parametrize("shape", ["sphere", "torus", "fine_torus", "open_torus"])
 def test_inside_flags_match_winding_number(ctx, env, shape):
     """Samples are NaN exactly where the float64 winding number exceeds 1/2
-    (samples within 1e-4 R of the surface may go either way)."""
-    mesh = procedural.sphere(0.5, 1) if shape == "sphere" else procedural.torus(1.0, 0.35, 16, 8)
+    (samples within 1e-4 R of the surface may go either way). The kernel sums
+    far BVH nodes as dipoles; the larger meshes (1,536 triangles each)
+    make most of the sum come from dipoles, and the open one puts samples at
+    every winding number, so a dipole error flips a flag only where the
+    float64 number is within 0.01 of 1/2 (none of these samples is)."""
+    mesh = {"sphere": lambda: procedural.sphere(0.5, 1), "torus": lambda: procedural.torus(1.0, 0.35, 16, 8),
+            "fine_torus": lambda: procedural.torus(1.0, 0.35, 48, 16), "open_torus": _open_torus}[shape]()
     m = Mesh(ctx, mesh.vertices, mesh.faces, mesh.normals)
     # Radii 0.3 q^k R with q^4 = 3.2: sphere 4 is at 0.96 R, between the
     # icosphere's faces (inradius 0.93 R) and its vertices (R): half in, half out.
@@ -224,6 +236,8 @@ def test_inside_flags_match_winding_number(ctx, env, shape):
     wn = winding_number(mesh.vertices, mesh.faces, pts).reshape(nan.shape)
     inside = wn > 0.5
     near = distance_to_mesh(mesh.vertices, mesh.faces, pts).reshape(nan.shape) < 1e-4 * info["radius"]
+    near |= np.abs(wn - 0.5) < 0.01
+    assert near.mean() < 0.02  # the exemption stays small, so the comparison covers the grid
     bad = (inside != nan) & ~near
     assert not bad.any(), f"{bad.sum()} samples disagree, e.g. at (k, i, j) {np.argwhere(bad)[:3].tolist()}"
     # Both kinds occur among the spheres inside the bounding sphere.

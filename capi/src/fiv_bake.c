@@ -1,7 +1,8 @@
 /* The occlusion-field bake (docs/fiv.md): one kernel launch per sphere of
  * the grid (kernels/fiv_bake.cl), traced against a private one-instance
  * scene of the occluder; samples inside the bounding sphere are tested for
- * being inside the geometry by their winding number. The bake checkpoints to
+ * being inside the geometry by their winding number, evaluated over the
+ * mesh's BVH with far nodes as dipoles. The bake checkpoints to
  * its file every few seconds and resumes from it. */
 #define _POSIX_C_SOURCE 200809L
 #include "internal.h"
@@ -58,6 +59,73 @@ static bool has_area(pn_mesh mesh)
     return false;
 }
 
+/* Per BVH node of the mesh, what the hierarchical winding number reads
+ * (kernels/fiv_bake.cl, fiv_inside_sphere), 4 float4:
+ *   [0] lo xyz, left_or_first bits   [1] hi xyz, count bits (the node itself)
+ *   [2] area-weighted centroid of its triangles, radius of a ball about it
+ *       holding them (to the farthest corner of the node's box)
+ *   [3] sum of its triangles' area vectors (b - a) x (c - a) / 2, 0
+ * Sums in double, children before parents (a child's index is larger). */
+static float *winding_nodes(pn_mesh mesh)
+{
+    const pn_bvh *bvh = &mesh->bvh;
+    const uint32_t n = bvh->node_count;
+    float *out = calloc((size_t)n, 16 * sizeof(float));
+    double *acc = calloc((size_t)n, 7 * sizeof(double)); /* area vector xyz, area, area x centroid xyz */
+    if (!out || !acc) {
+        free(out);
+        free(acc);
+        return NULL;
+    }
+    for (uint32_t k = n; k-- > 0;) {
+        const pn_bvh_node *node = &bvh->nodes[k];
+        double *a = acc + 7 * (size_t)k;
+        if (node->count) {
+            for (uint32_t t = node->left_or_first; t < node->left_or_first + node->count; ++t) {
+                const float *v = mesh->leaf_tris + 12 * (size_t)t; /* 3 float4 */
+                double e1[3], e2[3];
+                for (int c = 0; c < 3; ++c) {
+                    e1[c] = (double)v[4 + c] - v[c];
+                    e2[c] = (double)v[8 + c] - v[c];
+                }
+                const double av[3] = {0.5 * (e1[1] * e2[2] - e1[2] * e2[1]), 0.5 * (e1[2] * e2[0] - e1[0] * e2[2]),
+                                      0.5 * (e1[0] * e2[1] - e1[1] * e2[0])};
+                const double area = sqrt(av[0] * av[0] + av[1] * av[1] + av[2] * av[2]);
+                for (int c = 0; c < 3; ++c) {
+                    a[c] += av[c];
+                    a[4 + c] += area * ((double)v[c] + v[4 + c] + v[8 + c]) / 3.0;
+                }
+                a[3] += area;
+            }
+        } else {
+            for (uint32_t child = node->left_or_first; child < node->left_or_first + 2; ++child)
+                for (int c = 0; c < 7; ++c)
+                    a[c] += acc[7 * (size_t)child + c];
+        }
+        float *o = out + 16 * (size_t)k;
+        memcpy(o, node, sizeof *node); /* [0], [1]: the node as the ray caster reads it */
+        double centre[3], r2 = 0.0;
+        for (int c = 0; c < 3; ++c)
+            centre[c] = a[3] > 0.0 ? a[4 + c] / a[3] : 0.5 * ((double)node->lo[c] + node->hi[c]);
+        for (int corner = 0; corner < 8; ++corner) {
+            double d2 = 0.0;
+            for (int c = 0; c < 3; ++c) {
+                const double d = ((corner >> c) & 1 ? (double)node->hi[c] : (double)node->lo[c]) - centre[c];
+                d2 += d * d;
+            }
+            r2 = d2 > r2 ? d2 : r2;
+        }
+        for (int c = 0; c < 3; ++c) {
+            o[8 + c] = (float)centre[c];
+            o[12 + c] = (float)a[c];
+        }
+        o[11] = (float)(sqrt(r2) * (1.0 + 1e-6));
+        o[15] = 0.0f;
+    }
+    free(acc);
+    return out;
+}
+
 static bool same_options(const pn_fiv_options *a, const pn_fiv_options *b)
 {
     return a->theta == b->theta && a->phi == b->phi && a->radii == b->radii && a->inner_radius == b->inner_radius &&
@@ -101,7 +169,7 @@ static pn_status resume_from(pn_fiv f, const char *path)
 
 typedef struct {
     cl_kernel bake, inside;
-    cl_mem records, out, rays, flags;
+    cl_mem records, out, rays, flags, winding;
     cl_int record_count;
     float *host_out;
     cl_uint *host_rays;
@@ -111,7 +179,7 @@ typedef struct {
 static pn_status bake_sphere(pn_fiv f, pn_scene scene, bake_state *b, uint32_t k)
 {
     pn_context ctx = f->obj.ctx;
-    const cl_int nt = (cl_int)f->options.theta, np = (cl_int)f->options.phi, tris = (cl_int)scene->instances[0].mesh->triangle_count;
+    const cl_int nt = (cl_int)f->options.theta, np = (cl_int)f->options.phi;
     const size_t per = (size_t)nt * (size_t)np;
     const cl_float rho = pn_fiv_radius(f, k);
     const cl_float4 sphere = {{f->centre[0], f->centre[1], f->centre[2], f->radius}};
@@ -120,8 +188,8 @@ static pn_status bake_sphere(pn_fiv f, pn_scene scene, bake_state *b, uint32_t k
     const bool test_inside = rho < f->radius;
     pn_status st;
     if (test_inside) {
-        size_t sizes[] = {sizeof(cl_mem), sizeof tris, sizeof sphere, sizeof nt, sizeof np, sizeof rho, sizeof(cl_mem)};
-        const void *vals[] = {&scene->tris, &tris, &sphere, &nt, &np, &rho, &b->flags};
+        size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof sphere, sizeof nt, sizeof np, sizeof rho, sizeof(cl_mem)};
+        const void *vals[] = {&b->winding, &scene->tris, &sphere, &nt, &np, &rho, &b->flags};
         if ((st = pn_set_args(ctx, b->inside, "fiv_inside_sphere", 7, sizes, vals)) ||
             (st = pn_enqueue_1d(ctx, b->inside, "fiv_inside_sphere", per, 64)))
             return st;
@@ -250,8 +318,15 @@ pn_status pn_fiv_do_bake(pn_envmap env, pn_mesh mesh, const pn_fiv_options *opti
         !(st = pn_alloc(ctx, (record_count ? record_count : 1) * 32, CL_MEM_READ_ONLY, record_count ? records : NULL,
                         &b.records, "FIV bake directions")) &&
         !(st = pn_alloc(ctx, per * 9 * sizeof(float), CL_MEM_WRITE_ONLY, NULL, &b.out, "a baked sphere")) &&
-        !(st = pn_alloc(ctx, per * sizeof(cl_uint), CL_MEM_WRITE_ONLY, NULL, &b.rays, "ray counts")))
-        st = pn_alloc(ctx, per, CL_MEM_READ_WRITE, NULL, &b.flags, "inside flags");
+        !(st = pn_alloc(ctx, per * sizeof(cl_uint), CL_MEM_WRITE_ONLY, NULL, &b.rays, "ray counts")) &&
+        !(st = pn_alloc(ctx, per, CL_MEM_READ_WRITE, NULL, &b.flags, "inside flags"))) {
+        /* The one-mesh scene's triangles are the mesh's, in its BVH's leaf order. */
+        float *winding = winding_nodes(mesh);
+        st = winding ? pn_alloc(ctx, (size_t)mesh->bvh.node_count * 16 * sizeof(float), CL_MEM_READ_ONLY, winding,
+                                &b.winding, "winding-number nodes")
+                     : pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for the winding-number nodes");
+        free(winding);
+    }
     double last_checkpoint = now_seconds();
     const uint64_t total = pn_fiv_sample_count(options);
     while (!st && f->radii_done < options->radii) {
@@ -273,6 +348,7 @@ pn_status pn_fiv_do_bake(pn_envmap env, pn_mesh mesh, const pn_fiv_options *opti
     pn_mem_release(&b.out);
     pn_mem_release(&b.rays);
     pn_mem_release(&b.flags);
+    pn_mem_release(&b.winding);
     free(b.host_out);
     free(b.host_rays);
     free(b.host_flags);
