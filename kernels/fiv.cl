@@ -32,18 +32,22 @@ typedef struct {
 
 inline bool pn_fiv_sample(global const uchar *fields, uint offset, int half_precision, int index, pn_fiv3 *s)
 {
+    /* One 8-wide load and one scalar: X rgb, Y rgb, Z rg | Z b. */
+    float8 a;
+    float b;
     if (half_precision) {
         global const half *h = (global const half *)(fields + offset) + PN_FIV_FLOATS * index;
-        s->x = vload_half3(0, h);
-        s->y = vload_half3(1, h);
-        s->z = vload_half3(2, h);
+        a = vload_half8(0, h);
+        b = vload_half(8, h);
     } else {
         global const float *f = (global const float *)(fields + offset) + PN_FIV_FLOATS * index;
-        s->x = vload3(0, f);
-        s->y = vload3(1, f);
-        s->z = vload3(2, f);
+        a = vload8(0, f);
+        b = f[8];
     }
-    return !isnan(s->x.x); /* samples inside the geometry are NaN */
+    s->x = a.s012;
+    s->y = a.s345;
+    s->z = (float3)(a.s67, b);
+    return !isnan(a.s0); /* samples inside the geometry are NaN */
 }
 
 /* Adds weight w times sample (k, i, j) to acc when the sample is valid. */
@@ -86,9 +90,9 @@ inline bool pn_fiv_lookup(global const float4 *occ, global const uchar *fields, 
     float rho = length(v);
     if (!isfinite(rho)) /* a NaN/Inf position in an unvalidated G-buffer: no index from it */
         return false;
-    float3 d = rho > 0.0f ? v / rho : (float3)(0.0f, 1.0f, 0.0f);
-    float theta = acos(clamp(d.y, -1.0f, 1.0f));
-    float phi = atan2(d.z, d.x);
+    /* theta = acos(v.y / rho), phi = atan2(v.z, v.x), by the polynomial atan */
+    float theta = pn_atan2(sqrt(v.x * v.x + v.z * v.z), v.y);
+    float phi = pn_atan2(v.z, v.x);
     if (phi < 0.0f)
         phi += PN_TWO_PI;
     float fi = theta * (float)(n_theta - 1) * PN_INV_PI;
@@ -110,9 +114,9 @@ inline bool pn_fiv_lookup(global const float4 *occ, global const uchar *fields, 
     }
     int i0 = min((int)fi, n_theta - 2), k0 = min((int)fk, n_rho - 2);
     float ti = clamp(fi - (float)i0, 0.0f, 1.0f), tk = clamp(fk - (float)k0, 0.0f, 1.0f);
-    int jf = (int)fj;
-    float tj = fj - (float)jf;
-    int j0 = jf % n_phi, j1 = (jf + 1) % n_phi; /* the phi seam wraps */
+    int jf = min((int)fj, n_phi - 1); /* phi = 2 pi after rounding is the seam */
+    float tj = clamp(fj - (float)jf, 0.0f, 1.0f);
+    int j0 = jf, j1 = jf + 1 < n_phi ? jf + 1 : 0; /* the phi seam wraps */
     pn_fiv_shell(fields, offset, hp, n_theta, n_phi, k0, 1.0f - tk, i0, ti, j0, j1, tj, &acc, &wsum);
     pn_fiv_shell(fields, offset, hp, n_theta, n_phi, k0 + 1, tk, i0, ti, j0, j1, tj, &acc, &wsum);
     for (int k = k0 + 1; wsum <= 0.0f && k < n_rho; ++k)

@@ -20,23 +20,6 @@
 #define HF_MAX_AZIMUTHS 256
 #define HF_TABLE 64
 
-/* atan to 2.5e-7 rad: an odd polynomial on [0, 1] (least-squares fit of
- * degree 13), atan(x) = π/2 - atan(1/x) above. The horizon search takes one
- * per sample; the built-in atan was a large part of its cost on CPUs. */
-inline float hf_atan(float x)
-{
-    const float a = fabs(x), t = a > 1.0f ? 1.0f / a : a, t2 = t * t;
-    float p = 6.814212410e-03f;
-    p = p * t2 - 3.361149911e-02f;
-    p = p * t2 + 7.963201613e-02f;
-    p = p * t2 - 1.323379574e-01f;
-    p = p * t2 + 1.980793360e-01f;
-    p = p * t2 - 3.331738094e-01f;
-    p = p * t2 + 9.999961155e-01f;
-    const float r = t * p;
-    return copysign(a > 1.0f ? M_PI_2_F - r : r, x);
-}
-
 /* Uniform cubic B-spline weights at t in [0, 1). */
 inline float4 hf_bspline(float t)
 {
@@ -168,7 +151,7 @@ inline float hf_horizon_pyramid(global const float *pyr, global const int4 *leve
             break;
         const int k = clamp(m - grid.w, 0, grid.z - 1);
         const float h = hf_level_sample(pyr, levels[k], u0 + d * cu, v0 + d * cv, inv_wm1, inv_dm1, ref);
-        const float w3 = hf_atan((h - hp[k]) / d);
+        const float w3 = pn_atan((h - hp[k]) / d);
         if (count == 0)
             w0 = w1 = w2 = w3; /* ω_{-1} = ω_0 */
         else {
@@ -208,7 +191,7 @@ inline float hf_horizon_exact(global const float *pyr, int4 grid, float8 geom, f
         const float fu = uc - (float)iu, fv = vc - (float)iv;
         const float h = mix(mix(pyr[iv * w + iu], pyr[iv * w + iu + 1], fu),
                             mix(pyr[(iv + 1) * w + iu], pyr[(iv + 1) * w + iu + 1], fu), fv);
-        best = fmax(best, hf_atan((h - h0) / t));
+        best = fmax(best, pn_atan((h - h0) / t));
     }
     return best;
 }
