@@ -927,8 +927,14 @@ def test_overlap_correction_brightening_is_bounded(monotonicity):
     docs/fiv.md quotes the largest increase measured here, relative to the
     pixel's unshadowed radiance."""
     worst = largest_increase(monotonicity[1])
-    print(f"\noverlap=1: largest brightening when adding an occluder = {worst:.4f} of the unshadowed radiance")
+    steps = np.concatenate([((b - a) / np.maximum(e0, 1e-12)).ravel()
+                            for e0, imgs in monotonicity[1] for a, b in zip(imgs, imgs[1:])])
+    share = float((steps > 1e-3).mean())
+    print(f"\noverlap=1: largest brightening when adding an occluder = {worst:.4f} of the unshadowed radiance; "
+          f"{share:.4f} of the (pixel, added occluder) steps brighten by more than 0.001, mean of those "
+          f"{float(steps[steps > 1e-3].mean()) if share else 0.0:.4f}")
     assert worst <= FIV_OVERLAP_INCREASE_MAX
+    assert share < 0.1  # measured 0.044 (docs/fiv.md): brightening stays the exception
 
 
 def test_rotated_instance_is_refused(ctx, env, meshes, fields, shade_scene):
