@@ -324,7 +324,7 @@ def report_markdown(summary: dict, results: list[dict], curve: list[dict]) -> st
     lines = [f"# Benchmark: {Path(s['scene']).stem}", "",
              f"{s['resolution'][0]}x{s['resolution'][1]} pixels ({s['pixels_measured']} measured: background "
              f"excluded), device {s['device']}, penumbra {s['penumbra_version']}, {s['date']}. Times: kernel builds "
-             f"excluded, one warm-up frame, median of {s['frames']} frames; frame = G-buffer + shading. Errors "
+             f"excluded, 0.3 s of warm-up frames, median of {s['frames']} frames; frame = G-buffer + shading. Errors "
              f"against `reference` with face_size {s['ground_truth']['face_size']} and sun_supersampling "
              f"{s['ground_truth']['sun_supersampling']} (docs/metrics.md).", "",
              f"Floor kernel (reads the G-buffer, writes the image): {s['floor_ms']:.3f} ms; G-buffer: "
@@ -592,7 +592,7 @@ def scaling_markdown(summary: dict, rows: list[dict], equal_error: dict | None) 
              f"under {s['envmap']} (`scenes/bunnies_N.toml`), device {s['device']}, penumbra "
              f"{s['penumbra_version']}, {s['date']}. One occlusion field shared by every bunny: {phi}x{theta}x{radii} "
              f"(phi x theta x radii, as the paper's Table 2), {b.get('stored_bytes', 0) / 1024:.0f} KiB, {bake}. "
-             f"Times: kernel builds excluded, one warm-up frame, median of {s['frames']} frames. The floor kernel "
+             f"Times: kernel builds excluded, 0.3 s of warm-up frames, median of {s['frames']} frames. The floor kernel "
              "(reads the G-buffer, writes the image) is timed in the same run; fps = 1000 / ms. System load "
              f"average (1 min) at the start / end of the timings: {s['load_average_1min'][0]} / "
              f"{s['load_average_1min'][1]} on {s['cpus']} CPUs.", "",

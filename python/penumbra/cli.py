@@ -118,7 +118,7 @@ def cmd_render(args) -> int:
     params = {k: v for k, v in desc.render.items() if k != "method"}
     ctx = Context(args.device)
     built = build_scene(desc, ctx)
-    with _BakeBars() as bakes, _progress(args.frames + 1, f"render {method}") as bar:
+    with _BakeBars() as bakes, _progress(args.frames, f"render {method}") as bar:
         result = render(built, method, frames=args.frames, progress=bar, bake_progress=bakes, **params)
     if method == "fiv":
         print(_fiv_summary(built.fiv_records))
@@ -396,7 +396,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--json", default=None, help="write a JSON report (method, device, resolution, params, timings_ms)")
     r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scene value, e.g. camera.fov_deg=30 or object.bunny.albedo=[1,0,0]")
-    r.add_argument("--frames", type=int, default=5, help="timed frames after one warm-up (default 5)")
+    r.add_argument("--frames", type=int, default=5, help="timed frames after 0.3 s of warm-up frames (default 5)")
     r.add_argument("--exposure", type=float, default=0.0, help="PNG exposure in stops")
 
     d = sub.add_parser("demo", help="render the built-in procedural scene with every method")
@@ -422,7 +422,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "report.md and images")
     b.add_argument("--methods", default=None, help="comma-separated methods (default: unshadowed, fiv if the scene has occluders, heightfield if it "
                         "has height fields, reference)")
-    b.add_argument("--frames", type=int, default=5, help="timed frames per setting after one warm-up (>= 5)")
+    b.add_argument("--frames", type=int, default=5, help="timed frames per setting after 0.3 s of warm-up frames (>= 5)")
     b.add_argument("--spp", type=_int_list, default=None, help="Mitsuba samples per pixel (default 1,2,4,...,1024)")
     b.add_argument("--face-sizes", type=_int_list, default=None,
                    help="reference face sizes to sweep (default 4,8,16,32)")

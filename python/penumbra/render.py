@@ -1,6 +1,6 @@
 """From a scene description to an image: load or make the content, build the
 native scene, cast the G-buffer and run a shading method, timing the frames
-by the measuring protocol (kernel builds excluded, one warm-up frame, median
+by the measuring protocol (kernel builds excluded, 0.3 s of warm-up frames, median
 and minimum of N frames)."""
 
 from __future__ import annotations
@@ -289,6 +289,12 @@ class RenderResult:
         raise InputError(f"unknown G-buffer view '{name}' ({', '.join(GBUFFER_VIEWS)})")
 
 
+# Untimed frames before the timed ones, by time: on a 2-core CPU under PoCL
+# the first ~0.1 s of frames after a pause ran 2x slower (the same frames,
+# in the same process), which one warm-up frame did not absorb.
+WARMUP_SECONDS = 0.3
+
+
 def _timed(fn, ctx: Context) -> float:
     t0 = time.perf_counter()
     fn()
@@ -298,10 +304,10 @@ def _timed(fn, ctx: Context) -> float:
 
 def render(built: BuiltScene, method: str = "unshadowed", frames: int = 5, progress=None, warmup: bool = True,
            bake_progress: BakeProgress | None = None, **params) -> RenderResult:
-    """Renders `built` with `method`. Kernel builds happen before timing; one
-    warm-up frame (unless `warmup` is False: for one-off slow renders whose
-    time is not a measurement), then `frames` timed frames (G-buffer +
-    shading each). For ``fiv`` the occlusion fields are baked or loaded first
+    """Renders `built` with `method`. Kernel builds happen before timing; then
+    warm-up frames for at least WARMUP_SECONDS (at least one; none when
+    `warmup` is False: for one-off slow renders whose time is not a
+    measurement), then `frames` timed frames (G-buffer + shading each). For ``fiv`` the occlusion fields are baked or loaded first
     (attach_fiv_fields, not timed); its params may include bake options
     (FIV_BAKE_KEYS) that override the scene's [fiv] table."""
     if method not in METHODS:
@@ -319,13 +325,15 @@ def render(built: BuiltScene, method: str = "unshadowed", frames: int = 5, progr
     gbuffer, image = GBuffer(ctx, w, h), Image(ctx, w, h)
     renderer = Renderer(ctx, method, **params)
     gtimes, stimes = [], []
-    first = 1 if warmup else 0
-    for i in range(1 - first, frames + 1):
-        g = _timed(lambda: built.scene.render_gbuffer(gbuffer), ctx)
-        s = _timed(lambda: renderer.execute(built.scene, gbuffer, image), ctx)
-        if i > 0:  # frame 0 warms caches up
-            gtimes.append(g)
-            stimes.append(s)
+    warm_start = time.perf_counter()
+    while warmup:  # caches, and an OpenCL CPU runtime's idle worker threads
+        built.scene.render_gbuffer(gbuffer)
+        renderer.execute(built.scene, gbuffer, image)
+        ctx.finish()
+        warmup = time.perf_counter() - warm_start < WARMUP_SECONDS
+    for _ in range(frames):
+        gtimes.append(_timed(lambda: built.scene.render_gbuffer(gbuffer), ctx))
+        stimes.append(_timed(lambda: renderer.execute(built.scene, gbuffer, image), ctx))
         if progress is not None:
             progress.update(1)
     planes = {p: gbuffer.read(p) for p in ("position", "normal", "albedo", "material", "instance")}
