@@ -87,6 +87,7 @@ PROBES = ("uffizi", "grace")
 PROBE_SUPERSAMPLING = 32
 UFFIZI = f"{DATA}/envmaps/uffizi_probulator_256x128.hdr"
 GRACE = f"{DATA}/envmaps/grace_probulator_256x128.hdr"
+ENV_FILES = {"sunny": SUNNY, "forest": FOREST, "uffizi": UFFIZI, "grace": GRACE}
 
 EXPERIMENTS = ("a", "b", "c", "d", "e", "f", "g")
 TITLES = {
@@ -167,14 +168,8 @@ def env_latlong(name: str) -> np.ndarray:
     if name in _ENV_CACHE:
         return _ENV_CACHE[name]
     w, h = 1024, 512
-    if name == "sunny":
-        env = read_envmap(REPO / SUNNY)
-    elif name == "forest":
-        env = read_envmap(REPO / FOREST)
-    elif name == "uffizi":
-        env = read_envmap(REPO / UFFIZI)
-    elif name == "grace":
-        env = read_envmap(REPO / GRACE)
+    if name in ENV_FILES:
+        env = read_envmap(REPO / ENV_FILES[name])
     elif name == "directional":
         r = math.radians(DIRECTIONAL_RADIUS_DEG)
         cov = procedural._disc_coverage(w, h, unit(DIRECTIONAL_DIR), r)
@@ -193,7 +188,7 @@ def env_latlong(name: str) -> np.ndarray:
 
 def key_light_dirs(name: str) -> list[np.ndarray]:
     """Directions of the lights that cast the visible shadows (for framing the camera)."""
-    if name in ("uffizi", "grace"):
+    if name in PROBES:
         # no dominant light: frame the contact shadow all around the occluder
         return [direction(45.0, a) for a in (0.0, 90.0, 180.0, 270.0)]
     if name in ("sunny", "forest"):

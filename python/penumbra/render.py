@@ -325,12 +325,12 @@ def render(built: BuiltScene, method: str = "unshadowed", frames: int = 5, progr
     gbuffer, image = GBuffer(ctx, w, h), Image(ctx, w, h)
     renderer = Renderer(ctx, method, **params)
     gtimes, stimes = [], []
-    warm_start = time.perf_counter()
+    warm_until = time.perf_counter() + WARMUP_SECONDS
     while warmup:  # caches, and an OpenCL CPU runtime's idle worker threads
         built.scene.render_gbuffer(gbuffer)
         renderer.execute(built.scene, gbuffer, image)
         ctx.finish()
-        warmup = time.perf_counter() - warm_start < WARMUP_SECONDS
+        warmup = time.perf_counter() < warm_until
     for _ in range(frames):
         gtimes.append(_timed(lambda: built.scene.render_gbuffer(gbuffer), ctx))
         stimes.append(_timed(lambda: renderer.execute(built.scene, gbuffer, image), ctx))
