@@ -1932,8 +1932,10 @@ static void test_fiv(pn_context ctx)
                  "pn_fiv_get_info", NULL);
     expect_error("NULL field: pn_fiv_read", pn_fiv_read(NULL, sample, sizeof sample), PN_ERROR_NULL_HANDLE, NULL,
                  "pn_fiv_read", NULL);
-    expect_error("NULL scene: pn_scene_set_fivs", pn_scene_set_fivs(NULL, NULL, 0), PN_ERROR_NULL_HANDLE, NULL,
-                 "pn_scene_set_fivs", NULL);
+    expect_error("NULL scene: pn_scene_attach", pn_scene_attach(NULL, 0, NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_scene_attach", NULL);
+    expect_error("NULL scene: pn_scene_detach", pn_scene_detach(NULL, 0, NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_scene_detach", NULL);
     expect_error("NULL env map: pn_envmap_get_hash", pn_envmap_get_hash(NULL, &hash), PN_ERROR_NULL_HANDLE, NULL,
                  "pn_envmap_get_hash", NULL);
     expect_error("NULL mesh: pn_mesh_get_hash", pn_mesh_get_hash(NULL, &hash), PN_ERROR_NULL_HANDLE, NULL,
@@ -1951,12 +1953,13 @@ static void test_fiv(pn_context ctx)
                  PN_ERROR_NULL_HANDLE, NULL, "pn_fiv_release", NULL);
     expect_error("env map passed as a field: pn_fiv_get_info", pn_fiv_get_info((pn_fiv)(void *)r.env, &info),
                  PN_ERROR_NULL_HANDLE, NULL, "pn_fiv_get_info", NULL);
-    pn_fiv not_a_field = (pn_fiv)(void *)r.mesh;
-    expect_error("mesh in the list of pn_scene_set_fivs", pn_scene_set_fivs(r.scene, &not_a_field, 1),
-                 PN_ERROR_NULL_HANDLE, NULL, "fields[0]", NULL);
-    not_a_field = NULL;
-    expect_error("NULL in the list of pn_scene_set_fivs", pn_scene_set_fivs(r.scene, &not_a_field, 1),
-                 PN_ERROR_NULL_HANDLE, NULL, "fields[0]", NULL);
+    expect_error("a mesh attached as an asset", pn_scene_attach(r.scene, r.instance, r.mesh), PN_ERROR_NULL_HANDLE,
+                 NULL, "not an asset", NULL);
+    expect_error("a NULL asset", pn_scene_attach(r.scene, r.instance, NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_scene_attach", NULL);
+    int not_an_object = 0;
+    expect_error("a pointer that is no object", pn_scene_attach(r.scene, r.instance, &not_an_object),
+                 PN_ERROR_NULL_HANDLE, NULL, "not a penumbra object", NULL);
 
     /* NULL pointers: the context's slot. */
     expect_error("pn_fiv_bake(options = NULL)", pn_fiv_bake(r.env, r.mesh, NULL, NULL, NULL, NULL, &fiv),
@@ -1967,9 +1970,8 @@ static void test_fiv(pn_context ctx)
                  "pn_fiv_load", "path", NULL);
     expect_error("pn_fiv_load(out = NULL)", pn_fiv_load(ctx, "x.pnfiv", NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
                  "pn_fiv_load", "out", NULL);
-    expect_error("pn_scene_set_fivs(fields = NULL, count = 1)", pn_scene_set_fivs(r.scene, NULL, 1),
-                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_scene_set_fivs", "fields", NULL);
-    expect_ok("pn_scene_set_fivs(NULL, 0) clears the list", pn_scene_set_fivs(r.scene, NULL, 0), ctx);
+    expect_ok("pn_scene_detach(NULL) of an instance without attachments", pn_scene_detach(r.scene, r.instance, NULL),
+              ctx);
     expect_error("pn_envmap_get_hash(hash = NULL)", pn_envmap_get_hash(r.env, NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
                  "pn_envmap_get_hash", "hash", NULL);
     expect_error("pn_mesh_get_hash(hash = NULL)", pn_mesh_get_hash(r.mesh, NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
@@ -2112,17 +2114,39 @@ static void test_fiv(pn_context ctx)
         free(a);
         free(b);
 
-        /* Two fields of one mesh; a rotated instance; another env map. */
-        pn_fiv two[2] = {baked, loaded ? loaded : baked};
-        expect_error("two fields for one mesh", pn_scene_set_fivs(r.scene, two, 2), PN_ERROR_INVALID_ARGUMENT, ctx,
-                     "one field per mesh", NULL);
+        /* Attaching: the wrong target, replacing, a rotated instance; another env map. */
+        expect_error("a field attached to the whole scene", pn_scene_attach(r.scene, PN_WHOLE_SCENE, baked),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, "not to the whole scene", NULL);
+        expect_error("a field attached to a missing instance", pn_scene_attach(r.scene, 999, baked),
+                     PN_ERROR_OUT_OF_RANGE, ctx, "no instance 999", NULL);
+        pn_mesh other = NULL;
+        uint32_t other_id = 0;
+        const float tri[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+        const uint32_t tri_index[3] = {0, 1, 2};
+        if (expect_ok("another mesh", pn_mesh_create(ctx, &other), ctx) &&
+            expect_ok("its geometry", pn_mesh_set_geometry(other, tri, 3, tri_index, 1, NULL), ctx) &&
+            expect_ok("its commit", pn_mesh_commit(other), ctx) &&
+            expect_ok("an instance of it", pn_scene_add_instance(r.scene, other, NULL, NULL, &other_id), ctx)) {
+            expect_error("a field attached to an instance of another mesh", pn_scene_attach(r.scene, other_id, baked),
+                         PN_ERROR_INVALID_ARGUMENT, ctx, "baked for mesh", NULL);
+            expect_ok("remove that instance", pn_scene_remove_instance(r.scene, other_id), ctx);
+        }
+        if (other)
+            pn_mesh_release(other);
+        if (loaded) {
+            expect_ok("attach a field", pn_scene_attach(r.scene, r.instance, loaded), ctx);
+            expect_ok("a second field of the same kind replaces it", pn_scene_attach(r.scene, r.instance, baked), ctx);
+            expect_ok("detach a field that is not attached", pn_scene_detach(r.scene, r.instance, loaded), ctx);
+        }
         pn_renderer fivr = NULL;
-        if (expect_ok("pn_scene_set_fivs", pn_scene_set_fivs(r.scene, &baked, 1), ctx) &&
+        if (expect_ok("pn_scene_attach", pn_scene_attach(r.scene, r.instance, baked), ctx) &&
             expect_ok("fiv renderer", pn_renderer_create(ctx, "fiv", &fivr), ctx)) {
             expect_error("overlap 3", pn_renderer_set_int(fivr, "overlap", 3), PN_ERROR_INVALID_ARGUMENT, ctx,
                          "overlap", NULL);
             expect_error("cull_threshold -1", pn_renderer_set_float(fivr, "cull_threshold", -1.0f),
                          PN_ERROR_INVALID_ARGUMENT, ctx, "cull_threshold", NULL);
+            expect_error("a bake option set on the renderer", pn_renderer_set_int(fivr, "theta", 17),
+                         PN_ERROR_BAD_CONFIG, ctx, "bake option", NULL);
             expect_ok("fiv commit", pn_renderer_commit(fivr), ctx);
             expect_ok("fiv scene commit", pn_scene_commit(r.scene), ctx);
             expect_ok("fiv render_gbuffer", pn_scene_render_gbuffer(r.scene, r.gbuffer), ctx);
@@ -2149,7 +2173,7 @@ static void test_fiv(pn_context ctx)
             pn_renderer_release(fivr);
         expect_ok("retain a field", pn_fiv_retain(baked), ctx);
         expect_ok("release it (1 of 2)", pn_fiv_release(baked), ctx);
-        pn_scene_set_fivs(r.scene, NULL, 0);
+        expect_ok("detach it", pn_scene_detach(r.scene, r.instance, baked), ctx);
         expect_ok("release it (2 of 2)", pn_fiv_release(baked), ctx);
     }
     if (loaded)
@@ -2175,8 +2199,6 @@ static void test_heightfield(pn_context ctx)
                  "pn_heightfield_commit", NULL);
     expect_error("NULL height field: pn_heightfield_build_mesh", pn_heightfield_build_mesh(NULL, &mesh),
                  PN_ERROR_NULL_HANDLE, NULL, "pn_heightfield_build_mesh", NULL);
-    expect_error("NULL scene: pn_scene_set_heightfields", pn_scene_set_heightfields(NULL, NULL, NULL, 0),
-                 PN_ERROR_NULL_HANDLE, NULL, "pn_scene_set_heightfields", NULL);
     if (!expect_ok("pn_heightfield_create", pn_heightfield_create(ctx, &hf), ctx))
         return;
     expect_error("height field without heights: commit", pn_heightfield_commit(hf), PN_ERROR_NOT_COMMITTED, ctx,
@@ -2212,24 +2234,25 @@ static void test_heightfield(pn_context ctx)
     rig r;
     if (!rig_create(ctx, &r, 8, 8, 8))
         goto done;
-    uint32_t id = 0, ids[2];
+    uint32_t id = 0;
     pn_renderer hr = NULL, un = NULL;
     pn_material mat = pn_material_default();
-    pn_heightfield two[2] = {hf, hf};
     expect_ok("add the height-field mesh", pn_scene_add_instance(r.scene, mesh, NULL, &mat, &id), ctx);
-    ids[0] = ids[1] = id;
-    expect_error("two fields on one instance", pn_scene_set_heightfields(r.scene, two, ids, 2),
-                 PN_ERROR_INVALID_ARGUMENT, ctx, "both claim instance", NULL);
+    expect_error("a height field attached to the rig's sphere", pn_scene_attach(r.scene, r.instance, hf),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "not the 5 x 4 grid", NULL);
+    expect_error("a height field attached to the whole scene", pn_scene_attach(r.scene, PN_WHOLE_SCENE, hf),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "not to the whole scene", NULL);
     expect_ok("pn_scene_commit", pn_scene_commit(r.scene), ctx);
     expect_ok("heightfield renderer", pn_renderer_create(ctx, "heightfield", &hr), ctx);
     expect_error("azimuths above 256", pn_renderer_set_int(hr, "azimuths", 300), PN_ERROR_INVALID_ARGUMENT, ctx,
                  "azimuths", NULL);
     pn_renderer_commit(hr);
     expect_error("heightfield method without height fields", pn_renderer_execute(hr, r.scene, r.gbuffer, r.image),
-                 PN_ERROR_NOT_COMMITTED, ctx, "no height fields", NULL);
-    expect_ok("pn_scene_set_heightfields", pn_scene_set_heightfields(r.scene, &hf, &id, 1), ctx);
+                 PN_ERROR_NOT_COMMITTED, ctx, "no height field is attached", NULL);
+    expect_ok("pn_scene_attach a height field", pn_scene_attach(r.scene, id, hf), ctx);
+    expect_ok("pn_scene_commit", pn_scene_commit(r.scene), ctx);
     float out[80];
-    expect_ok("read the env pass", pn_renderer_read_heightfield(hr, r.scene, 0, PN_HF_ENV, 0, out, sizeof out), ctx);
+    expect_ok("read the env pass", pn_renderer_read_output(hr, r.scene, "env", id, 0, out, sizeof out), ctx);
     /* A flat field under a constant env of radiance 1 with white albedo: L_o = 1,
      * up to the irradiance map's sum over the face-8 cube (texel-centre
      * cosines: within 2e-3 of π; the unshadowed method's own error). */
@@ -2240,24 +2263,29 @@ static void test_heightfield(pn_context ctx)
     /* The seed's all-SH product holds a constant env exactly (only l = 0). */
     pn_renderer_set_int(hr, "exact_unoccluded", 0);
     pn_renderer_commit(hr);
-    expect_ok("read the env pass, all-SH", pn_renderer_read_heightfield(hr, r.scene, 0, PN_HF_ENV, 0, out, sizeof out),
-              ctx);
+    expect_ok("read the env pass, all-SH", pn_renderer_read_output(hr, r.scene, "env", id, 0, out, sizeof out), ctx);
     flat = 1;
     for (int v = 0; v < 20; ++v)
         flat &= near(out[4 * v], 1.0f, 1e-4f);
     CHECK("flat field, constant env, all-SH: outgoing radiance 1", flat);
-    expect_error("read into a small buffer", pn_renderer_read_heightfield(hr, r.scene, 0, PN_HF_ENV, 0, out, 16),
+    expect_error("read into a small buffer", pn_renderer_read_output(hr, r.scene, "env", id, 0, out, 16),
                  PN_ERROR_INVALID_SIZE, ctx, "needs 320 bytes", NULL);
-    expect_error("read field 1 of 1", pn_renderer_read_heightfield(hr, r.scene, 1, PN_HF_ENV, 0, out, sizeof out),
-                 PN_ERROR_INVALID_ARGUMENT, ctx, "height field 1", NULL);
-    expect_error("read light 0 of none", pn_renderer_read_heightfield(hr, r.scene, 0, PN_HF_LIGHT, 0, out, sizeof out),
+    expect_error("read an instance without a height field",
+                 pn_renderer_read_output(hr, r.scene, "env", r.instance, 0, out, sizeof out), PN_ERROR_INVALID_ARGUMENT,
+                 ctx, "no height field attached", NULL);
+    expect_error("read light 0 of none", pn_renderer_read_output(hr, r.scene, "light", id, 0, out, sizeof out),
                  PN_ERROR_INVALID_ARGUMENT, ctx, "light 0", NULL);
+    expect_error("read an unknown output", pn_renderer_read_output(hr, r.scene, "shadows", id, 0, out, sizeof out),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "no output 'shadows'", "env, light, total", NULL);
     expect_ok("unshadowed renderer", pn_renderer_create(ctx, "unshadowed", &un), ctx);
     pn_renderer_commit(un);
-    expect_error("read from an unshadowed renderer",
-                 pn_renderer_read_heightfield(un, r.scene, 0, PN_HF_ENV, 0, out, sizeof out), PN_ERROR_INVALID_ARGUMENT,
-                 ctx, "needs a heightfield renderer", NULL);
+    expect_error("read from an unshadowed renderer", pn_renderer_read_output(un, r.scene, "env", id, 0, out, sizeof out),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "no output 'env'", "none", NULL);
     expect_ok("heightfield execute", rig_render_with(&r, hr), ctx);
+    expect_ok("removing the instance drops its height field", pn_scene_remove_instance(r.scene, id), ctx);
+    pn_scene_commit(r.scene);
+    expect_error("heightfield after the removal", pn_renderer_execute(hr, r.scene, r.gbuffer, r.image),
+                 PN_ERROR_NOT_COMMITTED, ctx, "no height field is attached", NULL);
     pn_renderer_release(un);
     pn_renderer_release(hr);
     rig_release(&r);
