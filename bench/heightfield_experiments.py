@@ -63,7 +63,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import harness  # noqa: E402
-from harness import HEAT_FRACTION, REPO, Experiment, Suite, Variant, f4, fmt_params, log, median_ms, settings  # noqa: E402
+from harness import (HEAT_FRACTION, REPO, Experiment, Suite, Variant, f4, fmt_params, log,  # noqa: E402
+                     median_ms, settings)
 from harness import link as _img  # noqa: E402
 
 import penumbra  # noqa: E402
@@ -294,9 +295,6 @@ class Runner(harness.Runner):
         self.ctx.finish()
         return case.image.read()[..., :3].astype(np.float32), time.perf_counter() - t0
 
-    def _cached(self, key: dict, render) -> tuple[np.ndarray, float]:
-        return self.references.get(key, render, {"key": key})
-
     def ref_params_for(self, case: Case) -> dict:
         """The ground truth's settings: no sun supersampling under the overcast map (its sun_threshold test
         passes nearly every sky texel there, which would cost 16 x the directions for nothing)."""
@@ -312,7 +310,7 @@ class Runner(harness.Runner):
             img, s = self.shade(case, "reference", params, lights=0)
             log(f"  reference {case.label()} in {s:.1f} s")
             return img
-        return self._cached(key, render)
+        return self.references.get(key, render, {"key": key})
 
     def light_reference(self, case: Case, k: int, visibility: int = 1) -> np.ndarray:
         """The first k lights' share of the ground truth (black env); visibility 0: unshadowed lights."""
@@ -327,16 +325,7 @@ class Runner(harness.Runner):
             r.execute(s, case.gbuffer, case.image)
             self.ctx.finish()
             return case.image.read()[..., :3].astype(np.float32)
-        return self._cached(key, render)[0]
-
-    def metrics(self, ref: np.ndarray, img: np.ndarray, mask: np.ndarray) -> dict:
-        return harness.metrics(ref, img, mask)
-
-    def pngs(self, stem: str, ref: np.ndarray, images: dict[str, np.ndarray], mask: np.ndarray,
-             errors_only: tuple[str, ...] = (), reference: bool = True) -> dict:
-        """stem_reference.png (unless reference=False) and, per image, stem_<label>.png (unless in
-        errors_only) and stem_<label>_error.png (heat map); the file names by label."""
-        return self.pictures.set(stem, ref, images, mask, errors_only, reference)
+        return self.references.get(key, render, {"key": key})[0]
 
 
 # --------------------------------------------------------------------------- #
@@ -358,10 +347,10 @@ def exp_a(run: Runner) -> dict:
         hf, hf_s = run.shade(c, "heightfield")
         un, _ = run.shade(c, "unshadowed")
         row = {"pixels": int(c.mask.sum()), "terrain_pixels": int(c.terrain_mask.sum()), "reference_s": ref_s,
-               "heightfield": run.metrics(ref, hf, c.mask), "unshadowed": run.metrics(ref, un, c.mask),
-               "heightfield_all_terrain_pixels": run.metrics(ref, hf, c.terrain_mask), "heightfield_s": hf_s}
+               "heightfield": harness.metrics(ref, hf, c.mask), "unshadowed": harness.metrics(ref, un, c.mask),
+               "heightfield_all_terrain_pixels": harness.metrics(ref, hf, c.terrain_mask), "heightfield_s": hf_s}
         if c.env_name == "sunny" and not c.full_env:
-            row["png"] = run.pngs(f"a_{c.terrain}_sunny", ref, {"heightfield": hf, "unshadowed": un}, c.mask,
+            row["png"] = run.pictures.set(f"a_{c.terrain}_sunny", ref, {"heightfield": hf, "unshadowed": un}, c.mask,
                                   errors_only=("unshadowed",))
         out["cases"][c.label()] = row
         log(f"  a {c.label()}: heightfield NRMSE {row['heightfield']['nrmse']:.4f} "
@@ -383,23 +372,24 @@ def exp_a(run: Runner) -> dict:
             base_l = run.light_reference(c, k, visibility=0) if k else None
             ref = ref_env + (ref_l if k else 0.0)
             base = un_env + (base_l if k else 0.0)
-            row = {"unshadowed": run.metrics(ref, base, c.mask),
+            row = {"unshadowed": harness.metrics(ref, base, c.mask),
                    "lights": [dict(zip(("x", "y", "z", "radius", "r", "g", "b"), lr)) for lr in c.lights[:k]]}
             if k:  # the lights' share alone (the method's light passes against the reference's), over every
                 # terrain pixel: light horizons only look towards the light, never past the border
-                row["unshadowed_light_part"] = run.metrics(ref_l, base_l, c.terrain_mask)
+                row["unshadowed_light_part"] = harness.metrics(ref_l, base_l, c.terrain_mask)
             imgs = {}
             for params, label in variants:
                 img, s = run.shade(c, "heightfield", params, lights=k)
-                row[label] = run.metrics(ref, img, c.mask)
+                row[label] = harness.metrics(ref, img, c.mask)
                 row[label]["seconds"] = s
                 if k:
-                    row[label + " light_part"] = run.metrics(ref_l, img - no_lights[label], c.terrain_mask)
+                    row[label + " light_part"] = harness.metrics(ref_l, img - no_lights[label], c.terrain_mask)
                 else:
                     no_lights[label] = img
                 imgs[label.replace(" ", "_").replace("=", "")] = img
             if k == 3:
-                row["png"] = run.pngs(f"a_{t}_{LIGHT_ENV}_3lights", ref, {"heightfield": imgs["heightfield"]}, c.mask)
+                row["png"] = run.pictures.set(f"a_{t}_{LIGHT_ENV}_3lights", ref, {"heightfield": imgs["heightfield"]},
+                                              c.mask)
             rows[str(k)] = row
             log(f"  a {t}/{LIGHT_ENV} + {k} lights: heightfield NRMSE {row['heightfield']['nrmse']:.4f}, "
                 f"unshadowed lights {row['unshadowed']['nrmse']:.4f}" + (
@@ -423,10 +413,10 @@ def exp_a(run: Runner) -> dict:
     img, _ = run.shade(c, "heightfield", lights=1)
     inside = np.linalg.norm(c.gbuffer.read("position")[..., :3] - np.array(c.lights[0][:3]), axis=-1) < c.lights[0][3]
     row = {"light": dict(zip(("x", "y", "z", "radius", "r", "g", "b"), c.lights[0])),
-           "heightfield": run.metrics(ref, img, c.mask),
-           "heightfield_outside_sphere": run.metrics(ref, img, c.mask & ~inside),
+           "heightfield": harness.metrics(ref, img, c.mask),
+           "heightfield_outside_sphere": harness.metrics(ref, img, c.mask & ~inside),
            "pixels_inside_sphere": int((c.mask & inside).sum())}
-    row["png"] = run.pngs("a_cones_circle_overcast_helper_light", ref, {"heightfield": img}, c.mask)
+    row["png"] = run.pictures.set("a_cones_circle_overcast_helper_light", ref, {"heightfield": img}, c.mask)
     out["helper_light"] = row
     log(f"  a cones_circle + cones_circle_light() defaults: NRMSE {row['heightfield']['nrmse']:.4f}, outside the "
         f"sphere {row['heightfield_outside_sphere']['nrmse']:.4f} ({row['pixels_inside_sphere']} pixels inside)")
@@ -483,7 +473,7 @@ def exp_b(run: Runner) -> dict:
         params = v.params
         for c in cases:  # one renderer per setting, both fbm cases and the city under it
             img, s = run.shade(c, "heightfield", params)
-            row = {"group": v.group, "params": params, "seconds": s, **run.metrics(refs[c.label()], img, c.mask)}
+            row = {"group": v.group, "params": params, "seconds": s, **harness.metrics(refs[c.label()], img, c.mask)}
             out["cases"][c.label()]["rows"].append(row)
         log(f"  b {fmt_params(params)}: " + ", ".join(
             f"{c.label()} {out['cases'][c.label()]['rows'][-1]['nrmse']:.4f}" for c in cases))
@@ -501,8 +491,8 @@ def exp_b(run: Runner) -> dict:
             p = dict(v.params) if mode is None else dict(v.params, light_visibility=mode)
             img0, _ = run.shade(c, "heightfield", p, lights=0)
             img, s = run.shade(c, "heightfield", p, lights=1)
-            row = {"group": group, "params": p, "seconds": s, **run.metrics(ref, img, c.mask),
-                   "light_part": run.metrics(ref_l, img - img0, c.terrain_mask)}
+            row = {"group": group, "params": p, "seconds": s, **harness.metrics(ref, img, c.mask),
+                   "light_part": harness.metrics(ref_l, img - img0, c.terrain_mask)}
             rows.append(row)
             log(f"  b cones_circle + light {fmt_params(p)}: NRMSE {row['nrmse']:.4f}, light part "
                 f"{row['light_part']['nrmse']:.4f} (rel RMS {row['light_part']['rel_rms']:.4f})")
@@ -532,17 +522,17 @@ def exp_c(run: Runner) -> dict:
     out = {"cases": {}}
     for c in cases:
         un, _ = run.shade(c, "unshadowed")
-        out["cases"][c.label()] = {"unshadowed": run.metrics(refs[c.label()], un, c.mask), "rows": []}
+        out["cases"][c.label()] = {"unshadowed": harness.metrics(refs[c.label()], un, c.mask), "rows": []}
     for v in modes:
         mode, params = v.label, v.params
         for c in cases:
             img, s = run.shade(c, "heightfield", params)
             row = {"mode": mode, "bands": params["bands"], "params": params, "seconds": s,
-                   **run.metrics(refs[c.label()], img, c.mask)}
+                   **harness.metrics(refs[c.label()], img, c.mask)}
             out["cases"][c.label()]["rows"].append(row)
             if c.terrain == "fbm" and c.env_name == "sunny" and params in (
                     {"exact_horizon": 1, "azimuths": az_exact, "bands": 4}, {"bands": 4}):
-                row["png"] = run.pngs("c_fbm_sunny", refs[c.label()], {mode: img}, c.mask, errors_only=(mode,),
+                row["png"] = run.pictures.set("c_fbm_sunny", refs[c.label()], {mode: img}, c.mask, errors_only=(mode,),
                                       reference=False)
         log(f"  c {fmt_params(params)}: " + ", ".join(
             f"{c.label()} {out['cases'][c.label()]['rows'][-1]['nrmse']:.4f}" for c in cases))
