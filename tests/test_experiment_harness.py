@@ -165,7 +165,7 @@ def test_committed_reports_regenerate_byte_for_byte(script, folder):
 
 def test_fiv_definition_end_to_end(tmp_path):
     """A tiny fiv experiment on a procedural sphere over a plane under the two area lights (no data
-    files): bake, reference (cached on the second evaluation), variants, metrics and PNGs."""
+    files): bake, reference (cached on the second evaluation), variants, oracle rows, metrics and PNGs."""
     fx = __import__("fiv_experiments")
     ap = harness.parser(fx.SUITE)
     args = ap.parse_args(["--out", str(tmp_path), "--quick", "--resolution", "16", "--png-size", "16"])
@@ -178,12 +178,15 @@ def test_fiv_definition_end_to_end(tmp_path):
     b = fx.Built(r.ctx, data, "area")
     field, rec = r.field(b, "ball", (8, 5, 3))
     assert rec["grid"] == "8x5x3" and rec["sample_count"] == 8 * 5 * 3
-    ev = r.evaluate("t", b, [field], fx.PARTIAL, "ground")
-    assert list(ev["variants"]) == ["unshadowed", "fiv", "fiv partial=0"]
+    oracle = fx.plane_oracle(fx.OracleSetup(r, b, ["ball"], field))
+    ev = r.evaluate("t", b, [field], fx.PARTIAL, "ground", oracle=oracle)
+    assert list(ev["variants"]) == ["unshadowed", "fiv", "fiv partial=0", "exact field partial=1",
+                                    "exact field partial=0", "exact FIV+"]
+    assert ev["variants"]["exact FIV+"]["png"] is None and ev["variants"]["exact FIV+"]["params"] == {"oracle": True}
     assert r.references.misses == 1
     for v in ev["variants"].values():
         assert 0.0 <= v["nrmse"] < 1.0 and set(fx.METRICS) <= set(v)
-        assert (r.out / v["png"]).is_file() and (r.out / v["error_png"]).is_file()
+        assert (v["png"] is None or (r.out / v["png"]).is_file()) and (r.out / v["error_png"]).is_file()
     assert ev["variants"]["fiv"]["nrmse"] < ev["variants"]["unshadowed"]["nrmse"]   # the shadow is there
     again = r.evaluate("t", b, [field], fx.PARTIAL[:1], "ground")
     assert (r.references.hits, r.references.misses) == (1, 1)
