@@ -62,11 +62,9 @@ HEAT_FRACTION = 0.1   # heat maps saturate at this fraction of the reference's r
 @dataclass(frozen=True)
 class Variant:
     """One rendering to evaluate: a label (its row and file names), the
-    method's parameters, and optionally the method and the group it belongs
-    to in a sweep."""
+    method's parameters, and the group it belongs to in a sweep."""
     label: str
     params: dict = field(default_factory=dict)
-    method: str = ""
     group: str = ""
 
 
@@ -99,10 +97,6 @@ class Suite:
     machine: Callable[[], dict] = lambda: {}      # more about the machine and checkout
     add_arguments: Callable[[argparse.ArgumentParser], None] = lambda ap: None
     quick_help: str = "smoke run"
-
-    @property
-    def titles(self) -> dict[str, str]:
-        return {e.key: e.title for e in self.experiments}
 
 
 # --------------------------------------------------------------------------- #
