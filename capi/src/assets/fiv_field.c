@@ -135,8 +135,6 @@ static void destroy_fiv(pn_object *o)
 {
     pn_fiv f = (pn_fiv)o;
     free(f->samples);
-    f->obj.magic = PN_MAGIC_DEAD;
-    free(f);
 }
 
 uint64_t pn_fiv_sample_count(const pn_fiv_options *o)

@@ -16,8 +16,6 @@ static void destroy_heightfield(pn_object *o)
     pn_heightfield hf = (pn_heightfield)o;
     free(hf->heights);
     free(hf->albedo);
-    hf->obj.magic = PN_MAGIC_DEAD;
-    free(hf);
 }
 
 pn_status pn_heightfield_do_set_heights(pn_heightfield hf, const float *heights, uint32_t width, uint32_t depth)

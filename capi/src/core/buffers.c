@@ -84,8 +84,6 @@ static void destroy_gbuffer(pn_object *o)
     pn_gbuffer gb = (pn_gbuffer)o;
     for (int p = 0; p < PN_GBUFFER_PLANE_COUNT; ++p)
         pn_mem_release(&gb->planes[p]);
-    gb->obj.magic = PN_MAGIC_DEAD;
-    free(gb);
 }
 
 pn_status pn_gbuffer_transfer(pn_gbuffer gb, pn_gbuffer_plane plane, void *host, size_t bytes, bool write)
@@ -172,8 +170,6 @@ static void destroy_image(pn_object *o)
 {
     pn_image img = (pn_image)o;
     pn_mem_release(&img->buffer);
-    img->obj.magic = PN_MAGIC_DEAD;
-    free(img);
 }
 
 pn_status pn_image_do_read(pn_image img, float *host, size_t bytes)

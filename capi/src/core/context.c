@@ -210,8 +210,6 @@ static void destroy_context(pn_object *o)
     for (int i = 0; i < ctx->cache_count; ++i)
         ctx->caches[i].free_data(ctx->caches[i].data);
     pn_error_forget(ctx->serial);
-    ctx->obj.magic = PN_MAGIC_DEAD;
-    free(ctx);
 }
 
 /* ------------------------------------------------------- program sources */

@@ -32,7 +32,7 @@ typedef struct pn_object pn_object;
 typedef struct pn_object_type {
     uint32_t magic;
     const char *name;                 /* "occlusion field" */
-    void (*destroy)(pn_object *object);
+    void (*destroy)(pn_object *object); /* frees what the object owns; pn_object_release frees the object */
     /* Assets only (NULL for other kinds): checks that `asset` may attach to
      * instance `instance` of `scene` (PN_WHOLE_SCENE: the scene itself). */
     pn_status (*check_attach)(const pn_object *asset, pn_scene scene, uint32_t instance);

@@ -34,7 +34,9 @@ void pn_object_release(pn_object *o)
         return;
     pn_context owner = o->ctx;
     const bool is_context = o->magic == PN_MAGIC_CONTEXT;
-    o->type->destroy(o); /* sets the tag to PN_MAGIC_DEAD and frees */
+    o->type->destroy(o); /* what the object owns */
+    o->magic = PN_MAGIC_DEAD;
+    free(o);
     if (!is_context && owner)
         pn_object_release(&owner->obj);
 }

@@ -22,8 +22,6 @@ static void destroy_mesh(pn_object *o)
 {
     pn_mesh mesh = (pn_mesh)o;
     free_geometry(mesh);
-    mesh->obj.magic = PN_MAGIC_DEAD;
-    free(mesh);
 }
 
 static const pn_object_type mesh_type = {PN_MAGIC_MESH, "mesh", destroy_mesh, NULL};

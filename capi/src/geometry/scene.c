@@ -30,8 +30,6 @@ static void destroy_scene(pn_object *o)
     pn_mem_release(&scene->records);
     pn_mem_release(&scene->light_buffer);
     free(scene->lights);
-    scene->obj.magic = PN_MAGIC_DEAD;
-    free(scene);
 }
 
 static const pn_object_type scene_type = {PN_MAGIC_SCENE, "scene", destroy_scene, NULL};

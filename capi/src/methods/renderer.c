@@ -42,8 +42,6 @@ static void destroy_renderer(pn_object *o)
     if (r->method->destroy)
         r->method->destroy(r);
     free(r->state);
-    r->obj.magic = PN_MAGIC_DEAD;
-    free(r);
 }
 
 static const pn_object_type renderer_type = {PN_MAGIC_RENDERER, "renderer", destroy_renderer, NULL};
