@@ -628,7 +628,7 @@ def test_set_overrides_address_height_fields_by_name_or_index(tmp_path):
                           "heightfield.0.params={ period = 0.5 }"])
     (h,) = s.heightfields
     assert h.height_scale == 3.0 and h.terrain == "egg_tray" and h.params == {"period": 0.5}
-    with pytest.raises(InputError, match="no height field named or numbered 'dunes'"):
+    with pytest.raises(InputError, match="no heightfield named or numbered 'dunes'"):
         apply_overrides({"heightfield": [{"terrain": "flat"}]}, ["heightfield.dunes.size=[1,1]"])
     with pytest.raises(InputError, match="heightfield.NAME_OR_INDEX.key"):
         apply_overrides({"heightfield": [{"terrain": "flat"}]}, ["heightfield.0=1"])
