@@ -25,6 +25,7 @@ from geometry64 import cast, unit
 from tolerances import (FIV_BAKE_ATOL, FIV_CONTINUITY_ATOL, FIV_FALLOFF_RTOL, FIV_MONOTONE_ATOL,
                         FIV_OVERLAP_INCREASE_MAX, FIV_SCALED_INSTANCE_ATOL, FIV_SHADE_ATOL, IRRADIANCE_RTOL)
 
+from penumbra.methods.fiv import read_header
 from penumbra import (BACKGROUND, EnvMap, FivField, FivOptions, GBuffer, Image, InputError, Mesh, PenumbraError,
                       Renderer, Scene, procedural)
 from penumbra import _native
@@ -406,7 +407,10 @@ def test_save_load_roundtrip_and_header(ctx, env, meshes, tmp_path, precision):
     for k in ("samples", "centre", "radius", "inner", "outer", "mesh_hash", "env_hash", "inside_count", "precision",
               "face_size", "sun_supersampling", "sun_threshold", "inner_radius", "error_target", "stored_bytes"):
         assert a[k] == b[k], k
-    assert b["rays"] == 0 and a["rays"] > 0
+    # The bake's rays and time are recorded in the file, and the header reads without a context.
+    assert b["rays"] == a["rays"] > 0 and b["bake_seconds"] == pytest.approx(a["bake_seconds"]) and a["bake_seconds"] > 0
+    head = read_header(path)
+    assert {k: head[k] for k in a} == b and head["radii_done"] == GRID[2]
     raw = path.read_bytes()
     h = raw[:256]
     assert h[:8] == b"PNFIV\0\r\n"
@@ -493,7 +497,7 @@ def test_foreign_checkpoint_is_left_alone(ctx, env, meshes, saved, other):
 def test_finished_checkpoint_is_loaded(ctx, env, meshes, fields, saved):
     calls = []
     g = FivField.bake(env, meshes["box"][1], OPTS32, path=saved, progress=lambda d, t: calls.append(d))
-    assert calls == [] and g.info()["rays"] == 0
+    assert calls == [] and not g.baked_now and g.info()["rays"] == fields["box"].info()["rays"] > 0
     assert np.array_equal(g.samples(), fields["box"].samples(), equal_nan=True)
 
 

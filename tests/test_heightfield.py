@@ -268,7 +268,7 @@ def test_method_without_height_fields_is_an_error(ctx, sky_env):
     scene.commit()
     gb, img = pn.GBuffer(ctx, 8, 8), pn.Image(ctx, 8, 8)
     scene.render_gbuffer(gb)
-    with pytest.raises(pn.PenumbraError, match="no height fields"):
+    with pytest.raises(pn.PenumbraError, match="no height field"):
         pn.Renderer(ctx, "heightfield").execute(scene, gb, img)
 
 
