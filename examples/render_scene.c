@@ -4,9 +4,11 @@
  *
  * Reads a lat-long environment map from a PFM file, builds a small scene in
  * C (a unit box standing on a ground quad), renders it with the "unshadowed"
- * method (or METHOD: "fiv" first bakes the box's occlusion field, a small
- * 16x9x8 grid, so the box casts soft shadows) and writes the RGB result as a
- * PFM file (written to a temporary file beside OUT.pfm, then renamed over it).
+ * method (or METHOD; the library's method metadata says what the method
+ * reads: for one that reads occlusion fields, such as "fiv", the box's field
+ * is baked on a small 16x9x8 grid and attached to the box, so it casts soft
+ * shadows) and writes the RGB result as a PFM file (written to a temporary
+ * file beside OUT.pfm, then renamed over it).
  *
  * PFM: a text header "PF\n<width> <height>\n<scale>\n" ("Pf" for one channel)
  * followed by 32-bit floats, little-endian when scale < 0, with the rows
@@ -281,16 +283,24 @@ int main(int argc, char **argv)
         !check(pn_scene_set_camera(scene, &camera), "pn_scene_set_camera") ||
         !check(pn_scene_commit(scene), "pn_scene_commit"))
         goto cleanup;
-    if (!strcmp(method, "fiv")) {
-        /* The box's occlusion field under this env map; the scene's instances
-         * of the box then occlude (and shadow themselves). */
+    pn_method_info info;
+    if (!check(pn_method_get_info(method, &info), "pn_method_get_info"))
+        goto cleanup;
+    if (info.inputs & PN_INPUT_HEIGHTFIELD) {
+        fprintf(stderr, "render_scene: method %s shades height fields; this scene has none\n", method);
+        goto cleanup;
+    }
+    if (info.inputs & PN_INPUT_FIV) {
+        /* The box's occlusion field under this env map, attached to the box's
+         * instance: it then occludes (and shadows itself). */
         pn_fiv_options options = pn_fiv_options_default();
         options.theta = 9;
         options.phi = 16;
         options.radii = 8;
         options.face_size = 16;
         if (!check(pn_fiv_bake(env, box, &options, NULL, NULL, NULL, &box_field), "pn_fiv_bake") ||
-            !check(pn_scene_set_fivs(scene, &box_field, 1), "pn_scene_set_fivs"))
+            !check(pn_scene_attach(scene, box_id, box_field), "pn_scene_attach") ||
+            !check(pn_scene_commit(scene), "pn_scene_commit"))
             goto cleanup;
     }
     if (!check(pn_gbuffer_create(g_ctx, width, height, &gbuffer), "pn_gbuffer_create") ||

@@ -204,9 +204,20 @@ typedef struct pn_mesh_info {
     uint32_t bvh_depth;
     float bounds_lo[3];
     float bounds_hi[3];
+    uint32_t has_normals;     /* 1 when the mesh has per-vertex normals */
 } pn_mesh_info;
 
 PN_API pn_status pn_mesh_get_info(pn_mesh mesh, pn_mesh_info *info);
+
+/* Copies the mesh's geometry out (the sizes of pn_mesh_get_info): 3 floats per
+ * vertex, 3 indices per triangle, and 3 floats per vertex of normals (NULL to
+ * skip; PN_ERROR_UNSUPPORTED for a mesh without normals). */
+PN_API pn_status pn_mesh_read_geometry(pn_mesh mesh, float *positions, uint32_t *indices, float *normals);
+
+/* The scale s when the 3x4 object-to-world `transform` is a translation times
+ * s * identity (s > 0, to 1e-5 relative), else 0: the transforms under which
+ * a baked occlusion field stays valid. */
+PN_API pn_status pn_transform_uniform_scale(const float transform[12], float *scale);
 
 /* 64-bit content hash of the committed geometry (positions and indices; normals
  * do not change visibility). Occlusion fields record it. */
@@ -227,6 +238,9 @@ typedef struct pn_material {
     float roughness;  /* GGX alpha in (0, 1] */
     uint32_t lobe;    /* pn_lobe */
 } pn_material;
+
+/* "phong", "blinn_phong", "ggx" for the pn_lobe values, NULL beyond them. */
+PN_API const char *pn_lobe_name(uint32_t lobe);
 
 /* albedo 0.8 grey, no specular, shininess 100, roughness 0.3, Phong. */
 PN_API pn_material pn_material_default(void);
@@ -270,19 +284,22 @@ typedef struct pn_sphere_light {
  * NULL then). Copied; takes effect at the next pn_scene_commit. At most 1024. */
 PN_API pn_status pn_scene_set_lights(pn_scene scene, const pn_sphere_light *lights, uint32_t count);
 
-/* Occlusion fields (pn_fiv) used by the "fiv" method; replaces the list
- * (count 0 clears it; fields may be NULL then). Each field applies to every
- * instance whose mesh has the field's mesh hash; such instances become
- * occluders. Fields are retained. At most one field per mesh (else
- * PN_ERROR_INVALID_ARGUMENT). */
-PN_API pn_status pn_scene_set_fivs(pn_scene scene, const pn_fiv *fields, uint32_t count);
-
-/* Declares which instances are height fields (docs/heightfield.md): field i
- * is instance instances[i] (normally a mesh from pn_heightfield_build_mesh
- * with an identity transform). The `heightfield` method shades those
- * instances' pixels; fields are retained; count 0 removes them; at most 16. */
-PN_API pn_status pn_scene_set_heightfields(pn_scene scene, const pn_heightfield *fields, const uint32_t *instances,
-                                           uint32_t count);
+/* Technique assets (pn_fiv, pn_heightfield, ...) attach to instances; the
+ * methods that use them find them there (docs/api.md "Attachments"). One
+ * generic pair of calls serves every technique:
+ *  - pn_scene_attach attaches `asset` (retained) to instance `instance`,
+ *    replacing what that instance had of the same kind. An asset that does not
+ *    fit its target is PN_ERROR_INVALID_ARGUMENT naming why: an occlusion field
+ *    baked for another mesh, a height field on an instance whose mesh does not
+ *    have its grid of vertices, PN_WHOLE_SCENE for a kind that attaches to
+ *    instances. A handle that is not an asset is PN_ERROR_NULL_HANDLE.
+ *  - pn_scene_detach drops the instance's attachment `asset` (NULL: all of the
+ *    instance's attachments; detaching what is not attached is a no-op).
+ * Removing an instance drops its attachments. Changes take effect at the next
+ * pn_scene_commit. */
+#define PN_WHOLE_SCENE 0xFFFFFFFFu
+PN_API pn_status pn_scene_attach(pn_scene scene, uint32_t instance, void *asset);
+PN_API pn_status pn_scene_detach(pn_scene scene, uint32_t instance, void *asset);
 
 /* Uploads per-mesh BVHs when the set of meshes changed and rebuilds the
  * top-level BVH over instances (cheap: done every frame for moving objects). */
@@ -409,11 +426,16 @@ typedef struct pn_fiv_info {
     uint64_t sample_count;     /* theta * phi * radii */
     uint64_t inside_count;     /* samples inside the geometry (winding number), never used */
     uint64_t stored_bytes;     /* the samples as stored (precision) */
-    uint64_t rays;             /* rays traced by the bake (0 when loaded from a file) */
-    double bake_seconds;       /* wall time of the bake (0 when loaded) */
+    uint64_t rays;             /* rays traced by the bake (recorded in its file; 0 for files older than that) */
+    double bake_seconds;       /* wall time of the bake, resumed parts included (recorded likewise) */
+    uint32_t radii_done;       /* spheres baked (radii when finished) */
 } pn_fiv_info;
 
 PN_API pn_status pn_fiv_get_info(pn_fiv fiv, pn_fiv_info *info);
+/* Reads only the header of a bake file, finished or not (radii_done tells),
+ * checking its checksum: what `penumbra fiv-info` prints. No context needed;
+ * errors go to the global slot. */
+PN_API pn_status pn_fiv_read_header(const char *path, pn_fiv_info *info);
 /* The samples as float: radii x theta x phi x 9 (X rgb, Y rgb, Z rgb), sample
  * (k, i, j) at ((k * theta + i) * phi + j) * 9; NaN for samples inside. */
 PN_API pn_status pn_fiv_read(pn_fiv fiv, float *host, size_t bytes);
@@ -447,74 +469,73 @@ PN_API pn_status pn_heightfield_commit(pn_heightfield hf);
  * the G-buffer ray caster and the reference renderer. */
 PN_API pn_status pn_heightfield_build_mesh(pn_heightfield hf, pn_mesh *out);
 
-/* Per-vertex outputs of a `heightfield` renderer (pn_renderer_read_heightfield). */
-typedef enum pn_heightfield_output {
-    PN_HF_ENV = 0,              /* float4 per vertex: outgoing radiance from the environment (rgb, 1) */
-    PN_HF_LIGHT = 1,            /* float4 per vertex: from light `light` */
-    PN_HF_TOTAL = 2,            /* float4 per vertex: environment + every light */
-    PN_HF_ENV_HORIZONS = 3,     /* azimuths floats per vertex: horizon elevation (radians) */
-    PN_HF_LIGHT_HORIZONS = 4,   /* ... for light `light` */
-    PN_HF_ENV_VISIBILITY = 5,   /* bands^2 floats per vertex: SH visibility */
-    PN_HF_LIGHT_VISIBILITY = 6, /* ... for light `light` */
-    PN_HF_NORMALS = 7           /* float4 per vertex: the method's world normal */
-} pn_heightfield_output;
-
-/* Computes (for the scene as it is now) and reads one per-vertex output of
- * height field `field` of the scene into host memory (vertex (i, j) at
- * j * width + i). Blocking. The renderer must be a committed `heightfield`. */
-PN_API pn_status pn_renderer_read_heightfield(pn_renderer renderer, pn_scene scene, uint32_t field,
-                                              pn_heightfield_output what, uint32_t light, float *host, size_t bytes);
-
 /* -------------------------------------------------------------- renderer */
 
-/* Shading methods by name; unknown names give PN_ERROR_INVALID_ARGUMENT
- * listing the available ones. Methods and their parameters (set_int /
- * set_float; an int value is accepted for a float parameter):
- *
- * "unshadowed"  diffuse env lighting without visibility, from the irradiance map.
- * "reference"   brute-force ground truth (docs/reference.md): the env map on a
- *               cube of face_size directions times ray-cast visibility times
- *               the BRDF (docs/brdf.md), plus stratified spherical lights.
- *     "face_size"          int    directions per cube-face side, 1..256 (default 32 = 6144 directions)
- *     "sun_supersampling"  int    texels brighter than sun_threshold split into s x s sub-texels, 1..16 (1)
- *     "sun_threshold"      float  ... relative to the brightest texel's power, in (0, 1] (0.01)
- *     "light_samples"      int    stratified samples per light cap side, 1..64 (16 = 256 rays)
- *     "visibility"         int    1: shadow rays, 0: every direction unoccluded (1)
- *     "ray_offset"         float  shadow-ray origin lift, relative to scene size + distance to camera (1e-5)
- * "floor"       the memory-bound floor: reads the G-buffer, writes the image (docs/benchmarks.md).
- * "fiv"         Fullsphere Irradiance Vectors (docs/fiv.md): diffuse env lighting with soft shadows and
- *               self-shadows from the occlusion fields of pn_scene_set_fivs.
- *     "overlap"            int    several occluders: 0 sum, 1 unit-bounding-disc correction, 2 multiplied visibility
- *     "partial"            int    1: occluders straddling the receiver plane scaled by (d + R) / 2R (0)
- *     "self_shadow"        int    1: pixels on an occluder use its own field (fullsphere equality) (1)
- *     "trilinear"          int    1: trilinear interpolation of the 8 nearest samples, 0: nearest (1)
- *     "cull_threshold"     float  skip occluders whose extrapolated contribution is below this share of the
- *                                 env's reference irradiance, [0, 1] (1e-3)
- *
- * "heightfield" environment and spherical-light lighting with soft self-shadows on the scene's
- *               height fields (docs/heightfield.md); other pixels get `unshadowed`.
- *     "level_step"         int    pyramid levels per octave, 1..8 (4)
- *     "level_offset"       float  octaves finer than the sample spacing, [0, 8] (4)
- *     "azimuths"           int    horizon directions, 4..256 (32)
- *     "bands"              int    SH bands, 3..6 (4)
- *     "exact_horizon"      int    1: horizons by marching the full-resolution field (for measuring) (0)
- *     "light_threshold"    float  skip a light where radiance x solid angle is below this share of the
- *                                 env's reference irradiance, [0, 1] (1e-4)
- *     "exact_unoccluded"   int    1: the unoccluded part from the exact upper-hemisphere irradiance, SH only
- *                                 for what the terrain blocks; 0: the seed's all-SH product (1)
- *     "sun_threshold"      float  env texels brighter than this x the mean radiance are lit as directional
- *                                 lights with a horizon test; 0: none, [0, 1e9] (50)
- *     "light_visibility"   int    spherical lights: 1 horizon test x exact cap irradiance, 0 the seed's SH
- *                                 wedges (1)
- *     "reconstruction"     int    pyramid levels: 0 the seed's approximating B-spline, 1 interpolating (0)
- *
- * "unshadowed", "reference", "fiv" and "heightfield" also take
- *     "background"         int    1: background pixels show the environment, 0: black (1)
- */
+/* Shading methods ("unshadowed", "reference", "floor", "fiv", "heightfield",
+ * ...) and their parameters are described by the library itself: list them
+ * with the calls below (`penumbra methods` prints them; docs/api.md has the
+ * same tables, checked against the library by the tests). */
+typedef enum pn_param_type {
+    PN_PARAM_INT = 0,         /* pn_renderer_set_int (booleans are 0/1 ints) */
+    PN_PARAM_FLOAT = 1        /* pn_renderer_set_float (an int value is accepted too) */
+} pn_param_type;
+
+typedef enum pn_param_stage {
+    PN_PARAM_FRAME = 0,       /* a renderer parameter read at every execute */
+    PN_PARAM_PLAN = 1,        /* a renderer parameter whose change re-runs the method's plan (tables, uploads) */
+    PN_PARAM_BAKE = 2         /* an option of the method's asset bake (e.g. pn_fiv_options), not of the renderer */
+} pn_param_stage;
+
+typedef struct pn_param_info {
+    const char *name;
+    uint32_t type;            /* pn_param_type */
+    uint32_t stage;           /* pn_param_stage */
+    double default_value;
+    double min, max;          /* inclusive range */
+    const char *unit;         /* "" when it has none */
+    const char *doc;          /* one sentence */
+} pn_param_info;
+
+/* Scene inputs a method reads (pn_method_info.inputs, bits). */
+enum {
+    PN_INPUT_ENVMAP = 1,      /* the scene's env map */
+    PN_INPUT_GEOMETRY = 2,    /* the instances' triangles, ray traced */
+    PN_INPUT_LIGHTS = 4,      /* spherical lights */
+    PN_INPUT_CAMERA = 8,      /* the camera position (view-dependent BRDFs) */
+    PN_INPUT_FIV = 16,        /* occlusion fields attached to instances */
+    PN_INPUT_HEIGHTFIELD = 32 /* height fields attached to instances */
+};
+
+typedef struct pn_method_info {
+    const char *name;
+    const char *summary;      /* one line */
+    const char *stage;        /* its kernel file, kernels/<stage>.cl */
+    const char *doc_page;     /* e.g. "docs/fiv.md" */
+    uint32_t param_count;
+    uint32_t output_count;    /* readable outputs (pn_renderer_read_output) */
+    uint32_t inputs;          /* PN_INPUT_* bits */
+} pn_method_info;
+
+typedef struct pn_output_info {
+    const char *name;
+    const char *doc;          /* one sentence: what, per what, its element type */
+} pn_output_info;
+
 PN_API uint32_t pn_method_count(void);
 /* Name of method i < pn_method_count(), NULL beyond; a static string. */
 PN_API const char *pn_method_name(uint32_t index);
+/* Metadata of a method, of its parameter `index` and of its output `index`:
+ * static strings. An unknown method is PN_ERROR_INVALID_ARGUMENT (listing the
+ * methods), an index past the end PN_ERROR_OUT_OF_RANGE; both in the global slot. */
+PN_API pn_status pn_method_get_info(const char *method, pn_method_info *info);
+PN_API pn_status pn_method_get_param(const char *method, uint32_t index, pn_param_info *info);
+PN_API pn_status pn_method_get_output(const char *method, uint32_t index, pn_output_info *info);
 
+/* A renderer of `method`, its parameters at their defaults. Unknown names are
+ * PN_ERROR_INVALID_ARGUMENT listing the methods. Setting an unknown parameter
+ * is PN_ERROR_BAD_CONFIG (listing the method's), a value outside the range
+ * PN_ERROR_INVALID_ARGUMENT, a bake option PN_ERROR_BAD_CONFIG naming where it
+ * goes. */
 PN_API pn_status pn_renderer_create(pn_context ctx, const char *method, pn_renderer *out);
 PN_API pn_status pn_renderer_retain(pn_renderer renderer);
 PN_API pn_status pn_renderer_release(pn_renderer renderer);
@@ -525,8 +546,19 @@ PN_API pn_status pn_renderer_get_float(pn_renderer renderer, const char *name, f
 PN_API pn_status pn_renderer_commit(pn_renderer renderer);
 
 /* Shades every pixel of `gbuffer` with the scene's lighting into `image`
- * (same size). The scene and its envmap must be committed. Enqueued only. */
+ * (same size). The scene and its envmap must be committed. The first execute
+ * after the renderer's plan-time parameters, the scene's assets or its env map
+ * changed runs the method's plan (table builds, uploads, read-backs; it may
+ * block); every other execute only enqueues work. */
 PN_API pn_status pn_renderer_execute(pn_renderer renderer, pn_scene scene, pn_gbuffer gbuffer, pn_image image);
+
+/* Computes (for the scene as it is now; plans first when needed) and reads
+ * one of the method's outputs (pn_method_get_output) into host memory.
+ * `instance`: the instance the output is of (e.g. a height field's);
+ * `index`: an item within it (e.g. a light), 0 when the output has none.
+ * `bytes` must equal the output's size. Blocking. */
+PN_API pn_status pn_renderer_read_output(pn_renderer renderer, pn_scene scene, const char *output, uint32_t instance,
+                                         uint32_t index, void *host, size_t bytes);
 
 #ifdef __cplusplus
 }

@@ -24,19 +24,16 @@
 
 static pn_status retain(pn_object *o)
 {
-    o->refcount++;
+    pn_object_retain(o);
     return PN_SUCCESS;
 }
 
-/* Drops a reference; on the last one destroys the object and then releases
- * the context it held (objects keep their context alive). */
-#define RELEASE(h, destroy)                                                                                  \
+/* Drops a reference (pn_object_release: the last one destroys the object and
+ * then releases the context it held). */
+#define RELEASE(h)                                                                                           \
     do {                                                                                                     \
-        if (--(h)->obj.refcount > 0)                                                                         \
-            return PN_SUCCESS;                                                                               \
-        pn_context owner = (h)->obj.ctx;                                                                     \
-        destroy(h);                                                                                          \
-        return pn_context_release(owner);                                                                    \
+        pn_object_release(&(h)->obj);                                                                        \
+        return PN_SUCCESS;                                                                                   \
     } while (0)
 
 /* ------------------------------------------------------------------ misc */
@@ -64,8 +61,21 @@ const char *pn_version(void)
 
 pn_material pn_material_default(void)
 {
-    pn_material m = {{0.8f, 0.8f, 0.8f}, 0.0f, 100.0f, 0.3f, PN_LOBE_PHONG};
-    return m;
+    return pn_default_material();
+}
+
+const char *pn_lobe_name(uint32_t lobe)
+{
+    static const char *const names[] = {"phong", "blinn_phong", "ggx"};
+    return lobe < sizeof names / sizeof names[0] ? names[lobe] : NULL;
+}
+
+pn_status pn_transform_uniform_scale(const float transform[12], float *scale)
+{
+    CHECK_PTR(NULL, transform);
+    CHECK_PTR(NULL, scale);
+    *scale = pn_uniform_scale(transform);
+    return PN_SUCCESS;
 }
 
 /* --------------------------------------------------------------- context */
@@ -95,9 +105,7 @@ pn_status pn_context_retain(pn_context ctx)
 pn_status pn_context_release(pn_context ctx)
 {
     CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
-    if (--ctx->obj.refcount == 0)
-        pn_context_destroy(ctx);
-    return PN_SUCCESS;
+    RELEASE(ctx);
 }
 
 pn_status pn_context_set_error_callback(pn_context ctx, pn_error_callback callback, void *user)
@@ -149,36 +157,13 @@ pn_status pn_context_build_program(pn_context ctx, const char *stage)
     return pn_context_program(ctx, stage, &program);
 }
 
-/* ------------------------------------------------------------ objects */
-
-/* Allocates a zeroed object of `size` bytes tagged `magic` on ctx (retained). */
-static void *new_object(pn_context ctx, size_t size, uint32_t magic, const char *what)
-{
-    pn_object *o = pn_malloc(ctx, size, what);
-    if (!o)
-        return NULL;
-    memset(o, 0, size);
-    o->magic = magic;
-    o->refcount = 1;
-    o->ctx = ctx;
-    ctx->obj.refcount++;
-    return o;
-}
-
 /* ----------------------------------------------------------- environment */
 
 pn_status pn_envmap_create(pn_context ctx, pn_envmap *out)
 {
     CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, out);
-    pn_envmap env = new_object(ctx, sizeof *env, PN_MAGIC_ENVMAP, "an env map");
-    if (!env)
-        return PN_ERROR_OUT_OF_MEMORY;
-    env->face_size = 64;
-    env->irradiance_face_size = 32;
-    env->intensity = 1.0f;
-    *out = env;
-    return PN_SUCCESS;
+    return pn_envmap_new(ctx, out);
 }
 
 pn_status pn_envmap_retain(pn_envmap env)
@@ -190,7 +175,7 @@ pn_status pn_envmap_retain(pn_envmap env)
 pn_status pn_envmap_release(pn_envmap env)
 {
     CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
-    RELEASE(env, pn_envmap_destroy);
+    RELEASE(env);
 }
 
 pn_status pn_envmap_set_latlong(pn_envmap env, const float *rgb, uint32_t width, uint32_t height)
@@ -249,11 +234,7 @@ pn_status pn_mesh_create(pn_context ctx, pn_mesh *out)
 {
     CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, out);
-    pn_mesh mesh = new_object(ctx, sizeof *mesh, PN_MAGIC_MESH, "a mesh");
-    if (!mesh)
-        return PN_ERROR_OUT_OF_MEMORY;
-    *out = mesh;
-    return PN_SUCCESS;
+    return pn_mesh_new(ctx, out);
 }
 
 pn_status pn_mesh_retain(pn_mesh mesh)
@@ -265,7 +246,7 @@ pn_status pn_mesh_retain(pn_mesh mesh)
 pn_status pn_mesh_release(pn_mesh mesh)
 {
     CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
-    RELEASE(mesh, pn_mesh_destroy);
+    RELEASE(mesh);
 }
 
 pn_status pn_mesh_set_geometry(pn_mesh mesh, const float *positions, uint32_t vertex_count, const uint32_t *indices,
@@ -307,7 +288,16 @@ pn_status pn_mesh_get_info(pn_mesh mesh, pn_mesh_info *info)
     info->bvh_depth = mesh->bvh.depth;
     memcpy(info->bounds_lo, mesh->bounds_lo, sizeof info->bounds_lo);
     memcpy(info->bounds_hi, mesh->bounds_hi, sizeof info->bounds_hi);
+    info->has_normals = mesh->normals != NULL;
     return PN_SUCCESS;
+}
+
+pn_status pn_mesh_read_geometry(pn_mesh mesh, float *positions, uint32_t *indices, float *normals)
+{
+    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    CHECK_PTR(mesh->obj.ctx, positions);
+    CHECK_PTR(mesh->obj.ctx, indices);
+    return pn_mesh_do_read_geometry(mesh, positions, indices, normals);
 }
 
 /* ----------------------------------------------------------------- scene */
@@ -316,11 +306,7 @@ pn_status pn_scene_create(pn_context ctx, pn_scene *out)
 {
     CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, out);
-    pn_scene scene = new_object(ctx, sizeof *scene, PN_MAGIC_SCENE, "a scene");
-    if (!scene)
-        return PN_ERROR_OUT_OF_MEMORY;
-    *out = scene;
-    return PN_SUCCESS;
+    return pn_scene_new(ctx, out);
 }
 
 pn_status pn_scene_retain(pn_scene scene)
@@ -332,20 +318,14 @@ pn_status pn_scene_retain(pn_scene scene)
 pn_status pn_scene_release(pn_scene scene)
 {
     CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
-    RELEASE(scene, pn_scene_destroy);
+    RELEASE(scene);
 }
 
 pn_status pn_scene_set_envmap(pn_scene scene, pn_envmap env)
 {
     CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
     CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
-    if (env->obj.ctx != scene->obj.ctx)
-        return pn_fail(scene->obj.ctx, PN_ERROR_INVALID_ARGUMENT, "the env map belongs to a different context");
-    pn_envmap_retain(env);
-    if (scene->env)
-        pn_envmap_release(scene->env);
-    scene->env = env;
-    return PN_SUCCESS;
+    return pn_scene_do_set_envmap(scene, env);
 }
 
 pn_status pn_scene_add_instance(pn_scene scene, pn_mesh mesh, const float transform[12], const pn_material *material,
@@ -393,12 +373,31 @@ pn_status pn_scene_set_lights(pn_scene scene, const pn_sphere_light *lights, uin
     return pn_scene_do_set_lights(scene, lights, count);
 }
 
-pn_status pn_scene_set_fivs(pn_scene scene, const pn_fiv *fields, uint32_t count)
+/* A handle that is some live object (its head readable); assets are told apart by their type. */
+static bool is_object(const void *h)
+{
+    if (!h)
+        return false;
+    const uint32_t magic = ((const pn_object *)h)->magic;
+    return magic == PN_MAGIC_CONTEXT || magic == PN_MAGIC_ENVMAP || magic == PN_MAGIC_MESH || magic == PN_MAGIC_SCENE ||
+           magic == PN_MAGIC_GBUFFER || magic == PN_MAGIC_IMAGE || magic == PN_MAGIC_RENDERER ||
+           magic == PN_MAGIC_FIV || magic == PN_MAGIC_HEIGHTFIELD;
+}
+
+pn_status pn_scene_attach(pn_scene scene, uint32_t instance, void *asset)
 {
     CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
-    if (count)
-        CHECK_PTR(scene->obj.ctx, fields);
-    return pn_scene_do_set_fivs(scene, fields, count);
+    if (!is_object(asset))
+        return pn_fail(NULL, PN_ERROR_NULL_HANDLE, "pn_scene_attach: the asset handle is NULL or not a penumbra object");
+    return pn_scene_do_attach(scene, instance, (pn_object *)asset);
+}
+
+pn_status pn_scene_detach(pn_scene scene, uint32_t instance, void *asset)
+{
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    if (asset && !is_object(asset))
+        return pn_fail(NULL, PN_ERROR_NULL_HANDLE, "pn_scene_detach: the asset handle is not a penumbra object");
+    return pn_scene_do_detach(scene, instance, (pn_object *)asset);
 }
 
 pn_status pn_scene_commit(pn_scene scene)
@@ -437,18 +436,11 @@ pn_status pn_scene_render_gbuffer(pn_scene scene, pn_gbuffer gbuffer)
 
 /* -------------------------------------------------------------- G-buffer */
 
-static pn_status finish_create(pn_context ctx, pn_status st)
-{
-    if (!st)
-        ctx->obj.refcount++; /* the new object holds its context */
-    return st;
-}
-
 pn_status pn_gbuffer_create(pn_context ctx, uint32_t width, uint32_t height, pn_gbuffer *out)
 {
     CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, out);
-    return finish_create(ctx, pn_gbuffer_new(ctx, width, height, NULL, out));
+    return pn_gbuffer_new(ctx, width, height, NULL, out);
 }
 
 pn_status pn_gbuffer_create_from_cl(pn_context ctx, uint32_t width, uint32_t height,
@@ -457,7 +449,7 @@ pn_status pn_gbuffer_create_from_cl(pn_context ctx, uint32_t width, uint32_t hei
     CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, planes);
     CHECK_PTR(ctx, out);
-    return finish_create(ctx, pn_gbuffer_new(ctx, width, height, planes, out));
+    return pn_gbuffer_new(ctx, width, height, planes, out);
 }
 
 pn_status pn_gbuffer_retain(pn_gbuffer gbuffer)
@@ -469,7 +461,7 @@ pn_status pn_gbuffer_retain(pn_gbuffer gbuffer)
 pn_status pn_gbuffer_release(pn_gbuffer gbuffer)
 {
     CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
-    RELEASE(gbuffer, pn_gbuffer_destroy);
+    RELEASE(gbuffer);
 }
 
 pn_status pn_gbuffer_get_size(pn_gbuffer gbuffer, uint32_t *width, uint32_t *height)
@@ -528,7 +520,7 @@ pn_status pn_image_create(pn_context ctx, uint32_t width, uint32_t height, pn_im
 {
     CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, out);
-    return finish_create(ctx, pn_image_new(ctx, width, height, NULL, out));
+    return pn_image_new(ctx, width, height, NULL, out);
 }
 
 pn_status pn_image_create_from_cl(pn_context ctx, uint32_t width, uint32_t height, cl_mem buffer, pn_image *out)
@@ -536,7 +528,7 @@ pn_status pn_image_create_from_cl(pn_context ctx, uint32_t width, uint32_t heigh
     CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, buffer);
     CHECK_PTR(ctx, out);
-    return finish_create(ctx, pn_image_new(ctx, width, height, buffer, out));
+    return pn_image_new(ctx, width, height, buffer, out);
 }
 
 pn_status pn_image_retain(pn_image image)
@@ -548,7 +540,7 @@ pn_status pn_image_retain(pn_image image)
 pn_status pn_image_release(pn_image image)
 {
     CHECK_HANDLE(image, PN_MAGIC_IMAGE, "image");
-    RELEASE(image, pn_image_destroy);
+    RELEASE(image);
 }
 
 pn_status pn_image_get_cl(pn_image image, cl_mem *buffer)
@@ -570,12 +562,70 @@ pn_status pn_image_read(pn_image image, float *host, size_t bytes)
 
 uint32_t pn_method_count(void)
 {
-    return pn_renderer_method_count();
+    return pn_method_table_size();
 }
 
 const char *pn_method_name(uint32_t index)
 {
-    return pn_renderer_method_name(index);
+    const pn_method_desc *m = pn_method_at(index);
+    return m ? m->name : NULL;
+}
+
+pn_status pn_method_get_info(const char *method, pn_method_info *info)
+{
+    CHECK_NAME(NULL, method);
+    CHECK_PTR(NULL, info);
+    const pn_method_desc *m = pn_method_find(method);
+    if (!m)
+        return PN_ERROR_INVALID_ARGUMENT;
+    info->name = m->name;
+    info->summary = m->summary;
+    info->stage = m->stage;
+    info->doc_page = m->doc_page;
+    info->param_count = (uint32_t)(m->param_count + m->bake_param_count);
+    info->output_count = (uint32_t)m->output_count;
+    info->inputs = m->inputs;
+    return PN_SUCCESS;
+}
+
+pn_status pn_method_get_param(const char *method, uint32_t index, pn_param_info *info)
+{
+    CHECK_NAME(NULL, method);
+    CHECK_PTR(NULL, info);
+    const pn_method_desc *m = pn_method_find(method);
+    if (!m)
+        return PN_ERROR_INVALID_ARGUMENT;
+    const uint32_t total = (uint32_t)(m->param_count + m->bake_param_count);
+    if (index >= total)
+        return pn_fail(NULL, PN_ERROR_OUT_OF_RANGE, "method %s has %u parameters; there is no parameter %u", m->name,
+                       total, index);
+    /* Renderer parameters first, then the bake's options. */
+    const pn_param_desc *p = index < (uint32_t)m->param_count ? &m->params[index]
+                                                              : &m->bake_params[index - (uint32_t)m->param_count];
+    info->name = p->name;
+    info->type = p->type;
+    info->stage = p->stage;
+    info->default_value = p->fallback;
+    info->min = p->lo;
+    info->max = p->hi;
+    info->unit = p->unit;
+    info->doc = p->doc;
+    return PN_SUCCESS;
+}
+
+pn_status pn_method_get_output(const char *method, uint32_t index, pn_output_info *info)
+{
+    CHECK_NAME(NULL, method);
+    CHECK_PTR(NULL, info);
+    const pn_method_desc *m = pn_method_find(method);
+    if (!m)
+        return PN_ERROR_INVALID_ARGUMENT;
+    if (index >= (uint32_t)m->output_count)
+        return pn_fail(NULL, PN_ERROR_OUT_OF_RANGE, "method %s has %d outputs; there is no output %u", m->name,
+                       m->output_count, index);
+    info->name = m->outputs[index].name;
+    info->doc = m->outputs[index].doc;
+    return PN_SUCCESS;
 }
 
 pn_status pn_renderer_create(pn_context ctx, const char *method, pn_renderer *out)
@@ -583,7 +633,7 @@ pn_status pn_renderer_create(pn_context ctx, const char *method, pn_renderer *ou
     CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_NAME(ctx, method);
     CHECK_PTR(ctx, out);
-    return finish_create(ctx, pn_renderer_new(ctx, method, out));
+    return pn_renderer_new(ctx, method, out);
 }
 
 pn_status pn_renderer_retain(pn_renderer renderer)
@@ -595,7 +645,7 @@ pn_status pn_renderer_retain(pn_renderer renderer)
 pn_status pn_renderer_release(pn_renderer renderer)
 {
     CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
-    RELEASE(renderer, pn_renderer_destroy);
+    RELEASE(renderer);
 }
 
 pn_status pn_renderer_set_int(pn_renderer renderer, const char *name, int32_t value)
@@ -631,8 +681,7 @@ pn_status pn_renderer_get_float(pn_renderer renderer, const char *name, float *v
 pn_status pn_renderer_commit(pn_renderer renderer)
 {
     CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
-    renderer->committed = true;
-    return PN_SUCCESS;
+    return pn_renderer_do_commit(renderer);
 }
 
 pn_status pn_renderer_execute(pn_renderer renderer, pn_scene scene, pn_gbuffer gbuffer, pn_image image)
@@ -642,6 +691,16 @@ pn_status pn_renderer_execute(pn_renderer renderer, pn_scene scene, pn_gbuffer g
     CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
     CHECK_HANDLE(image, PN_MAGIC_IMAGE, "image");
     return pn_renderer_do_execute(renderer, scene, gbuffer, image);
+}
+
+pn_status pn_renderer_read_output(pn_renderer renderer, pn_scene scene, const char *output, uint32_t instance,
+                                  uint32_t index, void *host, size_t bytes)
+{
+    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    CHECK_NAME(renderer->obj.ctx, output);
+    CHECK_PTR(renderer->obj.ctx, host);
+    return pn_renderer_do_read_output(renderer, scene, output, instance, index, host, bytes);
 }
 
 /* ------------------------------------------------------ occlusion fields */
@@ -664,7 +723,7 @@ pn_status pn_fiv_bake(pn_envmap env, pn_mesh mesh, const pn_fiv_options *options
     CHECK_PTR(env->obj.ctx, options);
     CHECK_PTR(env->obj.ctx, out);
     *out = NULL;
-    return finish_create(env->obj.ctx, pn_fiv_do_bake(env, mesh, options, checkpoint_path, progress, user, out));
+    return pn_fiv_do_bake(env, mesh, options, checkpoint_path, progress, user, out);
 }
 
 pn_status pn_fiv_load(pn_context ctx, const char *path, pn_fiv *out)
@@ -673,7 +732,7 @@ pn_status pn_fiv_load(pn_context ctx, const char *path, pn_fiv *out)
     CHECK_NAME(ctx, path);
     CHECK_PTR(ctx, out);
     *out = NULL;
-    return finish_create(ctx, pn_fiv_read_file(ctx, path, false, out));
+    return pn_fiv_read_file(ctx, path, false, out);
 }
 
 pn_status pn_fiv_save(pn_fiv fiv, const char *path)
@@ -692,14 +751,27 @@ pn_status pn_fiv_retain(pn_fiv fiv)
 pn_status pn_fiv_release(pn_fiv fiv)
 {
     CHECK_HANDLE(fiv, PN_MAGIC_FIV, "occlusion field");
-    RELEASE(fiv, pn_fiv_destroy);
+    RELEASE(fiv);
 }
 
 pn_status pn_fiv_get_info(pn_fiv fiv, pn_fiv_info *info)
 {
     CHECK_HANDLE(fiv, PN_MAGIC_FIV, "occlusion field");
     CHECK_PTR(fiv->obj.ctx, info);
-    return pn_fiv_do_get_info(fiv, info);
+    pn_fiv_fill_info(fiv, info);
+    return PN_SUCCESS;
+}
+
+pn_status pn_fiv_read_header(const char *path, pn_fiv_info *info)
+{
+    CHECK_NAME(NULL, path);
+    CHECK_PTR(NULL, info);
+    return pn_fiv_read_file_header(path, info);
+}
+
+pn_fiv_options pn_fiv_options_default(void)
+{
+    return pn_fiv_default_options();
 }
 
 pn_status pn_fiv_read(pn_fiv fiv, float *host, size_t bytes)
@@ -715,12 +787,7 @@ pn_status pn_heightfield_create(pn_context ctx, pn_heightfield *out)
 {
     CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, out);
-    pn_heightfield hf = new_object(ctx, sizeof *hf, PN_MAGIC_HEIGHTFIELD, "a height field");
-    if (!hf)
-        return PN_ERROR_OUT_OF_MEMORY;
-    hf->placement.height_scale = 1.0f;
-    *out = hf;
-    return PN_SUCCESS;
+    return pn_heightfield_new(ctx, out);
 }
 
 pn_status pn_heightfield_retain(pn_heightfield hf)
@@ -732,7 +799,7 @@ pn_status pn_heightfield_retain(pn_heightfield hf)
 pn_status pn_heightfield_release(pn_heightfield hf)
 {
     CHECK_HANDLE(hf, PN_MAGIC_HEIGHTFIELD, "height field");
-    RELEASE(hf, pn_heightfield_destroy);
+    RELEASE(hf);
 }
 
 pn_status pn_heightfield_set_heights(pn_heightfield hf, const float *heights, uint32_t width, uint32_t depth)
@@ -772,34 +839,5 @@ pn_status pn_heightfield_build_mesh(pn_heightfield hf, pn_mesh *out)
     CHECK_HANDLE(hf, PN_MAGIC_HEIGHTFIELD, "height field");
     CHECK_PTR(hf->obj.ctx, out);
     *out = NULL;
-    pn_mesh mesh;
-    pn_status st = pn_mesh_create(hf->obj.ctx, &mesh);
-    if (st)
-        return st;
-    if ((st = pn_heightfield_do_build_mesh(hf, mesh))) {
-        pn_mesh_release(mesh);
-        return st;
-    }
-    *out = mesh;
-    return PN_SUCCESS;
-}
-
-pn_status pn_scene_set_heightfields(pn_scene scene, const pn_heightfield *fields, const uint32_t *instances,
-                                    uint32_t count)
-{
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
-    if (count) {
-        CHECK_PTR(scene->obj.ctx, fields);
-        CHECK_PTR(scene->obj.ctx, instances);
-    }
-    return pn_scene_do_set_heightfields(scene, fields, instances, count);
-}
-
-pn_status pn_renderer_read_heightfield(pn_renderer renderer, pn_scene scene, uint32_t field,
-                                       pn_heightfield_output what, uint32_t light, float *host, size_t bytes)
-{
-    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
-    CHECK_PTR(renderer->obj.ctx, host);
-    return pn_renderer_do_read_heightfield(renderer, scene, field, what, light, host, bytes);
+    return pn_heightfield_do_build_mesh(hf, out);
 }

@@ -2,7 +2,7 @@
  * awkward inputs, and closest-hit ray queries through the BVH checked against
  * brute force. Last line printed: "N passed, N failed"; exit status nonzero on
  * any failure. */
-#include "bvh.h"
+#include "geometry/bvh.h"
 
 #include <math.h>
 #include <stdarg.h>

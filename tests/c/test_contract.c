@@ -17,6 +17,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 #include <unistd.h>
 
 #if defined(__SANITIZE_ADDRESS__)
@@ -1932,8 +1933,10 @@ static void test_fiv(pn_context ctx)
                  "pn_fiv_get_info", NULL);
     expect_error("NULL field: pn_fiv_read", pn_fiv_read(NULL, sample, sizeof sample), PN_ERROR_NULL_HANDLE, NULL,
                  "pn_fiv_read", NULL);
-    expect_error("NULL scene: pn_scene_set_fivs", pn_scene_set_fivs(NULL, NULL, 0), PN_ERROR_NULL_HANDLE, NULL,
-                 "pn_scene_set_fivs", NULL);
+    expect_error("NULL scene: pn_scene_attach", pn_scene_attach(NULL, 0, NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_scene_attach", NULL);
+    expect_error("NULL scene: pn_scene_detach", pn_scene_detach(NULL, 0, NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_scene_detach", NULL);
     expect_error("NULL env map: pn_envmap_get_hash", pn_envmap_get_hash(NULL, &hash), PN_ERROR_NULL_HANDLE, NULL,
                  "pn_envmap_get_hash", NULL);
     expect_error("NULL mesh: pn_mesh_get_hash", pn_mesh_get_hash(NULL, &hash), PN_ERROR_NULL_HANDLE, NULL,
@@ -1951,12 +1954,13 @@ static void test_fiv(pn_context ctx)
                  PN_ERROR_NULL_HANDLE, NULL, "pn_fiv_release", NULL);
     expect_error("env map passed as a field: pn_fiv_get_info", pn_fiv_get_info((pn_fiv)(void *)r.env, &info),
                  PN_ERROR_NULL_HANDLE, NULL, "pn_fiv_get_info", NULL);
-    pn_fiv not_a_field = (pn_fiv)(void *)r.mesh;
-    expect_error("mesh in the list of pn_scene_set_fivs", pn_scene_set_fivs(r.scene, &not_a_field, 1),
-                 PN_ERROR_NULL_HANDLE, NULL, "fields[0]", NULL);
-    not_a_field = NULL;
-    expect_error("NULL in the list of pn_scene_set_fivs", pn_scene_set_fivs(r.scene, &not_a_field, 1),
-                 PN_ERROR_NULL_HANDLE, NULL, "fields[0]", NULL);
+    expect_error("a mesh attached as an asset", pn_scene_attach(r.scene, r.instance, r.mesh), PN_ERROR_NULL_HANDLE,
+                 NULL, "not an asset", NULL);
+    expect_error("a NULL asset", pn_scene_attach(r.scene, r.instance, NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_scene_attach", NULL);
+    int not_an_object = 0;
+    expect_error("a pointer that is no object", pn_scene_attach(r.scene, r.instance, &not_an_object),
+                 PN_ERROR_NULL_HANDLE, NULL, "not a penumbra object", NULL);
 
     /* NULL pointers: the context's slot. */
     expect_error("pn_fiv_bake(options = NULL)", pn_fiv_bake(r.env, r.mesh, NULL, NULL, NULL, NULL, &fiv),
@@ -1967,9 +1971,8 @@ static void test_fiv(pn_context ctx)
                  "pn_fiv_load", "path", NULL);
     expect_error("pn_fiv_load(out = NULL)", pn_fiv_load(ctx, "x.pnfiv", NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
                  "pn_fiv_load", "out", NULL);
-    expect_error("pn_scene_set_fivs(fields = NULL, count = 1)", pn_scene_set_fivs(r.scene, NULL, 1),
-                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_scene_set_fivs", "fields", NULL);
-    expect_ok("pn_scene_set_fivs(NULL, 0) clears the list", pn_scene_set_fivs(r.scene, NULL, 0), ctx);
+    expect_ok("pn_scene_detach(NULL) of an instance without attachments", pn_scene_detach(r.scene, r.instance, NULL),
+              ctx);
     expect_error("pn_envmap_get_hash(hash = NULL)", pn_envmap_get_hash(r.env, NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
                  "pn_envmap_get_hash", "hash", NULL);
     expect_error("pn_mesh_get_hash(hash = NULL)", pn_mesh_get_hash(r.mesh, NULL), PN_ERROR_INVALID_ARGUMENT, ctx,
@@ -2112,17 +2115,39 @@ static void test_fiv(pn_context ctx)
         free(a);
         free(b);
 
-        /* Two fields of one mesh; a rotated instance; another env map. */
-        pn_fiv two[2] = {baked, loaded ? loaded : baked};
-        expect_error("two fields for one mesh", pn_scene_set_fivs(r.scene, two, 2), PN_ERROR_INVALID_ARGUMENT, ctx,
-                     "one field per mesh", NULL);
+        /* Attaching: the wrong target, replacing, a rotated instance; another env map. */
+        expect_error("a field attached to the whole scene", pn_scene_attach(r.scene, PN_WHOLE_SCENE, baked),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, "not to the whole scene", NULL);
+        expect_error("a field attached to a missing instance", pn_scene_attach(r.scene, 999, baked),
+                     PN_ERROR_OUT_OF_RANGE, ctx, "no instance 999", NULL);
+        pn_mesh other = NULL;
+        uint32_t other_id = 0;
+        const float tri[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+        const uint32_t tri_index[3] = {0, 1, 2};
+        if (expect_ok("another mesh", pn_mesh_create(ctx, &other), ctx) &&
+            expect_ok("its geometry", pn_mesh_set_geometry(other, tri, 3, tri_index, 1, NULL), ctx) &&
+            expect_ok("its commit", pn_mesh_commit(other), ctx) &&
+            expect_ok("an instance of it", pn_scene_add_instance(r.scene, other, NULL, NULL, &other_id), ctx)) {
+            expect_error("a field attached to an instance of another mesh", pn_scene_attach(r.scene, other_id, baked),
+                         PN_ERROR_INVALID_ARGUMENT, ctx, "baked for mesh", NULL);
+            expect_ok("remove that instance", pn_scene_remove_instance(r.scene, other_id), ctx);
+        }
+        if (other)
+            pn_mesh_release(other);
+        if (loaded) {
+            expect_ok("attach a field", pn_scene_attach(r.scene, r.instance, loaded), ctx);
+            expect_ok("a second field of the same kind replaces it", pn_scene_attach(r.scene, r.instance, baked), ctx);
+            expect_ok("detach a field that is not attached", pn_scene_detach(r.scene, r.instance, loaded), ctx);
+        }
         pn_renderer fivr = NULL;
-        if (expect_ok("pn_scene_set_fivs", pn_scene_set_fivs(r.scene, &baked, 1), ctx) &&
+        if (expect_ok("pn_scene_attach", pn_scene_attach(r.scene, r.instance, baked), ctx) &&
             expect_ok("fiv renderer", pn_renderer_create(ctx, "fiv", &fivr), ctx)) {
             expect_error("overlap 3", pn_renderer_set_int(fivr, "overlap", 3), PN_ERROR_INVALID_ARGUMENT, ctx,
                          "overlap", NULL);
             expect_error("cull_threshold -1", pn_renderer_set_float(fivr, "cull_threshold", -1.0f),
                          PN_ERROR_INVALID_ARGUMENT, ctx, "cull_threshold", NULL);
+            expect_error("a bake option set on the renderer", pn_renderer_set_int(fivr, "theta", 17),
+                         PN_ERROR_BAD_CONFIG, ctx, "bake option", NULL);
             expect_ok("fiv commit", pn_renderer_commit(fivr), ctx);
             expect_ok("fiv scene commit", pn_scene_commit(r.scene), ctx);
             expect_ok("fiv render_gbuffer", pn_scene_render_gbuffer(r.scene, r.gbuffer), ctx);
@@ -2149,7 +2174,7 @@ static void test_fiv(pn_context ctx)
             pn_renderer_release(fivr);
         expect_ok("retain a field", pn_fiv_retain(baked), ctx);
         expect_ok("release it (1 of 2)", pn_fiv_release(baked), ctx);
-        pn_scene_set_fivs(r.scene, NULL, 0);
+        expect_ok("detach it", pn_scene_detach(r.scene, r.instance, baked), ctx);
         expect_ok("release it (2 of 2)", pn_fiv_release(baked), ctx);
     }
     if (loaded)
@@ -2175,8 +2200,6 @@ static void test_heightfield(pn_context ctx)
                  "pn_heightfield_commit", NULL);
     expect_error("NULL height field: pn_heightfield_build_mesh", pn_heightfield_build_mesh(NULL, &mesh),
                  PN_ERROR_NULL_HANDLE, NULL, "pn_heightfield_build_mesh", NULL);
-    expect_error("NULL scene: pn_scene_set_heightfields", pn_scene_set_heightfields(NULL, NULL, NULL, 0),
-                 PN_ERROR_NULL_HANDLE, NULL, "pn_scene_set_heightfields", NULL);
     if (!expect_ok("pn_heightfield_create", pn_heightfield_create(ctx, &hf), ctx))
         return;
     expect_error("height field without heights: commit", pn_heightfield_commit(hf), PN_ERROR_NOT_COMMITTED, ctx,
@@ -2212,24 +2235,25 @@ static void test_heightfield(pn_context ctx)
     rig r;
     if (!rig_create(ctx, &r, 8, 8, 8))
         goto done;
-    uint32_t id = 0, ids[2];
+    uint32_t id = 0;
     pn_renderer hr = NULL, un = NULL;
     pn_material mat = pn_material_default();
-    pn_heightfield two[2] = {hf, hf};
     expect_ok("add the height-field mesh", pn_scene_add_instance(r.scene, mesh, NULL, &mat, &id), ctx);
-    ids[0] = ids[1] = id;
-    expect_error("two fields on one instance", pn_scene_set_heightfields(r.scene, two, ids, 2),
-                 PN_ERROR_INVALID_ARGUMENT, ctx, "both claim instance", NULL);
+    expect_error("a height field attached to the rig's sphere", pn_scene_attach(r.scene, r.instance, hf),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "not the 5 x 4 grid", NULL);
+    expect_error("a height field attached to the whole scene", pn_scene_attach(r.scene, PN_WHOLE_SCENE, hf),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "not to the whole scene", NULL);
     expect_ok("pn_scene_commit", pn_scene_commit(r.scene), ctx);
     expect_ok("heightfield renderer", pn_renderer_create(ctx, "heightfield", &hr), ctx);
     expect_error("azimuths above 256", pn_renderer_set_int(hr, "azimuths", 300), PN_ERROR_INVALID_ARGUMENT, ctx,
                  "azimuths", NULL);
     pn_renderer_commit(hr);
     expect_error("heightfield method without height fields", pn_renderer_execute(hr, r.scene, r.gbuffer, r.image),
-                 PN_ERROR_NOT_COMMITTED, ctx, "no height fields", NULL);
-    expect_ok("pn_scene_set_heightfields", pn_scene_set_heightfields(r.scene, &hf, &id, 1), ctx);
+                 PN_ERROR_NOT_COMMITTED, ctx, "no height field is attached", NULL);
+    expect_ok("pn_scene_attach a height field", pn_scene_attach(r.scene, id, hf), ctx);
+    expect_ok("pn_scene_commit", pn_scene_commit(r.scene), ctx);
     float out[80];
-    expect_ok("read the env pass", pn_renderer_read_heightfield(hr, r.scene, 0, PN_HF_ENV, 0, out, sizeof out), ctx);
+    expect_ok("read the env pass", pn_renderer_read_output(hr, r.scene, "env", id, 0, out, sizeof out), ctx);
     /* A flat field under a constant env of radiance 1 with white albedo: L_o = 1,
      * up to the irradiance map's sum over the face-8 cube (texel-centre
      * cosines: within 2e-3 of π; the unshadowed method's own error). */
@@ -2240,24 +2264,29 @@ static void test_heightfield(pn_context ctx)
     /* The seed's all-SH product holds a constant env exactly (only l = 0). */
     pn_renderer_set_int(hr, "exact_unoccluded", 0);
     pn_renderer_commit(hr);
-    expect_ok("read the env pass, all-SH", pn_renderer_read_heightfield(hr, r.scene, 0, PN_HF_ENV, 0, out, sizeof out),
-              ctx);
+    expect_ok("read the env pass, all-SH", pn_renderer_read_output(hr, r.scene, "env", id, 0, out, sizeof out), ctx);
     flat = 1;
     for (int v = 0; v < 20; ++v)
         flat &= near(out[4 * v], 1.0f, 1e-4f);
     CHECK("flat field, constant env, all-SH: outgoing radiance 1", flat);
-    expect_error("read into a small buffer", pn_renderer_read_heightfield(hr, r.scene, 0, PN_HF_ENV, 0, out, 16),
+    expect_error("read into a small buffer", pn_renderer_read_output(hr, r.scene, "env", id, 0, out, 16),
                  PN_ERROR_INVALID_SIZE, ctx, "needs 320 bytes", NULL);
-    expect_error("read field 1 of 1", pn_renderer_read_heightfield(hr, r.scene, 1, PN_HF_ENV, 0, out, sizeof out),
-                 PN_ERROR_INVALID_ARGUMENT, ctx, "height field 1", NULL);
-    expect_error("read light 0 of none", pn_renderer_read_heightfield(hr, r.scene, 0, PN_HF_LIGHT, 0, out, sizeof out),
+    expect_error("read an instance without a height field",
+                 pn_renderer_read_output(hr, r.scene, "env", r.instance, 0, out, sizeof out), PN_ERROR_INVALID_ARGUMENT,
+                 ctx, "no height field attached", NULL);
+    expect_error("read light 0 of none", pn_renderer_read_output(hr, r.scene, "light", id, 0, out, sizeof out),
                  PN_ERROR_INVALID_ARGUMENT, ctx, "light 0", NULL);
+    expect_error("read an unknown output", pn_renderer_read_output(hr, r.scene, "shadows", id, 0, out, sizeof out),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "no output 'shadows'", "env, light, total", NULL);
     expect_ok("unshadowed renderer", pn_renderer_create(ctx, "unshadowed", &un), ctx);
     pn_renderer_commit(un);
-    expect_error("read from an unshadowed renderer",
-                 pn_renderer_read_heightfield(un, r.scene, 0, PN_HF_ENV, 0, out, sizeof out), PN_ERROR_INVALID_ARGUMENT,
-                 ctx, "needs a heightfield renderer", NULL);
+    expect_error("read from an unshadowed renderer", pn_renderer_read_output(un, r.scene, "env", id, 0, out, sizeof out),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "no output 'env'", "none", NULL);
     expect_ok("heightfield execute", rig_render_with(&r, hr), ctx);
+    expect_ok("removing the instance drops its height field", pn_scene_remove_instance(r.scene, id), ctx);
+    pn_scene_commit(r.scene);
+    expect_error("heightfield after the removal", pn_renderer_execute(hr, r.scene, r.gbuffer, r.image),
+                 PN_ERROR_NOT_COMMITTED, ctx, "no height field is attached", NULL);
     pn_renderer_release(un);
     pn_renderer_release(hr);
     rig_release(&r);
@@ -2265,6 +2294,292 @@ done:
     if (mesh)
         pn_mesh_release(mesh);
     pn_heightfield_release(hf);
+}
+
+/* The method metadata: every method and parameter described, defaults in
+ * range and equal to what a new renderer holds, fiv's bake parameters equal
+ * to pn_fiv_options_default, and the errors of unknown names and indices. */
+static void test_method_metadata(pn_context ctx)
+{
+    const uint32_t n = pn_method_count();
+    CHECK("five methods at least", n >= 5);
+    for (uint32_t i = 0; i < n; ++i) {
+        const char *name = pn_method_name(i);
+        pn_method_info info;
+        if (!expect_ok("pn_method_get_info", pn_method_get_info(name, &info), NULL))
+            continue;
+        report(!strcmp(info.name, name) && info.summary && *info.summary && info.stage && *info.stage &&
+                   info.doc_page && !strncmp(info.doc_page, "docs/", 5),
+               "a method's info names it, sums it up and points at its docs", "%s", name);
+        pn_renderer r = NULL;
+        if (!expect_ok("renderer of each method", pn_renderer_create(ctx, name, &r), ctx))
+            continue;
+        for (uint32_t k = 0; k < info.param_count; ++k) {
+            pn_param_info p;
+            if (!expect_ok("pn_method_get_param", pn_method_get_param(name, k, &p), NULL))
+                continue;
+            report(p.name && *p.name && p.doc && *p.doc && p.unit && p.type <= PN_PARAM_FLOAT &&
+                       p.stage <= PN_PARAM_BAKE && p.min <= p.default_value && p.default_value <= p.max,
+                   "a parameter is described and its default is in its range", "%s %s", name, p.name);
+            if (p.stage == PN_PARAM_BAKE) {
+                int32_t v;
+                expect_error("a bake parameter read from a renderer", pn_renderer_get_int(r, p.name, &v),
+                             PN_ERROR_BAD_CONFIG, ctx, "bake option", NULL);
+                continue;
+            }
+            double held = 0.0;
+            if (p.type == PN_PARAM_INT) {
+                int32_t v = 0;
+                expect_ok("get an int parameter", pn_renderer_get_int(r, p.name, &v), ctx);
+                held = v;
+                expect_error("an int parameter read as float", pn_renderer_get_float(r, p.name, &(float){0}),
+                             PN_ERROR_BAD_CONFIG, ctx, "integer parameter", NULL);
+                expect_error("an int parameter set to a fraction",
+                             pn_renderer_set_float(r, p.name, (float)p.min + 0.5f), PN_ERROR_BAD_CONFIG, ctx,
+                             "integer parameter", NULL);
+            } else {
+                float v = 0.0f;
+                expect_ok("get a float parameter", pn_renderer_get_float(r, p.name, &v), ctx);
+                held = v;
+                expect_error("a float parameter read as int", pn_renderer_get_int(r, p.name, &(int32_t){0}),
+                             PN_ERROR_BAD_CONFIG, ctx, "float parameter", NULL);
+            }
+            report(held == (double)(float)p.default_value, "a new renderer holds the documented default",
+                   "%s %s = %g, documented %g", name, p.name, held, p.default_value);
+            if (p.max < 1e9) {
+                const float above = (float)(p.max + (p.max - p.min + 1.0));
+                expect_error("a parameter above its range", pn_renderer_set_float(r, p.name, above),
+                             p.type == PN_PARAM_INT ? PN_ERROR_BAD_CONFIG : PN_ERROR_INVALID_ARGUMENT, ctx, p.name,
+                             NULL);
+                if (p.type == PN_PARAM_INT)
+                    expect_error("an int parameter above its range",
+                                 pn_renderer_set_int(r, p.name, (int32_t)(p.max + 1.0)), PN_ERROR_INVALID_ARGUMENT, ctx,
+                                 "outside", NULL);
+            }
+        }
+        pn_param_info past;
+        expect_error("a parameter index past the end", pn_method_get_param(name, info.param_count, &past),
+                     PN_ERROR_OUT_OF_RANGE, NULL, "no parameter", NULL);
+        for (uint32_t k = 0; k < info.output_count; ++k) {
+            pn_output_info o;
+            if (expect_ok("pn_method_get_output", pn_method_get_output(name, k, &o), NULL))
+                report(o.name && *o.name && o.doc && *o.doc, "an output is described", "%s %u", name, k);
+        }
+        pn_output_info none;
+        expect_error("an output index past the end", pn_method_get_output(name, info.output_count, &none),
+                     PN_ERROR_OUT_OF_RANGE, NULL, "no output", NULL);
+        expect_error("an unknown parameter", pn_renderer_set_int(r, "no_such_knob", 1), PN_ERROR_BAD_CONFIG, ctx,
+                     "no integer parameter 'no_such_knob'", NULL);
+        pn_renderer_release(r);
+    }
+    pn_method_info info;
+    expect_error("an unknown method", pn_method_get_info("raytracing", &info), PN_ERROR_INVALID_ARGUMENT, NULL,
+                 "unknown method 'raytracing'", "unshadowed", "heightfield", NULL);
+    expect_error("pn_method_get_info(NULL)", pn_method_get_info(NULL, &info), PN_ERROR_INVALID_ARGUMENT, NULL,
+                 "method", NULL);
+    /* fiv: the bake parameters are pn_fiv_options. */
+    pn_fiv_options d = pn_fiv_options_default();
+    const double want[9] = {d.theta, d.phi, d.radii, d.inner_radius, d.error_target, d.face_size,
+                            d.sun_supersampling, d.sun_threshold, d.precision};
+    const char *names[9] = {"theta", "phi", "radii", "inner_radius", "error_target", "face_size",
+                            "sun_supersampling", "sun_threshold", "precision"};
+    int found = 0;
+    if (expect_ok("fiv info", pn_method_get_info("fiv", &info), NULL))
+        for (uint32_t k = 0; k < info.param_count; ++k) {
+            pn_param_info p;
+            pn_method_get_param("fiv", k, &p);
+            for (int j = 0; j < 9; ++j)
+                if (p.stage == PN_PARAM_BAKE && !strcmp(p.name, names[j])) {
+                    ++found;
+                    report((float)p.default_value == (float)want[j],
+                           "a fiv bake parameter's default is pn_fiv_options_default's", "%s", p.name);
+                }
+        }
+    CHECK("fiv lists the nine bake options as bake parameters", found == 9);
+    d.theta = 2;
+    pn_fiv out = NULL;
+    rig r;
+    if (rig_create(ctx, &r, 4, 4, 4)) {
+        expect_error("a bake option below its documented range", pn_fiv_bake(r.env, r.mesh, &d, NULL, NULL, NULL, &out),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, "theta = 2 is outside [3, 1025]", NULL);
+        rig_release(&r);
+    }
+    /* Small rules asked of the library. */
+    CHECK("lobe names", !strcmp(pn_lobe_name(PN_LOBE_PHONG), "phong") &&
+                            !strcmp(pn_lobe_name(PN_LOBE_BLINN_PHONG), "blinn_phong") &&
+                            !strcmp(pn_lobe_name(PN_LOBE_GGX), "ggx") && pn_lobe_name(3) == NULL);
+    const float scaled[12] = {2, 0, 0, 1, 0, 2, 0, 5, 0, 0, 2, -3};
+    const float turned[12] = {0, -1, 0, 0, 1, 0, 0, 0, 0, 0, 1, 0};
+    const float uneven[12] = {1, 0, 0, 0, 0, 2, 0, 0, 0, 0, 1, 0};
+    float sc = -1.0f;
+    expect_ok("uniform scale of s I | t", pn_transform_uniform_scale(scaled, &sc), NULL);
+    CHECK("uniform scale 2", sc == 2.0f);
+    pn_transform_uniform_scale(turned, &sc);
+    CHECK("a rotation has no uniform scale", sc == 0.0f);
+    pn_transform_uniform_scale(uneven, &sc);
+    CHECK("an uneven scale has no uniform scale", sc == 0.0f);
+    expect_error("pn_transform_uniform_scale(NULL)", pn_transform_uniform_scale(NULL, &sc), PN_ERROR_INVALID_ARGUMENT,
+                 NULL, "transform", NULL);
+}
+
+/* Execution only enqueues: with the context's queue held shut by a user
+ * event, a second execute (plan done) must return, and after the gate opens
+ * the image must equal the first frame's. A watchdog opens the gate after
+ * 30 s so a blocking call fails the test instead of hanging it. */
+typedef struct gate {
+    cl_event event;
+    volatile int returned, fired;
+} gate;
+
+static void *watchdog(void *arg)
+{
+    gate *g = arg;
+    const struct timespec tick = {0, 10000000};
+    for (int i = 0; i < 3000 && !g->returned; ++i)
+        nanosleep(&tick, NULL);
+    if (!g->returned) {
+        g->fired = 1;
+        clSetUserEventStatus(g->event, CL_COMPLETE);
+    }
+    return NULL;
+}
+
+static void check_enqueue_only(pn_context ctx, rig *r, pn_renderer renderer, const char *method)
+{
+    cl_context clc;
+    cl_command_queue q;
+    pn_context_get_cl(ctx, &clc, &q, NULL);
+    const size_t bytes = (size_t)r->w * r->h * 16;
+    float *first = malloc(bytes), *second = malloc(bytes);
+    if (!first || !second || !expect_ok("first frame (plans)", rig_render_with(r, renderer), ctx) ||
+        !expect_ok("read the first frame", pn_image_read(r->image, first, bytes), ctx)) {
+        free(first);
+        free(second);
+        return;
+    }
+    cl_mem image;
+    pn_image_get_cl(r->image, &image);
+    const float zero = 0.0f;
+    clEnqueueFillBuffer(q, image, &zero, sizeof zero, 0, bytes, 0, NULL, NULL);
+    cl_int err;
+    gate g = {clCreateUserEvent(clc, &err), 0, 0};
+    pthread_t dog;
+    if (err != CL_SUCCESS || clEnqueueBarrierWithWaitList(q, 1, &g.event, NULL) != CL_SUCCESS ||
+        pthread_create(&dog, NULL, watchdog, &g)) {
+        report(0, "setting up the queue gate", "%s", method);
+        free(first);
+        free(second);
+        return;
+    }
+    pn_status st = pn_renderer_execute(renderer, r->scene, r->gbuffer, r->image);
+    g.returned = 1;
+    pthread_join(dog, NULL);
+    report(!g.fired, "execute returns while its queue is held (enqueue only)", "%s", method);
+    expect_ok("execute behind the gate", st, ctx);
+    if (!g.fired)
+        clSetUserEventStatus(g.event, CL_COMPLETE);
+    clReleaseEvent(g.event);
+    pn_context_finish(ctx);
+    if (expect_ok("read the second frame", pn_image_read(r->image, second, bytes), ctx))
+        report(!memcmp(first, second, bytes), "the frame behind the gate equals the first", "%s", method);
+    free(first);
+    free(second);
+}
+
+static void test_enqueue_only(pn_context ctx)
+{
+    rig r;
+    if (!rig_create(ctx, &r, 16, 12, 8))
+        return;
+    const char *plain[] = {"unshadowed", "reference", "floor"};
+    for (int i = 0; i < 3; ++i) {
+        pn_renderer renderer = NULL;
+        if (expect_ok("renderer", pn_renderer_create(ctx, plain[i], &renderer), ctx)) {
+            if (!strcmp(plain[i], "reference"))
+                pn_renderer_set_int(renderer, "face_size", 4);
+            pn_renderer_commit(renderer);
+            check_enqueue_only(ctx, &r, renderer, plain[i]);
+            pn_renderer_release(renderer);
+        }
+    }
+    /* fiv: a small field of the rig's box attached to it. */
+    pn_fiv_options o = pn_fiv_options_default();
+    o.theta = 5;
+    o.phi = 8;
+    o.radii = 3;
+    o.face_size = 4;
+    pn_fiv field = NULL;
+    pn_renderer fivr = NULL;
+    if (expect_ok("a small bake", pn_fiv_bake(r.env, r.mesh, &o, NULL, NULL, NULL, &field), ctx) &&
+        expect_ok("attach it", pn_scene_attach(r.scene, r.instance, field), ctx) &&
+        expect_ok("commit", pn_scene_commit(r.scene), ctx) &&
+        expect_ok("fiv renderer", pn_renderer_create(ctx, "fiv", &fivr), ctx)) {
+        pn_renderer_commit(fivr);
+        check_enqueue_only(ctx, &r, fivr, "fiv");
+        pn_fiv_info info;
+        pn_fiv_get_info(field, &info);
+        CHECK("a fresh bake reports its rays and time", info.rays > 0 && info.bake_seconds > 0.0 &&
+                                                            info.radii_done == 3);
+        char path[] = "/tmp/pn_header_XXXXXX";
+        int fd = mkstemp(path);
+        if (fd >= 0) {
+            close(fd);
+            pn_fiv_info head;
+            if (expect_ok("save", pn_fiv_save(field, path), ctx) &&
+                expect_ok("pn_fiv_read_header", pn_fiv_read_header(path, &head), NULL))
+                CHECK("the header keeps rays, time and progress", head.rays == info.rays &&
+                                                                      head.bake_seconds == info.bake_seconds &&
+                                                                      head.radii_done == 3 &&
+                                                                      head.mesh_hash == info.mesh_hash);
+            expect_error("pn_fiv_read_header of a missing file", pn_fiv_read_header("/nonexistent/x.pnfiv", &head),
+                         PN_ERROR_FILE, NULL, "cannot open", NULL);
+            remove(path);
+        }
+    }
+    if (fivr)
+        pn_renderer_release(fivr);
+    if (field) {
+        pn_scene_detach(r.scene, r.instance, field);
+        pn_fiv_release(field);
+    }
+    /* heightfield: a 5 x 4 field beside the box. */
+    float heights[20];
+    for (int i = 0; i < 20; ++i)
+        heights[i] = 0.1f * (float)(i % 5);
+    pn_heightfield hf = NULL;
+    pn_mesh hmesh = NULL;
+    pn_renderer hr = NULL;
+    uint32_t id = 0;
+    const pn_heightfield_placement place = {{-1.0f, -0.6f, -1.0f}, {2.0f, 2.0f}, 1.0f};
+    if (expect_ok("height field", pn_heightfield_create(ctx, &hf), ctx) &&
+        expect_ok("heights", pn_heightfield_set_heights(hf, heights, 5, 4), ctx) &&
+        expect_ok("placement", pn_heightfield_set_placement(hf, &place), ctx) &&
+        expect_ok("commit", pn_heightfield_commit(hf), ctx) &&
+        expect_ok("mesh", pn_heightfield_build_mesh(hf, &hmesh), ctx) &&
+        expect_ok("instance", pn_scene_add_instance(r.scene, hmesh, NULL, NULL, &id), ctx) &&
+        expect_ok("attach", pn_scene_attach(r.scene, id, hf), ctx) && expect_ok("commit", pn_scene_commit(r.scene), ctx) &&
+        expect_ok("heightfield renderer", pn_renderer_create(ctx, "heightfield", &hr), ctx)) {
+        pn_renderer_commit(hr);
+        check_enqueue_only(ctx, &r, hr, "heightfield");
+        pn_mesh_info mi;
+        pn_mesh_get_info(hmesh, &mi);
+        float pos[60], nrm[60];
+        uint32_t idx[72];
+        CHECK("a height-field mesh has normals", mi.has_normals == 1);
+        if (expect_ok("pn_mesh_read_geometry", pn_mesh_read_geometry(hmesh, pos, idx, nrm), ctx))
+            CHECK("the mesh's vertices are the placed heights", pos[0] == -1.0f && near(pos[1], -0.6f, 1e-6f) &&
+                                                                    near(pos[3 * 4 + 1], -0.2f, 1e-6f) &&
+                                                                    idx[0] == 0 && idx[1] == 5 && idx[2] == 1);
+        expect_error("normals of a mesh without them", pn_mesh_read_geometry(r.mesh, pos, idx, nrm),
+                     PN_ERROR_UNSUPPORTED, ctx, "no normals", NULL);
+    }
+    if (hr)
+        pn_renderer_release(hr);
+    if (hmesh)
+        pn_mesh_release(hmesh);
+    if (hf)
+        pn_heightfield_release(hf);
+    rig_release(&r);
 }
 
 int main(void)
@@ -2291,6 +2606,8 @@ int main(void)
     test_renderer(ctx);
     test_fiv(ctx);
     test_heightfield(ctx);
+    test_method_metadata(ctx);
+    test_enqueue_only(ctx);
     test_gbuffer(ctx);
     test_error_routing(ctx, ctx2);
     test_many_pending_errors();

@@ -1,6 +1,6 @@
 /* Meshes: validated copies of the caller's triangles and, at commit, the
  * binned-SAH BVH with the triangles laid out in leaf order for the kernels. */
-#include "internal.h"
+#include "geometry/geometry.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -18,11 +18,36 @@ static void free_geometry(pn_mesh mesh)
     mesh->indices = NULL;
 }
 
-void pn_mesh_destroy(pn_mesh mesh)
+static void destroy_mesh(pn_object *o)
 {
+    pn_mesh mesh = (pn_mesh)o;
     free_geometry(mesh);
     mesh->obj.magic = PN_MAGIC_DEAD;
     free(mesh);
+}
+
+static const pn_object_type mesh_type = {PN_MAGIC_MESH, "mesh", destroy_mesh, NULL};
+
+pn_status pn_mesh_new(pn_context ctx, pn_mesh *out)
+{
+    pn_mesh mesh = pn_object_new(ctx, sizeof *mesh, &mesh_type, "a mesh");
+    if (!mesh)
+        return PN_ERROR_OUT_OF_MEMORY;
+    *out = mesh;
+    return PN_SUCCESS;
+}
+
+pn_status pn_mesh_do_read_geometry(pn_mesh mesh, float *positions, uint32_t *indices, float *normals)
+{
+    if (!mesh->committed)
+        return pn_fail(mesh->obj.ctx, PN_ERROR_NOT_COMMITTED, "mesh changed since its last commit; call pn_mesh_commit");
+    if (normals && !mesh->normals)
+        return pn_fail(mesh->obj.ctx, PN_ERROR_UNSUPPORTED, "the mesh has no normals to read (pass normals = NULL)");
+    memcpy(positions, mesh->positions, (size_t)mesh->vertex_count * 3 * sizeof(float));
+    memcpy(indices, mesh->indices, (size_t)mesh->triangle_count * 3 * sizeof(uint32_t));
+    if (normals)
+        memcpy(normals, mesh->normals, (size_t)mesh->vertex_count * 3 * sizeof(float));
+    return PN_SUCCESS;
 }
 
 pn_status pn_mesh_do_set_geometry(pn_mesh mesh, const float *positions, uint32_t vertex_count,

@@ -1,7 +1,7 @@
 /* 64-bit FNV-1a: content hashes of meshes and env maps (which occlusion
  * fields record) and checksums of bake files. Not cryptographic: it detects
  * corruption and mismatched inputs, not tampering. */
-#include "internal.h"
+#include "core/core.h"
 
 #define FNV_PRIME 0x100000001b3ull
 

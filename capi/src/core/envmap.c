@@ -1,20 +1,35 @@
 /* Environment maps: validation of the lat-long input, and at commit the
  * device conversion to a cube map, its texel directions and solid angles,
  * and the irradiance map (kernels/envmap.cl). */
-#include "internal.h"
+#include "core/core.h"
 
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
-void pn_envmap_destroy(pn_envmap env)
+static void destroy_envmap(pn_object *o)
 {
+    pn_envmap env = (pn_envmap)o;
     pn_mem_release(&env->latlong);
     pn_mem_release(&env->cube);
     pn_mem_release(&env->dirs);
     pn_mem_release(&env->irradiance);
     env->obj.magic = PN_MAGIC_DEAD;
     free(env);
+}
+
+static const pn_object_type envmap_type = {PN_MAGIC_ENVMAP, "env map", destroy_envmap, NULL};
+
+pn_status pn_envmap_new(pn_context ctx, pn_envmap *out)
+{
+    pn_envmap env = pn_object_new(ctx, sizeof *env, &envmap_type, "an env map");
+    if (!env)
+        return PN_ERROR_OUT_OF_MEMORY;
+    env->face_size = 64;
+    env->irradiance_face_size = 32;
+    env->intensity = 1.0f;
+    *out = env;
+    return PN_SUCCESS;
 }
 
 pn_status pn_envmap_do_set_latlong(pn_envmap env, const float *rgb, uint32_t width, uint32_t height)

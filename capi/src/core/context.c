@@ -1,6 +1,6 @@
 /* Contexts: device choice from a config string, borrowed caller objects, and
  * the per-context cache of built programs and kernels. */
-#include "internal.h"
+#include "core/core.h"
 
 #include <ctype.h>
 #include <stdatomic.h>
@@ -135,6 +135,9 @@ static pn_status choose_device(const device_request *req, cl_platform_id *platfo
                    req->platform[0] ? " platform=" : "", req->platform);
 }
 
+static void destroy_context(pn_object *o);
+static const pn_object_type context_type = {PN_MAGIC_CONTEXT, "context", destroy_context, NULL};
+
 pn_status pn_context_new(const char *config, cl_context cl_ctx, cl_command_queue queue, pn_context *out)
 {
     device_request req;
@@ -147,6 +150,7 @@ pn_status pn_context_new(const char *config, cl_context cl_ctx, cl_command_queue
     ctx->obj.magic = PN_MAGIC_CONTEXT;
     ctx->obj.refcount = 1;
     ctx->obj.ctx = ctx;
+    ctx->obj.type = &context_type;
     ctx->serial = atomic_fetch_add(&next_serial, 1);
     cl_int err;
     if (cl_ctx) {
@@ -193,8 +197,9 @@ pn_status pn_context_new(const char *config, cl_context cl_ctx, cl_command_queue
     return PN_SUCCESS;
 }
 
-void pn_context_destroy(pn_context ctx)
+static void destroy_context(pn_object *o)
 {
+    pn_context ctx = (pn_context)o;
     clFinish(ctx->queue);
     for (int i = 0; i < ctx->kernel_count; ++i)
         clReleaseKernel(ctx->kernels[i].kernel);
@@ -202,7 +207,8 @@ void pn_context_destroy(pn_context ctx)
         clReleaseProgram(ctx->programs[i].program);
     clReleaseCommandQueue(ctx->queue);
     clReleaseContext(ctx->cl_ctx);
-    pn_sh_cache_release(ctx);
+    for (int i = 0; i < ctx->cache_count; ++i)
+        ctx->caches[i].free_data(ctx->caches[i].data);
     pn_error_forget(ctx->serial);
     ctx->obj.magic = PN_MAGIC_DEAD;
     free(ctx);
@@ -406,6 +412,48 @@ pn_status pn_alloc(pn_context ctx, size_t bytes, cl_mem_flags flags, const void 
                        "allocating %zu bytes on the device for %s failed (OpenCL %d)", bytes, what, err);
     }
     return PN_SUCCESS;
+}
+
+void *pn_context_cache(pn_context ctx, const void *key)
+{
+    for (int i = 0; i < ctx->cache_count; ++i)
+        if (ctx->caches[i].key == key)
+            return ctx->caches[i].data;
+    return NULL;
+}
+
+pn_status pn_context_set_cache(pn_context ctx, const void *key, void *data, void (*free_data)(void *data))
+{
+    if (ctx->cache_count == PN_MAX_CACHES)
+        return pn_fail(ctx, PN_ERROR_INTERNAL, "the context's cache table is full (%d entries)", PN_MAX_CACHES);
+    pn_cache_entry e = {key, data, free_data};
+    ctx->caches[ctx->cache_count++] = e;
+    return PN_SUCCESS;
+}
+
+static void CL_CALLBACK free_upload(cl_event event, cl_int status, void *copy)
+{
+    (void)event;
+    (void)status;
+    free(copy);
+}
+
+pn_status pn_upload_async(pn_context ctx, cl_mem buffer, const void *host, size_t bytes, const char *what)
+{
+    void *copy = pn_malloc(ctx, bytes, what);
+    if (!copy)
+        return PN_ERROR_OUT_OF_MEMORY;
+    memcpy(copy, host, bytes);
+    cl_event done = NULL;
+    cl_int err = clEnqueueWriteBuffer(ctx->queue, buffer, CL_FALSE, 0, bytes, copy, 0, NULL, &done);
+    if (err == CL_SUCCESS)
+        err = clSetEventCallback(done, CL_COMPLETE, free_upload, copy);
+    else
+        free(copy);
+    if (done)
+        clReleaseEvent(done);
+    /* A callback that could not be set leaks the copy rather than freeing memory still in flight. */
+    return err == CL_SUCCESS ? PN_SUCCESS : pn_fail_cl(ctx, err, what);
 }
 
 void pn_mem_release(cl_mem *mem)

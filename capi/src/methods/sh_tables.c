@@ -2,7 +2,7 @@
  * (docs/heightfield.md): visibility wedge tables, the triple-product tensor,
  * the clamped-cosine zonal harmonics and the env map's projection. Computed
  * on the host once per (n_phi, bands) and uploaded as float. */
-#include "internal.h"
+#include "methods/sh_tables.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -185,50 +185,97 @@ static pn_status compute_triple_product(pn_context ctx, int nb, double **out)
 
 /* ------------------------------------------------------------------ cache */
 
-void pn_sh_cache_begin(pn_context ctx)
+/* The tables of one context, kept in its generic cache under `cache_key`:
+ * computed once in float64, shared by every renderer of the context. */
+#define SH_CACHE 16
+typedef struct sh_entry {
+    int n_phi, bands, kind;   /* kind: 0 env wedges, 1 light wedges, 2 triple product (n_phi 0) */
+    void *data;               /* float table or double tensor */
+    uint64_t stamp;           /* operation that last used it: never evicted during that operation */
+} sh_entry;
+
+typedef struct sh_cache {
+    sh_entry entries[SH_CACHE];
+    int next;                 /* round-robin slot to reuse when full */
+    uint64_t operation;       /* pn_sh_cache_begin count */
+} sh_cache;
+
+static const char cache_key = 0;
+
+static void free_cache(void *data)
 {
-    ctx->sh_operation++;
+    sh_cache *c = data;
+    for (int i = 0; i < SH_CACHE; ++i)
+        free(c->entries[i].data);
+    free(c);
 }
 
-static void *cached(pn_context ctx, int n_phi, int nb, int kind)
+static sh_cache *context_cache(pn_context ctx)
 {
-    for (int i = 0; i < PN_SH_CACHE; ++i) {
-        pn_sh_cache_entry *e = &ctx->sh_cache[i];
+    sh_cache *c = pn_context_cache(ctx, &cache_key);
+    if (c)
+        return c;
+    if (!(c = pn_malloc(ctx, sizeof *c, "the SH table cache")))
+        return NULL;
+    memset(c, 0, sizeof *c);
+    if (pn_context_set_cache(ctx, &cache_key, c, free_cache)) {
+        free(c);
+        return NULL;
+    }
+    return c;
+}
+
+pn_status pn_sh_cache_begin(pn_context ctx)
+{
+    sh_cache *c = context_cache(ctx);
+    if (!c)
+        return PN_ERROR_OUT_OF_MEMORY;
+    c->operation++;
+    return PN_SUCCESS;
+}
+
+static void *cached(sh_cache *c, int n_phi, int nb, int kind)
+{
+    for (int i = 0; i < SH_CACHE; ++i) {
+        sh_entry *e = &c->entries[i];
         if (e->data && e->n_phi == n_phi && e->bands == nb && e->kind == kind) {
-            e->stamp = ctx->sh_operation;
+            e->stamp = c->operation;
             return e->data;
         }
     }
     return NULL;
 }
 
-/* Keeps `data` in the context's cache: a free slot, else round-robin over the
- * entries not used in the current operation (one operation uses at most 3). */
-static void remember(pn_context ctx, int n_phi, int nb, int kind, void *data)
+/* Keeps `data` in the cache: a free slot, else round-robin over the entries
+ * not used in the current operation (one operation uses at most 3). */
+static void remember(sh_cache *c, int n_phi, int nb, int kind, void *data)
 {
     int slot = -1;
-    for (int i = 0; i < PN_SH_CACHE && slot < 0; ++i)
-        if (!ctx->sh_cache[i].data)
+    for (int i = 0; i < SH_CACHE && slot < 0; ++i)
+        if (!c->entries[i].data)
             slot = i;
     while (slot < 0) {
-        const int i = ctx->sh_cache_next;
-        ctx->sh_cache_next = (ctx->sh_cache_next + 1) % PN_SH_CACHE;
-        if (ctx->sh_cache[i].stamp != ctx->sh_operation)
+        const int i = c->next;
+        c->next = (c->next + 1) % SH_CACHE;
+        if (c->entries[i].stamp != c->operation)
             slot = i;
     }
-    free(ctx->sh_cache[slot].data);
-    pn_sh_cache_entry e = {n_phi, nb, kind, data, ctx->sh_operation};
-    ctx->sh_cache[slot] = e;
+    free(c->entries[slot].data);
+    sh_entry e = {n_phi, nb, kind, data, c->operation};
+    c->entries[slot] = e;
 }
 
 pn_status pn_sh_wedge_table(pn_context ctx, int n_phi, int nb, bool light, const float **out)
 {
-    float *t = cached(ctx, n_phi, nb, light ? 1 : 0);
+    sh_cache *c = context_cache(ctx);
+    if (!c)
+        return PN_ERROR_OUT_OF_MEMORY;
+    float *t = cached(c, n_phi, nb, light ? 1 : 0);
     if (!t) {
         pn_status st = compute_wedge_table(ctx, n_phi, nb, light, &t);
         if (st)
             return st;
-        remember(ctx, n_phi, nb, light ? 1 : 0, t);
+        remember(c, n_phi, nb, light ? 1 : 0, t);
     }
     *out = t;
     return PN_SUCCESS;
@@ -236,21 +283,16 @@ pn_status pn_sh_wedge_table(pn_context ctx, int n_phi, int nb, bool light, const
 
 pn_status pn_sh_triple_product(pn_context ctx, int nb, const double **out)
 {
-    double *g = cached(ctx, 0, nb, 2);
+    sh_cache *c = context_cache(ctx);
+    if (!c)
+        return PN_ERROR_OUT_OF_MEMORY;
+    double *g = cached(c, 0, nb, 2);
     if (!g) {
         pn_status st = compute_triple_product(ctx, nb, &g);
         if (st)
             return st;
-        remember(ctx, 0, nb, 2, g);
+        remember(c, 0, nb, 2, g);
     }
     *out = g;
     return PN_SUCCESS;
-}
-
-void pn_sh_cache_release(pn_context ctx)
-{
-    for (int i = 0; i < PN_SH_CACHE; ++i) {
-        free(ctx->sh_cache[i].data);
-        ctx->sh_cache[i].data = NULL;
-    }
 }

@@ -1,5 +1,5 @@
 /* Small host-side linear algebra for instance transforms. */
-#include "internal.h"
+#include "core/core.h"
 
 #include <math.h>
 
@@ -28,4 +28,20 @@ bool pn_affine_inverse(const float m[12], float inv[12])
         inv[4 * row + 3] = (float)-(r[3 * row] * t[0] + r[3 * row + 1] * t[1] + r[3 * row + 2] * t[2]);
     }
     return true;
+}
+
+float pn_uniform_scale(const float m[12])
+{
+    const float s = m[0];
+    const float tol = 1e-5f * fabsf(s);
+    if (!(s > 0.0f) || !isfinite(s))
+        return 0.0f;
+    for (int r = 0; r < 3; ++r) {
+        if (!isfinite(m[4 * r + 3]))
+            return 0.0f;
+        for (int c = 0; c < 3; ++c)
+            if (!(fabsf(m[4 * r + c] - (r == c ? s : 0.0f)) <= tol))
+                return 0.0f;
+    }
+    return s;
 }

@@ -5,7 +5,7 @@
  * mesh's BVH with far nodes as dipoles. The bake checkpoints to
  * its file every few seconds and resumes from it. */
 #define _POSIX_C_SOURCE 200809L
-#include "internal.h"
+#include "assets/assets.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -158,8 +158,10 @@ static pn_status resume_from(pn_fiv f, const char *path)
         f->inside_count = old->inside_count;
         f->outer_max = old->outer_max;
         f->value_scale = old->value_scale;
+        f->rays = old->rays;
+        f->bake_seconds = old->bake_seconds;
     }
-    pn_fiv_destroy(old);
+    pn_object_release(&old->obj);
     if (differs)
         return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
                        "%s holds a FIV bake of %s; it was left untouched: delete it or bake to another path", path,
@@ -281,9 +283,10 @@ pn_status pn_fiv_do_bake(pn_envmap env, pn_mesh mesh, const pn_fiv_options *opti
     f->mesh_triangles = mesh->triangle_count;
     /* A finished bake of the same inputs is loaded before any env work. */
     if (path && (st = resume_from(f, path))) {
-        pn_fiv_destroy(f);
+        pn_object_release(&f->obj);
         return st;
     }
+    const double resumed_seconds = f->bake_seconds; /* of the checkpoint's earlier runs */
     if (f->radii_done == options->radii) {
         *out = f;
         return PN_SUCCESS;
@@ -311,7 +314,7 @@ pn_status pn_fiv_do_bake(pn_envmap env, pn_mesh mesh, const pn_fiv_options *opti
                 !(b.host_flags = pn_malloc(ctx, per, "inside flags"))))
         st = PN_ERROR_OUT_OF_MEMORY;
     uint32_t id;
-    if (!st && !(st = pn_scene_create(ctx, &scene)) && !(st = pn_scene_do_add_instance(scene, mesh, NULL, NULL, &id)))
+    if (!st && !(st = pn_scene_new(ctx, &scene)) && !(st = pn_scene_do_add_instance(scene, mesh, NULL, NULL, &id)))
         st = pn_scene_do_commit(scene);
     if (!st && !(st = pn_context_kernel(ctx, "fiv_bake", "fiv_bake_sphere", &b.bake)) &&
         !(st = pn_context_kernel(ctx, "fiv_bake", "fiv_inside_sphere", &b.inside)) &&
@@ -335,6 +338,7 @@ pn_status pn_fiv_do_bake(pn_envmap env, pn_mesh mesh, const pn_fiv_options *opti
         f->radii_done++;
         const bool finished = f->radii_done == options->radii;
         const bool stop = progress && progress(user, (uint64_t)f->radii_done * per, total) != 0;
+        f->bake_seconds = resumed_seconds + (now_seconds() - start);
         if (path && (finished || stop || now_seconds() - last_checkpoint >= CHECKPOINT_SECONDS)) {
             if ((st = pn_fiv_write_file(f, path)))
                 break;
@@ -353,13 +357,12 @@ pn_status pn_fiv_do_bake(pn_envmap env, pn_mesh mesh, const pn_fiv_options *opti
     free(b.host_rays);
     free(b.host_flags);
     free(records);
-    if (scene)
-        pn_scene_release(scene);
+    PN_RELEASE(scene);
     if (st) {
-        pn_fiv_destroy(f);
+        pn_object_release(&f->obj);
         return st;
     }
-    f->bake_seconds = now_seconds() - start;
+    f->bake_seconds = resumed_seconds + (now_seconds() - start);
     *out = f;
     return PN_SUCCESS;
 }

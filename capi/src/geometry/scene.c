@@ -2,10 +2,9 @@
  * environment. Commit gathers the meshes' BVHs into one device buffer (only
  * when the set of meshes changed) and rebuilds the top-level BVH over the
  * instances (every commit: cheap, so rigid objects can move every frame). */
-#include "internal.h"
+#include "geometry/geometry.h"
 
 #include <math.h>
-#include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -13,13 +12,15 @@
 
 static const float identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
 
-void pn_scene_destroy(pn_scene scene)
+static void destroy_scene(pn_object *o)
 {
+    pn_scene scene = (pn_scene)o;
     for (uint32_t i = 0; i < scene->instance_count; ++i)
-        if (scene->instances[i].mesh)
-            pn_mesh_release(scene->instances[i].mesh);
-    if (scene->env)
-        pn_envmap_release(scene->env);
+        PN_RELEASE(scene->instances[i].mesh);
+    PN_RELEASE(scene->env);
+    for (uint32_t i = 0; i < scene->attachment_count; ++i)
+        pn_object_release(scene->attachments[i].asset);
+    free(scene->attachments);
     free(scene->instances);
     free(scene->mesh_slots);
     pn_mem_release(&scene->blas);
@@ -29,10 +30,36 @@ void pn_scene_destroy(pn_scene scene)
     pn_mem_release(&scene->records);
     pn_mem_release(&scene->light_buffer);
     free(scene->lights);
-    pn_scene_release_fivs(scene);
-    pn_scene_release_heightfields(scene);
     scene->obj.magic = PN_MAGIC_DEAD;
     free(scene);
+}
+
+static const pn_object_type scene_type = {PN_MAGIC_SCENE, "scene", destroy_scene, NULL};
+
+pn_status pn_scene_new(pn_context ctx, pn_scene *out)
+{
+    pn_scene scene = pn_object_new(ctx, sizeof *scene, &scene_type, "a scene");
+    if (!scene)
+        return PN_ERROR_OUT_OF_MEMORY;
+    scene->attachment_version = pn_next_version(); /* unique among scenes: methods key their plans by it */
+    *out = scene;
+    return PN_SUCCESS;
+}
+
+pn_status pn_scene_do_set_envmap(pn_scene scene, pn_envmap env)
+{
+    if (env->obj.ctx != scene->obj.ctx)
+        return pn_fail(scene->obj.ctx, PN_ERROR_INVALID_ARGUMENT, "the env map belongs to a different context");
+    pn_object_retain(&env->obj);
+    PN_RELEASE(scene->env);
+    scene->env = env;
+    return PN_SUCCESS;
+}
+
+pn_material pn_default_material(void)
+{
+    pn_material m = {{0.8f, 0.8f, 0.8f}, 0.0f, 100.0f, 0.3f, PN_LOBE_PHONG};
+    return m;
 }
 
 pn_status pn_validate_material(pn_context ctx, const pn_material *m)
@@ -74,7 +101,7 @@ pn_status pn_scene_do_add_instance(pn_scene scene, pn_mesh mesh, const float *tr
                                    uint32_t *id)
 {
     pn_context ctx = scene->obj.ctx;
-    pn_material mat = material ? *material : pn_material_default();
+    pn_material mat = material ? *material : pn_default_material();
     pn_status st = pn_validate_material(ctx, &mat);
     if (st)
         return st;
@@ -91,7 +118,7 @@ pn_status pn_scene_do_add_instance(pn_scene scene, pn_mesh mesh, const float *tr
     }
     inst.mesh = mesh;
     inst.material = mat;
-    pn_mesh_retain(mesh);
+    pn_object_retain(&mesh->obj);
     *id = scene->instance_count;
     scene->instances[scene->instance_count++] = inst;
     scene->committed = false;
@@ -131,11 +158,85 @@ pn_status pn_scene_do_remove(pn_scene scene, uint32_t id)
     pn_instance *inst = NULL;
     pn_status st = live_instance(scene, id, &inst);
     if (!st) {
-        pn_mesh_release(inst->mesh);
+        PN_RELEASE(inst->mesh);
         inst->mesh = NULL;
+        pn_scene_do_detach(scene, id, NULL);
         scene->committed = false;
     }
     return st;
+}
+
+const pn_instance *pn_scene_instance(pn_scene scene, uint32_t id)
+{
+    return id < scene->instance_count && scene->instances[id].mesh ? &scene->instances[id] : NULL;
+}
+
+/* ------------------------------------------------------------ attachments */
+
+pn_status pn_scene_do_attach(pn_scene scene, uint32_t instance, pn_object *asset)
+{
+    pn_context ctx = scene->obj.ctx;
+    if (!asset->type->check_attach)
+        return pn_fail(NULL, PN_ERROR_NULL_HANDLE, "pn_scene_attach: a %s is not an asset that attaches to a scene",
+                       asset->type->name);
+    if (asset->ctx != ctx)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "pn_scene_attach: the %s belongs to another context",
+                       asset->type->name);
+    if (instance != PN_WHOLE_SCENE && !pn_scene_instance(scene, instance))
+        return pn_fail(ctx, PN_ERROR_OUT_OF_RANGE, "pn_scene_attach: the scene has no instance %u", instance);
+    pn_status st = asset->type->check_attach(asset, scene, instance);
+    if (st)
+        return st;
+    /* Same kind on the same instance: replaced in place. */
+    for (uint32_t i = 0; i < scene->attachment_count; ++i) {
+        pn_attachment *a = &scene->attachments[i];
+        if (a->instance == instance && a->asset->type == asset->type) {
+            pn_object_retain(asset);
+            pn_object_release(a->asset);
+            a->asset = asset;
+            scene->attachment_version = pn_next_version();
+            scene->committed = false;
+            return PN_SUCCESS;
+        }
+    }
+    if (scene->attachment_count == scene->attachment_capacity) {
+        const uint32_t cap = scene->attachment_capacity ? 2 * scene->attachment_capacity : 8;
+        pn_attachment *grown = realloc(scene->attachments, (size_t)cap * sizeof *grown);
+        if (!grown)
+            return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory attaching an asset");
+        scene->attachments = grown;
+        scene->attachment_capacity = cap;
+    }
+    /* Kept ordered by instance, so methods meet assets in instance order. */
+    uint32_t at = scene->attachment_count;
+    while (at > 0 && scene->attachments[at - 1].instance > instance)
+        --at;
+    memmove(scene->attachments + at + 1, scene->attachments + at,
+            (scene->attachment_count - at) * sizeof *scene->attachments);
+    pn_object_retain(asset);
+    scene->attachments[at].instance = instance;
+    scene->attachments[at].asset = asset;
+    scene->attachment_count++;
+    scene->attachment_version = pn_next_version();
+    scene->committed = false;
+    return PN_SUCCESS;
+}
+
+pn_status pn_scene_do_detach(pn_scene scene, uint32_t instance, pn_object *asset)
+{
+    uint32_t kept = 0;
+    for (uint32_t i = 0; i < scene->attachment_count; ++i) {
+        pn_attachment a = scene->attachments[i];
+        if (a.instance == instance && (!asset || a.asset == asset)) {
+            pn_object_release(a.asset);
+            scene->attachment_version = pn_next_version();
+            scene->committed = false;
+        } else {
+            scene->attachments[kept++] = a;
+        }
+    }
+    scene->attachment_count = kept;
+    return PN_SUCCESS;
 }
 
 pn_status pn_scene_do_set_camera(pn_scene scene, const pn_camera *c)
@@ -593,10 +694,8 @@ pn_status pn_scene_do_render_gbuffer(pn_scene scene, pn_gbuffer gb)
     return err == CL_SUCCESS ? PN_SUCCESS : pn_fail_cl(ctx, err, "enqueueing the primary-ray kernel");
 }
 
-/* A process-wide counter: a (mesh, version) pair never repeats, even when a
- * released mesh's memory is reused by a new one. */
-static atomic_uint_fast64_t mesh_versions = 1;
-uint64_t pn_next_version(void)
+cl_float4 pn_scene_camera_position(pn_scene scene)
 {
-    return atomic_fetch_add(&mesh_versions, 1);
+    cl_float4 c = {{scene->camera.position[0], scene->camera.position[1], scene->camera.position[2], 0.0f}};
+    return c;
 }

@@ -2,7 +2,7 @@
  * reads after a failed call). Slots are thread-local and keyed by the
  * context's serial number, so a context never sees another thread's error
  * and a new context at a recycled address never inherits an old message. */
-#include "internal.h"
+#include "core/core.h"
 
 #include <stdarg.h>
 #include <stdio.h>

@@ -7,7 +7,7 @@
  * so a reader never sees a half-written file and an interrupted bake keeps
  * its last checkpoint. */
 #define _POSIX_C_SOURCE 200809L
-#include "internal.h"
+#include "assets/assets.h"
 
 #include <errno.h>
 #include <math.h>
@@ -114,6 +114,10 @@ static void encode_header(pn_fiv f, uint64_t payload_checksum, unsigned char *h)
     put_u64(h + 104, f->env_hash);
     put_u64(h + 112, f->inside_count);
     put_u64(h + 120, payload_checksum);
+    put_u64(h + 128, f->rays);
+    uint64_t seconds;
+    memcpy(&seconds, &f->bake_seconds, sizeof seconds);
+    put_u64(h + 136, seconds);
     put_u64(h + 248, pn_hash_bytes(PN_HASH_SEED, h, 248));
 }
 
@@ -162,6 +166,88 @@ pn_status pn_fiv_write_file(pn_fiv f, const char *path)
     return st;
 }
 
+/* Reads and checks the header of an open bake file: magic, version,
+ * checksum, options and progress (an unfinished bake only with `partial`). */
+static pn_status read_header(pn_context ctx, const char *path, FILE *file, bool partial, unsigned char *h,
+                             pn_fiv_options *options, uint32_t *spheres_done)
+{
+    size_t got = fread(h, 1, HEADER_BYTES, file);
+    pn_status st = PN_SUCCESS;
+    if (got < sizeof MAGIC || memcmp(h, MAGIC, sizeof MAGIC))
+        return pn_fail(ctx, PN_ERROR_FILE, "%s is not a penumbra FIV bake file (bad magic)", path);
+    if (got < HEADER_BYTES)
+        return pn_fail(ctx, PN_ERROR_FILE, "%s is truncated: its header has %zu of %d bytes", path, got, HEADER_BYTES);
+    if (get_u32(h + 8) != FORMAT_VERSION)
+        return pn_fail(ctx, PN_ERROR_FILE, "%s has FIV format version %u; this library reads version %u", path,
+                       get_u32(h + 8), FORMAT_VERSION);
+    if (get_u64(h + 248) != pn_hash_bytes(PN_HASH_SEED, h, 248))
+        return pn_fail(ctx, PN_ERROR_FILE, "%s is corrupt: its header checksum does not match", path);
+    pn_fiv_options o = {get_u32(h + 16), get_u32(h + 20), get_u32(h + 24), get_f32(h + 48), get_f32(h + 52),
+                        get_u32(h + 36), get_u32(h + 40), get_f32(h + 44), get_u32(h + 32)};
+    if (pn_fiv_check_options(ctx, &o)) {
+        const char *why = NULL;
+        char detail[256];
+        pn_error_take(ctx, &why);
+        snprintf(detail, sizeof detail, "%s", why ? why : "invalid options");
+        return pn_fail(ctx, PN_ERROR_FILE, "%s is corrupt: its header has %s", path, detail);
+    }
+    const uint32_t done = get_u32(h + 28);
+    if (done > o.radii)
+        return pn_fail(ctx, PN_ERROR_FILE, "%s is corrupt: %u of %u spheres done", path, done, o.radii);
+    if (done < o.radii && !partial)
+        return pn_fail(ctx, PN_ERROR_FILE,
+                       "%s is an unfinished bake (%u of %u spheres); run the bake again with the same options to resume",
+                       path, done, o.radii);
+    *options = o;
+    *spheres_done = done;
+    return st;
+}
+
+/* The header's description of the field (everything but the samples). */
+static pn_status header_fields(pn_context ctx, const char *path, const unsigned char *h, uint32_t done, pn_fiv f)
+{
+    for (int c = 0; c < 3; ++c)
+        f->centre[c] = get_f32(h + 56 + 4 * c);
+    f->radius = get_f32(h + 68);
+    f->inner = get_f32(h + 72);
+    f->outer = get_f32(h + 76);
+    f->value_scale = get_f32(h + 80);
+    f->outer_max = get_f32(h + 84);
+    f->mesh_vertices = get_u32(h + 88);
+    f->mesh_triangles = get_u32(h + 92);
+    f->mesh_hash = get_u64(h + 96);
+    f->env_hash = get_u64(h + 104);
+    f->inside_count = get_u64(h + 112);
+    f->rays = get_u64(h + 128);
+    const uint64_t seconds = get_u64(h + 136);
+    memcpy(&f->bake_seconds, &seconds, sizeof seconds);
+    f->radii_done = done;
+    if (!(isfinite(f->radius) && f->radius > 0.0f && f->inner > 0.0f && f->outer > f->inner &&
+          isfinite(f->outer) && f->value_scale > 0.0f && isfinite(f->value_scale) && f->outer_max >= 0.0f))
+        return pn_fail(ctx, PN_ERROR_FILE, "%s is corrupt: its bounding sphere or scales are not valid numbers", path);
+    if (!(isfinite(f->bake_seconds) && f->bake_seconds >= 0.0))
+        return pn_fail(ctx, PN_ERROR_FILE, "%s is corrupt: its bake time is not a valid number", path);
+    return PN_SUCCESS;
+}
+
+pn_status pn_fiv_read_file_header(const char *path, pn_fiv_info *info)
+{
+    FILE *file = fopen(path, "rb");
+    if (!file)
+        return pn_fail(NULL, PN_ERROR_FILE, "cannot open FIV bake file %s: %s", path, strerror(errno));
+    unsigned char h[HEADER_BYTES];
+    struct pn_fiv_impl f;
+    memset(&f, 0, sizeof f);
+    uint32_t done = 0;
+    pn_status st = read_header(NULL, path, file, true, h, &f.options, &done);
+    fclose(file);
+    if (!st)
+        st = header_fields(NULL, path, h, done, &f);
+    if (!st)
+        pn_fiv_fill_info(&f, info);
+    return st;
+}
+
 pn_status pn_fiv_read_file(pn_context ctx, const char *path, bool partial, pn_fiv *out)
 {
     *out = NULL;
@@ -169,37 +255,13 @@ pn_status pn_fiv_read_file(pn_context ctx, const char *path, bool partial, pn_fi
     if (!file)
         return pn_fail(ctx, PN_ERROR_FILE, "cannot open FIV bake file %s: %s", path, strerror(errno));
     unsigned char h[HEADER_BYTES];
-    size_t got = fread(h, 1, HEADER_BYTES, file);
-    pn_status st = PN_SUCCESS;
-    if (got < sizeof MAGIC || memcmp(h, MAGIC, sizeof MAGIC))
-        st = pn_fail(ctx, PN_ERROR_FILE, "%s is not a penumbra FIV bake file (bad magic)", path);
-    else if (got < HEADER_BYTES)
-        st = pn_fail(ctx, PN_ERROR_FILE, "%s is truncated: its header has %zu of %d bytes", path, got, HEADER_BYTES);
-    else if (get_u32(h + 8) != FORMAT_VERSION)
-        st = pn_fail(ctx, PN_ERROR_FILE, "%s has FIV format version %u; this library reads version %u", path,
-                     get_u32(h + 8), FORMAT_VERSION);
-    else if (get_u64(h + 248) != pn_hash_bytes(PN_HASH_SEED, h, 248))
-        st = pn_fail(ctx, PN_ERROR_FILE, "%s is corrupt: its header checksum does not match", path);
-    pn_fiv_options o = {get_u32(h + 16), get_u32(h + 20), get_u32(h + 24), get_f32(h + 48), get_f32(h + 52),
-                        get_u32(h + 36), get_u32(h + 40), get_f32(h + 44), get_u32(h + 32)};
-    if (!st && pn_fiv_check_options(ctx, &o)) {
-        const char *why = NULL;
-        char detail[256];
-        pn_error_take(ctx, &why);
-        snprintf(detail, sizeof detail, "%s", why ? why : "invalid options");
-        st = pn_fail(ctx, PN_ERROR_FILE, "%s is corrupt: its header has %s", path, detail);
-    }
-    const uint32_t done = get_u32(h + 28);
-    if (!st && done > o.radii)
-        st = pn_fail(ctx, PN_ERROR_FILE, "%s is corrupt: %u of %u spheres done", path, done, o.radii);
-    if (!st && done < o.radii && !partial)
-        st = pn_fail(ctx, PN_ERROR_FILE,
-                     "%s is an unfinished bake (%u of %u spheres); run the bake again with the same options to resume",
-                     path, done, o.radii);
+    pn_fiv_options o;
+    uint32_t done = 0;
+    pn_status st = read_header(ctx, path, file, partial, h, &o, &done);
     pn_fiv f = NULL;
     unsigned char *payload = NULL;
-    const bool half = o.precision == PN_PRECISION_FLOAT16;
-    const size_t n = (size_t)done * o.theta * o.phi * 9u, bytes = n * (half ? 2u : 4u);
+    const bool half = !st && o.precision == PN_PRECISION_FLOAT16;
+    const size_t n = st ? 0 : (size_t)done * o.theta * o.phi * 9u, bytes = n * (half ? 2u : 4u);
     if (!st && !(st = pn_fiv_new(ctx, &o, &f))) {
         payload = malloc(bytes ? bytes : 1);
         if (!payload)
@@ -215,24 +277,8 @@ pn_status pn_fiv_read_file(pn_context ctx, const char *path, bool partial, pn_fi
         else if (pn_hash_bytes(PN_HASH_SEED, payload, bytes) != get_u64(h + 120))
             st = pn_fail(ctx, PN_ERROR_FILE, "%s is corrupt: its sample checksum does not match", path);
     }
-    if (!st) {
-        for (int c = 0; c < 3; ++c)
-            f->centre[c] = get_f32(h + 56 + 4 * c);
-        f->radius = get_f32(h + 68);
-        f->inner = get_f32(h + 72);
-        f->outer = get_f32(h + 76);
-        f->value_scale = get_f32(h + 80);
-        f->outer_max = get_f32(h + 84);
-        f->mesh_vertices = get_u32(h + 88);
-        f->mesh_triangles = get_u32(h + 92);
-        f->mesh_hash = get_u64(h + 96);
-        f->env_hash = get_u64(h + 104);
-        f->inside_count = get_u64(h + 112);
-        f->radii_done = done;
-        if (!(isfinite(f->radius) && f->radius > 0.0f && f->inner > 0.0f && f->outer > f->inner &&
-              isfinite(f->outer) && f->value_scale > 0.0f && isfinite(f->value_scale) && f->outer_max >= 0.0f))
-            st = pn_fail(ctx, PN_ERROR_FILE, "%s is corrupt: its bounding sphere or scales are not valid numbers", path);
-    }
+    if (!st)
+        st = header_fields(ctx, path, h, done, f);
     for (size_t i = 0; !st && i < n; ++i)
         f->samples[i] = half ? pn_float_from_half((uint16_t)(payload[2 * i] | (payload[2 * i + 1] << 8))) * f->value_scale
                              : get_f32(payload + 4 * i);
@@ -242,8 +288,7 @@ pn_status pn_fiv_read_file(pn_context ctx, const char *path, bool partial, pn_fi
     free(payload);
     fclose(file);
     if (st) {
-        if (f)
-            pn_fiv_destroy(f);
+        PN_RELEASE(f);
         return st;
     }
     *out = f;

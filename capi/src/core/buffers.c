@@ -1,6 +1,6 @@
 /* G-buffers and images: per-pixel device buffers, owned or borrowed from the
  * caller (docs/gbuffer.md gives the layout). */
-#include "internal.h"
+#include "core/core.h"
 
 #include <stdio.h>
 #include <stdlib.h>
@@ -43,6 +43,9 @@ static pn_status check_size(pn_context ctx, uint32_t width, uint32_t height, con
     return PN_SUCCESS;
 }
 
+static void destroy_gbuffer(pn_object *o);
+static const pn_object_type gbuffer_type = {PN_MAGIC_GBUFFER, "G-buffer", destroy_gbuffer, NULL};
+
 pn_status pn_gbuffer_new(pn_context ctx, uint32_t width, uint32_t height, const cl_mem *planes, pn_gbuffer *out)
 {
     pn_status st = check_size(ctx, width, height, "G-buffer");
@@ -57,12 +60,9 @@ pn_status pn_gbuffer_new(pn_context ctx, uint32_t width, uint32_t height, const 
         if ((st = pn_check_cl_buffer(ctx, planes[p], pixels * pn_gbuffer_plane_element_size((pn_gbuffer_plane)p), what)))
             return st;
     }
-    pn_gbuffer gb = calloc(1, sizeof *gb);
+    pn_gbuffer gb = pn_object_new(ctx, sizeof *gb, &gbuffer_type, "a G-buffer");
     if (!gb)
-        return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory creating a G-buffer");
-    gb->obj.magic = PN_MAGIC_GBUFFER;
-    gb->obj.refcount = 1;
-    gb->obj.ctx = ctx;
+        return PN_ERROR_OUT_OF_MEMORY;
     gb->width = width;
     gb->height = height;
     for (int p = 0; p < PN_GBUFFER_PLANE_COUNT; ++p) {
@@ -71,7 +71,7 @@ pn_status pn_gbuffer_new(pn_context ctx, uint32_t width, uint32_t height, const 
             gb->planes[p] = planes[p];
         } else if ((st = pn_alloc(ctx, pixels * pn_gbuffer_plane_element_size((pn_gbuffer_plane)p), CL_MEM_READ_WRITE, NULL,
                                   &gb->planes[p], plane_names[p]))) {
-            pn_gbuffer_destroy(gb);
+            pn_object_release(&gb->obj);
             return st;
         }
     }
@@ -79,8 +79,9 @@ pn_status pn_gbuffer_new(pn_context ctx, uint32_t width, uint32_t height, const 
     return PN_SUCCESS;
 }
 
-void pn_gbuffer_destroy(pn_gbuffer gb)
+static void destroy_gbuffer(pn_object *o)
 {
+    pn_gbuffer gb = (pn_gbuffer)o;
     for (int p = 0; p < PN_GBUFFER_PLANE_COUNT; ++p)
         pn_mem_release(&gb->planes[p]);
     gb->obj.magic = PN_MAGIC_DEAD;
@@ -140,6 +141,9 @@ pn_status pn_gbuffer_do_validate(pn_gbuffer gb)
     return st;
 }
 
+static void destroy_image(pn_object *o);
+static const pn_object_type image_type = {PN_MAGIC_IMAGE, "image", destroy_image, NULL};
+
 pn_status pn_image_new(pn_context ctx, uint32_t width, uint32_t height, cl_mem buffer, pn_image *out)
 {
     pn_status st = check_size(ctx, width, height, "image");
@@ -148,27 +152,25 @@ pn_status pn_image_new(pn_context ctx, uint32_t width, uint32_t height, cl_mem b
     const size_t bytes = (size_t)width * height * 16;
     if (buffer && (st = pn_check_cl_buffer(ctx, buffer, bytes, "image buffer")))
         return st;
-    pn_image img = calloc(1, sizeof *img);
+    pn_image img = pn_object_new(ctx, sizeof *img, &image_type, "an image");
     if (!img)
-        return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory creating an image");
-    img->obj.magic = PN_MAGIC_IMAGE;
-    img->obj.refcount = 1;
-    img->obj.ctx = ctx;
+        return PN_ERROR_OUT_OF_MEMORY;
     img->width = width;
     img->height = height;
     if (buffer) {
         clRetainMemObject(buffer);
         img->buffer = buffer;
     } else if ((st = pn_alloc(ctx, bytes, CL_MEM_READ_WRITE, NULL, &img->buffer, "an image"))) {
-        free(img);
+        pn_object_release(&img->obj);
         return st;
     }
     *out = img;
     return PN_SUCCESS;
 }
 
-void pn_image_destroy(pn_image img)
+static void destroy_image(pn_object *o)
 {
+    pn_image img = (pn_image)o;
     pn_mem_release(&img->buffer);
     img->obj.magic = PN_MAGIC_DEAD;
     free(img);

@@ -1,9 +1,12 @@
-/* Height fields (docs/heightfield.md): the pn_heightfield object, its
- * triangle mesh, the scene's list of height-field instances, and the
- * `heightfield` renderer's per-frame work — pyramid, per-vertex environment
- * and spherical-light passes, G-buffer shading and the probes the tests read.
- * Nothing is baked: new heights cost one pyramid rebuild. */
-#include "internal.h"
+/* The `heightfield` method (docs/heightfield.md, kernels/heightfield.cl):
+ * environment and spherical-light lighting with soft self-shadows on the
+ * height fields attached to instances; other pixels get `unshadowed`.
+ * Plan: SH tables (float64, cached per context), the env map's SH product
+ * and sun texels (a read-back), each field's pyramid when its heights
+ * change. Execute: the per-vertex passes and the G-buffer shading, enqueued.
+ * Outputs: per-vertex radiance, horizons, SH visibility and normals. */
+#include "methods/method.h"
+#include "methods/sh_tables.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -11,227 +14,102 @@
 
 #define PI 3.14159265358979323846
 #define HF_MAX_LEVELS 128   /* kernels/heightfield.cl */
+#define MAX_FIELDS 16
+#define MAX_SUN 256          /* sun texels lit as directional lights */
 
-/* ------------------------------------------------------------- the object */
+enum { P_BACKGROUND, P_LEVEL_STEP, P_LEVEL_OFFSET, P_AZIMUTHS, P_BANDS, P_EXACT_HORIZON, P_LIGHT_THRESHOLD,
+       P_EXACT_UNOCCLUDED, P_SUN_THRESHOLD, P_LIGHT_VISIBILITY, P_RECONSTRUCTION };
 
-void pn_heightfield_destroy(pn_heightfield hf)
-{
-    free(hf->heights);
-    free(hf->albedo);
-    hf->obj.magic = PN_MAGIC_DEAD;
-    free(hf);
-}
+static const pn_param_desc params[] = {
+    {"background", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "", "1: background pixels show the environment, 0: black."},
+    {"level_step", PN_PARAM_INT, PN_PARAM_PLAN, 4, 1, 8, "levels per octave", "Pyramid levels per octave."},
+    {"level_offset", PN_PARAM_FLOAT, PN_PARAM_FRAME, 4, 0, 8, "octaves",
+     "Pyramid level read, in octaves finer than the sample spacing."},
+    {"azimuths", PN_PARAM_INT, PN_PARAM_PLAN, 32, 4, 256, "directions", "Horizon directions per vertex."},
+    {"bands", PN_PARAM_INT, PN_PARAM_PLAN, 4, 3, 6, "", "Spherical-harmonic bands."},
+    {"exact_horizon", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
+     "1: horizons by marching the full-resolution field (for measuring)."},
+    {"light_threshold", PN_PARAM_FLOAT, PN_PARAM_FRAME, 1e-4, 0, 1, "",
+     "Skip a light where radiance x solid angle is below this share of the env's reference irradiance."},
+    {"exact_unoccluded", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
+     "1: the unoccluded part from the exact upper-hemisphere irradiance, SH only for what the terrain blocks; 0: "
+     "the seed's all-SH product."},
+    {"sun_threshold", PN_PARAM_FLOAT, PN_PARAM_PLAN, 50, 0, 1e9, "x mean radiance",
+     "Env texels brighter than this are lit as directional lights with a horizon test; 0: none."},
+    {"light_visibility", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
+     "Spherical lights: 1 horizon test x exact cap irradiance, 0 the seed's SH wedges."},
+    {"reconstruction", PN_PARAM_INT, PN_PARAM_PLAN, 0, 0, 1, "",
+     "Pyramid levels: 0 the seed's approximating B-spline, 1 interpolating."},
+};
 
-pn_status pn_heightfield_do_set_heights(pn_heightfield hf, const float *heights, uint32_t width, uint32_t depth)
-{
-    pn_context ctx = hf->obj.ctx;
-    if (width < 2 || depth < 2)
-        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "a height field needs at least 2 x 2 heights (got %u x %u)", width,
-                       depth);
-    if ((uint64_t)width * depth > (uint64_t)INT32_MAX / 4)
-        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "a height field of %u x %u heights is too large", width, depth);
-    const size_t n = (size_t)width * depth;
-    size_t bad = 0, first = 0;
-    for (size_t k = 0; k < n; ++k)
-        if (!isfinite(heights[k]) && bad++ == 0)
-            first = k;
-    if (bad)
-        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
-                       "height field has %zu non-finite heights (NaN or Inf), the first at row %zu, column %zu", bad,
-                       first / width, first % width);
-    float *copy = pn_malloc(ctx, n * sizeof(float), "height-field heights");
-    if (!copy)
-        return PN_ERROR_OUT_OF_MEMORY;
-    memcpy(copy, heights, n * sizeof(float));
-    if (hf->albedo && (width != hf->width || depth != hf->depth)) {
-        free(hf->albedo); /* an albedo map of the old size no longer fits */
-        hf->albedo = NULL;
-    }
-    free(hf->heights);
-    hf->heights = copy;
-    hf->width = width;
-    hf->depth = depth;
-    hf->committed = false;
-    return PN_SUCCESS;
-}
+enum { OUT_ENV, OUT_LIGHT, OUT_TOTAL, OUT_ENV_HORIZONS, OUT_LIGHT_HORIZONS, OUT_ENV_VISIBILITY, OUT_LIGHT_VISIBILITY,
+       OUT_NORMALS };
 
-pn_status pn_heightfield_do_set_placement(pn_heightfield hf, const pn_heightfield_placement *p)
-{
-    pn_context ctx = hf->obj.ctx;
-    for (int i = 0; i < 3; ++i)
-        if (!isfinite(p->origin[i]))
-            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "height-field origin[%d] = %g is not finite", i,
-                           (double)p->origin[i]);
-    for (int i = 0; i < 2; ++i)
-        if (!(p->size[i] > 0.0f && isfinite(p->size[i])))
-            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "height-field size[%d] = %g must be finite and > 0", i,
-                           (double)p->size[i]);
-    if (!isfinite(p->height_scale))
-        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "height-field height_scale = %g is not finite",
-                       (double)p->height_scale);
-    hf->placement = *p;
-    hf->committed = false;
-    return PN_SUCCESS;
-}
+static const pn_output_desc outputs[] = {
+    {"env", "float4 per vertex: outgoing radiance from the environment (rgb, 1)."},
+    {"light", "float4 per vertex: outgoing radiance from light `index` (rgb, 1)."},
+    {"total", "float4 per vertex: environment plus every light (rgb, 1)."},
+    {"env_horizons", "azimuths floats per vertex: horizon elevations in radians."},
+    {"light_horizons", "azimuths floats per vertex: horizon elevations toward light `index`, in radians."},
+    {"env_visibility", "bands^2 floats per vertex: SH visibility."},
+    {"light_visibility", "bands^2 floats per vertex: SH visibility for light `index`."},
+    {"normals", "float4 per vertex: the method's world normal."},
+};
 
-pn_status pn_heightfield_do_set_albedo(pn_heightfield hf, const float *rgb, size_t count)
-{
-    pn_context ctx = hf->obj.ctx;
-    if (!rgb || !count) {
-        free(hf->albedo);
-        hf->albedo = NULL;
-        hf->committed = false;
-        return PN_SUCCESS;
-    }
-    const size_t n = (size_t)hf->width * hf->depth * 3;
-    if (!hf->heights)
-        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "set the heights before the albedo map (it is sized by them)");
-    if (count != n)
-        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "albedo map has %zu floats; a %u x %u height field needs %zu (RGB)",
-                       count, hf->width, hf->depth, n);
-    for (size_t k = 0; k < n; ++k)
-        if (!(rgb[k] >= 0.0f && rgb[k] <= 1.0f))
-            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
-                           "albedo map value %g at row %zu, column %zu is outside [0, 1]", (double)rgb[k],
-                           k / 3 / hf->width, k / 3 % hf->width);
-    float *copy = pn_malloc(ctx, n * sizeof(float), "a height-field albedo map");
-    if (!copy)
-        return PN_ERROR_OUT_OF_MEMORY;
-    memcpy(copy, rgb, n * sizeof(float));
-    free(hf->albedo);
-    hf->albedo = copy;
-    hf->committed = false;
-    return PN_SUCCESS;
-}
+/* The method's settings, from the renderer's parameters. */
+typedef struct pn_hf_settings {
+    int level_step, azimuths, bands, exact, exact_unoccluded, light_visibility, reconstruction;
+    float level_offset, light_threshold, sun_threshold;
+} pn_hf_settings;
 
-pn_status pn_heightfield_do_commit(pn_heightfield hf)
-{
-    if (!hf->heights)
-        return pn_fail(hf->obj.ctx, PN_ERROR_NOT_COMMITTED, "height field has no heights (pn_heightfield_set_heights)");
-    hf->hmin = INFINITY;
-    hf->hmax = -INFINITY;
-    for (size_t k = 0; k < (size_t)hf->width * hf->depth; ++k) {
-        hf->hmin = fminf(hf->hmin, hf->heights[k]);
-        hf->hmax = fmaxf(hf->hmax, hf->heights[k]);
-    }
-    hf->version = pn_next_version();
-    hf->committed = true;
-    return PN_SUCCESS;
-}
+/* Per attached field: the pyramid and per-vertex outputs. */
+typedef struct pn_hf_state {
+    uint64_t version;         /* field version the pyramid holds (0: none) */
+    int level_step, reconstruction;
+    cl_int4 grid;             /* W, D, levels, level offset in samples */
+    cl_float8 geom;           /* x0, y0, z0, sx, sz, level step, s0, 0 */
+    size_t pyramid_floats;
+    bool has_albedo;
+    uint32_t light_capacity;
+    cl_mem pyr, levels, normals, albedo, out_env, out_lights, out_total;
+} pn_hf_state;
 
-/* World heights H = height_scale h and the grid spacing. */
-static void spacing(pn_heightfield hf, float *sx, float *sz)
-{
-    *sx = hf->placement.size[0] / (float)(hf->width - 1);
-    *sz = hf->placement.size[1] / (float)(hf->depth - 1);
-}
-
-pn_status pn_heightfield_do_build_mesh(pn_heightfield hf, pn_mesh mesh)
-{
-    pn_context ctx = hf->obj.ctx;
-    if (!hf->committed)
-        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "height field changed since its last commit; call pn_heightfield_commit");
-    const uint32_t w = hf->width, d = hf->depth;
-    const uint64_t tris = 2ull * (w - 1) * (d - 1);
-    if (tris > UINT32_MAX / 3)
-        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "a %u x %u height field has too many triangles for a mesh", w, d);
-    float sx, sz;
-    spacing(hf, &sx, &sz);
-    const float *o = hf->placement.origin, hs = hf->placement.height_scale;
-    float *pos = pn_malloc(ctx, pn_mul_size((size_t)w * d, 3, sizeof(float)), "height-field mesh vertices");
-    float *nrm = pn_malloc(ctx, pn_mul_size((size_t)w * d, 3, sizeof(float)), "height-field mesh normals");
-    uint32_t *idx = pn_malloc(ctx, pn_mul_size((size_t)tris, 3, sizeof(uint32_t)), "height-field mesh triangles");
-    pn_status st = pos && nrm && idx ? PN_SUCCESS : PN_ERROR_OUT_OF_MEMORY;
-    for (uint32_t j = 0; !st && j < d; ++j)
-        for (uint32_t i = 0; i < w; ++i) {
-            const size_t k = (size_t)j * w + i;
-            const uint32_t i0 = i ? i - 1 : 0, i1 = i + 1 < w ? i + 1 : i, j0 = j ? j - 1 : 0, j1 = j + 1 < d ? j + 1 : j;
-            const float dx = hs * (hf->heights[(size_t)j * w + i1] - hf->heights[(size_t)j * w + i0]) / ((float)(i1 - i0) * sx);
-            const float dz = hs * (hf->heights[(size_t)j1 * w + i] - hf->heights[(size_t)j0 * w + i]) / ((float)(j1 - j0) * sz);
-            const float len = sqrtf(dx * dx + 1.0f + dz * dz);
-            pos[3 * k] = o[0] + (float)i * sx;
-            pos[3 * k + 1] = o[1] + hs * hf->heights[k];
-            pos[3 * k + 2] = o[2] + (float)j * sz;
-            nrm[3 * k] = -dx / len;
-            nrm[3 * k + 1] = 1.0f / len;
-            nrm[3 * k + 2] = -dz / len;
-        }
-    size_t t = 0;
-    for (uint32_t j = 0; !st && j + 1 < d; ++j)
-        for (uint32_t i = 0; i + 1 < w; ++i) {
-            /* Counter-clockwise seen from +y: (a, c, b) and (b, c, e). */
-            const uint32_t a = j * w + i, b = a + 1, c = a + w, e = c + 1;
-            const uint32_t tri[6] = {a, c, b, b, c, e};
-            memcpy(idx + t, tri, sizeof tri);
-            t += 6;
-        }
-    if (!st)
-        st = pn_mesh_do_set_geometry(mesh, pos, w * d, idx, (uint32_t)tris, nrm);
-    if (!st)
-        st = pn_mesh_do_commit(mesh);
-    free(pos);
-    free(nrm);
-    free(idx);
-    return st;
-}
-
-/* --------------------------------------------------------- scene binding */
-
-void pn_scene_release_heightfields(pn_scene scene)
-{
-    for (uint32_t i = 0; i < scene->hf_count; ++i)
-        pn_heightfield_release(scene->hfs[i]);
-    free(scene->hfs);
-    free(scene->hf_instances);
-    scene->hfs = NULL;
-    scene->hf_instances = NULL;
-    scene->hf_count = 0;
-}
-
-pn_status pn_scene_do_set_heightfields(pn_scene scene, const pn_heightfield *fields, const uint32_t *instances,
-                                       uint32_t count)
-{
-    pn_context ctx = scene->obj.ctx;
-    if (count > PN_HF_MAX_FIELDS)
-        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "pn_scene_set_heightfields: %u height fields (at most %d)", count,
-                       PN_HF_MAX_FIELDS);
-    for (uint32_t i = 0; i < count; ++i) {
-        if (!fields[i] || fields[i]->obj.magic != PN_MAGIC_HEIGHTFIELD)
-            return pn_fail(NULL, PN_ERROR_NULL_HANDLE,
-                           "pn_scene_set_heightfields: fields[%u] is NULL or not a height field", i);
-        if (fields[i]->obj.ctx != ctx)
-            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "pn_scene_set_heightfields: fields[%u] belongs to another context",
-                           i);
-        for (uint32_t j = 0; j < i; ++j)
-            if (instances[j] == instances[i])
-                return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
-                               "pn_scene_set_heightfields: fields[%u] and fields[%u] both claim instance %u", j, i,
-                               instances[i]);
-    }
-    pn_heightfield *copy = NULL;
-    uint32_t *ids = NULL;
-    if (count && (!(copy = pn_malloc(ctx, count * sizeof *copy, "the scene's height fields")) ||
-                  !(ids = pn_malloc(ctx, count * sizeof *ids, "the scene's height-field instances")))) {
-        free(copy);
-        return PN_ERROR_OUT_OF_MEMORY;
-    }
-    for (uint32_t i = 0; i < count; ++i) {
-        copy[i] = fields[i];
-        ids[i] = instances[i];
-        fields[i]->obj.refcount++;
-    }
-    pn_scene_release_heightfields(scene);
-    scene->hfs = copy;
-    scene->hf_instances = ids;
-    scene->hf_count = count;
-    return PN_SUCCESS;
-}
+typedef struct pn_hf_cache {
+    pn_heightfield hfs[MAX_FIELDS];  /* the attached fields (held by the scene) and their instances */
+    uint32_t hf_instances[MAX_FIELDS];
+    uint32_t hf_count;
+    pn_hf_state fields[MAX_FIELDS];
+    int tables_nphi, tables_nb;
+    cl_mem env_table, light_table;
+    int gamma_nb, gamma_count;
+    cl_mem gamma_index, gamma_value;
+    uint64_t m_env_version;
+    int m_nb, m_nphi;
+    float m_sun;              /* sun_threshold the env data was split with */
+    cl_mem sun;               /* MAX_SUN at most: 2 float4 per sun texel */
+    int sun_count;
+    cl_mem m;                 /* 3 x nc x nc */
+    float u[3 * PN_SH_MAX_BANDS * PN_SH_MAX_BANDS]; /* Hᵀ M per channel (exact_unoccluded) */
+    cl_mem u_buf;
+    cl_mem up_irradiance;     /* irradiance map of the env's upper half */
+    int up_size;
+    float env_ref;            /* π x the env's mean radiance */
+    uint32_t lights_culled;   /* light passes skipped in the last frame */
+    /* What the per-vertex outputs were last computed for: reads of the same
+     * state reuse them (pn_renderer_execute always recomputes: a frame). */
+    bool outputs_valid;
+    pn_hf_settings outputs_settings;
+    uint64_t outputs_env, outputs_fields[MAX_FIELDS];
+    pn_sphere_light *outputs_lights;
+    uint32_t outputs_light_count, outputs_field_count;
+} pn_hf_cache;
 
 /* ------------------------------------------------------------- renderer */
 
-void pn_hf_cache_release(pn_hf_cache *c)
+static void destroy(pn_renderer r)
 {
-    for (int i = 0; i < PN_HF_MAX_FIELDS; ++i) {
+    pn_hf_cache *c = r->state;
+    for (int i = 0; i < MAX_FIELDS; ++i) {
         pn_hf_state *s = &c->fields[i];
         cl_mem *mems[] = {&s->pyr, &s->levels, &s->normals, &s->albedo, &s->out_env, &s->out_lights, &s->out_total};
         for (size_t k = 0; k < sizeof mems / sizeof mems[0]; ++k)
@@ -246,7 +124,6 @@ void pn_hf_cache_release(pn_hf_cache *c)
     pn_mem_release(&c->u_buf);
     pn_mem_release(&c->sun);
     free(c->outputs_lights);
-    memset(c, 0, sizeof *c);
 }
 
 /* Wedge tables for (n_phi, bands) and the triple product for `bands`. */
@@ -320,7 +197,7 @@ static int by_power_desc(const void *a, const void *b)
 
 /* Texels brighter than sun_threshold x the env's mean radiance (the sun) are
  * taken out of the env's texels (rad is changed: they become black there) and
- * kept as directional lights, at most PN_HF_MAX_SUN of the most powerful:
+ * kept as directional lights, at most MAX_SUN of the most powerful:
  * records (direction, angular radius | radiance x solid angle, power). Their
  * visibility is then a test against the horizon instead of a low-order SH
  * product, which smears a sun over the whole sky. */
@@ -360,8 +237,8 @@ static pn_status split_sun(pn_context ctx, pn_hf_cache *c, float *rad, const flo
         return PN_SUCCESS;
     }
     qsort(found, count, 8 * sizeof(float), by_power_desc);
-    if (count > PN_HF_MAX_SUN)
-        count = PN_HF_MAX_SUN;
+    if (count > MAX_SUN)
+        count = MAX_SUN;
     /* Black where the kept ones were (matched by direction). */
     for (size_t t = 0; t < texels; ++t)
         for (size_t k = 0; k < count; ++k)
@@ -498,7 +375,7 @@ static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf
                        "heightfield: level_step %d on a %u x %u field needs %d pyramid levels (at most %d)",
                        set->level_step, w, d, n, HF_MAX_LEVELS);
     float sx, sz;
-    spacing(hf, &sx, &sz);
+    pn_heightfield_spacing(hf, &sx, &sz);
     const float *o = hf->placement.origin;
     const float geom[8] = {o[0], o[1], o[2], sx, sz, (float)set->level_step, sx < sz ? sx : sz, 0.0f};
     memcpy(s->geom.s, geom, sizeof geom);
@@ -589,18 +466,50 @@ static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf
     return st;
 }
 
-/* Everything the passes and probes read, for every field of the scene. */
-static pn_status prepare(pn_context ctx, pn_hf_cache *c, pn_scene scene, const pn_hf_settings *set)
+static pn_hf_settings hf_settings(pn_renderer r)
 {
-    if (!scene->hf_count)
+    pn_hf_settings s = {(int)r->params[P_LEVEL_STEP], (int)r->params[P_AZIMUTHS], (int)r->params[P_BANDS],
+                        (int)r->params[P_EXACT_HORIZON], (int)r->params[P_EXACT_UNOCCLUDED],
+                        (int)r->params[P_LIGHT_VISIBILITY], (int)r->params[P_RECONSTRUCTION],
+                        (float)r->params[P_LEVEL_OFFSET], (float)r->params[P_LIGHT_THRESHOLD],
+                        (float)r->params[P_SUN_THRESHOLD]};
+    return s;
+}
+
+/* The fields attached to the scene's instances, in instance order. */
+static pn_status collect_fields(pn_context ctx, pn_hf_cache *c, pn_scene scene)
+{
+    c->hf_count = 0;
+    for (uint32_t i = 0; i < scene->attachment_count; ++i) {
+        const pn_attachment *a = &scene->attachments[i];
+        if (a->asset->magic != PN_MAGIC_HEIGHTFIELD)
+            continue;
+        if (c->hf_count == MAX_FIELDS)
+            return pn_fail(ctx, PN_ERROR_UNSUPPORTED, "heightfield: more than %d height fields are attached",
+                           MAX_FIELDS);
+        c->hfs[c->hf_count] = (pn_heightfield)a->asset;
+        c->hf_instances[c->hf_count++] = a->instance;
+    }
+    if (!c->hf_count)
         return pn_fail(ctx, PN_ERROR_NOT_COMMITTED,
-                       "heightfield: the scene has no height fields (pn_scene_set_heightfields)");
+                       "heightfield: no height field is attached to the scene (pn_scene_attach)");
+    return PN_SUCCESS;
+}
+
+/* Everything the passes and probes read, for every attached field: the
+ * method's plan. */
+static pn_status plan(pn_renderer r, pn_scene scene)
+{
+    pn_context ctx = r->obj.ctx;
+    pn_hf_cache *c = r->state;
+    const pn_hf_settings settings = hf_settings(r), *set = &settings;
     pn_status st;
-    pn_sh_cache_begin(ctx);
+    if ((st = collect_fields(ctx, c, scene)) || (st = pn_sh_cache_begin(ctx)))
+        return st;
     if ((st = prepare_tables(ctx, c, set->azimuths, set->bands)) || (st = prepare_env(ctx, c, scene->env, set->bands, set->azimuths, set->sun_threshold)))
         return st;
-    for (uint32_t i = 0; i < scene->hf_count; ++i)
-        if ((st = prepare_field(ctx, &c->fields[i], scene->hfs[i], set)))
+    for (uint32_t i = 0; i < c->hf_count; ++i)
+        if ((st = prepare_field(ctx, &c->fields[i], c->hfs[i], set)))
             return st;
     return PN_SUCCESS;
 }
@@ -632,13 +541,13 @@ static float light_distance(pn_heightfield hf, const pn_sphere_light *l)
 static bool outputs_current(const pn_hf_cache *c, pn_scene scene, const pn_hf_settings *set)
 {
     if (!c->outputs_valid || memcmp(&c->outputs_settings, set, sizeof *set) ||
-        c->outputs_env != scene->env->version || c->outputs_field_count != scene->hf_count ||
+        c->outputs_env != scene->env->version || c->outputs_field_count != c->hf_count ||
         c->outputs_light_count != scene->light_count ||
         (scene->light_count &&
          memcmp(c->outputs_lights, scene->lights, scene->light_count * sizeof *scene->lights)))
         return false;
-    for (uint32_t f = 0; f < scene->hf_count; ++f)
-        if (c->outputs_fields[f] != scene->hfs[f]->version)
+    for (uint32_t f = 0; f < c->hf_count; ++f)
+        if (c->outputs_fields[f] != c->hfs[f]->version)
             return false;
     return true;
 }
@@ -655,10 +564,10 @@ static void remember_outputs(pn_context ctx, pn_hf_cache *c, pn_scene scene, con
         memcpy(c->outputs_lights, scene->lights, bytes);
     c->outputs_settings = *set;
     c->outputs_env = scene->env->version;
-    c->outputs_field_count = scene->hf_count;
+    c->outputs_field_count = c->hf_count;
     c->outputs_light_count = scene->light_count;
-    for (uint32_t f = 0; f < scene->hf_count; ++f)
-        c->outputs_fields[f] = scene->hfs[f]->version;
+    for (uint32_t f = 0; f < c->hf_count; ++f)
+        c->outputs_fields[f] = c->hfs[f]->version;
     c->outputs_valid = true;
 }
 
@@ -675,9 +584,9 @@ static pn_status run_passes(pn_context ctx, pn_hf_cache *c, pn_scene scene, cons
     const cl_int n_phi = set->azimuths, nb = set->bands, exact = set->exact;
     const uint32_t lights = scene->light_count;
     c->lights_culled = 0;
-    for (uint32_t f = 0; f < scene->hf_count; ++f) {
+    for (uint32_t f = 0; f < c->hf_count; ++f) {
         pn_hf_state *s = &c->fields[f];
-        pn_heightfield hf = scene->hfs[f];
+        pn_heightfield hf = c->hfs[f];
         const size_t base = (size_t)hf->width * hf->depth;
         const cl_int has_albedo = s->has_albedo, split = set->exact_unoccluded, up_size = c->up_size;
         const cl_int suns = c->sun_count;
@@ -741,19 +650,23 @@ static pn_status run_passes(pn_context ctx, pn_hf_cache *c, pn_scene scene, cons
     return PN_SUCCESS;
 }
 
-pn_status pn_hf_execute(pn_hf_cache *c, pn_scene scene, const pn_hf_settings *set, pn_gbuffer gb, pn_image image)
+/* Pixels that are not on a height field (and the background) get `unshadowed`. */
+static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image)
 {
-    pn_context ctx = scene->obj.ctx;
+    pn_context ctx = r->obj.ctx;
+    pn_hf_cache *c = r->state;
+    const pn_hf_settings settings = hf_settings(r), *set = &settings;
     pn_status st;
     cl_kernel k;
-    if ((st = prepare(ctx, c, scene, set)) || (st = run_passes(ctx, c, scene, set)) ||
+    if ((st = pn_unshadowed_enqueue(r, scene, gb, image, (int)r->params[P_BACKGROUND])) ||
+        (st = run_passes(ctx, c, scene, set)) ||
         (st = pn_context_kernel(ctx, "heightfield", "hf_shade", &k)))
         return st;
     remember_outputs(ctx, c, scene, set);
     const cl_int count = (cl_int)(gb->width * gb->height);
-    for (uint32_t f = 0; f < scene->hf_count; ++f) {
+    for (uint32_t f = 0; f < c->hf_count; ++f) {
         pn_hf_state *s = &c->fields[f];
-        const cl_uint instance = scene->hf_instances[f];
+        const cl_uint instance = c->hf_instances[f];
         size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count, sizeof instance,
                           sizeof s->grid, sizeof s->geom, sizeof(cl_mem), sizeof(cl_mem)};
         const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_ALBEDO],
@@ -766,60 +679,65 @@ pn_status pn_hf_execute(pn_hf_cache *c, pn_scene scene, const pn_hf_settings *se
     return PN_SUCCESS;
 }
 
-pn_status pn_hf_read(pn_hf_cache *c, pn_scene scene, const pn_hf_settings *set, uint32_t field,
-                     pn_heightfield_output what, uint32_t light, float *host, size_t bytes)
+static pn_status read_output(pn_renderer r, pn_scene scene, int what, uint32_t instance, uint32_t light, void *host,
+                             size_t bytes)
 {
-    pn_context ctx = scene->obj.ctx;
+    pn_context ctx = r->obj.ctx;
+    pn_hf_cache *c = r->state;
+    const pn_hf_settings settings = hf_settings(r), *set = &settings;
     pn_status st;
-    if (field >= scene->hf_count)
-        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "height field %u: the scene has %u", field, scene->hf_count);
-    const bool needs_light = what == PN_HF_LIGHT || what == PN_HF_LIGHT_HORIZONS || what == PN_HF_LIGHT_VISIBILITY;
+    uint32_t field = 0;
+    while (field < c->hf_count && c->hf_instances[field] != instance)
+        ++field;
+    if (field == c->hf_count)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "instance %u has no height field attached (%u fields attached)",
+                       instance, c->hf_count);
+    const bool needs_light = what == OUT_LIGHT || what == OUT_LIGHT_HORIZONS || what == OUT_LIGHT_VISIBILITY;
     if (needs_light && light >= scene->light_count)
         return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "light %u: the scene has %u lights", light, scene->light_count);
-    if ((st = prepare(ctx, c, scene, set)))
-        return st;
     pn_hf_state *s = &c->fields[field];
-    pn_heightfield hf = scene->hfs[field];
+    pn_heightfield hf = c->hfs[field];
     const size_t base = (size_t)hf->width * hf->depth;
     size_t per = 0;
     switch (what) {
-    case PN_HF_ENV:
-    case PN_HF_LIGHT:
-    case PN_HF_TOTAL:
-    case PN_HF_NORMALS:
+    case OUT_ENV:
+    case OUT_LIGHT:
+    case OUT_TOTAL:
+    case OUT_NORMALS:
         per = 4;
         break;
-    case PN_HF_ENV_HORIZONS:
-    case PN_HF_LIGHT_HORIZONS:
+    case OUT_ENV_HORIZONS:
+    case OUT_LIGHT_HORIZONS:
         per = (size_t)set->azimuths;
         break;
-    case PN_HF_ENV_VISIBILITY:
-    case PN_HF_LIGHT_VISIBILITY:
+    case OUT_ENV_VISIBILITY:
+    case OUT_LIGHT_VISIBILITY:
         per = (size_t)set->bands * set->bands;
         break;
     default:
-        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "unknown height-field output %d", (int)what);
+        return pn_fail(ctx, PN_ERROR_INTERNAL, "unknown height-field output %d", what);
     }
     const size_t need = pn_mul_size(base, per, sizeof(float));
-    if (bytes < need)
-        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "height-field output needs %zu bytes, the buffer has %zu", need, bytes);
+    if (bytes != need)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "height-field output %s needs %zu bytes, the buffer has %zu",
+                       outputs[what].name, need, bytes);
     cl_mem src = NULL, temp = NULL;
     size_t offset = 0;
-    if (what == PN_HF_ENV || what == PN_HF_LIGHT || what == PN_HF_TOTAL) {
+    if (what == OUT_ENV || what == OUT_LIGHT || what == OUT_TOTAL) {
         if (!outputs_current(c, scene, set)) {
             if ((st = run_passes(ctx, c, scene, set)))
                 return st;
             remember_outputs(ctx, c, scene, set);
         }
-        src = what == PN_HF_ENV ? s->out_env : what == PN_HF_TOTAL ? s->out_total : s->out_lights;
-        offset = what == PN_HF_LIGHT ? light * base * 16 : 0;
-    } else if (what == PN_HF_NORMALS) {
+        src = what == OUT_ENV ? s->out_env : what == OUT_TOTAL ? s->out_total : s->out_lights;
+        offset = what == OUT_LIGHT ? light * base * 16 : 0;
+    } else if (what == OUT_NORMALS) {
         src = s->normals;
     } else {
         cl_kernel k;
-        const bool env = what == PN_HF_ENV_HORIZONS || what == PN_HF_ENV_VISIBILITY;
+        const bool env = what == OUT_ENV_HORIZONS || what == OUT_ENV_VISIBILITY;
         const cl_int n_phi = set->azimuths, nb = set->bands, exact = set->exact;
-        const cl_int mode = what == PN_HF_ENV_HORIZONS || what == PN_HF_LIGHT_HORIZONS ? 0 : 1;
+        const cl_int mode = what == OUT_ENV_HORIZONS || what == OUT_LIGHT_HORIZONS ? 0 : 1;
         cl_float4 lv = {{0.0f, 0.0f, 0.0f, -1.0f}};
         if (!env) {
             const pn_sphere_light *l = &scene->lights[light];
@@ -846,3 +764,29 @@ pn_status pn_hf_read(pn_hf_cache *c, pn_scene scene, const pn_hf_settings *set, 
         return pn_fail_cl(ctx, err, "reading a height-field output");
     return PN_SUCCESS;
 }
+
+static pn_status create(pn_renderer r)
+{
+    pn_hf_cache *c = r->state;
+    c->m_env_version = UINT64_MAX;
+    return PN_SUCCESS;
+}
+
+const pn_method_desc pn_method_heightfield = {
+    .name = "heightfield",
+    .summary = "environment and spherical-light lighting with soft self-shadows on the attached height fields; "
+               "other pixels get unshadowed",
+    .stage = "heightfield",
+    .doc_page = "docs/heightfield.md",
+    .params = params,
+    .param_count = (int)(sizeof params / sizeof params[0]),
+    .outputs = outputs,
+    .output_count = (int)(sizeof outputs / sizeof outputs[0]),
+    .inputs = PN_INPUT_ENVMAP | PN_INPUT_LIGHTS | PN_INPUT_HEIGHTFIELD,
+    .state_size = sizeof(pn_hf_cache),
+    .create = create,
+    .destroy = destroy,
+    .plan = plan,
+    .execute = execute,
+    .read_output = read_output,
+};

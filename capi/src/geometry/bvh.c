@@ -12,7 +12,7 @@
  * that point nodes are median-split, which keeps every leaf within both
  * PN_BVH_MAX_DEPTH and max_leaf_size (n < 2^32 needs at most 32 levels).
  */
-#include "bvh.h"
+#include "geometry/bvh.h"
 
 #include <math.h>
 #include <stdint.h>

@@ -1,0 +1,73 @@
+/* The assets layer: objects a technique attaches to a scene's instances
+ * (pn_scene_attach) — occlusion fields (the fiv method's bake) and height
+ * fields — with their options, bakes and files. */
+#ifndef PENUMBRA_ASSETS_H
+#define PENUMBRA_ASSETS_H
+
+#include "geometry/geometry.h"
+
+/* ------------------------------------------------------ occlusion fields */
+
+struct pn_fiv_impl {
+    pn_object obj;
+    pn_fiv_options options;
+    float centre[3], radius;  /* bounding sphere, object space */
+    float inner, outer;       /* innermost and outermost sphere radii, object units */
+    uint64_t mesh_hash, env_hash;
+    uint32_t mesh_vertices, mesh_triangles;
+    uint32_t radii_done;      /* spheres baked so far (a bake in progress) */
+    float value_scale;        /* half storage holds value / value_scale */
+    float outer_max;          /* largest |FIV| of a channel on the outer sphere (culling bound) */
+    float *samples;           /* radii x theta x phi x 9 floats, NaN inside; rounded through half if stored so */
+    uint64_t inside_count, rays;
+    double bake_seconds;      /* the bake's wall time, resumed parts included */
+};
+
+/* The bake options as a parameter table (stage PN_PARAM_BAKE), in the order
+ * of pn_fiv_options' fields: defaults, ranges and docs of the fiv method's
+ * bake parameters. */
+#define PN_FIV_BAKE_PARAM_COUNT 9
+extern const pn_param_desc pn_fiv_bake_params[PN_FIV_BAKE_PARAM_COUNT];
+pn_fiv_options pn_fiv_default_options(void);
+pn_status pn_fiv_check_options(pn_context ctx, const pn_fiv_options *options);
+pn_status pn_fiv_new(pn_context ctx, const pn_fiv_options *options, pn_fiv *out);
+uint64_t pn_fiv_sample_count(const pn_fiv_options *options);
+/* Radius of sphere k (geometric from inner to outer). */
+float pn_fiv_radius(pn_fiv fiv, uint32_t k);
+uint16_t pn_half_from_float(float value);
+float pn_float_from_half(uint16_t half);
+void pn_fiv_fill_info(pn_fiv fiv, pn_fiv_info *info);
+pn_status pn_fiv_do_read(pn_fiv fiv, float *host, size_t bytes);
+pn_status pn_fiv_do_bake(pn_envmap env, pn_mesh mesh, const pn_fiv_options *options, const char *path,
+                         pn_progress_callback progress, void *user, pn_fiv *out);
+
+/* Bake files (io/fiv_file.c). pn_fiv_read_file loads `path` into a new field;
+ * with `partial` an unfinished bake is accepted. pn_fiv_read_file_header
+ * fills only the header's fields into a field without samples. */
+pn_status pn_fiv_read_file(pn_context ctx, const char *path, bool partial, pn_fiv *out);
+pn_status pn_fiv_read_file_header(const char *path, pn_fiv_info *info);
+pn_status pn_fiv_write_file(pn_fiv fiv, const char *path);
+
+/* ------------------------------------------------------------ height fields */
+
+struct pn_heightfield_impl {
+    pn_object obj;
+    uint32_t width, depth;    /* columns (x), rows (z) */
+    float *heights;           /* width * depth, row-major */
+    float *albedo;            /* width * depth * 3, or NULL (white) */
+    pn_heightfield_placement placement;
+    bool committed;
+    uint64_t version;         /* a new pn_next_version() at each commit */
+    float hmin, hmax;         /* of the heights, at commit */
+};
+
+pn_status pn_heightfield_new(pn_context ctx, pn_heightfield *out);
+pn_status pn_heightfield_do_set_heights(pn_heightfield hf, const float *heights, uint32_t width, uint32_t depth);
+pn_status pn_heightfield_do_set_placement(pn_heightfield hf, const pn_heightfield_placement *placement);
+pn_status pn_heightfield_do_set_albedo(pn_heightfield hf, const float *rgb, size_t count);
+pn_status pn_heightfield_do_commit(pn_heightfield hf);
+pn_status pn_heightfield_do_build_mesh(pn_heightfield hf, pn_mesh *out);
+/* Grid spacing of the committed field along x and z. */
+void pn_heightfield_spacing(pn_heightfield hf, float *sx, float *sz);
+
+#endif

@@ -1,0 +1,236 @@
+/* The core layer: object heads and lifetimes, errors, the context (device,
+ * programs, kernels, per-context caches), device buffers, env maps, G-buffers
+ * and images, and small utilities. It knows no geometry and no technique.
+ * Nothing here is exported: capi/src/api.c is the only file with public entry
+ * points. Every failure is reported through pn_fail() and never aborts. */
+#ifndef PENUMBRA_CORE_H
+#define PENUMBRA_CORE_H
+
+#include "penumbra.h"
+
+#include <stdbool.h>
+
+/* ---------------------------------------------------------------- objects */
+
+enum {
+    PN_MAGIC_CONTEXT = 0x504e4358,  /* "PNCX" */
+    PN_MAGIC_ENVMAP = 0x504e454e,
+    PN_MAGIC_MESH = 0x504e4d45,
+    PN_MAGIC_SCENE = 0x504e5343,
+    PN_MAGIC_GBUFFER = 0x504e4742,
+    PN_MAGIC_IMAGE = 0x504e494d,
+    PN_MAGIC_RENDERER = 0x504e5245,
+    PN_MAGIC_FIV = 0x504e4656,
+    PN_MAGIC_HEIGHTFIELD = 0x504e4846,
+    PN_MAGIC_DEAD = 0x44454144
+};
+
+typedef struct pn_object pn_object;
+
+/* What every object of one kind shares: its tag, its name in messages, how it
+ * is destroyed and, for technique assets, where it may be attached. */
+typedef struct pn_object_type {
+    uint32_t magic;
+    const char *name;                 /* "occlusion field" */
+    void (*destroy)(pn_object *object);
+    /* Assets only (NULL for other kinds): checks that `asset` may attach to
+     * instance `instance` of `scene` (PN_WHOLE_SCENE: the scene itself). */
+    pn_status (*check_attach)(const pn_object *asset, pn_scene scene, uint32_t instance);
+} pn_object_type;
+
+/* Common head of every handle: type tag, reference count, owning context. */
+struct pn_object {
+    uint32_t magic;
+    int32_t refcount;
+    pn_context ctx;
+    const pn_object_type *type;
+};
+
+/* A zeroed object of `size` bytes (head included) of `type`, holding one
+ * reference to its context; NULL (error recorded) when out of memory. */
+void *pn_object_new(pn_context ctx, size_t size, const pn_object_type *type, const char *what);
+void pn_object_retain(pn_object *object);
+/* Drops a reference; the last one destroys the object, then releases the
+ * context it held (objects keep their context alive). NULL is ignored. */
+void pn_object_release(pn_object *object);
+#define PN_RELEASE(handle) pn_object_release((handle) ? &(handle)->obj : NULL)
+/* One entry of a parameter table (a method's, or a bake's options): the
+ * library's single statement of a parameter's name, type, default, range,
+ * unit and meaning, which the public metadata (pn_method_get_param) returns. */
+typedef struct pn_param_desc {
+    const char *name;
+    uint32_t type;            /* pn_param_type */
+    uint32_t stage;           /* pn_param_stage */
+    double fallback, lo, hi;  /* default and inclusive range */
+    const char *unit, *doc;
+} pn_param_desc;
+
+/* The index of `name` in a table, or -1. */
+int pn_param_find(const pn_param_desc *table, int count, const char *name);
+/* Checks `value` against table[i] (finite, in range, whole for ints); the
+ * message names `owner` and the parameter. */
+pn_status pn_param_check(pn_context ctx, const char *owner, const pn_param_desc *p, double value);
+
+/* A process-wide unique, increasing stamp for commits and attachment changes. */
+uint64_t pn_next_version(void);
+
+/* ----------------------------------------------------------------- errors */
+
+/* Records an error for ctx (NULL: the thread's global slot), calls the
+ * context's callback and returns `status`, so callers can `return pn_fail(...)`. */
+pn_status pn_fail(pn_context ctx, pn_status status, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 3, 4)))
+#endif
+    ;
+
+/* Turns an OpenCL error into a recorded one naming what was being done. */
+pn_status pn_fail_cl(pn_context ctx, cl_int err, const char *what);
+
+/* Forgets the calling thread's error slot of a context being destroyed. */
+void pn_error_forget(uint64_t context_serial);
+
+/* Clears the slot before a call so pn_get_error reports this call's error only. */
+void pn_error_clear(pn_context ctx);
+/* Reads and clears the slot (pn_get_error). */
+pn_status pn_error_take(pn_context ctx, const char **message);
+const char *pn_status_name_of(pn_status status);
+
+/* ---------------------------------------------------------------- context */
+
+#define PN_MAX_PROGRAMS 16
+#define PN_MAX_KERNELS 48
+#define PN_MAX_CACHES 8
+
+typedef struct pn_program_entry {
+    const char *stage;
+    cl_program program;
+} pn_program_entry;
+
+typedef struct pn_kernel_entry {
+    const char *name;
+    cl_kernel kernel;
+} pn_kernel_entry;
+
+/* Host data a layer above keeps per context (e.g. a method's float64 tables,
+ * shared by every renderer of the context), found by the address of a static
+ * key of the owner and freed with the context. */
+typedef struct pn_cache_entry {
+    const void *key;
+    void *data;
+    void (*free_data)(void *data);
+} pn_cache_entry;
+
+struct pn_context_impl {
+    pn_object obj;
+    uint64_t serial; /* keys the per-thread error slots */
+    cl_context cl_ctx;
+    cl_command_queue queue;
+    cl_device_id device;
+    char build_options[512];
+    pn_error_callback callback;
+    void *callback_user;
+    pn_program_entry programs[PN_MAX_PROGRAMS];
+    int program_count;
+    pn_kernel_entry kernels[PN_MAX_KERNELS];
+    int kernel_count;
+    pn_cache_entry caches[PN_MAX_CACHES];
+    int cache_count;
+};
+
+pn_status pn_context_new(const char *config, cl_context cl_ctx, cl_command_queue queue, pn_context *out);
+pn_status pn_context_program(pn_context ctx, const char *stage, cl_program *out);
+/* The cached kernel `name` of program `stage`. */
+pn_status pn_context_kernel(pn_context ctx, const char *stage, const char *name, cl_kernel *out);
+/* The context's cache entry of `key` (NULL when there is none). */
+void *pn_context_cache(pn_context ctx, const void *key);
+/* Stores `data` under `key`; the context frees it with free_data. */
+pn_status pn_context_set_cache(pn_context ctx, const void *key, void *data, void (*free_data)(void *data));
+/* Sets kernel arguments from a list of (size, pointer) pairs. */
+pn_status pn_set_args(pn_context ctx, cl_kernel kernel, const char *name, int count, const size_t *sizes,
+                      const void *const *values);
+pn_status pn_enqueue_1d(pn_context ctx, cl_kernel kernel, const char *name, size_t items, size_t local);
+pn_status pn_alloc(pn_context ctx, size_t bytes, cl_mem_flags flags, const void *host, cl_mem *out,
+                   const char *what);
+/* Enqueues a copy of `bytes` host bytes into `buffer` without waiting: the
+ * library keeps its own copy until the transfer is done (execute-time uploads). */
+pn_status pn_upload_async(pn_context ctx, cl_mem buffer, const void *host, size_t bytes, const char *what);
+void pn_mem_release(cl_mem *mem);
+
+/* Embedded kernel sources (generated from kernels/ by CMake). */
+typedef struct pn_kernel_file {
+    const char *path; /* relative to kernels/, e.g. "common/math.cl" */
+    const char *source;
+} pn_kernel_file;
+extern const pn_kernel_file pn_kernel_files[];
+extern const size_t pn_kernel_file_count;
+
+/* ------------------------------------------------------------ environment */
+
+struct pn_envmap_impl {
+    pn_object obj;
+    cl_mem latlong;          /* width*height*3 floats */
+    uint32_t width, height;
+    int32_t face_size, irradiance_face_size, supersampling;
+    float rotation_deg, intensity;
+    bool committed;
+    uint64_t version;        /* a new pn_next_version() at each commit */
+    uint64_t data_hash;      /* of the lat-long texels (set_latlong) */
+    uint64_t content_hash;   /* data_hash + rotation, intensity, supersampling (commit) */
+    int32_t committed_face_size, committed_irradiance_size;
+    cl_mem cube;             /* 6*F*F float4 radiance */
+    cl_mem dirs;             /* 6*F*F float4 direction + solid angle */
+    cl_mem irradiance;       /* 6*M*M float4 */
+};
+
+pn_status pn_envmap_new(pn_context ctx, pn_envmap *out);
+pn_status pn_envmap_do_set_latlong(pn_envmap env, const float *rgb, uint32_t width, uint32_t height);
+pn_status pn_envmap_param_int(pn_envmap env, const char *name, int32_t *value, bool set);
+pn_status pn_envmap_param_float(pn_envmap env, const char *name, float *value, bool set);
+pn_status pn_envmap_do_commit(pn_envmap env);
+pn_status pn_envmap_do_read(pn_envmap env, pn_envmap_data what, void *host, size_t bytes);
+/* Resamples the committed env map onto a cube of face `face` (the commit's
+ * area-averaging filter) and reads back 6*face*face float4 radiance and
+ * float4 direction + solid angle; either output may be NULL. */
+pn_status pn_envmap_sample_cube(pn_envmap env, int face, float *radiance, float *directions);
+/* Env directions as records of 2 float4 (direction, solid angle | radiance, 0):
+ * cube face f, black texels dropped, texels of power >= threshold x the
+ * brightest split into s x s sub-texels. *records is malloc'ed. */
+pn_status pn_envmap_direction_records(pn_envmap env, int f, int s, float threshold, float **records, size_t *count);
+
+/* ------------------------------------------------------- G-buffer, image */
+
+struct pn_gbuffer_impl {
+    pn_object obj;
+    uint32_t width, height;
+    cl_mem planes[PN_GBUFFER_PLANE_COUNT];
+};
+
+struct pn_image_impl {
+    pn_object obj;
+    uint32_t width, height;
+    cl_mem buffer;
+};
+
+pn_status pn_gbuffer_new(pn_context ctx, uint32_t width, uint32_t height, const cl_mem *planes, pn_gbuffer *out);
+pn_status pn_gbuffer_transfer(pn_gbuffer gbuffer, pn_gbuffer_plane plane, void *host, size_t bytes, bool write);
+pn_status pn_gbuffer_do_validate(pn_gbuffer gbuffer);
+pn_status pn_image_new(pn_context ctx, uint32_t width, uint32_t height, cl_mem buffer, pn_image *out);
+pn_status pn_image_do_read(pn_image image, float *host, size_t bytes);
+/* Fails with PN_ERROR_INVALID_SIZE if `bytes` is smaller than `needed`. */
+pn_status pn_check_cl_buffer(pn_context ctx, cl_mem buffer, size_t needed, const char *what);
+
+/* ------------------------------------------------------------------ utils */
+
+void *pn_malloc(pn_context ctx, size_t bytes, const char *what);
+/* a * b * c without overflow, or SIZE_MAX. */
+size_t pn_mul_size(size_t a, size_t b, size_t c);
+/* 3x4 row-major affine inverse; false if singular or not finite. */
+bool pn_affine_inverse(const float m[12], float inv[12]);
+/* s when m is a translation times s * identity (s > 0, 1e-5 relative), else 0. */
+float pn_uniform_scale(const float m[12]);
+#define PN_HASH_SEED 0xcbf29ce484222325ull
+/* FNV-1a 64 of `bytes` bytes, continuing from `hash` (start with PN_HASH_SEED). */
+uint64_t pn_hash_bytes(uint64_t hash, const void *data, size_t bytes);
+
+#endif

@@ -1,0 +1,314 @@
+/* The `fiv` method (docs/fiv.md, kernels/fiv.cl): diffuse env lighting with
+ * soft shadows from the occlusion fields attached to instances. Plan: the
+ * attached fields concatenated on the device (when the attachments change)
+ * and FIV(Env) from the env map (when it changes). Execute: one record per
+ * occluder instance from its transform, uploaded without waiting, and the
+ * shading kernel. */
+#include "methods/method.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+enum { P_BACKGROUND, P_OVERLAP, P_PARTIAL, P_SELF_SHADOW, P_TRILINEAR, P_CULL_THRESHOLD };
+
+static const pn_param_desc params[] = {
+    {"background", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "", "1: background pixels show the environment, 0: black."},
+    {"overlap", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 2, "",
+     "Several occluders: 0 sum, 1 unit-bounding-disc correction, 2 multiplied visibility."},
+    {"partial", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
+     "1: occluders straddling the receiver plane scaled by (d + R) / 2R (the paper's factor; docs/fiv.md)."},
+    {"self_shadow", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
+     "1: pixels on an occluder use its own field (fullsphere equality)."},
+    {"trilinear", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
+     "1: trilinear interpolation of the 8 nearest samples, 0: the nearest sample."},
+    {"cull_threshold", PN_PARAM_FLOAT, PN_PARAM_FRAME, 1e-3, 0, 1, "",
+     "Skip occluders whose extrapolated contribution is below this share of the env's reference irradiance."},
+};
+
+typedef struct state {
+    pn_fiv *fields;           /* the distinct attached fields (held by the scene) */
+    uint32_t field_count;
+    cl_mem data;              /* the fields concatenated as stored */
+    uint32_t *offsets;        /* byte offset of each field in `data` */
+    uint64_t list_version;    /* scene->attachment_version that `data` holds */
+    uint64_t env_version;     /* env map that env_fiv / env_ref describe */
+    float env_fiv[9];         /* FIV(Env): X rgb, Y rgb, Z rgb */
+    float env_ref;            /* reference irradiance for culling */
+    float *records;           /* host occluder records, 16 floats each */
+    size_t records_capacity, device_capacity;
+    cl_mem device_records;
+} state;
+
+static bool is_field(const pn_attachment *a)
+{
+    return a->asset->magic == PN_MAGIC_FIV;
+}
+
+/* The index of `f` in the state's distinct fields, or field_count. */
+static uint32_t field_index(const state *s, const pn_object *f)
+{
+    uint32_t i = 0;
+    while (i < s->field_count && &s->fields[i]->obj != f)
+        ++i;
+    return i;
+}
+
+static pn_status collect_fields(state *s, pn_scene scene)
+{
+    free(s->fields);
+    s->fields = NULL;
+    s->field_count = 0;
+    if (!(s->fields = pn_malloc(scene->obj.ctx, pn_mul_size(scene->attachment_count + 1, 1, sizeof *s->fields),
+                                "the attached occlusion fields")))
+        return PN_ERROR_OUT_OF_MEMORY;
+    for (uint32_t i = 0; i < scene->attachment_count; ++i) {
+        const pn_attachment *a = &scene->attachments[i];
+        if (is_field(a) && field_index(s, a->asset) == s->field_count)
+            s->fields[s->field_count++] = (pn_fiv)a->asset;
+    }
+    return PN_SUCCESS;
+}
+
+/* Concatenates the scene's fields as stored on the device (half or float),
+ * each at a 16-byte aligned offset; rebuilt when the list changes. */
+static pn_status upload_fields(state *cache, pn_scene scene)
+{
+    pn_context ctx = scene->obj.ctx;
+    if (cache->data && cache->list_version == scene->attachment_version)
+        return PN_SUCCESS;
+    pn_status st = collect_fields(cache, scene);
+    if (st)
+        return st;
+    size_t total = 0;
+    for (uint32_t i = 0; i < cache->field_count; ++i) {
+        const pn_fiv f = cache->fields[i];
+        size_t elem = f->options.precision == PN_PRECISION_FLOAT16 ? 2u : 4u;
+        total += ((size_t)pn_fiv_sample_count(&f->options) * 9u * elem + 15u) & ~(size_t)15u;
+    }
+    unsigned char *host = pn_malloc(ctx, total ? total : 16, "the occlusion fields");
+    if (!host)
+        return PN_ERROR_OUT_OF_MEMORY;
+    memset(host, 0, total ? total : 16);
+    free(cache->offsets);
+    cache->offsets = pn_malloc(ctx, pn_mul_size(cache->field_count ? cache->field_count : 1, 1, sizeof(uint32_t)),
+                               "field offsets");
+    if (!cache->offsets) {
+        free(host);
+        return PN_ERROR_OUT_OF_MEMORY;
+    }
+    size_t at = 0;
+    for (uint32_t i = 0; i < cache->field_count; ++i) {
+        const pn_fiv f = cache->fields[i];
+        const size_t n = (size_t)pn_fiv_sample_count(&f->options) * 9u;
+        cache->offsets[i] = (uint32_t)at;
+        if (f->options.precision == PN_PRECISION_FLOAT16) {
+            uint16_t *h = (uint16_t *)(void *)(host + at);
+            for (size_t k = 0; k < n; ++k)
+                h[k] = pn_half_from_float(f->samples[k] / f->value_scale);
+            at += (n * 2u + 15u) & ~(size_t)15u;
+        } else {
+            memcpy(host + at, f->samples, n * 4u);
+            at += (n * 4u + 15u) & ~(size_t)15u;
+        }
+    }
+    if (total > UINT32_MAX) {
+        free(host);
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "the scene's occlusion fields take %zu bytes, more than 4 GiB", total);
+    }
+    pn_mem_release(&cache->data);
+    st = pn_alloc(ctx, total ? total : 16, CL_MEM_READ_ONLY, host, &cache->data, "the occlusion fields");
+    free(host);
+    if (!st)
+        cache->list_version = scene->attachment_version;
+    return st;
+}
+
+/* FIV(Env) = sum L w dw and the reference irradiance E_ref = max over
+ * channels of sum L dw / 4 (a constant env of the same power gives E = E_ref)
+ * from the env's cube, in double; recomputed when the env map changes. */
+static pn_status env_vectors(state *cache, pn_envmap env)
+{
+    pn_context ctx = env->obj.ctx;
+    if (cache->env_version == env->version)
+        return PN_SUCCESS;
+    const size_t texels = 6u * (size_t)env->face_size * env->face_size;
+    float *rad = pn_malloc(ctx, texels * 16, "the env cube"), *dirs = pn_malloc(ctx, texels * 16, "the env directions");
+    pn_status st = (!rad || !dirs) ? PN_ERROR_OUT_OF_MEMORY : PN_SUCCESS;
+    if (!st) {
+        cl_int err = clEnqueueReadBuffer(ctx->queue, env->cube, CL_TRUE, 0, texels * 16, rad, 0, NULL, NULL);
+        if (err == CL_SUCCESS)
+            err = clEnqueueReadBuffer(ctx->queue, env->dirs, CL_TRUE, 0, texels * 16, dirs, 0, NULL, NULL);
+        if (err != CL_SUCCESS)
+            st = pn_fail_cl(ctx, err, "reading the env cube for FIV(Env)");
+    }
+    if (!st) {
+        double fiv[9] = {0}, power[3] = {0};
+        for (size_t k = 0; k < texels; ++k) {
+            const float *d = dirs + 4 * k, *l = rad + 4 * k;
+            for (int c = 0; c < 3; ++c) {
+                double ldw = (double)l[c] * d[3];
+                power[c] += ldw;
+                for (int a = 0; a < 3; ++a)
+                    fiv[3 * a + c] += ldw * d[a];
+            }
+        }
+        for (int i = 0; i < 9; ++i)
+            cache->env_fiv[i] = (float)fiv[i];
+        cache->env_ref = (float)(fmax(power[0], fmax(power[1], power[2])) / 4.0);
+        cache->env_version = env->version;
+    }
+    free(rad);
+    free(dirs);
+    return st;
+}
+
+static pn_status plan(pn_renderer r, pn_scene scene)
+{
+    state *s = r->state;
+    pn_envmap env = scene->env;
+    pn_status st;
+    if ((st = upload_fields(s, scene)) || (st = env_vectors(s, env)))
+        return st;
+    for (uint32_t i = 0; i < s->field_count; ++i)
+        if (s->fields[i]->env_hash != env->content_hash)
+            return pn_fail(r->obj.ctx, PN_ERROR_INVALID_ARGUMENT,
+                           "occlusion field %u was baked under env map %016llx but the scene's env map is %016llx "
+                           "(another image, rotation, intensity or supersampling): bake it again for this env map",
+                           i, (unsigned long long)s->fields[i]->env_hash, (unsigned long long)env->content_hash);
+    return PN_SUCCESS;
+}
+
+/* One record per occluder instance (instance order). */
+static pn_status build_records(pn_renderer r, pn_scene scene, uint32_t *count_out)
+{
+    state *s = r->state;
+    pn_context ctx = r->obj.ctx;
+    const float cull_threshold = (float)r->params[P_CULL_THRESHOLD];
+    const size_t bytes = (size_t)(scene->attachment_count ? scene->attachment_count : 1) * 16 * sizeof(float);
+    if (bytes > s->records_capacity) {
+        free(s->records);
+        s->records_capacity = 0;
+        if (!(s->records = pn_malloc(ctx, bytes, "occluder records")))
+            return PN_ERROR_OUT_OF_MEMORY;
+        s->records_capacity = bytes;
+    }
+    uint32_t count = 0;
+    for (uint32_t ai = 0; ai < scene->attachment_count; ++ai) {
+        const pn_attachment *a = &scene->attachments[ai];
+        if (!is_field(a))
+            continue;
+        const uint32_t id = a->instance, fi = field_index(s, a->asset);
+        const pn_fiv f = s->fields[fi];
+        const pn_instance *inst = pn_scene_instance(scene, id);
+        const float sc = pn_uniform_scale(inst->object_to_world);
+        if (sc == 0.0f)
+            return pn_fail(ctx, PN_ERROR_UNSUPPORTED,
+                           "instance %u is an occluder with an occlusion field but its transform rotates, shears, "
+                           "mirrors or scales unevenly: a field encodes the fixed environment in the occluder's "
+                           "frame, so the fiv method takes translations and uniform scales only",
+                           id);
+        float *rec = s->records + (size_t)count * 16;
+        const float *m = inst->object_to_world;
+        for (int c = 0; c < 3; ++c)
+            rec[c] = m[4 * c] * f->centre[0] + m[4 * c + 1] * f->centre[1] + m[4 * c + 2] * f->centre[2] + m[4 * c + 3];
+        rec[3] = sc * f->radius;
+        rec[4] = 1.0f / sc;
+        rec[5] = f->inner;
+        rec[6] = (float)log((double)f->outer / (double)f->inner);
+        /* Beyond the grid the contribution falls as (outer / rho)^2 from at
+         * most outer_max: cull where it drops below the threshold. */
+        float cull = INFINITY;
+        if (cull_threshold > 0.0f) {
+            const float floor_e = cull_threshold * s->env_ref;
+            cull = f->outer * sqrtf(fmaxf(f->outer_max / fmaxf(floor_e, 1e-30f), 1.0f));
+        }
+        rec[7] = sc * cull;
+        const uint32_t u[6] = {s->offsets[fi], f->options.theta, f->options.phi, f->options.radii, id,
+                               f->options.precision == PN_PRECISION_FLOAT16 ? 1u : 0u};
+        memcpy(rec + 8, u, 4 * sizeof(uint32_t));
+        memcpy(rec + 12, u + 4, 2 * sizeof(uint32_t));
+        rec[14] = f->options.precision == PN_PRECISION_FLOAT16 ? f->value_scale : 1.0f;
+        rec[15] = 0.0f;
+        ++count;
+    }
+    *count_out = count;
+    return PN_SUCCESS;
+}
+
+static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image)
+{
+    pn_context ctx = r->obj.ctx;
+    state *s = r->state;
+    pn_envmap env = scene->env;
+    cl_kernel k;
+    uint32_t occluder_count = 0;
+    pn_status st;
+    if ((st = pn_context_kernel(ctx, "fiv", "shade_fiv", &k)) || (st = build_records(r, scene, &occluder_count)))
+        return st;
+    const size_t bytes = (size_t)(occluder_count ? occluder_count : 1) * 16 * sizeof(float);
+    if (bytes > s->device_capacity) {
+        pn_mem_release(&s->device_records);
+        s->device_capacity = 0;
+        if ((st = pn_alloc(ctx, bytes, CL_MEM_READ_ONLY, NULL, &s->device_records, "occluder records")))
+            return st;
+        s->device_capacity = bytes;
+    }
+    if (occluder_count &&
+        (st = pn_upload_async(ctx, s->device_records, s->records, (size_t)occluder_count * 64, "uploading occluder records")))
+        return st;
+    const cl_int count = (cl_int)(gb->width * gb->height), m = env->irradiance_face_size, n = env->face_size;
+    const cl_int bg = (cl_int)r->params[P_BACKGROUND], occluders = (cl_int)occluder_count;
+    const cl_int overlap = (cl_int)r->params[P_OVERLAP], partial = (cl_int)r->params[P_PARTIAL];
+    const cl_int self_shadow = (cl_int)r->params[P_SELF_SHADOW], trilinear = (cl_int)r->params[P_TRILINEAR];
+    cl_float4 env_fiv[3];
+    for (int a = 0; a < 3; ++a)
+        for (int c = 0; c < 4; ++c)
+            env_fiv[a].s[c] = c < 3 ? s->env_fiv[3 * a + c] : 0.0f;
+    size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count, sizeof(cl_mem),
+                      sizeof m, sizeof(cl_mem), sizeof n, sizeof bg, sizeof(cl_mem), sizeof occluders, sizeof(cl_mem),
+                      sizeof env_fiv[0], sizeof env_fiv[1], sizeof env_fiv[2], sizeof overlap, sizeof partial,
+                      sizeof self_shadow, sizeof trilinear, sizeof(cl_mem)};
+    const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
+                          &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->irradiance,
+                          &m, &env->cube, &n, &bg, &s->device_records, &occluders, &s->data, &env_fiv[0],
+                          &env_fiv[1], &env_fiv[2], &overlap, &partial, &self_shadow, &trilinear, &image->buffer};
+    if ((st = pn_set_args(ctx, k, "shade_fiv", 21, sizes, vals)))
+        return st;
+    return pn_enqueue_1d(ctx, k, "shade_fiv", (size_t)count, 64);
+}
+
+static pn_status create(pn_renderer r)
+{
+    state *s = r->state;
+    s->env_version = UINT64_MAX;
+    return PN_SUCCESS;
+}
+
+static void destroy(pn_renderer r)
+{
+    state *s = r->state;
+    pn_mem_release(&s->data);
+    pn_mem_release(&s->device_records);
+    free(s->records);
+    free(s->offsets);
+    free(s->fields);
+}
+
+const pn_method_desc pn_method_fiv = {
+    .name = "fiv",
+    .summary = "Fullsphere Irradiance Vectors: diffuse env lighting with soft shadows and self-shadows from the "
+               "occlusion fields attached to instances",
+    .stage = "fiv",
+    .doc_page = "docs/fiv.md",
+    .params = params,
+    .param_count = (int)(sizeof params / sizeof params[0]),
+    .bake_params = pn_fiv_bake_params,
+    .bake_param_count = PN_FIV_BAKE_PARAM_COUNT,
+    .inputs = PN_INPUT_ENVMAP | PN_INPUT_FIV,
+    .state_size = sizeof(state),
+    .create = create,
+    .destroy = destroy,
+    .plan = plan,
+    .execute = execute,
+};
