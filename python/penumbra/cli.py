@@ -74,9 +74,12 @@ def cmd_info(args) -> int:
 
 
 def cmd_methods(args) -> int:
-    from .methods import catalog, technique
+    from .methods import catalog, markdown_table, technique
 
     specs = catalog()
+    if args.markdown:  # the tables of docs/api.md
+        print("\n\n".join(f"#### {name} parameters\n\n{markdown_table(m.params)}" for name, m in specs.items()))
+        return 0
     if args.json:
         print(json.dumps({"methods": [
             {**m.as_dict(), "interactive": technique(name).interactive} for name, m in specs.items()]}, indent=2))
@@ -270,6 +273,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict]:
     ms = sub.add_parser("methods", help="list the shading methods and their parameters (from the library)")
     ms.add_argument("--json", action="store_true", help="print every method, its inputs, parameters and outputs "
                     "as JSON")
+    ms.add_argument("--markdown", action="store_true", help="print the parameter tables of docs/api.md")
 
     r = sub.add_parser("render", help="render a TOML scene file")
     r.add_argument("scene", help="scene file (docs/scene-format.md)")

@@ -105,6 +105,19 @@ class MethodSpec:
                 "outputs": [{"name": o.name, "doc": o.doc} for o in self.outputs]}
 
 
+PARAM_TABLE_HEADER = "| name | type | stage | default | range | unit | meaning |"
+
+
+def markdown_table(params: Iterable[ParamSpec]) -> str:
+    """The parameters as the docs' tables have them (docs/api.md "#### <method>
+    parameters", docs/scene-format.md; tests/test_method_docs.py checks them)."""
+    lines = [PARAM_TABLE_HEADER, "|---|---|---|---|---|---|---|"]
+    for p in params:
+        lines.append(f"| `{p.name}` | {p.type} | {p.stage} | {_number_text(p.default)} | {p.range_text()} | "
+                     f"{p.unit} | {p.doc} |")
+    return "\n".join(lines)
+
+
 def _number_text(v: int | float) -> str:
     return f"{v:g}" if isinstance(v, float) else str(v)
 
@@ -192,5 +205,5 @@ def applicable(desc, methods: Iterable[str] | None = None) -> tuple[str, ...]:
     return tuple(m for m in chosen if technique(m).applies_to(desc))
 
 
-__all__ = ["MethodSpec", "OutputSpec", "ParamSpec", "RENDERER_STAGES", "STAGES", "applicable", "catalog",
+__all__ = ["MethodSpec", "OutputSpec", "PARAM_TABLE_HEADER", "ParamSpec", "RENDERER_STAGES", "markdown_table", "STAGES", "applicable", "catalog",
            "interactive", "names", "scene_tables", "spec", "technique", "techniques"]
