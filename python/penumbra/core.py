@@ -500,9 +500,9 @@ class Renderer(_Handle):
             if not isinstance(value, (bool, int, float, np.integer, np.floating)):
                 raise InputError(f"renderer parameter {name} must be a number, got {value!r}")
             p = self._param(name)
-            as_float = p.type == "float" if p is not None else not isinstance(value, (bool, int, np.integer))
-            if not as_float and not float(value).is_integer():
-                raise InputError(f"{self.method} parameter {name} is an integer, got {value!r}")
+            # A float parameter gets set_float; so does a fractional value (the library refuses it for an int).
+            as_float = (p is not None and p.type == "float") or not float(value).is_integer() or (
+                p is None and not isinstance(value, (bool, int, np.integer)))
             if as_float:
                 self._call("pn_renderer_set_float", self._h, name.encode(), float(value))
             else:

@@ -215,13 +215,33 @@ _OBJECT_KEYS = {"name", "mesh", "primitive", "params", "translate", "rotate_deg"
                 "shininess", "roughness", "lobe", "occluder"}
 
 
-def _object(d: dict, index: int, base: Path) -> ObjectDesc:
+def _named_entry(d: Any, index: int, array: str, keys: set[str]) -> tuple[str, str]:
+    """(name, label for messages) of entry ``index`` of an array of tables
+    ``[[array]]`` with a ``name`` key (default ``<array><index>``); its keys checked."""
     if not isinstance(d, dict):
-        raise InputError(f"[[object]] #{index} must be a table")
-    name = d.get("name", f"object{index}")
-    t = f"object '{name}'"
-    _check_keys(t, d, _OBJECT_KEYS)
-    o = ObjectDesc(name=_string(t, "name", name))
+        raise InputError(f"[[{array}]] #{index} must be a table")
+    name = d.get("name", f"{array}{index}")
+    t = f"{array} '{name}'"
+    _check_keys(t, d, keys)
+    return _string(t, "name", name), t
+
+
+def _named_entries(value: Any, array: str, what: str, parse) -> list:
+    """The entries of ``[[array]]`` (None: none), each ``parse(entry, index)``; their names unique."""
+    value = [] if value is None else value
+    if not isinstance(value, list):
+        raise InputError(f"{what}s are given as [[{array}]] tables")
+    descs = [parse(x, i) for i, x in enumerate(value)]
+    names = [x.name for x in descs]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise InputError(f"{what} names must be unique; repeated: {', '.join(sorted(dup))}")
+    return descs
+
+
+def _object(d: dict, index: int, base: Path) -> ObjectDesc:
+    name, t = _named_entry(d, index, "object", _OBJECT_KEYS)
+    o = ObjectDesc(name=name)
     if ("mesh" in d) == ("primitive" in d):
         raise InputError(f"[{t}] needs exactly one of 'mesh' (a file) or 'primitive' ({', '.join(PRIMITIVES)})")
     if "mesh" in d:
@@ -281,14 +301,7 @@ def parse_scene(data: dict, base_dir: str | Path = ".", source: str = "<dict>") 
     for table in ("environment", "camera", "render", *(t.key for t in owned if not t.array)):
         if table in data and not isinstance(data[table], dict):
             raise InputError(f"[{table}] must be a table")
-    objects = data.get("object", [])
-    if not isinstance(objects, list):
-        raise InputError("objects are given as [[object]] tables")
-    descs = [_object(o, i, base) for i, o in enumerate(objects)]
-    names = [o.name for o in descs]
-    dup = {n for n in names if names.count(n) > 1}
-    if dup:
-        raise InputError(f"object names must be unique; repeated: {', '.join(sorted(dup))}")
+    descs = _named_entries(data.get("object"), "object", "object", lambda o, i: _object(o, i, base))
     lights = data.get("light", [])
     if not isinstance(lights, list):
         raise InputError("lights are given as [[light]] tables")

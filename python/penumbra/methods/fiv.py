@@ -101,10 +101,16 @@ class FivOptions:
         """Options from the paper's (phi, theta, rho) notation, e.g. 32x17x15 -> phi 32, theta 17, 15 radii."""
         return FivOptions(**dict(zip(PAPER_ORDER, (int(v) for v in phi_theta_rho))), **kw)
 
-    def replace(self, **values) -> "FivOptions":
-        out = FivOptions.__new__(FivOptions)
-        out.values = bake_values(values, lambda k: f"FIV option {k}", base=self.values)
+    @classmethod
+    def checked(cls, values: dict[str, Any], label: Callable[[str], str], base: "FivOptions | None" = None):
+        """Options from keys as a table or command line names them (bake_values),
+        over ``base`` (default: the library's defaults); ``label`` names them in messages."""
+        out = cls.__new__(cls)
+        out.values = bake_values(values, label, None if base is None else base.values)
         return out
+
+    def replace(self, **values) -> "FivOptions":
+        return FivOptions.checked(values, lambda k: f"FIV option {k}", self)
 
     def __getattr__(self, name: str):
         try:
@@ -317,9 +323,7 @@ def _parse_table(d, base: Path, data: dict) -> FivTable:
     if not isinstance(d, dict):
         raise InputError("[fiv] must be a table")
     _check_keys("fiv", d, {"samples", "cache", *_bake_params()})
-    values = {k: v for k, v in d.items() if k != "cache"}
-    opts = FivOptions.__new__(FivOptions)
-    opts.values = bake_values(values, lambda k: f"[fiv] {k}")
+    opts = FivOptions.checked({k: v for k, v in d.items() if k != "cache"}, lambda k: f"[fiv] {k}")
     cache = _resolve(base, _string("fiv", "cache", d["cache"])) if "cache" in d else None
     return FivTable(opts, cache)
 
@@ -330,9 +334,7 @@ def options_for(desc, overrides: dict | None = None) -> FivOptions:
     table: FivTable = desc.fiv
     if not overrides:
         return table.options
-    out = FivOptions.__new__(FivOptions)
-    out.values = bake_values(overrides, lambda k: f"fiv bake option {k}", base=table.options.values)
-    return out
+    return FivOptions.checked(overrides, lambda k: f"fiv bake option {k}", table.options)
 
 
 # ---------------------------------------------------------------- fields attached to a built scene
@@ -594,8 +596,7 @@ def cmd_bake_fiv(args) -> int:
     given = {p: getattr(args, p) for p in _bake_params() if p not in PAPER_ORDER and getattr(args, p) is not None}
     if args.samples is not None:
         given["samples"] = list(args.samples)
-    options = FivOptions.__new__(FivOptions)
-    options.values = bake_values(given, lambda k: "--" + k.replace("_", "-"))
+    options = FivOptions.checked(given, lambda k: "--" + k.replace("_", "-"))
     if args.env_intensity < 0:
         raise InputError(f"--env-intensity {args.env_intensity} must be >= 0")
     env_desc = EnvironmentDesc(map=args.env if args.env in PROCEDURAL_ENVS else str(Path(args.env).expanduser()),

@@ -151,14 +151,10 @@ def _file_key(t: str, key: str, d: dict, base: Path, extensions: tuple[str, ...]
 
 
 def _parse_one(d: dict, index: int, base: Path) -> HeightfieldDesc:
-    from ..scenefile import _check_keys, _integer, _number, _string, _vector, _where
+    from ..scenefile import _integer, _named_entry, _number, _string, _vector, _where
 
-    if not isinstance(d, dict):
-        raise InputError(f"[[heightfield]] #{index} must be a table")
-    name = d.get("name", f"heightfield{index}")
-    t = f"heightfield '{name}'"
-    _check_keys(t, d, _KEYS)
-    h = HeightfieldDesc(name=_string(t, "name", name))
+    name, t = _named_entry(d, index, NAME, _KEYS)
+    h = HeightfieldDesc(name=name)
     if ("file" in d) == ("terrain" in d):
         raise InputError(f"[{t}] needs exactly one of 'file' (a {', '.join(HEIGHT_EXTENSIONS)} height map) or "
                          f"'terrain' ({', '.join(TERRAINS)})")
@@ -196,15 +192,9 @@ def _parse_one(d: dict, index: int, base: Path) -> HeightfieldDesc:
 
 
 def _parse_tables(value, base: Path, data: dict) -> list[HeightfieldDesc]:
-    value = [] if value is None else value
-    if not isinstance(value, list):
-        raise InputError("height fields are given as [[heightfield]] tables")
-    descs = [_parse_one(x, i, base) for i, x in enumerate(value)]
-    names = [x.name for x in descs]
-    dup = {n for n in names if names.count(n) > 1}
-    if dup:
-        raise InputError(f"height field names must be unique; repeated: {', '.join(sorted(dup))}")
-    return descs
+    from ..scenefile import _named_entries
+
+    return _named_entries(value, NAME, "height field", lambda x, i: _parse_one(x, i, base))
 
 
 # ---------------------------------------------------------------- built scenes
