@@ -24,7 +24,7 @@ reference) over the evaluated pixels, all three channels).
      bakes under the directional map (almost no rays) give the non-ray time
   g  the bake's ray throughput against Embree (embreex) on the same rays
 
-a-e also evaluate "oracle" diagnostics: fiv's formulas with the exact
+a-e also evaluate "oracle" diagnostics (bench/fiv_oracle.py): fiv's formulas with the exact
 occlusion at each pixel (Python ray casting over the bake's own directions)
 instead of the grid, which splits the error into grid and formula parts.
 
@@ -33,7 +33,8 @@ Run from the repository root:
   PYTHONPATH=python PENUMBRA_LIBRARY=build/dev/libpenumbra.so \\
       python bench/fiv_experiments.py [--quick] [--only a,b] [--big] [--out bench/results/fiv]
 
-Writes OUT/results.json (merged: --only updates its experiments), OUT/report.md
+The experiments are defined here (SUITE) and run on bench/harness.py, which
+writes OUT/results.json (merged: --only updates its experiments), OUT/report.md
 (from results.json; --report-only rewrites it) and small PNGs (fiv result,
 reference, error heat map). --quick writes to OUT/quick/. Bakes and reference
 images are cached in OUT/cache or $PENUMBRA_CACHE/fiv-experiments (never
@@ -44,35 +45,31 @@ Data files are read from ../shared/data beside the checkout, never copied.
 
 from __future__ import annotations
 
-import argparse
 import datetime as _dt
-import hashlib
 import json
 import math
 import os
-import statistics
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "python"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import harness  # noqa: E402
+from harness import (HEAT_FRACTION, REPO, Experiment, Suite, Variant, f4, kernel_hash, log,  # noqa: E402
+                     median_ms, settings)
 
-import penumbra  # noqa: E402
 from penumbra import procedural  # noqa: E402
 from penumbra.core import Camera, Context, EnvMap, GBuffer, Image, Material, Mesh, Renderer, Scene  # noqa: E402
-from penumbra.fileutil import atomic_write, atomic_write_text  # noqa: E402
-
-sys.path.insert(0, str(REPO / "bench"))
-from experiment_tools import f4, output_folder, library_in_use, log, rewrite_report  # noqa: E402
-from experiment_tools import machine as _machine  # noqa: E402
+from penumbra.fileutil import atomic_write_text  # noqa: E402
 from penumbra.fiv import FivField, FivOptions, envmap_hash, mesh_hash, set_scene_fields  # noqa: E402
-from penumbra.imageio import read_envmap, write_png  # noqa: E402
-from penumbra.metrics import compare, error_heatmap  # noqa: E402
+from penumbra.imageio import read_envmap  # noqa: E402
 from penumbra.render import object_geometry  # noqa: E402
 from penumbra.scenefile import parse_scene  # noqa: E402
+
+from fiv_oracle import (OracleSetup, bake_directions, lens_area, overlap_oracle, pixels,  # noqa: E402
+                        plane_oracle, self_oracle)
 
 # Data, relative to the repository root (never copied into the repository).
 DATA = "../shared/data"
@@ -89,16 +86,6 @@ UFFIZI = f"{DATA}/envmaps/uffizi_probulator_256x128.hdr"
 GRACE = f"{DATA}/envmaps/grace_probulator_256x128.hdr"
 ENV_FILES = {"sunny": SUNNY, "forest": FOREST, "uffizi": UFFIZI, "grace": GRACE}
 
-EXPERIMENTS = ("a", "b", "c", "d", "e", "f", "g")
-TITLES = {
-    "a": "bunny shadow on a plane, FIV sampling rates (paper Fig. 12)",
-    "b": "environment maps (paper Fig. 13)",
-    "c": "two occluders with overlapping shadows (paper Fig. 15)",
-    "d": "occluder straddling the receiver plane (paper Fig. 17)",
-    "e": "self-shadowing on the bunny (paper Fig. 18)",
-    "f": "bake cost (paper Table 1)",
-    "g": "bake ray throughput against Embree",
-}
 PAPER_TABLE1 = {  # samples (phi x theta x rho) -> (minutes, MB), Bunny, 35,947 vertices
     "32x17x15": (3, 0.28), "64x33x15": (12, 1.08), "64x33x30": (24, 2.17), "128x65x30": (99, 8.56),
     "256x129x30": (397, 34.0),
@@ -106,28 +93,24 @@ PAPER_TABLE1 = {  # samples (phi x theta x rho) -> (minutes, MB), Bunny, 35,947 
 ALBEDO = (0.8, 0.8, 0.8)
 FOV = 40.0
 MIB = float(1 << 20)
-HEAT_FRACTION = 0.1   # heat maps saturate at this fraction of the reference's range over the evaluated pixels
+SCRIPT = "bench/fiv_experiments.py"
+# fiv with its defaults (partial = 1) and with partial = 0: the variants of most experiments
+PARTIAL = (Variant("fiv", {"partial": 1}), Variant("fiv partial=0", {"partial": 0}))
+METRICS = ("nrmse", "rel_rms", "max_abs", "rmse", "mean_error")   # per variant in results.json
 
 
 def grid_name(g: tuple[int, int, int]) -> str:
     return "x".join(str(v) for v in g)
 
 
-def sha(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+def bake_hash() -> str:
+    """The kernel sources a bake depends on: fiv_bake.cl and common/."""
+    return kernel_hash(lambda rel: rel == "fiv_bake.cl" or rel.startswith("common/"))
 
 
-def kernel_hash(bake: bool) -> str:
-    """Hash of the kernel sources a cached product depends on: the bake's
-    (fiv_bake.cl and common/) or the reference's (everything but fiv*.cl)."""
-    h = hashlib.sha256()
-    for p in sorted((REPO / "kernels").rglob("*.cl")):
-        rel = p.relative_to(REPO / "kernels").as_posix()
-        use = (rel == "fiv_bake.cl" or rel.startswith("common/")) if bake else not p.name.startswith("fiv")
-        if use:
-            h.update(rel.encode())
-            h.update(p.read_bytes())
-    return h.hexdigest()[:12]
+def reference_hash() -> str:
+    """The kernel sources a reference image depends on: everything but fiv*.cl."""
+    return kernel_hash(lambda rel: not rel.rsplit("/", 1)[-1].startswith("fiv"))
 
 
 # --------------------------------------------------------------------------- #
@@ -303,26 +286,19 @@ class Built:
         self.data = data
 
     def key(self) -> str:
-        h = hashlib.sha256()
-        h.update(json.dumps(self.data, sort_keys=True).encode())
-        h.update(envmap_hash(self.envmap).encode())
-        return h.hexdigest()[:16]
+        return harness.key_of(json.dumps(self.data, sort_keys=True) + envmap_hash(self.envmap))
 
 
 # --------------------------------------------------------------------------- #
 # Bakes, references, renders
 # --------------------------------------------------------------------------- #
 
-class Runner:
+class Runner(harness.Runner):
+    cached = "bakes and reference images (large, machine-made)"
+    cache_env = "fiv-experiments"
+
     def __init__(self, args):
-        self.args = args
-        self.out = output_folder(args.out, args.quick, "bakes and reference images (large, machine-made)",
-                                 atomic_write_text)
-        env_cache = os.environ.get("PENUMBRA_CACHE")
-        self.cache = Path(env_cache) / "fiv-experiments" if env_cache else Path(args.out) / "cache"
-        self.cache.mkdir(parents=True, exist_ok=True)
-        self.ctx = Context()
-        self.quick = args.quick
+        super().__init__(args)
         self.res = args.resolution or (96 if args.quick else 256)
         self.ref_params = ({"face_size": 32, "sun_supersampling": 2} if args.quick
                            else {"face_size": 64, "sun_supersampling": 4})
@@ -337,7 +313,7 @@ class Runner:
         that produced the file (rays, seconds) is kept beside it."""
         mesh = built.meshes[obj_name]
         opts = FivOptions.from_paper(grid, precision=precision, **options)
-        name = f"{mesh_hash(mesh)}-{envmap_hash(built.envmap)}-{opts.key()}-k{kernel_hash(True)}"
+        name = f"{mesh_hash(mesh)}-{envmap_hash(built.envmap)}-{opts.key()}-k{bake_hash()}"
         path = self.cache / f"{name}.pnfiv"
         side = self.cache / f"{name}.json"
         existed = path.exists()
@@ -383,29 +359,19 @@ class Runner:
 
     # ---- references
     def reference(self, built: Built) -> tuple[np.ndarray, float]:
-        key = f"{built.key()}-{json.dumps(self.ref_params, sort_keys=True)}-{kernel_hash(False)}"
-        path = self.cache / f"reference-{hashlib.sha256(key.encode()).hexdigest()[:16]}.npy"
-        meta = path.with_suffix(".json")
-        if path.exists():
-            seconds = json.loads(meta.read_text())["seconds"] if meta.exists() else float("nan")
-            return np.load(path), seconds
-        t0 = time.perf_counter()
-        image, _, _ = shade(built, "reference", background=0, **self.ref_params)
-        seconds = time.perf_counter() - t0
-        img = image[..., :3].astype(np.float32)
+        key = f"{built.key()}-{json.dumps(self.ref_params, sort_keys=True)}-{reference_hash()}"
 
-        def save(tmp):
-            with open(tmp, "wb") as fh:
-                np.save(fh, img)
-        atomic_write(path, save)
-        atomic_write_text(meta, json.dumps({"seconds": seconds, "params": self.ref_params}))
-        log(f"  reference {self.ref_params} in {seconds:.1f} s")
-        return img, seconds
+        def render():
+            t0 = time.perf_counter()
+            image, _, _ = shade(built, "reference", background=0, **self.ref_params)
+            log(f"  reference {self.ref_params} in {time.perf_counter() - t0:.1f} s")
+            return image[..., :3]
+        return self.references.get(key, render, {"params": self.ref_params})
 
     # ---- one experiment scene: renders and metrics
-    def evaluate(self, exp: str, built: Built, fields: list, variants: list[tuple[str, dict]], mask_of: str,
+    def evaluate(self, exp: str, built: Built, fields: list, variants: tuple[Variant, ...], mask_of: str,
                  extra_masks: dict[str, str] | None = None, oracle=None, scene_stem: str | None = None) -> dict:
-        """Renders `fiv` for each (label, params) variant, plus `unshadowed` and
+        """Renders `fiv` for each variant, plus `unshadowed` and
         the reference; NRMSE etc. over the pixels of object `mask_of`.
         `oracle(gbuffer planes, mask, unshadowed irradiance)` may add
         (label, image) variants computed with the exact occlusion per pixel."""
@@ -419,17 +385,16 @@ class Runner:
             masks[label] = inst == built.instance_ids[obj]
         mask = masks[mask_of]
         span = float(ref[mask].max() - ref[mask].min())
-        fg = inst != 0xFFFFFFFF
-        p99 = float(np.percentile(ref[fg].mean(axis=1), 99.0)) if fg.any() else 1.0
-        exposure = math.log2(0.85 / max(p99, 1e-12))
+        exposure = harness.exposure(ref, inst != 0xFFFFFFFF)
         stem = f"{self.prefix}{exp}"
         sstem = f"{self.prefix}{scene_stem or exp}"   # the reference and unshadowed images, once per scene
-        write_png(self.out / f"{sstem}_reference.png", shrink(ref, self.args.png_size), exposure)
+        self.pictures.image(f"{sstem}_reference.png", ref, exposure)
         heat = HEAT_FRACTION * span
         out = {"pixels": int(mask.sum()), "evaluated": mask_of, "reference_seconds": ref_s,
                "reference_range": span, "heat_scale": heat, "exposure": exposure,
                "reference_png": f"{sstem}_reference.png", "variants": {}}
-        runs = [("unshadowed", {}, uns_img, uns_ms)] + [(lab, prm, *self._fiv(built, prm)) for lab, prm in variants]
+        runs = [("unshadowed", {}, uns_img, uns_ms)] + [(v.label, v.params, *self._fiv(built, v.params))
+                                                        for v in variants]
         if oracle is not None and not self.args.no_oracle:
             t0 = time.perf_counter()
             alb = gbuf["albedo"][..., :3]
@@ -440,40 +405,22 @@ class Runner:
                 runs.append((lab, {"oracle": True}, full, float("nan")))
             log(f"  oracle in {time.perf_counter() - t0:.1f} s")
         for label, params, img, ms in runs:
-            m = compare(ref, img[..., :3], mask)
-            v = {"params": params, "nrmse": m["nrmse"], "rel_rms": m["rel_rms"], "max_abs": m["max_abs"],
-                 "rmse": m["rmse"], "shade_ms": ms}
-            # signed mean error over the evaluated pixels (negative: too dark)
-            v["mean_error"] = float(np.mean(img[..., :3][mask] - ref[mask]))
+            v = {"params": params, **harness.metrics(ref, img[..., :3], mask, METRICS), "shade_ms": ms}
             for extra, em in masks.items():
                 if extra != mask_of and em.any():
-                    v[f"nrmse_{extra}"] = compare(ref, img[..., :3], em)["nrmse"]
-            safe = "".join(ch for ch in label.replace(" ", "_").replace("+", "plus") if ch.isalnum() or ch in "_-")
-            v["png"] = f"{sstem if label == 'unshadowed' else stem}_{safe}.png"
-            v["error_png"] = f"{sstem if label == 'unshadowed' else stem}_{safe}_error.png"
-            if params.get("oracle"):
-                v["png"] = None     # diagnostics: the error map only
-            else:
-                write_png(self.out / v["png"], shrink(img[..., :3], self.args.png_size), exposure)
-            heat_img = error_heatmap(ref, img[..., :3], mask, heat)
-            write_png(self.out / v["error_png"], shrink(heat_img, self.args.png_size))
+                    v[f"nrmse_{extra}"] = harness.metrics(ref, img[..., :3], em, ("nrmse",))["nrmse"]
+            # diagnostics (oracle rows): the error map only
+            v["png"], v["error_png"] = self.pictures.result(sstem if label == "unshadowed" else stem, label, ref,
+                                                            img[..., :3], mask, exposure, heat,
+                                                            error_only=bool(params.get("oracle")))
             out["variants"][label] = v
-            log(f"  {exp} {label}: NRMSE {m['nrmse']:.4f} (rel RMS {m['rel_rms']:.4f}, "
+            log(f"  {exp} {label}: NRMSE {v['nrmse']:.4f} (rel RMS {v['rel_rms']:.4f}, "
                 f"mean err {v['mean_error']:+.4g})")
         return out
 
     def _fiv(self, built, params):
         image, _, ms = shade(built, "fiv", frames=3, warmup=True, background=0, **params)
         return image, ms
-
-
-def shrink(img: np.ndarray, size: int) -> np.ndarray:
-    """Box-filters a (H, W, C) image down by an integer factor to at most `size` pixels wide (small PNGs)."""
-    f = max(1, img.shape[1] // max(size, 1))
-    if f == 1:
-        return img
-    h, w = img.shape[0] // f * f, img.shape[1] // f * f
-    return img[:h, :w].reshape(h // f, f, w // f, f, -1).mean(axis=(1, 3))
 
 
 def shade(b: Built, method: str, frames: int = 1, warmup: bool = False, planes: bool = False, **params):
@@ -488,219 +435,10 @@ def shade(b: Built, method: str, frames: int = 1, warmup: bool = False, planes: 
     renderer = Renderer(ctx, method, **params)
     b.scene.render_gbuffer(gb)
     ctx.finish()
-    times = []
-    for _ in range(frames + (1 if warmup else 0)):
-        t0 = time.perf_counter()
-        renderer.execute(b.scene, gb, img)
-        ctx.finish()
-        times.append(1000.0 * (time.perf_counter() - t0))
-    if warmup:
-        times = times[1:]
+    ms, _ = median_ms(lambda: renderer.execute(b.scene, gb, img), frames, ctx.finish, warmup=int(warmup))
     if planes:
-        return img.read(), {p: gb.read(p) for p in ("position", "normal", "albedo", "instance")}, \
-            statistics.median(times)
-    return img.read(), gb.read("instance"), statistics.median(times)
-
-
-# --------------------------------------------------------------------------- #
-# Oracle: fiv's formulas with the exact occlusion at each pixel (no grid)
-# --------------------------------------------------------------------------- #
-
-LUMA = np.array([0.2126, 0.7152, 0.0722])
-
-
-def bake_directions(ctx: Context, latlong: np.ndarray, face: int = 32, ss: int = 4, threshold: float = 0.1):
-    """The bake's direction records (pn_envmap_direction_records): the cube of
-    `face` with exact solid angles; texels whose power reaches `threshold` of
-    the brightest split into ss x ss sub-texels of the cube of face*ss; black
-    texels dropped. Returns (M, 3) directions and (M, 3) radiance x solid angle."""
-    coarse = EnvMap(ctx, latlong, face_size=face)
-    d1, w1 = coarse.cube_directions()
-    l1 = coarse.cube_radiance()
-    fine = EnvMap(ctx, latlong, face_size=face * ss)
-    d2, w2 = fine.cube_directions()
-    l2 = fine.cube_radiance()
-    power = (l1 @ LUMA) * w1
-    split = power >= threshold * power.max()
-    keep = ~split & np.any(l1 != 0, axis=-1)
-    dirs, weights = [d1[keep]], [l1[keep] * w1[keep][:, None]]
-    for f, j, i in zip(*np.nonzero(split)):
-        sl = (f, slice(j * ss, (j + 1) * ss), slice(i * ss, (i + 1) * ss))
-        dd, ww, ll = d2[sl].reshape(-1, 3), w2[sl].reshape(-1), l2[sl].reshape(-1, 3)
-        nz = np.any(ll != 0, axis=1)
-        dirs.append(dd[nz])
-        weights.append(ll[nz] * ww[nz][:, None])
-    return np.concatenate(dirs).astype(np.float64), np.concatenate(weights).astype(np.float64)
-
-
-def oracle_irradiance(ctx: Context, occluders: list[tuple[Mesh, np.ndarray]], spheres: list[tuple], P: np.ndarray,
-                      N: np.ndarray, dirs: np.ndarray, weights: np.ndarray, offset: float, self_mode: bool = False,
-                      batch: int = 1024) -> dict:
-    """Exact occluded irradiance at points P (normals N) from ray casting
-    against `occluders` only, over the bake's directions:
-
-      signed[c]   = sum over hit directions of w_c (N . w)        (N . FIV_occ exactly)
-      positive[c] = the same over hit directions with N . w > 0  (FIV+ of the paper)
-      visible[c]  = sum over unhit directions with N . w > 0     (self mode: the lower
-                    hemisphere counts as occluded, as in the fullsphere identity)
-
-    Only directions inside some occluder's bounding cone are traced (as in the bake)."""
-    scene = Scene(ctx)
-    for mesh, T in occluders:
-        scene.add(mesh, T)
-    scene.commit()
-    n = len(P)
-    signed, positive, upper, full = (np.zeros((n, 3)) for _ in range(4))
-    for b0 in range(0, n, batch):
-        p, nn = P[b0:b0 + batch], N[b0:b0 + batch]
-        cos = nn @ dirs.T                                   # (B, M)
-        cone = np.zeros(cos.shape, bool)
-        for c, R in spheres:
-            v = np.asarray(c) - p
-            rho = np.linalg.norm(v, axis=1)
-            sr = R * 1.0001 / np.maximum(rho, 1e-30)
-            cc = np.where(sr < 1.0, np.sqrt(np.maximum(0.0, 1.0 - sr * sr)), -2.0)
-            cone |= (v / rho[:, None]) @ dirs.T >= cc[:, None]
-        if self_mode:
-            cone &= cos > 0.0
-        pi, di = np.nonzero(cone)
-        hit = np.zeros(len(pi), bool)
-        for s0 in range(0, len(pi), 4_000_000):
-            q, e = pi[s0:s0 + 4_000_000], di[s0:s0 + 4_000_000]
-            hit[s0:s0 + 4_000_000] = scene.occluded(p[q] + offset * nn[q], dirs[e])
-        c_hit = weights[di[hit]] * cos[pi[hit], di[hit]][:, None]
-        np.add.at(signed, b0 + pi[hit], c_hit)
-        up = cos[pi[hit], di[hit]] > 0
-        np.add.at(positive, b0 + pi[hit][up], c_hit[up])
-        upper[b0:b0 + batch] = np.clip(cos, 0.0, None) @ weights   # unoccluded irradiance, upper hemisphere
-        full[b0:b0 + batch] = cos @ weights                          # fullsphere irradiance N . FIV(Env)
-    visible = upper - positive
-    return {"signed": signed, "positive": positive, "visible": visible, "upper": upper, "full": full}
-
-
-def lens_area(a, b, dist):
-    """Area of the lens of two discs (radii a, b, centres dist apart), as pn_lens_area in kernels/fiv.cl."""
-    a, b, dist = np.broadcast_arrays(np.asarray(a, float), np.asarray(b, float), np.asarray(dist, float))
-    out = np.zeros(a.shape)
-    inside = dist <= np.abs(a - b)
-    out[inside] = math.pi * np.minimum(a, b)[inside] ** 2
-    part = ~inside & (dist < a + b)
-    a, b, d = a[part], b[part], np.maximum(dist[part], 1e-30)
-    ca = np.clip((d * d + a * a - b * b) / (2 * d * a), -1, 1)
-    cb = np.clip((d * d + b * b - a * a) / (2 * d * b), -1, 1)
-    k = (-d + a + b) * (d + a - b) * (d - a + b) * (d + a + b)
-    out[part] = a * a * np.arccos(ca) + b * b * np.arccos(cb) - 0.5 * np.sqrt(np.maximum(k, 0))
-    return out
-
-
-class OracleSetup:
-    """What the oracles need about a built scene: occluders' world bounding spheres and the bake's directions."""
-
-    def __init__(self, r: "Runner", built: Built, names: list[str], field: FivField):
-        info = field.info()
-        self.r, self.built, self.names = r, built, names
-        self.T = {n: next(o for o in built.desc.objects if o.name == n).transform() for n in names}
-        self.spheres = {n: (self.T[n][:3, :3] @ np.asarray(info["centre"]) + self.T[n][:3, 3], info["radius"])
-                        for n in names}
-        self.offset = 1e-4 * info["radius"]
-        self.dirs, self.weights = r.directions(built.env_name)
-
-    def run(self, names: list[str], P, N, self_mode=False) -> dict:
-        return oracle_irradiance(self.r.ctx, [(self.built.meshes[n], self.T[n]) for n in names],
-                                 [self.spheres[n] for n in names], P, N, self.dirs, self.weights, self.offset,
-                                 self_mode)
-
-
-def pixels(gbuf, mask):
-    P = gbuf["position"][..., :3][mask].astype(np.float64)
-    N = gbuf["normal"][..., :3][mask].astype(np.float64)
-    N /= np.linalg.norm(N, axis=1, keepdims=True)
-    alb = gbuf["albedo"][..., :3][mask].astype(np.float64)
-    return P, N, alb
-
-
-def to_image(mask, alb, E):
-    img = np.zeros(mask.shape + (3,))
-    img[mask] = alb / math.pi * np.maximum(E, 0.0)
-    return img
-
-
-def case_b_scale(setup: OracleSetup, name: str, P, N) -> np.ndarray:
-    """fiv's partial-occluder factor per pixel: (d + R) / 2R for -R < d < R, d = (c - p) . N."""
-    c, R = setup.spheres[name]
-    d = np.sum((np.asarray(c) - P) * N, axis=1)
-    return np.where(d >= R, 1.0, np.where(d <= -R, 0.0, (d + R) / (2 * R)))[:, None]
-
-
-def plane_oracle(setup: OracleSetup):
-    """One occluder over a receiver: fiv's formula with the exact N . FIV_occ at each pixel,
-    without and with the partial-occluder factor ('exact field partial=0/1'), and DifMap
-    minus the exact occluded irradiance of the positive hemisphere ('exact FIV+', what the
-    paper's partial correction approximates)."""
-    def fn(gbuf, mask, e_dif):
-        P, N, alb = pixels(gbuf, mask)
-        o = setup.run(setup.names, P, N)
-        E0 = e_dif[mask]
-        occ = np.maximum(o["signed"], 0.0)
-        scale = case_b_scale(setup, setup.names[0], P, N)
-        return [("exact field partial=1", to_image(mask, alb, E0 - scale * occ)),
-                ("exact field partial=0", to_image(mask, alb, E0 - occ)),
-                ("exact FIV+", to_image(mask, alb, E0 - o["positive"]))]
-    return fn
-
-
-def overlap_oracle(setup: OracleSetup):
-    """Several occluders: each one's exact N . FIV_occ, combined by fiv's three rules
-    (sum, disc correction, multiplied visibility), and the exact joint occlusion."""
-    def fn(gbuf, mask, e_dif):
-        P, N, alb = pixels(gbuf, mask)
-        E0 = e_dif[mask]
-        raw = [np.maximum(setup.run([n], P, N)["signed"], 0.0) for n in setup.names]
-        scales = [case_b_scale(setup, n, P, N) for n in setup.names]
-        joint = setup.run(setup.names, P, N)
-        disc = []
-        for n in setup.names:
-            c, R = setup.spheres[n]
-            v = c - P
-            rho = np.linalg.norm(v, axis=1)
-            disc.append((v / rho[:, None], np.minimum(R / rho, 1.0)))
-        out = []
-        for partial in (1, 0):
-            I = [i * s if partial else i for i, s in zip(raw, scales)]
-            total = sum(I)
-            largest = np.maximum.reduce(I)
-            corr = total.copy()
-            for a in range(len(I)):
-                for b in range(a + 1, len(I)):
-                    (da, ra), (db, rb) = disc[a], disc[b]
-                    lens = lens_area(ra, rb, np.linalg.norm(da - db, axis=1))
-                    corr -= (lens / (math.pi * (ra * ra + rb * rb)))[:, None] * (I[a] + I[b])
-            corr = np.clip(corr, largest, total)
-            vis = np.ones_like(E0)
-            for i in I:
-                vis *= np.clip(1.0 - i / np.maximum(E0, 1e-30), 0.0, 1.0)
-            out += [(f"exact fields overlap=0 partial={partial}", to_image(mask, alb, E0 - total)),
-                    (f"exact fields overlap=1 partial={partial}", to_image(mask, alb, E0 - corr)),
-                    (f"exact fields overlap=2 partial={partial}", to_image(mask, alb, E0 * vis))]
-        return out + [("exact joint FIV+", to_image(mask, alb, E0 - joint["positive"]))]
-    return fn
-
-
-def self_oracle(setup: OracleSetup, offsets=(0.02, 0.05, 0.1)):
-    """Self-shadowing with the exact FIV_occ at the pixel: by the fullsphere identity
-    N . (FIV(Env) - FIV_occ) is the visible irradiance (bake directions)."""
-    def fn(gbuf, mask, e_dif):
-        P, N, alb = pixels(gbuf, mask)
-        o = setup.run(setup.names, P, N, self_mode=True)
-        out = [("exact field", to_image(mask, alb, o["visible"]))]
-        # The field looked up a little off the surface (where the grid's valid samples are):
-        # N . (FIV(Env) - FIV_occ(p + h N)) with the exact FIV_occ there.
-        R = setup.spheres[setup.names[0]][1]
-        for h in offsets:
-            q = setup.run(setup.names, P + h * R * N, N)
-            out.append((f"exact field at p+{h:g}R N", to_image(mask, alb, q["full"] - q["signed"])))
-        return out
-    return fn
+        return img.read(), {p: gb.read(p) for p in ("position", "normal", "albedo", "instance")}, ms
+    return img.read(), gb.read("instance"), ms
 
 
 # --------------------------------------------------------------------------- #
@@ -717,7 +455,7 @@ def exp_a(r: Runner) -> dict:
     for g in grids:
         f, rec = r.field(b, "bunny", g)
         oracle = plane_oracle(OracleSetup(r, b, ["bunny"], f)) if g == grids[0] else None
-        ev = r.evaluate(f"a_{grid_name(g)}", b, [f], [("fiv", {"partial": 1}), ("fiv partial=0", {"partial": 0})], "ground",
+        ev = r.evaluate(f"a_{grid_name(g)}", b, [f], PARTIAL, "ground",
                         {"bunny": "bunny"}, oracle, scene_stem="a")
         ev["bake"] = rec
         res["grids"][grid_name(g)] = ev
@@ -732,7 +470,7 @@ def exp_a(r: Runner) -> dict:
         for g in grids:
             f, rec = r.field(bs, "bunny", g)
             oracle = plane_oracle(OracleSetup(r, bs, ["bunny"], f)) if g == grids[0] else None
-            ev = r.evaluate(f"a_{env}_{grid_name(g)}", bs, [f], [("fiv", {"partial": 1}), ("fiv partial=0", {"partial": 0})],
+            ev = r.evaluate(f"a_{env}_{grid_name(g)}", bs, [f], PARTIAL,
                             "ground", {"bunny": "bunny"}, oracle, scene_stem=f"a_{env}")
             ev["bake"] = rec
             res["soft"][env][grid_name(g)] = ev
@@ -740,7 +478,7 @@ def exp_a(r: Runner) -> dict:
             # Diagnostic: the bake's directions as fine as the reference's (face 64), for the lamps.
             g = (64, 33, 30)
             f, rec = r.field(bs, "bunny", g, face_size=64)
-            ev = r.evaluate(f"a_{env}_{grid_name(g)}_face64", bs, [f], [("fiv partial=0", {"partial": 0})], "ground",
+            ev = r.evaluate(f"a_{env}_{grid_name(g)}_face64", bs, [f], PARTIAL[1:], "ground",
                             {"bunny": "bunny"}, scene_stem=f"a_{env}")
             ev.update(bake=rec, face_size=64)
             res["soft"][env][grid_name(g) + " face_size=64"] = ev
@@ -748,14 +486,14 @@ def exp_a(r: Runner) -> dict:
     # instead of 0.2), i.e. finer radial steps where the plane's receivers are.
     g = grids[-1] if r.quick else (128, 65, 30)
     f, rec = r.field(b, "bunny", g, inner_radius=0.9)
-    ev = r.evaluate(f"a_{grid_name(g)}_inner09", b, [f], [("fiv", {"partial": 1}), ("fiv partial=0", {"partial": 0})], "ground",
+    ev = r.evaluate(f"a_{grid_name(g)}_inner09", b, [f], PARTIAL, "ground",
                     {"bunny": "bunny"}, scene_stem="a")
     ev["bake"] = rec
     ev["inner_radius"] = 0.9
     res["grids"][grid_name(g) + " inner_radius=0.9"] = ev
     # float32 storage at the smallest grid: is half precision costing accuracy?
     f, rec = r.field(b, "bunny", grids[0], precision="float32")
-    ev = r.evaluate(f"a_{grid_name(grids[0])}_f32", b, [f], [("fiv", {"partial": 1}), ("fiv partial=0", {"partial": 0})],
+    ev = r.evaluate(f"a_{grid_name(grids[0])}_f32", b, [f], PARTIAL,
                     "ground", {"bunny": "bunny"}, scene_stem="a")
     ev["bake"] = rec
     res["grids"][grid_name(grids[0]) + " float32"] = ev
@@ -768,7 +506,7 @@ def exp_b(r: Runner) -> dict:
         data = plane_scene([standing(BUNNY, "bunny")], env, r.res)
         b = Built(r.ctx, data, env)
         f, rec = r.field(b, "bunny", r.main_grid)
-        ev = r.evaluate(f"b_{env}", b, [f], [("fiv", {"partial": 1}), ("fiv partial=0", {"partial": 0})], "ground",
+        ev = r.evaluate(f"b_{env}", b, [f], PARTIAL, "ground",
                         oracle=plane_oracle(OracleSetup(r, b, ["bunny"], f)))
         ev["bake"] = rec
         ev["scene"] = data
@@ -777,7 +515,7 @@ def exp_b(r: Runner) -> dict:
             # the hard shadow at the paper's finest grid (a cheap bake: almost no rays)
             g = (256, 129, 30)
             f2, rec2 = r.field(b, "bunny", g)
-            ev2 = r.evaluate(f"b_{env}_{grid_name(g)}", b, [f2], [("fiv", {"partial": 1}), ("fiv partial=0", {"partial": 0})],
+            ev2 = r.evaluate(f"b_{env}_{grid_name(g)}", b, [f2], PARTIAL,
                              "ground", scene_stem=f"b_{env}")
             ev2.update(bake=rec2, scene=data, grid=grid_name(g))
             res["envs"][f"{env} {grid_name(g)}"] = ev2
@@ -855,8 +593,8 @@ def exp_c(r: Runner) -> dict:
         data = plane_scene(two_bunnies(env), env, r.res)
         b = Built(r.ctx, data, env)
         f, rec = r.field(b, "bunny_a", r.main_grid)
-        variants = [(f"overlap={o}" + ("" if p else " partial=0"), {"overlap": o, "partial": p})
-                    for p in (1, 0) for o in (0, 1, 2)]
+        variants = tuple(Variant(f"overlap={o}" + ("" if p else " partial=0"), {"overlap": o, "partial": p})
+                         for p in (1, 0) for o in (0, 1, 2))
         ev = r.evaluate(f"c_{env}", b, [f], variants, "ground",
                         oracle=overlap_oracle(OracleSetup(r, b, ["bunny_a", "bunny_b"], f)))
         ev["scene"] = data
@@ -881,7 +619,7 @@ def exp_d(r: Runner) -> dict:
     t = data["object"][0]["translate"]
     d_plane = info["centre"][1] + t[1]
     scale = (d_plane + info["radius"]) / (2 * info["radius"])
-    ev = r.evaluate("d_queen", b, [f], [("partial=0", {"partial": 0}), ("partial=1", {"partial": 1})], "ground",
+    ev = r.evaluate("d_queen", b, [f], settings("partial", (0, 1)), "ground",
                     oracle=plane_oracle(OracleSetup(r, b, ["queen"], f)))
     ev.update(scene=data, bake=rec, grid=grid_name(r.main_grid), centre_height=d_plane, radius=info["radius"],
               case_b_scale=(d_plane + info["radius"]) / (2 * info["radius"]), sink_fraction=0.2,
@@ -902,7 +640,7 @@ def exp_e(r: Runner) -> dict:
                        "resolution": [r.res, r.res]}, "object": [obj]}
     b = Built(r.ctx, data, "sunny")
     f, rec = r.field(b, "bunny", r.main_grid)
-    ev = r.evaluate("e_self", b, [f], [("self_shadow=1", {"self_shadow": 1}), ("self_shadow=0", {"self_shadow": 0})],
+    ev = r.evaluate("e_self", b, [f], settings("self_shadow", (1, 0)),
                     "bunny", oracle=self_oracle(OracleSetup(r, b, ["bunny"], f)))
     ev.update(scene=data, bake=rec, grid=grid_name(r.main_grid))
     return ev
@@ -1001,17 +739,8 @@ def exp_g(r: Runner) -> dict:
     tris = np.ascontiguousarray(m.vertices[m.faces], np.float32)
     em, _keep = embree_scene(tris)
 
-    def timed(fn, repeats=3):
-        fn()
-        ts = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            fn()
-            ts.append(time.perf_counter() - t0)
-        return statistics.median(ts)
-
-    em_s = timed(lambda: em.run(o, d, query="OCCLUDED"))
-    pn_s = timed(lambda: b.scene.occluded(o, d))
+    em_s = median_ms(lambda: em.run(o, d, query="OCCLUDED"), 3, warmup=1)[0] / 1000.0
+    pn_s = median_ms(lambda: b.scene.occluded(o, d), 3, warmup=1)[0] / 1000.0
     em_occ = em.run(o, d, query="OCCLUDED") != -1
     pn_occ = b.scene.occluded(o, d).astype(bool)
     bake_rate = rec["rays"] / rec["bake_seconds"] / 1e6 if rec.get("rays") else float("nan")
@@ -1034,16 +763,9 @@ def exp_g(r: Runner) -> dict:
     return out
 
 
-RUNNERS = {"a": exp_a, "b": exp_b, "c": exp_c, "d": exp_d, "e": exp_e, "f": exp_f, "g": exp_g}
-
-
 # --------------------------------------------------------------------------- #
 # Report
 # --------------------------------------------------------------------------- #
-
-def machine() -> dict:
-    return _machine(penumbra.__version__)
-
 
 ORACLE_NOTE = ("Rows marked * are diagnostics, not renderer output: fiv's formulas evaluated in Python with the "
                "*exact* occlusion at each pixel (ray casting against the occluders over the bake's own directions, "
@@ -1074,11 +796,9 @@ def report(results: dict) -> str:
     meta = results["meta"]
     ex = results["experiments"]
     L = ["# FIV experiments (after Michael and Chrysanthou, Section 5)", ""]
-    L.append(f"Generated by `bench/fiv_experiments.py{' --quick' if meta.get('quick') else ''}` on "
-             f"{meta['date']}. Device: {meta['device']} ({meta['machine']['cpu']}, {meta['machine']['cores']} "
-             f"cores, PoCL; the cores are shared with other work, so timings are noisy). penumbra "
-             f"{meta['machine']['penumbra']}, git {meta['machine']['git_head']} plus the working tree "
-             f"(kernels/fiv.cl sha256 {meta['fiv_cl_sha']}..., fiv_bake.cl {meta['fiv_bake_cl_sha']}...).")
+    L.append(harness.generated_by(meta, SCRIPT, "the cores are shared with other work, so timings are noisy")
+             + f" plus the working tree (kernels/fiv.cl sha256 {meta['fiv_cl_sha']}..., fiv_bake.cl "
+             f"{meta['fiv_bake_cl_sha']}...).")
     L.append("")
     L.append(f"Images {meta['resolution']}x{meta['resolution']} (the paper: 512x512), camera looking down at the "
              f"receiver plane at 60 degrees. Ground truth: `reference` with {meta['reference']} (docs/reference.md). "
@@ -1260,44 +980,35 @@ def report(results: dict) -> str:
     return "\n".join(L) + "\n"
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="smoke run: 96 px, 32x17x15 grids, reference face 32")
-    ap.add_argument("--out", default=str(REPO / "bench" / "results" / "fiv"))
-    ap.add_argument("--only", default="", help=f"comma-separated experiments ({','.join(EXPERIMENTS)})")
+EXPERIMENTS = (
+    Experiment("a", "bunny shadow on a plane, FIV sampling rates (paper Fig. 12)", exp_a),
+    Experiment("b", "environment maps (paper Fig. 13)", exp_b),
+    Experiment("c", "two occluders with overlapping shadows (paper Fig. 15)", exp_c),
+    Experiment("d", "occluder straddling the receiver plane (paper Fig. 17)", exp_d),
+    Experiment("e", "self-shadowing on the bunny (paper Fig. 18)", exp_e),
+    Experiment("f", "bake cost (paper Table 1)", exp_f),
+    Experiment("g", "bake ray throughput against Embree", exp_g),
+)
+TITLES = {e.key: e.title for e in EXPERIMENTS}
+
+
+def add_arguments(ap) -> None:
     ap.add_argument("--resolution", type=int, default=0, help="image side in pixels (default 256, quick 96)")
     ap.add_argument("--big", action="store_true", help="also bake 256x129x30 (about 20 min on 2 cores)")
-    ap.add_argument("--report-only", action="store_true", help="rewrite report.md from results.json")
-    ap.add_argument("--png-size", type=int, default=256, help="PNGs are box-filtered down to at most this width")
     ap.add_argument("--no-oracle", action="store_true", help="skip the exact-occlusion oracle variants")
     ap.add_argument("--fresh-bakes", action="store_true", help="experiment f: rebake even when cached")
-    args = ap.parse_args(argv)
-    only = [s.strip() for s in args.only.split(",") if s.strip()] or list(EXPERIMENTS)
-    for s in only:
-        if s not in RUNNERS:
-            ap.error(f"unknown experiment {s!r} (one of {', '.join(EXPERIMENTS)})")
-    library_in_use(list((REPO / "kernels").rglob("*.cl")))
-    if args.report_only:
-        return rewrite_report(Path(args.out) / ("quick" if args.quick else ""), report, atomic_write_text)
-    r = Runner(args)
-    path = r.out / "results.json"
-    results = json.loads(path.read_text()) if path.exists() else {"experiments": {}}
-    results["meta"] = {"date": _dt.date.today().isoformat(), "device": r.ctx.device_name, "machine": machine(),
-                       "resolution": r.res, "quick": args.quick,
-                       "reference": ", ".join(f"{k} {v}" for k, v in r.ref_params.items()),
-                       "fiv_cl_sha": sha(REPO / "kernels" / "fiv.cl"),
-                       "fiv_bake_cl_sha": sha(REPO / "kernels" / "fiv_bake.cl"), "main_grid": grid_name(r.main_grid)}
-    for s in only:
-        log(f"experiment {s}: {TITLES[s]}")
-        t0 = time.perf_counter()
-        results["experiments"][s] = RUNNERS[s](r)
-        results["experiments"][s]["seconds"] = time.perf_counter() - t0
-        results["experiments"][s]["fiv_cl_sha"] = results["meta"]["fiv_cl_sha"]
-        atomic_write_text(path, json.dumps(results, indent=1, default=float))
-        atomic_write_text(r.out / "report.md", report(results))
-        log(f"experiment {s} done in {time.perf_counter() - t0:.0f} s")
-    return 0
 
+
+def meta(r: Runner) -> dict:
+    return {"resolution": r.res, "quick": r.quick, "reference": ", ".join(f"{k} {v}" for k, v in r.ref_params.items()),
+            "fiv_cl_sha": harness.sha(REPO / "kernels" / "fiv.cl"),
+            "fiv_bake_cl_sha": harness.sha(REPO / "kernels" / "fiv_bake.cl"), "main_grid": grid_name(r.main_grid)}
+
+
+SUITE = Suite(script=SCRIPT, description=__doc__, experiments=EXPERIMENTS, runner=Runner,
+              report=report, default_out="bench/results/fiv", meta=meta,
+              stamp=lambda m: {"fiv_cl_sha": m["fiv_cl_sha"]}, add_arguments=add_arguments,
+              quick_help="smoke run: 96 px, 32x17x15 grids, reference face 32")
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(harness.main(SUITE))

@@ -38,7 +38,8 @@ Run from the repository root:
   PENUMBRA_LIBRARY=build/hc/libpenumbra.so PYTHONPATH=python \\
       python bench/heightfield_experiments.py [--quick] [--only a,b] [--out bench/results/heightfield]
 
-Writes OUT/results.json (merged: --only updates its experiments), OUT/report.md
+The experiments are defined here (SUITE) and run on bench/harness.py, which
+writes OUT/results.json (merged: --only updates its experiments), OUT/report.md
 (from results.json; --report-only rewrites it) and small PNGs (result,
 reference, error heat map). --quick writes to OUT/quick/ and runs in a couple
 of minutes. Reference images are cached in OUT/cache (never committed:
@@ -49,8 +50,6 @@ sources, so a rerun only renders the method. Data files are read from
 
 from __future__ import annotations
 
-import argparse
-import datetime as _dt
 import hashlib
 import json
 import math
@@ -62,26 +61,24 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "python"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import harness  # noqa: E402
+from harness import (HEAT_FRACTION, REPO, Experiment, Suite, Variant, f4, fmt_params, log,  # noqa: E402
+                     median_ms, settings)
+from harness import link as _img  # noqa: E402
 
 import penumbra  # noqa: E402
 from penumbra import procedural  # noqa: E402
-from penumbra.core import Camera, Context, EnvMap, GBuffer, Image, Renderer, Scene  # noqa: E402
-from penumbra.fileutil import atomic_write, atomic_write_text  # noqa: E402
-
-sys.path.insert(0, str(REPO / "bench"))
-from experiment_tools import f4, output_folder, git, library_in_use, log, rewrite_report  # noqa: E402
-from experiment_tools import machine as _machine  # noqa: E402
+from penumbra.core import Camera, EnvMap, GBuffer, Image, Renderer, Scene  # noqa: E402
 from penumbra.heightfield import cones_circle_light  # noqa: E402
-from penumbra.imageio import read_envmap, write_png  # noqa: E402
-from penumbra.metrics import compare, error_heatmap  # noqa: E402
+from penumbra.imageio import read_envmap  # noqa: E402
 from penumbra.render import add_heightfields  # noqa: E402
 from penumbra.scenefile import parse_scene  # noqa: E402
 
 DATA = REPO.parent / "shared" / "data"
 ENV_FILES = {"overcast": "envmaps/potsdamer_platz_1k_polyhaven.hdr",     # max/mean radiance 20: soft
              "sunny": "envmaps/immenstadter_horn_1k_polyhaven.hdr"}      # a sun 35 degrees up, 26 % of the power
+SCRIPT = "bench/heightfield_experiments.py"
 ENV_FACE = 64            # cube face of the scenes' env maps (the method's env SH and exact upper-half irradiance)
 EXTENT = 10.0            # world size of every field (x and z)
 MARGIN = 1.0             # evaluated pixels lie at least this far inside the field's border
@@ -101,32 +98,14 @@ TERRAINS = {
 LIGHT_TERRAINS = ("cones_circle", "fbm")
 LIGHT_ENV = "overcast"
 LIGHT_D = 2.0            # a light's irradiance at this distance (normal incidence) = the env's upper-half irradiance
-HEAT_FRACTION = 0.1      # heat maps saturate at this fraction of the reference's range over the evaluated pixels
 SEED_GPU = {"size": 256, "pyramid_ms": 1.7, "env_ms": 6.7, "light_ms": 16.0,
             "note": "seed Table 6.6 (2011 GPU, 256x256 field, ls 4, n_phi 32, 4 bands, l_o 4)"}
-TITLES = {"a": "terrains x env maps, and env + spherical lights",
-          "b": "parameter sweeps",
-          "c": "error split: SH truncation (exact horizons) against the horizon approximation (pyramid)",
-          "d": "speed per pass against the floor kernel and the seed's GPU"}
-EXPERIMENTS = tuple(TITLES)
-
-
-def key_of(obj) -> str:
-    return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
 def kernel_hash() -> str:
     """The kernel sources the reference depends on (everything but fiv*.cl and heightfield.cl)."""
-    h = hashlib.sha256()
-    for p in sorted((REPO / "kernels").rglob("*.cl")):
-        if not (p.name.startswith("fiv") or p.name == "heightfield.cl"):
-            h.update(p.relative_to(REPO).as_posix().encode())
-            h.update(p.read_bytes())
-    return h.hexdigest()[:12]
-
-
-def fmt_params(p: dict) -> str:
-    return ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in p.items()) or "defaults"
+    return harness.kernel_hash(lambda rel: not (rel.rsplit("/", 1)[-1].startswith("fiv")
+                                                or rel.rsplit("/", 1)[-1] == "heightfield.cl"), names_from=REPO)
 
 
 # --------------------------------------------------------------------------- #
@@ -249,14 +228,9 @@ class Case:
 # Runner: renderers, references, metrics
 # --------------------------------------------------------------------------- #
 
-class Runner:
+class Runner(harness.Runner):
     def __init__(self, args):
-        self.args = args
-        self.out = output_folder(args.out, args.quick, "reference images (machine-made, cached)", atomic_write_text)
-        self.cache = Path(args.out) / "cache"
-        self.cache.mkdir(parents=True, exist_ok=True)
-        self.quick = args.quick
-        self.ctx = Context()
+        super().__init__(args)
         self.n = 65 if args.quick else 129
         self.res = 64 if args.quick else 128
         self.ref_params = ({"face_size": 16, "sun_supersampling": 2} if args.quick
@@ -321,22 +295,6 @@ class Runner:
         self.ctx.finish()
         return case.image.read()[..., :3].astype(np.float32), time.perf_counter() - t0
 
-    def _cached(self, key: dict, render) -> tuple[np.ndarray, float]:
-        path = self.cache / f"reference-{key_of(key)}.npy"
-        meta = path.with_suffix(".json")
-        if path.exists():
-            return np.load(path), json.loads(meta.read_text())["seconds"] if meta.exists() else float("nan")
-        t0 = time.perf_counter()
-        img = render()
-        seconds = time.perf_counter() - t0
-
-        def save(tmp):
-            with open(tmp, "wb") as fh:
-                np.save(fh, img)
-        atomic_write(path, save)
-        atomic_write_text(meta, json.dumps({"seconds": seconds, "key": key}, default=str))
-        return img, seconds
-
     def ref_params_for(self, case: Case) -> dict:
         """The ground truth's settings: no sun supersampling under the overcast map (its sun_threshold test
         passes nearly every sky texel there, which would cost 16 x the directions for nothing)."""
@@ -352,7 +310,7 @@ class Runner:
             img, s = self.shade(case, "reference", params, lights=0)
             log(f"  reference {case.label()} in {s:.1f} s")
             return img
-        return self._cached(key, render)
+        return self.references.get(key, render, {"key": key})
 
     def light_reference(self, case: Case, k: int, visibility: int = 1) -> np.ndarray:
         """The first k lights' share of the ground truth (black env); visibility 0: unshadowed lights."""
@@ -367,32 +325,7 @@ class Runner:
             r.execute(s, case.gbuffer, case.image)
             self.ctx.finish()
             return case.image.read()[..., :3].astype(np.float32)
-        return self._cached(key, render)[0]
-
-    def metrics(self, ref: np.ndarray, img: np.ndarray, mask: np.ndarray) -> dict:
-        m = compare(ref, img, mask)
-        span = float(ref[mask].max() - ref[mask].min())
-        return {"nrmse": m["nrmse"], "rel_rms": m["rel_rms"], "max_abs": m["max_abs"],
-                "bias": float(np.mean(img[mask] - ref[mask])) / span}
-
-    def pngs(self, stem: str, ref: np.ndarray, images: dict[str, np.ndarray], mask: np.ndarray,
-             errors_only: tuple[str, ...] = (), reference: bool = True) -> dict:
-        """Writes stem_reference.png and, per image, stem_<label>.png (unless in errors_only) and
-        stem_<label>_error.png (heat map); returns the file names by label."""
-        p99 = float(np.percentile(ref[mask].mean(axis=1), 99.0)) if mask.any() else 1.0
-        exposure = math.log2(0.85 / max(p99, 1e-12))
-        heat = HEAT_FRACTION * float(ref[mask].max() - ref[mask].min())
-        out = {}
-        if reference:
-            out["reference"] = f"{stem}_reference.png"
-            write_png(self.out / out["reference"], ref, exposure)
-        for label, img in images.items():
-            if label not in errors_only:
-                out[label] = f"{stem}_{label}.png"
-                write_png(self.out / out[label], img, exposure)
-            out[f"{label}_error"] = f"{stem}_{label}_error.png"
-            write_png(self.out / out[f"{label}_error"], error_heatmap(ref, img, mask, heat))
-        return out
+        return self.references.get(key, render, {"key": key})[0]
 
 
 # --------------------------------------------------------------------------- #
@@ -414,10 +347,10 @@ def exp_a(run: Runner) -> dict:
         hf, hf_s = run.shade(c, "heightfield")
         un, _ = run.shade(c, "unshadowed")
         row = {"pixels": int(c.mask.sum()), "terrain_pixels": int(c.terrain_mask.sum()), "reference_s": ref_s,
-               "heightfield": run.metrics(ref, hf, c.mask), "unshadowed": run.metrics(ref, un, c.mask),
-               "heightfield_all_terrain_pixels": run.metrics(ref, hf, c.terrain_mask), "heightfield_s": hf_s}
+               "heightfield": harness.metrics(ref, hf, c.mask), "unshadowed": harness.metrics(ref, un, c.mask),
+               "heightfield_all_terrain_pixels": harness.metrics(ref, hf, c.terrain_mask), "heightfield_s": hf_s}
         if c.env_name == "sunny" and not c.full_env:
-            row["png"] = run.pngs(f"a_{c.terrain}_sunny", ref, {"heightfield": hf, "unshadowed": un}, c.mask,
+            row["png"] = run.pictures.set(f"a_{c.terrain}_sunny", ref, {"heightfield": hf, "unshadowed": un}, c.mask,
                                   errors_only=("unshadowed",))
         out["cases"][c.label()] = row
         log(f"  a {c.label()}: heightfield NRMSE {row['heightfield']['nrmse']:.4f} "
@@ -439,23 +372,24 @@ def exp_a(run: Runner) -> dict:
             base_l = run.light_reference(c, k, visibility=0) if k else None
             ref = ref_env + (ref_l if k else 0.0)
             base = un_env + (base_l if k else 0.0)
-            row = {"unshadowed": run.metrics(ref, base, c.mask),
+            row = {"unshadowed": harness.metrics(ref, base, c.mask),
                    "lights": [dict(zip(("x", "y", "z", "radius", "r", "g", "b"), lr)) for lr in c.lights[:k]]}
             if k:  # the lights' share alone (the method's light passes against the reference's), over every
                 # terrain pixel: light horizons only look towards the light, never past the border
-                row["unshadowed_light_part"] = run.metrics(ref_l, base_l, c.terrain_mask)
+                row["unshadowed_light_part"] = harness.metrics(ref_l, base_l, c.terrain_mask)
             imgs = {}
             for params, label in variants:
                 img, s = run.shade(c, "heightfield", params, lights=k)
-                row[label] = run.metrics(ref, img, c.mask)
+                row[label] = harness.metrics(ref, img, c.mask)
                 row[label]["seconds"] = s
                 if k:
-                    row[label + " light_part"] = run.metrics(ref_l, img - no_lights[label], c.terrain_mask)
+                    row[label + " light_part"] = harness.metrics(ref_l, img - no_lights[label], c.terrain_mask)
                 else:
                     no_lights[label] = img
                 imgs[label.replace(" ", "_").replace("=", "")] = img
             if k == 3:
-                row["png"] = run.pngs(f"a_{t}_{LIGHT_ENV}_3lights", ref, {"heightfield": imgs["heightfield"]}, c.mask)
+                row["png"] = run.pictures.set(f"a_{t}_{LIGHT_ENV}_3lights", ref, {"heightfield": imgs["heightfield"]},
+                                              c.mask)
             rows[str(k)] = row
             log(f"  a {t}/{LIGHT_ENV} + {k} lights: heightfield NRMSE {row['heightfield']['nrmse']:.4f}, "
                 f"unshadowed lights {row['unshadowed']['nrmse']:.4f}" + (
@@ -479,10 +413,10 @@ def exp_a(run: Runner) -> dict:
     img, _ = run.shade(c, "heightfield", lights=1)
     inside = np.linalg.norm(c.gbuffer.read("position")[..., :3] - np.array(c.lights[0][:3]), axis=-1) < c.lights[0][3]
     row = {"light": dict(zip(("x", "y", "z", "radius", "r", "g", "b"), c.lights[0])),
-           "heightfield": run.metrics(ref, img, c.mask),
-           "heightfield_outside_sphere": run.metrics(ref, img, c.mask & ~inside),
+           "heightfield": harness.metrics(ref, img, c.mask),
+           "heightfield_outside_sphere": harness.metrics(ref, img, c.mask & ~inside),
            "pixels_inside_sphere": int((c.mask & inside).sum())}
-    row["png"] = run.pngs("a_cones_circle_overcast_helper_light", ref, {"heightfield": img}, c.mask)
+    row["png"] = run.pictures.set("a_cones_circle_overcast_helper_light", ref, {"heightfield": img}, c.mask)
     out["helper_light"] = row
     log(f"  a cones_circle + cones_circle_light() defaults: NRMSE {row['heightfield']['nrmse']:.4f}, outside the "
         f"sphere {row['heightfield_outside_sphere']['nrmse']:.4f} ({row['pixels_inside_sphere']} pixels inside)")
@@ -517,32 +451,29 @@ def cone_face_check(run: Runner, c: Case, exact: dict, pyramid: dict | None = No
     return out
 
 
-def sweep_settings(run: Runner) -> list[tuple[str, dict]]:
+def sweep_settings(run: Runner) -> tuple[Variant, ...]:
     if run.quick:
-        s = [("level_step", {"level_step": v}) for v in (1, 4)] + [("azimuths", {"azimuths": v}) for v in (8, 32)]
-        s += [("bands", {"bands": v}) for v in (3, 6)] + [("exact_unoccluded", {"exact_unoccluded": 0})]
-        return s
-    s = [("level_step", {"level_step": v}) for v in (1, 2, 3, 4)]
-    s += [("azimuths", {"azimuths": v}) for v in (8, 16, 32, 64)]
-    s += [("bands", {"bands": v}) for v in (3, 4, 5, 6)]
-    s += [("level_offset", {"level_offset": float(v)}) for v in (0, 1, 2, 3, 4)]
-    s += [("exact_unoccluded", {"exact_unoccluded": v}) for v in (0, 1)]
+        return (settings("level_step", (1, 4)) + settings("azimuths", (8, 32)) + settings("bands", (3, 6))
+                + settings("exact_unoccluded", (0,)))
+    s = settings("level_step", (1, 2, 3, 4)) + settings("azimuths", (8, 16, 32, 64)) + settings("bands", (3, 4, 5, 6))
+    s += settings("level_offset", (0.0, 1.0, 2.0, 3.0, 4.0)) + settings("exact_unoccluded", (0, 1))
     if run.has("sun_threshold"):
-        s += [("sun_threshold", {"sun_threshold": 0.0})]
+        s += settings("sun_threshold", (0.0,))
     if run.has("reconstruction"):
-        s += [("reconstruction", {"reconstruction": 1})]
+        s += settings("reconstruction", (1,))
     return s
 
 
 def exp_b(run: Runner) -> dict:
     cases = [run.case("fbm", "overcast"), run.case("fbm", "sunny"), run.case("city_blocks", "sunny")]
     refs = {c.label(): run.reference(c)[0] for c in cases}
-    settings = sweep_settings(run)
+    sweep = sweep_settings(run)
     out = {"cases": {c.label(): {"rows": []} for c in cases}, "defaults": run.params}
-    for group, params in settings:
+    for v in sweep:
+        params = v.params
         for c in cases:  # one renderer per setting, both fbm cases and the city under it
             img, s = run.shade(c, "heightfield", params)
-            row = {"group": group, "params": params, "seconds": s, **run.metrics(refs[c.label()], img, c.mask)}
+            row = {"group": v.group, "params": params, "seconds": s, **harness.metrics(refs[c.label()], img, c.mask)}
             out["cases"][c.label()]["rows"].append(row)
         log(f"  b {fmt_params(params)}: " + ", ".join(
             f"{c.label()} {out['cases'][c.label()]['rows'][-1]['nrmse']:.4f}" for c in cases))
@@ -550,17 +481,18 @@ def exp_b(run: Runner) -> dict:
     c = run.case("cones_circle", LIGHT_ENV)
     ref_l = run.light_reference(c, 1)
     ref = run.reference(c)[0] + ref_l
-    seed = [("level_step", {"level_step": v}) for v in ((1, 4) if run.quick else (1, 2, 3, 4))]
-    seed += [("azimuths", {"azimuths": v}) for v in ((8, 32) if run.quick else (8, 12, 16, 24, 32))]
+    seed = settings("level_step", (1, 4) if run.quick else (1, 2, 3, 4))
+    seed += settings("azimuths", (8, 32) if run.quick else (8, 12, 16, 24, 32))
     modes = [1, 0] if run.has("light_visibility") else [None]
     rows = []
     for mode in modes:
-        for group, params in seed:
-            p = dict(params) if mode is None else dict(params, light_visibility=mode)
+        for v in seed:
+            group = v.group
+            p = dict(v.params) if mode is None else dict(v.params, light_visibility=mode)
             img0, _ = run.shade(c, "heightfield", p, lights=0)
             img, s = run.shade(c, "heightfield", p, lights=1)
-            row = {"group": group, "params": p, "seconds": s, **run.metrics(ref, img, c.mask),
-                   "light_part": run.metrics(ref_l, img - img0, c.terrain_mask)}
+            row = {"group": group, "params": p, "seconds": s, **harness.metrics(ref, img, c.mask),
+                   "light_part": harness.metrics(ref_l, img - img0, c.terrain_mask)}
             rows.append(row)
             log(f"  b cones_circle + light {fmt_params(p)}: NRMSE {row['nrmse']:.4f}, light part "
                 f"{row['light_part']['nrmse']:.4f} (rel RMS {row['light_part']['rel_rms']:.4f})")
@@ -576,42 +508,35 @@ def exp_c(run: Runner) -> dict:
     refs = {c.label(): run.reference(c)[0] for c in cases}
     bands = (4,) if run.quick else (3, 4, 5, 6)
     az_exact = 32 if run.quick else 64
-    settings = [("exact", b, {"exact_horizon": 1, "azimuths": az_exact, "bands": b}) for b in bands]
-    settings += [("pyramid", b, {"bands": b}) for b in bands]
+    exact = {"exact_horizon": 1, "azimuths": az_exact}
+    modes = tuple(Variant("exact", {**exact, "bands": b}) for b in bands)
+    modes += tuple(Variant("pyramid", {"bands": b}) for b in bands)
     if not run.quick:
-        settings += [("exact", 4, {"exact_horizon": 1, "azimuths": 128, "bands": 4}),
-                     ("pyramid", 4, {"azimuths": 64, "bands": 4})]
+        modes += (Variant("exact", {"exact_horizon": 1, "azimuths": 128, "bands": 4}),
+                  Variant("pyramid", {"azimuths": 64, "bands": 4}))
         if run.has("sun_threshold"):
-            settings += [("exact", 4, {"exact_horizon": 1, "azimuths": az_exact, "bands": 4, "sun_threshold": 0.0}),
-                         ("exact", 6, {"exact_horizon": 1, "azimuths": az_exact, "bands": 6, "sun_threshold": 0.0}),
-                         ("pyramid", 4, {"bands": 4, "sun_threshold": 0.0})]
-        settings += [("exact", 4, {"exact_horizon": 1, "azimuths": az_exact, "bands": 4, "exact_unoccluded": 0})]
+            modes += (Variant("exact", {**exact, "bands": 4, "sun_threshold": 0.0}),
+                      Variant("exact", {**exact, "bands": 6, "sun_threshold": 0.0}),
+                      Variant("pyramid", {"bands": 4, "sun_threshold": 0.0}))
+        modes += (Variant("exact", {**exact, "bands": 4, "exact_unoccluded": 0}),)
     out = {"cases": {}}
     for c in cases:
         un, _ = run.shade(c, "unshadowed")
-        out["cases"][c.label()] = {"unshadowed": run.metrics(refs[c.label()], un, c.mask), "rows": []}
-    for mode, b, params in settings:
+        out["cases"][c.label()] = {"unshadowed": harness.metrics(refs[c.label()], un, c.mask), "rows": []}
+    for v in modes:
+        mode, params = v.label, v.params
         for c in cases:
             img, s = run.shade(c, "heightfield", params)
-            row = {"mode": mode, "bands": b, "params": params, "seconds": s, **run.metrics(refs[c.label()], img, c.mask)}
+            row = {"mode": mode, "bands": params["bands"], "params": params, "seconds": s,
+                   **harness.metrics(refs[c.label()], img, c.mask)}
             out["cases"][c.label()]["rows"].append(row)
             if c.terrain == "fbm" and c.env_name == "sunny" and params in (
                     {"exact_horizon": 1, "azimuths": az_exact, "bands": 4}, {"bands": 4}):
-                row["png"] = run.pngs("c_fbm_sunny", refs[c.label()], {mode: img}, c.mask, errors_only=(mode,),
+                row["png"] = run.pictures.set("c_fbm_sunny", refs[c.label()], {mode: img}, c.mask, errors_only=(mode,),
                                       reference=False)
         log(f"  c {fmt_params(params)}: " + ", ".join(
             f"{c.label()} {out['cases'][c.label()]['rows'][-1]['nrmse']:.4f}" for c in cases))
     return out
-
-
-def _median_ms(fn, runs: int, ctx) -> tuple[float, list[float]]:
-    times = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        fn()
-        ctx.finish()
-        times.append(1000.0 * (time.perf_counter() - t0))
-    return statistics.median(times), times
 
 
 def speed_case(run: Runner, n: int, res: int) -> Case:
@@ -642,7 +567,7 @@ def exp_d(run: Runner) -> dict:
         h0 = c.field.heights
         h1 = (h0 * np.float32(0.999)).astype(np.float32)
         floor = Renderer(ctx, "floor")
-        floor_ms, _ = _median_ms(lambda: floor.execute(c.scene, c.gbuffer, c.image), runs + 1, ctx)
+        floor_ms, _ = median_ms(lambda: floor.execute(c.scene, c.gbuffer, c.image), runs + 1, ctx.finish)
         for params in settings:
             r = Renderer(ctx, "heightfield", background=0, **params)
             c.set_lights(0)
@@ -653,7 +578,7 @@ def exp_d(run: Runner) -> dict:
             ex = lambda: r.execute(c.scene, c.gbuffer, c.image)  # noqa: E731
             ex()
             ctx.finish()
-            env_ms, env_all = _median_ms(ex, runs, ctx)
+            env_ms, env_all = median_ms(ex, runs, ctx.finish)
             changed = []
             for k in range(runs + 1):
                 c.handle.set_heights(h1 if k % 2 == 0 else h0)  # a new frame of a dynamic terrain
@@ -670,7 +595,7 @@ def exp_d(run: Runner) -> dict:
             # minus the same read-back on an unchanged field.
             read = lambda: r.read_heightfield(c.scene, "normals")  # noqa: E731
             read()
-            read_ms, _ = _median_ms(read, runs, ctx)
+            read_ms, _ = median_ms(read, runs, ctx.finish)
             direct, upload = [], []
             for k in range(runs + 1):
                 t0 = time.perf_counter()
@@ -689,7 +614,7 @@ def exp_d(run: Runner) -> dict:
                 c.set_lights(k)
                 ex()
                 ctx.finish()
-                light[k], _ = _median_ms(ex, runs, ctx)
+                light[k], _ = median_ms(ex, runs, ctx.finish)
             c.set_lights(0)
             row = {"size": n, "params": params, "setup_ms": setup_ms, "frame_env_ms": env_ms, "frame_env_all": env_all,
                    "frame_changed_ms": changed_ms, "pyramid_ms": changed_ms - env_ms,
@@ -737,31 +662,16 @@ def exp_d(run: Runner) -> dict:
     return out
 
 
-RUNNERS = {"a": exp_a, "b": exp_b, "c": exp_c, "d": exp_d}
-
-
 # --------------------------------------------------------------------------- #
 # Report
 # --------------------------------------------------------------------------- #
-
-def machine() -> dict:
-    dirty = [line[3:] for line in git("status", "--porcelain", "--", "kernels", "capi").splitlines() if line.strip()]
-    return {**_machine(penumbra.__version__), "uncommitted_kernels_capi": dirty,
-            "heightfield_cl_sha": hashlib.sha256((REPO / "kernels" / "heightfield.cl").read_bytes()).hexdigest()[:12]}
-
-
-def _img(label: str, path: str | None) -> str:
-    return f"[{label}]({path})" if path else ""
-
 
 def report(results: dict) -> str:
     meta = results["meta"]
     ex = results["experiments"]
     m = meta["machine"]
     L = ["# heightfield experiments (after the seed's chapter 6)", ""]
-    L.append(f"Generated by `bench/heightfield_experiments.py{' --quick' if meta.get('quick') else ''}` on "
-             f"{meta['date']}. Device: {meta['device']} ({m['cpu']}, {m['cores']} cores, PoCL; shared with other "
-             f"work, so timings are noisy). penumbra {m['penumbra']}, git {m['git_head']}"
+    L.append(harness.generated_by(meta, SCRIPT, "shared with other work, so timings are noisy")
              + (f" plus uncommitted changes to {', '.join(m['uncommitted_kernels_capi'])}"
                 if m.get("uncommitted_kernels_capi") else "")
              + f" (kernels/heightfield.cl sha256 {m['heightfield_cl_sha']}...). Total run time "
@@ -932,38 +842,31 @@ def report(results: dict) -> str:
     return "\n".join(L)
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="smoke run: 65^2 fields, 64^2 images, few settings")
-    ap.add_argument("--out", default=str(REPO / "bench" / "results" / "heightfield"))
-    ap.add_argument("--only", default="", help=f"comma-separated experiments ({','.join(EXPERIMENTS)})")
-    ap.add_argument("--report-only", action="store_true", help="rewrite report.md from results.json")
-    args = ap.parse_args(argv)
-    only = [s.strip() for s in args.only.split(",") if s.strip()] or list(EXPERIMENTS)
-    for s in only:
-        if s not in RUNNERS:
-            ap.error(f"unknown experiment {s!r} (one of {', '.join(EXPERIMENTS)})")
-    lib = library_in_use(list((REPO / "kernels").rglob("*.cl")) + list((REPO / "capi" / "src").glob("*.[ch]")))
-    if args.report_only:
-        return rewrite_report(Path(args.out) / ("quick" if args.quick else ""), report, atomic_write_text)
-    run = Runner(args)
-    path = run.out / "results.json"
-    results = json.loads(path.read_text()) if path.exists() else {"experiments": {}}
-    results["meta"] = {"date": _dt.date.today().isoformat(), "device": run.ctx.device_name, "machine": machine(),
-                       "quick": args.quick, "field": run.n, "resolution": run.res, "reference": run.ref_params,
-                       "light_reference": run.light_ref_params, "heightfield_defaults": run.params,
-                       "library": str(lib) if lib else None}
-    for s in only:
-        log(f"experiment {s}: {TITLES[s]}")
-        t0 = time.perf_counter()
-        results["experiments"][s] = RUNNERS[s](run)
-        results["experiments"][s]["seconds"] = time.perf_counter() - t0
-        results["experiments"][s]["heightfield_cl_sha"] = results["meta"]["machine"]["heightfield_cl_sha"]
-        atomic_write_text(path, json.dumps(results, indent=1, default=float))
-        atomic_write_text(run.out / "report.md", report(results))
-        log(f"experiment {s} done in {time.perf_counter() - t0:.0f} s")
-    return 0
+EXPERIMENTS = (
+    Experiment("a", "terrains x env maps, and env + spherical lights", exp_a),
+    Experiment("b", "parameter sweeps", exp_b),
+    Experiment("c", "error split: SH truncation (exact horizons) against the horizon approximation (pyramid)",
+               exp_c),
+    Experiment("d", "speed per pass against the floor kernel and the seed's GPU", exp_d),
+)
+TITLES = {e.key: e.title for e in EXPERIMENTS}
 
+
+def machine() -> dict:
+    return {"uncommitted_kernels_capi": harness.uncommitted("kernels", "capi"),
+            "heightfield_cl_sha": harness.sha(REPO / "kernels" / "heightfield.cl", 12)}
+
+
+def meta(run: Runner) -> dict:
+    return {"quick": run.quick, "field": run.n, "resolution": run.res, "reference": run.ref_params,
+            "light_reference": run.light_ref_params, "heightfield_defaults": run.params,
+            "library": str(run.library) if run.library else None}
+
+
+SUITE = Suite(script=SCRIPT, description=__doc__, experiments=EXPERIMENTS,
+              runner=Runner, report=report, default_out="bench/results/heightfield", meta=meta,
+              stamp=lambda m: {"heightfield_cl_sha": m["machine"]["heightfield_cl_sha"]}, machine=machine,
+              quick_help="smoke run: 65^2 fields, 64^2 images, few settings")
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(harness.main(SUITE))

@@ -133,8 +133,9 @@ PN_API pn_status pn_context_get_device_name(pn_context ctx, char *name, size_t s
 /* Waits for all work queued by penumbra on this context. */
 PN_API pn_status pn_context_finish(pn_context ctx);
 
-/* Builds (once, then cached in the context) the program of one kernel stage:
- * "envmap", "raycast", "unshadowed". Building is otherwise lazy; this lets a
+/* Builds (once, then cached in the context) the program of one kernel stage,
+ * a top-level file kernels/<stage>.cl: "envmap", "raycast", "fiv_bake" and
+ * every method's stage (pn_method_info.stage). Building is otherwise lazy; this lets a
  * caller pay the cost up front. A failed build returns PN_ERROR_BUILD_FAILED
  * with the compiler log in the message. */
 PN_API pn_status pn_context_build_program(pn_context ctx, const char *stage);
