@@ -174,3 +174,18 @@ def test_attachments_follow_their_instances(ctx):
     scene.attach(inst, field)
     scene.remove(inst)
     assert scene.attachment(inst, HeightFieldHandle) is None
+
+
+def test_fiv_fields_attach_by_mesh(ctx):
+    from penumbra.methods.fiv import FivField, FivOptions, attach_by_mesh
+
+    env = penumbra.EnvMap(ctx, procedural.constant(1.0, 16, 8), face_size=8, irradiance_face_size=8)
+    s, b = procedural.sphere(subdivisions=1), procedural.box()
+    sphere, box = penumbra.Mesh(ctx, s.vertices, s.faces), penumbra.Mesh(ctx, b.vertices, b.faces)
+    field = FivField.bake(env, sphere, FivOptions(samples=(5, 8, 3), face_size=4, sun_supersampling=1))
+    scene = penumbra.Scene(ctx)
+    ids = [scene.add(sphere), scene.add(box), scene.add(sphere)]
+    attach_by_mesh(scene, [field])
+    assert [scene.attachment(i, FivField) is field for i in ids] == [True, False, True]
+    attach_by_mesh(scene, [])
+    assert all(scene.attachment(i, FivField) is None for i in ids)

@@ -445,6 +445,20 @@ def attach_fields(built, overrides: dict | None = None, bake_progress=None) -> l
     return records
 
 
+def attach_by_mesh(scene, fields: Sequence[FivField]) -> None:
+    """Attaches each field to every instance of ``scene`` (added through it)
+    whose mesh has the field's mesh hash, and detaches occlusion fields from
+    the others: one call for scenes whose instances of a mesh all occlude.
+    Takes effect at the next commit."""
+    by_hash = {f.info()["mesh_hash"]: f for f in fields}
+    for instance, mesh in list(scene._keep.items()):
+        f = by_hash.get(mesh_hash(mesh))
+        if f is not None:
+            scene.attach(instance, f)
+        elif scene.attachment(instance, FivField) is not None:
+            scene.detach(instance, scene.attachment(instance, FivField))
+
+
 def _kib(n: int) -> str:
     return f"{n / 1024:.1f} KiB" if n < 1 << 20 else f"{n / (1 << 20):.1f} MiB"
 
