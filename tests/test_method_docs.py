@@ -8,7 +8,8 @@ method (``#### `[render]` keys by method``). The tables' format:
     |---|---|---|---|---|---|---|
     | `overlap` | int | frame | 1 | [0, 2] |  | Several occluders: ... |
 
-one row per parameter in the library's order; ``name`` in backticks, ``type``
+one row per parameter in the library's order (a method without parameters may
+have no table); ``name`` in backticks, ``type``
 int/float, ``stage`` frame/plan/bake, ``default`` and ``range`` ("[min, max]",
 inclusive) as numbers (compared by value), ``unit`` the library's (empty when
 it has none), ``meaning`` its doc sentence verbatim. ``penumbra methods
@@ -68,6 +69,8 @@ def _same(a: float, b: float) -> bool:
 
 
 def check_param_table(table: list[str] | None, params, where: str) -> None:
+    if table is None and not params:  # a method without parameters may say so in words
+        return
     assert table is not None, f"{where}: no table"
     assert " ".join(table[0].split()) == PARAM_TABLE_HEADER, f"{where}: header {table[0]!r}"
     rows = [_cells(r) for r in table[2:]]
