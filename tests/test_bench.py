@@ -12,11 +12,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from penumbra.bench import (PAPER_FPS, README_BEGIN, README_END, README_FIV, README_HEADER, RESULT_KEYS, SWEEPS,
-                            BenchOptions, _mitsuba_time_at, fiv_scaling, fiv_scaling_scene, readme_row, run,
-                            update_readme)
+from penumbra import methods
+from penumbra.bench import (README_BEGIN, README_END, RESULT_KEYS, BenchOptions, _mitsuba_time_at, default_sweeps,
+                            readme_header, readme_row, run, update_readme)
 from penumbra.cli import main
 from penumbra.errors import InputError
+from penumbra.scenefile import parse_scene
+from penumbra.methods.fiv import PAPER_FPS, fiv_scaling, fiv_scaling_scene
+
+README_FIV = methods.technique("fiv").readme_setting
+SWEEPS = default_sweeps()
+README_HEADER = readme_header()
 
 REPO = Path(__file__).resolve().parents[1]
 SCENE = REPO / "bench" / "scenes" / "bunny_sunny.toml"
@@ -113,7 +119,8 @@ def test_bench_sweeps_fiv(tiny_bench):
 
 
 def test_default_sweeps_include_fiv():
-    assert "fiv" in BenchOptions().methods and "fiv" in SWEEPS
+    assert "fiv" in methods.applicable(parse_scene({"object": [{"mesh": "m.obj"}]})) and "fiv" in SWEEPS
+    assert "fiv" not in methods.applicable(parse_scene({})) and "floor" not in SWEEPS
     grids = [p["samples"] for p in SWEEPS["fiv"]]
     assert [32, 17, 15] in grids and [64, 33, 30] in grids and README_FIV in SWEEPS["fiv"]
     assert {p.get("overlap", 1) for p in SWEEPS["fiv"]} == {0, 1, 2}

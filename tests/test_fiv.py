@@ -25,10 +25,10 @@ from geometry64 import cast, unit
 from tolerances import (FIV_BAKE_ATOL, FIV_CONTINUITY_ATOL, FIV_FALLOFF_RTOL, FIV_MONOTONE_ATOL,
                         FIV_OVERLAP_INCREASE_MAX, FIV_SCALED_INSTANCE_ATOL, FIV_SHADE_ATOL, IRRADIANCE_RTOL)
 
+from penumbra.methods.fiv import read_header
 from penumbra import (BACKGROUND, EnvMap, FivField, FivOptions, GBuffer, Image, InputError, Mesh, PenumbraError,
                       Renderer, Scene, procedural)
 from penumbra import _native
-from penumbra.fiv import set_scene_fields
 
 GRID = (9, 16, 6)  # theta, phi, radii
 OPTS32 = FivOptions(samples=GRID, face_size=8, sun_supersampling=1, precision="float32")
@@ -97,7 +97,7 @@ class FivScene:
         self.instances = []  # (field, transform, id)
         for field, mesh, xf in instances:
             self.instances.append((field, xf, self.scene.add(mesh, xf)))
-        set_scene_fields(self.scene, list({id(f): f for f, _, _ in instances}.values()))
+            self.scene.attach(self.instances[-1][2], field)
         self.scene.commit()
         self.pos, self.nrm, self.inst = gb_planes
         self.albedo = albedo
@@ -407,7 +407,10 @@ def test_save_load_roundtrip_and_header(ctx, env, meshes, tmp_path, precision):
     for k in ("samples", "centre", "radius", "inner", "outer", "mesh_hash", "env_hash", "inside_count", "precision",
               "face_size", "sun_supersampling", "sun_threshold", "inner_radius", "error_target", "stored_bytes"):
         assert a[k] == b[k], k
-    assert b["rays"] == 0 and a["rays"] > 0
+    # The bake's rays and time are recorded in the file, and the header reads without a context.
+    assert b["rays"] == a["rays"] > 0 and b["bake_seconds"] == pytest.approx(a["bake_seconds"]) and a["bake_seconds"] > 0
+    head = read_header(path)
+    assert {k: head[k] for k in a} == b and head["radii_done"] == GRID[2]
     raw = path.read_bytes()
     h = raw[:256]
     assert h[:8] == b"PNFIV\0\r\n"
@@ -494,7 +497,7 @@ def test_foreign_checkpoint_is_left_alone(ctx, env, meshes, saved, other):
 def test_finished_checkpoint_is_loaded(ctx, env, meshes, fields, saved):
     calls = []
     g = FivField.bake(env, meshes["box"][1], OPTS32, path=saved, progress=lambda d, t: calls.append(d))
-    assert calls == [] and g.info()["rays"] == 0
+    assert calls == [] and not g.baked_now and g.info()["rays"] == fields["box"].info()["rays"] > 0
     assert np.array_equal(g.samples(), fields["box"].samples(), equal_nan=True)
 
 
@@ -783,9 +786,8 @@ def test_black_env(ctx, meshes, shade_scene):
     ss = shade_scene
     scene = Scene(ctx)
     scene.set_envmap(black)
-    scene.add(meshes["sphere"][1], translate((0, 0.6, 0)))
-    scene.add(meshes["sphere"][1], translate((0.5, 0.7, 0.3)))
-    set_scene_fields(scene, [field])
+    for where in ((0, 0.6, 0), (0.5, 0.7, 0.3)):
+        scene.attach(scene.add(meshes["sphere"][1], translate(where)), field)
     scene.commit()
     for overlap in (0, 1, 2):
         got = render(ctx, scene, ss.gb, overlap=overlap)
@@ -885,12 +887,11 @@ def monotonicity_runs(ctx, env, meshes, fields, configs=20):
         where = np.stack([rng.uniform(-1.5, 1.5, 4), rng.uniform(0.2, 1.4, 4), rng.uniform(-1.5, 1.5, 4)], -1)
         scene = Scene(ctx)
         scene.set_envmap(env)
-        set_scene_fields(scene, [fields["sphere"], fields["box"]])
         scene.commit()
         e0 = render(ctx, scene, gb, "unshadowed")[..., :3]
         imgs = {m: [render(ctx, scene, gb, overlap=m)[..., :3]] for m in out}
         for k in range(4):
-            scene.add(meshes[kinds[k]][1], translate(where[k], scales[k]))
+            scene.attach(scene.add(meshes[kinds[k]][1], translate(where[k], scales[k])), fields[kinds[k]])
             scene.commit()
             for m in out:
                 imgs[m].append(render(ctx, scene, gb, overlap=m)[..., :3])
@@ -944,8 +945,7 @@ def test_rotated_instance_is_refused(ctx, env, meshes, fields, shade_scene):
                          (np.diag([1.0, 2.0, 1.0]), "uneven scale")):
         scene = Scene(ctx)
         scene.set_envmap(env)
-        scene.add(meshes["box"][1], np.hstack([linear, [[0.0], [0.6], [0.0]]]))
-        set_scene_fields(scene, [fields["box"]])
+        scene.attach(scene.add(meshes["box"][1], np.hstack([linear, [[0.0], [0.6], [0.0]]])), fields["box"])
         scene.commit()
         with pytest.raises(PenumbraError, match="rotat") as info:
             render(ctx, scene, shade_scene.gb)
@@ -963,13 +963,11 @@ def test_scaled_instance_equals_the_scaled_bake(ctx, env, shade_scene):
     t = np.array([0.3, 0.4, -0.2])
     a = Scene(ctx)
     a.set_envmap(env)
-    a.add(small, translate(t, 1.7))
-    set_scene_fields(a, [f_small])
+    a.attach(a.add(small, translate(t, 1.7)), f_small)
     a.commit()
     b = Scene(ctx)
     b.set_envmap(env)
-    b.add(big, translate(t))
-    set_scene_fields(b, [f_big])
+    b.attach(b.add(big, translate(t)), f_big)
     b.commit()
     gb = shade_scene.gb
     fg = shade_scene.inst == 1000

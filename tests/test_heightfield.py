@@ -12,7 +12,7 @@ import pytest
 
 import penumbra as pn
 from penumbra import procedural
-from penumbra.core import HeightFieldHandle, set_scene_heightfields
+from penumbra.methods.heightfield import HeightFieldHandle
 from penumbra.errors import InputError
 from penumbra.heightfield import make_terrain
 from penumbra.imageio import read_envmap
@@ -34,7 +34,7 @@ class Rig:
         self.scene = pn.Scene(ctx)
         self.scene.set_envmap(env)
         self.instance = self.scene.add(self.mesh, None, pn.Material(albedo=(1.0, 1.0, 1.0)))
-        set_scene_heightfields(self.scene, [(self.field, self.instance)])
+        self.scene.attach(self.instance, self.field)
         if lights:
             self.scene.set_lights(lights)
         self.camera = camera
@@ -43,7 +43,7 @@ class Rig:
         self.scene.commit()
 
     def read(self, what="env", light=0, **params):
-        return pn.Renderer(self.ctx, "heightfield", **params).read_heightfield(self.scene, what, light=light)
+        return pn.Renderer(self.ctx, "heightfield", **params).read_output(self.scene, what, self.instance, light)
 
     def image(self, method, **params):
         w, h = self.camera.resolution
@@ -268,7 +268,7 @@ def test_method_without_height_fields_is_an_error(ctx, sky_env):
     scene.commit()
     gb, img = pn.GBuffer(ctx, 8, 8), pn.Image(ctx, 8, 8)
     scene.render_gbuffer(gb)
-    with pytest.raises(pn.PenumbraError, match="no height fields"):
+    with pytest.raises(pn.PenumbraError, match="no height field"):
         pn.Renderer(ctx, "heightfield").execute(scene, gb, img)
 
 
@@ -300,11 +300,11 @@ def test_new_heights_rebuild_the_pyramid(ctx, sky_env):
     b = make_terrain("egg_tray", 20, 20)
     rig = Rig(ctx, a, sky_env, height_scale=3.0)
     renderer = pn.Renderer(ctx, "heightfield")
-    first = renderer.read_heightfield(rig.scene, "env")
+    first = renderer.read_output(rig.scene, "env", rig.instance)
     rig.field.set_heights(b)
-    second = renderer.read_heightfield(rig.scene, "env")
+    second = renderer.read_output(rig.scene, "env", rig.instance)
     rig.field.set_heights(a)
-    third = renderer.read_heightfield(rig.scene, "env")
+    third = renderer.read_output(rig.scene, "env", rig.instance)
     assert np.abs(first - second).max() > 0.05 * first.max()
     np.testing.assert_array_equal(first, third)
 

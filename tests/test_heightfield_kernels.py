@@ -21,7 +21,7 @@ import pytest
 
 import penumbra as pn
 from penumbra import procedural
-from penumbra.core import HeightFieldHandle, set_scene_heightfields
+from penumbra.methods.heightfield import HeightFieldHandle
 from penumbra.heightfield import make_terrain
 
 HORIZON_ATOL = 3e-5
@@ -39,8 +39,8 @@ class Case:
         self.field = HeightFieldHandle(ctx, self.heights, origin=origin, size=size, height_scale=height_scale)
         self.scene = pn.Scene(ctx)
         self.scene.set_envmap(env)
-        inst = self.scene.add(self.field.mesh())
-        set_scene_heightfields(self.scene, [(self.field, inst)])
+        self.instance = self.scene.add(self.field.mesh())
+        self.scene.attach(self.instance, self.field)
         if lights:
             self.scene.set_lights([[*c, r, *le] for c, r, le in lights])
         self.scene.commit()
@@ -48,7 +48,7 @@ class Case:
         self.H = height_scale * self.heights.astype(np.float64)
 
     def read(self, what, light=0, **params):
-        return pn.Renderer(self.ctx, "heightfield", **params).read_heightfield(self.scene, what, light=light)
+        return pn.Renderer(self.ctx, "heightfield", **params).read_output(self.scene, what, self.instance, light)
 
     def light_xz(self, k):
         c = self.lights[k][0]
@@ -288,7 +288,7 @@ def test_light_pass_horizon_test(case, light):
 
 def test_total_is_env_plus_lights(case):
     r = pn.Renderer(case.ctx, "heightfield")
-    total = r.read_heightfield(case.scene, "total")[..., :3]
-    parts = r.read_heightfield(case.scene, "env")[..., :3] + sum(
-        r.read_heightfield(case.scene, "light", light=k)[..., :3] for k in range(2))
+    total = r.read_output(case.scene, "total", case.instance)[..., :3]
+    parts = r.read_output(case.scene, "env", case.instance)[..., :3] + sum(
+        r.read_output(case.scene, "light", case.instance, k)[..., :3] for k in range(2))
     np.testing.assert_allclose(total, parts, rtol=1e-6, atol=1e-7)

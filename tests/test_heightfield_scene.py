@@ -27,13 +27,26 @@ from penumbra.heightfield import (
     sine_grating,
     terrain_parameters,
 )
-from penumbra.scenefile import HeightfieldDesc, apply_overrides, load_scene, parse_scene
+from heightfield64 import vertex_normals
+from penumbra.meshio import Mesh
+from penumbra.methods.heightfield import HeightfieldDesc, HeightFieldHandle
+from penumbra.scenefile import apply_overrides, load_scene, parse_scene
 
 RNG = np.random.default_rng(1234)
 
 
 def random_field(width=5, depth=3, **kw) -> HeightField:
     return HeightField(RNG.random((depth, width)), **kw)
+
+
+def library_mesh(ctx, hf: HeightField) -> Mesh:
+    """The library's triangle mesh of ``hf`` (pn_heightfield_build_mesh), read back."""
+    native = HeightFieldHandle(ctx, hf.heights, origin=hf.origin, size=hf.size, height_scale=hf.height_scale)
+    return Mesh(*native.mesh().geometry())
+
+
+def library_normals(ctx, hf: HeightField) -> np.ndarray:
+    return library_mesh(ctx, hf).normals
 
 
 def triangle_normals(mesh) -> np.ndarray:
@@ -138,9 +151,9 @@ def test_spacing_world_heights_and_bounds():
 
 
 @pytest.mark.parametrize("width, depth", [(5, 3), (2, 2), (3, 7), (8, 8)])
-def test_mesh_vertices_follow_the_placement(width, depth):
+def test_mesh_vertices_follow_the_placement(ctx, width, depth):
     hf = random_field(width, depth, origin=(-1.5, 0.25, 2.0), size=(3.0, 4.5), height_scale=1.7)
-    mesh = hf.to_mesh()
+    mesh = library_mesh(ctx, hf)
     assert mesh.num_vertices == width * depth
     sx, sz = 3.0 / (width - 1), 4.5 / (depth - 1)
     for j in range(depth):
@@ -150,9 +163,9 @@ def test_mesh_vertices_follow_the_placement(width, depth):
 
 
 @pytest.mark.parametrize("width, depth", [(5, 3), (2, 2), (3, 7)])
-def test_mesh_triangles_tile_the_grid_facing_up(width, depth):
+def test_mesh_triangles_tile_the_grid_facing_up(ctx, width, depth):
     hf = random_field(width, depth, size=(2.0, 3.0), height_scale=3.0)
-    mesh = hf.to_mesh()
+    mesh = library_mesh(ctx, hf)
     assert mesh.num_faces == 2 * (width - 1) * (depth - 1)
     assert set(mesh.faces.ravel().tolist()) == set(range(width * depth))
     n = triangle_normals(mesh)
@@ -168,9 +181,9 @@ def test_mesh_triangles_tile_the_grid_facing_up(width, depth):
         assert set(tris.ravel().tolist()) == corners
 
 
-def test_flat_field_triangles_and_vertex_normals_point_up():
+def test_flat_field_triangles_and_vertex_normals_point_up(ctx):
     hf = HeightField(np.full((4, 7), 0.3), origin=(0, -1, 0), size=(6, 3), height_scale=5)
-    mesh = hf.to_mesh()
+    mesh = library_mesh(ctx, hf)
     n = triangle_normals(mesh)
     np.testing.assert_allclose(n / np.linalg.norm(n, axis=1, keepdims=True), np.tile([0, 1, 0], (len(n), 1)),
                                atol=1e-7)
@@ -178,10 +191,12 @@ def test_flat_field_triangles_and_vertex_normals_point_up():
     np.testing.assert_allclose(mesh.vertices[:, 1], -1 + 5 * 0.3, rtol=1e-6)
 
 
-def test_mesh_normals_are_the_vertex_normals_and_agree_with_the_triangles():
+def test_mesh_normals_are_the_vertex_normals_and_agree_with_the_triangles(ctx):
     hf = HeightField(make_terrain("fbm", 21, 13, seed=3), size=(4, 2.4), height_scale=0.3)
-    mesh = hf.to_mesh()
-    np.testing.assert_array_equal(mesh.normals, hf.vertex_normals())
+    mesh = library_mesh(ctx, hf)
+    # The normals are normalize(-dH/dx, 1, -dH/dz) by central differences (tests/heightfield64.py).
+    want = vertex_normals(hf.world_heights, *hf.spacing).reshape(-1, 3)
+    np.testing.assert_allclose(mesh.normals, want, atol=2e-6)
     np.testing.assert_allclose(np.linalg.norm(mesh.normals, axis=1), 1, rtol=1e-6)
     # The area-weighted triangle normals around an interior vertex lean the same way as its normal.
     n = triangle_normals(mesh)
@@ -193,7 +208,7 @@ def test_mesh_normals_are_the_vertex_normals_and_agree_with_the_triangles():
 
 
 @pytest.mark.parametrize("axis", ["x", "z"])
-def test_normals_on_a_plane_slope_account_for_spacing_and_scale(axis):
+def test_normals_on_a_plane_slope_account_for_spacing_and_scale(ctx, axis):
     width, depth, a, scale = 6, 4, 0.3, 2.5
     size = (7.5, 1.5)  # sx = 1.5, sz = 0.5
     i = np.arange(width)[None, :] * np.ones((depth, 1))
@@ -203,21 +218,21 @@ def test_normals_on_a_plane_slope_account_for_spacing_and_scale(axis):
     slope = a * scale / (sx if axis == "x" else sz)  # dH/dx or dH/dz in world units
     expected = np.array([-slope, 1.0, 0.0] if axis == "x" else [0.0, 1.0, -slope])
     expected /= np.linalg.norm(expected)
-    np.testing.assert_allclose(hf.vertex_normals(), np.tile(expected, (width * depth, 1)), atol=1e-6)
+    np.testing.assert_allclose(library_normals(ctx, hf), np.tile(expected, (width * depth, 1)), atol=1e-6)
     # And the triangles of the mesh lie in that plane.
-    n = triangle_normals(hf.to_mesh())
+    n = triangle_normals(library_mesh(ctx, hf))
     np.testing.assert_allclose(n / np.linalg.norm(n, axis=1, keepdims=True), np.tile(expected, (len(n), 1)),
                                atol=1e-6)
 
 
-def test_normals_use_central_differences_inside_and_one_sided_on_the_border():
+def test_normals_use_central_differences_inside_and_one_sided_on_the_border(ctx):
     width, depth = 5, 3
     i = np.arange(width, dtype=np.float64)
     hf = HeightField(np.tile(i**2, (depth, 1)), size=(width - 1, 2.0))  # sx = 1, H = i^2
     dhdx = np.array([1.0, 2.0, 4.0, 6.0, 7.0])  # (1-0), central 2i, (16-9)
     expected = np.stack([-dhdx, np.ones(width), np.zeros(width)], axis=1)
     expected /= np.linalg.norm(expected, axis=1, keepdims=True)
-    for row in hf.vertex_normals().reshape(depth, width, 3):
+    for row in library_normals(ctx, hf).reshape(depth, width, 3):
         np.testing.assert_allclose(row, expected, atol=1e-6)
 
 
@@ -628,7 +643,7 @@ def test_set_overrides_address_height_fields_by_name_or_index(tmp_path):
                           "heightfield.0.params={ period = 0.5 }"])
     (h,) = s.heightfields
     assert h.height_scale == 3.0 and h.terrain == "egg_tray" and h.params == {"period": 0.5}
-    with pytest.raises(InputError, match="no height field named or numbered 'dunes'"):
+    with pytest.raises(InputError, match="no heightfield named or numbered 'dunes'"):
         apply_overrides({"heightfield": [{"terrain": "flat"}]}, ["heightfield.dunes.size=[1,1]"])
     with pytest.raises(InputError, match="heightfield.NAME_OR_INDEX.key"):
         apply_overrides({"heightfield": [{"terrain": "flat"}]}, ["heightfield.0=1"])

@@ -22,6 +22,7 @@ dr = pytest.importorskip("drjit")
 import penumbra  # noqa: E402
 from penumbra import mitsuba as pm  # noqa: E402
 from penumbra.brdf import brdf  # noqa: E402
+from penumbra.methods.heightfield import fields as heightfield_fields  # noqa: E402
 from penumbra.cli import main  # noqa: E402
 from penumbra.errors import InputError  # noqa: E402
 from penumbra.imageio import read_envmap  # noqa: E402
@@ -300,7 +301,7 @@ def test_heightfields_export_as_meshes(shared_data, tmp_path):
     image = pm.render(desc, 1024, emitter_samples=4, seed=5)
     built = build_scene(desc, penumbra.Context())
     ref = penumbra_render(built, "reference", frames=1, warmup=False, background=0, face_size=16)
-    _, bumps_id = built.heightfields["bumps"]
+    _, bumps_id = heightfield_fields(built)["bumps"]
     mask = ref.gbuffer["instance"] == bumps_id
     # Smooth bumps: Monte Carlo noise (about 0.011) and the reference's face 16 (0.005).
     assert mask.sum() > 200 and nrmse(image, ref.image[..., :3], mask) < 0.025
@@ -308,7 +309,7 @@ def test_heightfields_export_as_meshes(shared_data, tmp_path):
     data["heightfield"][1].pop("albedo_map")
     data["heightfield"][1]["albedo"] = rgb
     plain = pm.render(parse_scene(data), 1024, emitter_samples=4, seed=5)
-    _, mapped_id = built.heightfields["mapped"]
+    _, mapped_id = heightfield_fields(built)["mapped"]
     mapped = ref.gbuffer["instance"] == mapped_id
     assert mapped.sum() > 10
     np.testing.assert_allclose(image[mapped], plain[mapped], rtol=1e-4, atol=1e-6)

@@ -10,7 +10,7 @@ renders them (:mod:`penumbra.render`, the ``penumbra`` command).
 from ._native import BACKGROUND, version
 from .core import Camera, Context, EnvMap, GBuffer, Image, Material, Mesh, Renderer, Scene
 from .errors import InputError, PenumbraError
-from .fiv import FivField, FivOptions
+from .methods.fiv import FivField, FivOptions
 
 __version__ = version()
 

@@ -37,7 +37,13 @@ _INPUT_ERRORS = {ERROR_INVALID_ARGUMENT, ERROR_INVALID_SIZE, ERROR_INVALID_VALUE
                  ERROR_EMPTY_INPUT, ERROR_BAD_CONFIG}
 
 BACKGROUND = 0xFFFFFFFF
+WHOLE_SCENE = 0xFFFFFFFF
 GBUFFER_PLANES = ("position", "normal", "albedo", "material", "instance")
+
+# pn_param_type, pn_param_stage and the PN_INPUT_* bits of pn_method_info.inputs, by name.
+PARAM_TYPES = ("int", "float")
+PARAM_STAGES = ("frame", "plan", "bake")
+INPUTS = {"envmap": 1, "geometry": 2, "lights": 4, "camera": 8, "fiv": 16, "heightfield": 32}
 
 
 class Material(ctypes.Structure):
@@ -53,7 +59,8 @@ class Camera(ctypes.Structure):
 class MeshInfo(ctypes.Structure):
     _fields_ = [("vertex_count", ctypes.c_uint32), ("triangle_count", ctypes.c_uint32),
                 ("bvh_node_count", ctypes.c_uint32), ("bvh_depth", ctypes.c_uint32),
-                ("bounds_lo", ctypes.c_float * 3), ("bounds_hi", ctypes.c_float * 3)]
+                ("bounds_lo", ctypes.c_float * 3), ("bounds_hi", ctypes.c_float * 3),
+                ("has_normals", ctypes.c_uint32)]
 
 
 class FivOptions(ctypes.Structure):
@@ -67,7 +74,24 @@ class FivInfo(ctypes.Structure):
     _fields_ = [("options", FivOptions), ("centre", ctypes.c_float * 3), ("radius", ctypes.c_float),
                 ("inner", ctypes.c_float), ("outer", ctypes.c_float), ("mesh_hash", ctypes.c_uint64),
                 ("env_hash", ctypes.c_uint64), ("sample_count", ctypes.c_uint64), ("inside_count", ctypes.c_uint64),
-                ("stored_bytes", ctypes.c_uint64), ("rays", ctypes.c_uint64), ("bake_seconds", ctypes.c_double)]
+                ("stored_bytes", ctypes.c_uint64), ("rays", ctypes.c_uint64), ("bake_seconds", ctypes.c_double),
+                ("radii_done", ctypes.c_uint32)]
+
+
+class ParamInfo(ctypes.Structure):
+    _fields_ = [("name", ctypes.c_char_p), ("type", ctypes.c_uint32), ("stage", ctypes.c_uint32),
+                ("default_value", ctypes.c_double), ("min", ctypes.c_double), ("max", ctypes.c_double),
+                ("unit", ctypes.c_char_p), ("doc", ctypes.c_char_p)]
+
+
+class MethodInfo(ctypes.Structure):
+    _fields_ = [("name", ctypes.c_char_p), ("summary", ctypes.c_char_p), ("stage", ctypes.c_char_p),
+                ("doc_page", ctypes.c_char_p), ("param_count", ctypes.c_uint32), ("output_count", ctypes.c_uint32),
+                ("inputs", ctypes.c_uint32)]
+
+
+class OutputInfo(ctypes.Structure):
+    _fields_ = [("name", ctypes.c_char_p), ("doc", ctypes.c_char_p)]
 
 
 class HeightfieldPlacement(ctypes.Structure):
@@ -102,6 +126,8 @@ _SIGNATURES = {
     "pn_mesh_set_geometry": [_H, _P, _u32, _P, _u32, _P],
     "pn_mesh_commit": [_H],
     "pn_mesh_get_info": [_H, ctypes.POINTER(MeshInfo)],
+    "pn_mesh_read_geometry": [_H, _P, _P, _P],
+    "pn_transform_uniform_scale": [_P, ctypes.POINTER(_f32)],
     "pn_scene_create": [_H, _OUT], "pn_scene_release": [_H],
     "pn_scene_set_envmap": [_H, _H],
     "pn_scene_add_instance": [_H, _H, _P, ctypes.POINTER(Material), ctypes.POINTER(_u32)],
@@ -110,6 +136,7 @@ _SIGNATURES = {
     "pn_scene_remove_instance": [_H, _u32],
     "pn_scene_set_camera": [_H, ctypes.POINTER(Camera)],
     "pn_scene_set_lights": [_H, _P, _u32],
+    "pn_scene_attach": [_H, _u32, _H], "pn_scene_detach": [_H, _u32, _H],
     "pn_scene_commit": [_H],
     "pn_scene_intersect": [_H, _P, _u32, _P, _P, _P],
     "pn_scene_occluded": [_H, _P, _u32, _P],
@@ -132,14 +159,18 @@ _SIGNATURES = {
     "pn_renderer_get_float": [_H, _str, ctypes.POINTER(_f32)],
     "pn_renderer_commit": [_H],
     "pn_renderer_execute": [_H, _H, _H, _H],
+    "pn_renderer_read_output": [_H, _H, _str, _u32, _u32, _P, _size],
+    "pn_method_get_info": [_str, ctypes.POINTER(MethodInfo)],
+    "pn_method_get_param": [_str, _u32, ctypes.POINTER(ParamInfo)],
+    "pn_method_get_output": [_str, _u32, ctypes.POINTER(OutputInfo)],
     "pn_mesh_get_hash": [_H, ctypes.POINTER(ctypes.c_uint64)],
     "pn_envmap_get_hash": [_H, ctypes.POINTER(ctypes.c_uint64)],
-    "pn_scene_set_fivs": [_H, ctypes.POINTER(ctypes.c_void_p), _u32],
     "pn_fiv_bake": [_H, _H, ctypes.POINTER(FivOptions), _str, PROGRESS, _P, _OUT],
     "pn_fiv_load": [_H, _str, _OUT],
     "pn_fiv_save": [_H, _str],
     "pn_fiv_release": [_H],
     "pn_fiv_get_info": [_H, ctypes.POINTER(FivInfo)],
+    "pn_fiv_read_header": [_str, ctypes.POINTER(FivInfo)],
     "pn_fiv_read": [_H, _P, _size],
     "pn_heightfield_create": [_H, _OUT], "pn_heightfield_release": [_H],
     "pn_heightfield_set_heights": [_H, _P, _u32, _u32],
@@ -147,8 +178,6 @@ _SIGNATURES = {
     "pn_heightfield_set_albedo": [_H, _P, _size],
     "pn_heightfield_commit": [_H],
     "pn_heightfield_build_mesh": [_H, _OUT],
-    "pn_scene_set_heightfields": [_H, ctypes.POINTER(ctypes.c_void_p), ctypes.POINTER(_u32), _u32],
-    "pn_renderer_read_heightfield": [_H, _H, _u32, ctypes.c_int, _u32, _P, _size],
 }
 
 
@@ -191,6 +220,8 @@ def _load():
     lib.pn_method_count.argtypes = []
     lib.pn_method_name.restype = ctypes.c_char_p
     lib.pn_method_name.argtypes = [ctypes.c_uint32]
+    lib.pn_lobe_name.restype = ctypes.c_char_p
+    lib.pn_lobe_name.argtypes = [ctypes.c_uint32]
     lib.pn_fiv_options_default.restype = FivOptions
     lib.pn_fiv_options_default.argtypes = []
     return lib
@@ -229,3 +260,11 @@ def version() -> str:
 def methods() -> tuple[str, ...]:
     """Names of the shading methods the library offers, in its own order."""
     return tuple(lib.pn_method_name(i).decode() for i in range(lib.pn_method_count()))
+
+
+def lobes() -> tuple[str, ...]:
+    """Names of the specular lobes (pn_lobe), in the order of their values."""
+    names = []
+    while (name := lib.pn_lobe_name(len(names))) is not None:
+        names.append(name.decode())
+    return tuple(names)

@@ -1,13 +1,11 @@
-"""The ``penumbra`` command: ``info``, ``render``, ``demo``, ``export-mitsuba``,
-``bench``, ``bake-fiv`` and ``fiv-info``."""
+"""The ``penumbra`` command: ``info``, ``methods``, ``render``, ``demo``,
+``export-mitsuba``, ``bench``, and the techniques' own commands (e.g.
+``bake-fiv`` and ``fiv-info``, from penumbra.methods.fiv)."""
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
-import signal
-import struct
 import sys
 from pathlib import Path
 
@@ -58,19 +56,6 @@ class _BakeBars:
         self.close()
 
 
-def _kib(n: int) -> str:
-    return f"{n / 1024:.1f} KiB" if n < 1 << 20 else f"{n / (1 << 20):.1f} MiB"
-
-
-def _fiv_summary(records: list[dict]) -> str:
-    parts = []
-    for r in records:
-        what = ", ".join(r["objects"][:3]) + (f" and {len(r['objects']) - 3} more" if len(r["objects"]) > 3 else "")
-        how = f"baked in {r['bake_s']:.1f} s ({r['rays'] / 1e6:.1f} M rays)" if r["baked"] else "from the cache"
-        parts.append(f"{what}: {'x'.join(map(str, r['samples']))}, {_kib(r['stored_bytes'])}, {how}")
-    return f"fiv: {len(records)} occlusion field(s): " + ("; ".join(parts) if parts else "no occluders in the scene")
-
-
 def cmd_info(args) -> int:
     import pyopencl as cl
 
@@ -84,6 +69,28 @@ def cmd_info(args) -> int:
                   f"{d.max_compute_units} compute units, {d.opencl_c_version})")
     ctx = Context(args.device)
     print(f"default device: {ctx.device_name}")
+    return 0
+
+
+def cmd_methods(args) -> int:
+    from .methods import catalog, markdown_table, technique
+
+    specs = catalog()
+    if args.markdown:  # the tables of docs/api.md
+        print("\n\n".join(f"#### {name} parameters\n\n{markdown_table(m.params)}" for name, m in specs.items()))
+        return 0
+    if args.json:
+        print(json.dumps({"methods": [
+            {**m.as_dict(), "interactive": technique(name).interactive} for name, m in specs.items()]}, indent=2))
+        return 0
+    for name, m in specs.items():
+        print(f"{name}: {m.summary}")
+        print(f"  inputs: {', '.join(sorted(m.inputs)) or 'none'}; kernels/{m.stage}.cl; {m.doc_page}")
+        for p in m.params:
+            unit = f" {p.unit}" if p.unit else ""
+            print(f"  {p.name:<20} {p.type:<5} {p.stage:<5} default {p.default!s:<8} {p.range_text()}{unit}: {p.doc}")
+        for o in m.outputs:
+            print(f"  output {o.name}: {o.doc}")
     return 0
 
 
@@ -111,17 +118,18 @@ def cmd_render(args) -> int:
     from .core import Context
     from .fileutil import atomic_write_text
     from .render import build_scene, render
-    from .scenefile import load_scene
+    from .methods import technique
+    from .scenefile import DEFAULT_METHOD, load_scene
 
     desc = load_scene(args.scene, args.set)
-    method = args.method or desc.render.get("method", "unshadowed")
+    method = args.method or desc.render.get("method", DEFAULT_METHOD)
     params = {k: v for k, v in desc.render.items() if k != "method"}
     ctx = Context(args.device)
     built = build_scene(desc, ctx)
     with _BakeBars() as bakes, _progress(args.frames, f"render {method}") as bar:
         result = render(built, method, frames=args.frames, progress=bar, bake_progress=bakes, **params)
-    if method == "fiv":
-        print(_fiv_summary(built.fiv_records))
+    for line in technique(method).summary_lines(built):
+        print(line)
     out = args.output if args.output or args.png else "out.exr"
     written = _write_outputs(result, out, args.png, args.exposure)
     rep = report(result, str(args.scene))
@@ -145,7 +153,8 @@ def auto_exposure(image: np.ndarray, percentile: float = 97.0) -> float:
 def cmd_demo(args) -> int:
     from .core import Context
     from .imageio import write_exr, write_png
-    from .render import GBUFFER_VIEWS, INTERACTIVE_METHODS, build_scene, render
+    from .methods import interactive, technique
+    from .render import GBUFFER_VIEWS, build_scene, render
     from .scenefile import default_scene_path, load_scene
 
     out = Path(args.out)
@@ -156,7 +165,7 @@ def cmd_demo(args) -> int:
     result = None
     # Interactive methods with full timing; the brute-force reference once, at a
     # coarse direction grid, so the demo also shows ground-truth soft shadows.
-    runs = [(m, args.frames, {}) for m in INTERACTIVE_METHODS]
+    runs = [(m, args.frames, {}) for m in interactive()]
     if args.reference_face_size > 0:
         runs.append(("reference", 1, {"face_size": args.reference_face_size}))
     with _BakeBars() as bakes, _progress(sum(f + (m != "reference") for m, f, _ in runs), "demo") as bar:
@@ -177,14 +186,12 @@ def cmd_demo(args) -> int:
     for method, t in rows:
         print(f"{method:<14}{t['frame_median']:>17.2f}{t['frame_min']:>14.2f}{t['gbuffer_median']:>13.2f}"
               f"{t['shade_median']:>12.2f}")
-    if "fiv" in (m for m, _, _ in runs):
-        print(_fiv_summary(built.fiv_records))
+    for method, _, _ in runs:
+        for line in technique(method).summary_lines(built):
+            print(line)
     print(f"images in {out}/: " + ", ".join(f"{m}.exr/.png" for m, _, _ in runs) + ", "
           + ", ".join(f"gbuffer_{v}.exr/.png" for v in GBUFFER_VIEWS))
     return 0
-
-
-# ---------------------------------------------------------------- FIV bakes
 
 
 def _samples_arg(text: str) -> tuple[int, int, int]:
@@ -192,127 +199,6 @@ def _samples_arg(text: str) -> tuple[int, int, int]:
     if len(vals) != 3:
         raise argparse.ArgumentTypeError(f"{text!r} is not PHI,THETA,RADII (e.g. 32,17,15)")
     return vals
-
-
-def fiv_file_header(path: str | Path) -> dict | None:
-    """The grid and progress of a .pnfiv file from its header (docs/fiv.md),
-    without checking it; None when it is not one."""
-    try:
-        with open(path, "rb") as f:
-            head = f.read(32)
-    except OSError:
-        return None
-    if len(head) < 32 or head[:8] != b"PNFIV\0\r\n":
-        return None
-    version, _, theta, phi, radii, done = struct.unpack_from("<6I", head, 8)
-    return {"version": version, "samples": (phi, theta, radii), "spheres_done": done}
-
-
-def cmd_bake_fiv(args) -> int:
-    from ._native import ERROR_CANCELLED
-    from .core import Context, EnvMap, Mesh
-    from .errors import InputError, PenumbraError
-    from .fiv import FivField, FivOptions
-    from .meshio import load_mesh
-    from .render import environment_latlong
-    from .scenefile import PROCEDURAL_ENVS, EnvironmentDesc, parse_scene
-
-    # The options are checked like a scene's [fiv] table (same ranges), named as flags.
-    table = {"samples": list(args.samples), "precision": args.precision, "inner_radius": args.inner_radius,
-             "error_target": args.error_target, "face_size": args.face_size,
-             "sun_supersampling": args.sun_supersampling, "sun_threshold": args.sun_threshold}
-    try:
-        desc = parse_scene({"fiv": table}).fiv
-    except InputError as exc:
-        msg = str(exc)
-        for key in table:
-            msg = msg.replace(f"[fiv] {key}", f"--{key.replace('_', '-')}")
-        raise InputError(msg.replace("[fiv] ", "")) from None
-    options = FivOptions(**desc.bake_options())
-    if args.env_intensity < 0:
-        raise InputError(f"--env-intensity {args.env_intensity} must be >= 0")
-    env_desc = EnvironmentDesc(map=args.env if args.env in PROCEDURAL_ENVS else str(Path(args.env).expanduser()),
-                               rotation_deg=args.env_rotation, intensity=args.env_intensity)
-    ctx = Context(args.device)
-    env = EnvMap(ctx, environment_latlong(env_desc), rotation_deg=env_desc.rotation_deg,
-                 intensity=env_desc.intensity)
-    m = load_mesh(args.mesh)
-    mesh = Mesh(ctx, m.vertices, m.faces, m.normals)
-    out = Path(args.output)
-    head = fiv_file_header(out) if out.exists() else None
-    resumed = bool(head and 0 < head["spheres_done"] < head["samples"][2])
-    if resumed:
-        print(f"resuming {out}: {head['spheres_done']} of {head['samples'][2]} spheres baked")
-    bars = _BakeBars()
-    previous = signal.getsignal(signal.SIGINT)
-
-    def interrupt(*_):  # Ctrl-C: stop after the current sphere, with a checkpoint to resume from
-        bars.stop = True
-
-    if previous is signal.default_int_handler:
-        signal.signal(signal.SIGINT, interrupt)
-    label = Path(args.mesh).name
-    try:
-        with bars:
-            field = FivField.bake(env, mesh, options, out, progress=lambda d, t: bars(label, d, t))
-    except PenumbraError as exc:
-        if exc.status == ERROR_CANCELLED:  # stopped by Ctrl-C after a checkpoint
-            print(f"penumbra: interrupted: {exc} (the same command resumes it)", file=sys.stderr)
-            return 130
-        raise
-    finally:
-        if previous is signal.default_int_handler:
-            signal.signal(signal.SIGINT, previous)
-    info = field.info()
-    theta, phi, radii = info["samples"]
-    grid = f"{phi}x{theta}x{radii} (phi x theta x radii)"
-    if info["rays"] == 0:
-        print(f"{out} already holds this finished bake: {grid}, nothing to do")
-    else:
-        print(f"{'finished' if resumed else 'baked'} {label} under "
-              f"{Path(args.env).name if args.env not in PROCEDURAL_ENVS else args.env} in "
-              f"{info['bake_seconds']:.2f} s{' (this run)' if resumed else ''}: {grid} = {info['sample_count']} samples "
-              f"({info['inside_count']} inside the mesh), {info['rays']} rays "
-              f"({info['rays'] / max(info['bake_seconds'], 1e-9) / 1e6:.1f} M rays/s)")
-    print(f"memory: {info['stored_bytes']} bytes of samples ({_kib(info['stored_bytes'])}, {info['precision']}); "
-          f"{'file' if info['rays'] == 0 else 'wrote'} {out} ({os.path.getsize(out)} bytes)")
-    return 0
-
-
-def cmd_fiv_info(args) -> int:
-    from .core import Context
-    from .errors import PenumbraError
-    from .fiv import FivField
-
-    ctx = Context(args.device)
-    try:
-        info = FivField.load(ctx, args.file).info()
-    except PenumbraError:
-        head = fiv_file_header(args.file)
-        if head and head["spheres_done"] < head["samples"][2]:
-            print(f"{args.file}: unfinished FIV bake, {'x'.join(map(str, head['samples']))} (phi x theta x radii), "
-                  f"{head['spheres_done']} of {head['samples'][2]} spheres baked: run the same bake-fiv command "
-                  "again to resume", file=sys.stderr)
-            return 2
-        raise
-    theta, phi, radii = info["samples"]
-    if args.json:
-        print(json.dumps({**info, "samples_phi_theta_radii": [phi, theta, radii], "file_bytes":
-                          os.path.getsize(args.file)}, indent=2))
-        return 0
-    c = info["centre"]
-    print(f"{args.file}: FIV occlusion field (docs/fiv.md), {os.path.getsize(args.file)} bytes")
-    print(f"  grid:        {phi}x{theta}x{radii} (phi x theta x radii) = {info['sample_count']} samples, "
-          f"{info['inside_count']} inside the mesh")
-    print(f"  storage:     {info['precision']}, {info['stored_bytes']} bytes of samples ({_kib(info['stored_bytes'])})")
-    print(f"  radii:       {info['inner']:.4g} .. {info['outer']:.4g} object units, geometric "
-          f"(inner_radius {info['inner_radius']:.3g} R, error_target {info['error_target']:.3g})")
-    print(f"  bounds:      centre ({c[0]:.4g}, {c[1]:.4g}, {c[2]:.4g}), R = {info['radius']:.4g}")
-    print(f"  directions:  face_size {info['face_size']}, sun_supersampling {info['sun_supersampling']} "
-          f"(threshold {info['sun_threshold']:.3g})")
-    print(f"  mesh hash:   {info['mesh_hash']}")
-    print(f"  env hash:    {info['env_hash']}")
-    return 0
 
 
 def cmd_export_mitsuba(args) -> int:
@@ -340,25 +226,16 @@ def _int_list(text: str) -> tuple[int, ...]:
 
 
 def cmd_bench(args) -> int:
-    from .bench import BenchOptions, fiv_scaling, run
+    from .bench import BenchOptions, run
     from .errors import InputError
+    from .methods import techniques
 
-    if args.fiv_scaling:
-        if args.scene:
-            raise InputError("bench --fiv-scaling makes its own scenes: give no scene file")
-        out = Path(args.out)
-        res = fiv_scaling(out, counts=args.fiv_counts, samples=args.fiv_samples, resolution=args.fiv_resolution,
-                          frames=args.frames, mitsuba_count=args.fiv_mitsuba_count or None,
-                          mitsuba_resolution=args.fiv_mitsuba_resolution, overrides=args.set,
-                          log=lambda msg: print(msg, file=sys.stderr))
-        print(f"{'occluders':>9}{'fiv ms':>10}{'floor ms':>10}{'x floor':>9}{'fps':>8}{'paper fps':>11}")
-        for r in res["results"]:
-            print(f"{r['occluders']:>9}{r['fiv_shade_ms']:>10.2f}{r['floor_ms']:>10.3f}{r['ratio_to_floor']:>9.0f}"
-                  f"{r['fps_shading']:>8.1f}{r['paper_fps'] if r['paper_fps'] is not None else '-':>11}")
-        print(f"penumbra bench: wrote {out}/results.json, report.md")
-        return 0
+    for technique in techniques():  # a technique's own experiment, when its options ask for it
+        code = technique.run_bench(args)
+        if code is not None:
+            return code
     if not args.scene:
-        raise InputError("bench needs a scene file (or --fiv-scaling)")
+        raise InputError("bench needs a scene file (or a technique's experiment option, e.g. --fiv-scaling)")
 
     opts = BenchOptions(frames=args.frames, reference_face_size=args.reference_face_size,
                         reference_sun_supersampling=args.reference_sun_supersampling,
@@ -380,7 +257,11 @@ def cmd_bench(args) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser() -> tuple[argparse.ArgumentParser, dict]:
+    """The parser and the handlers of the techniques' own commands."""
+    from .methods import catalog as read_catalog, techniques
+
+    catalog = read_catalog()
     p = argparse.ArgumentParser(prog="penumbra", description="Environment lighting with soft shadows (OpenCL).")
     p.add_argument("--version", action="version", version=f"penumbra {__version__}")
     p.add_argument("--device", default=None, help="context config, e.g. 'device=gpu' (default: PENUMBRA_DEVICE or a CPU)")
@@ -388,9 +269,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     sub.add_parser("info", help="list OpenCL devices and the library version")
 
+    ms = sub.add_parser("methods", help="list the shading methods and their parameters (from the library)")
+    ms.add_argument("--json", action="store_true", help="print every method, its inputs, parameters and outputs "
+                    "as JSON")
+    ms.add_argument("--markdown", action="store_true", help="print the parameter tables of docs/api.md")
+
     r = sub.add_parser("render", help="render a TOML scene file")
     r.add_argument("scene", help="scene file (docs/scene-format.md)")
-    r.add_argument("--method", default=None, help="shading method (default: the scene's [render] method)")
+    r.add_argument("--method", default=None, metavar="METHOD",
+                   help="shading method (default: the scene's [render] method): "
+                   + "; ".join(f"{name}: {m.summary}" for name, m in catalog.items()))
     r.add_argument("-o", "--output", default=None, help="EXR output (default out.exr)")
     r.add_argument("--png", default=None, help="also write a tone-mapped sRGB PNG")
     r.add_argument("--json", default=None, help="write a JSON report (method, device, resolution, params, timings_ms)")
@@ -420,8 +308,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("scene", nargs="?", help="scene file (docs/scene-format.md)")
     b.add_argument("--out", required=True, metavar="DIR", help="output directory for results.json/csv, pareto.png, "
                    "report.md and images")
-    b.add_argument("--methods", default=None, help="comma-separated methods (default: unshadowed, fiv if the scene has occluders, heightfield if it "
-                        "has height fields, reference)")
+    b.add_argument("--methods", default=None, help="comma-separated methods (default: those of "
+                   f"{', '.join(t.name for t in techniques() if t.benchmarked)} "
+                   "that apply to the scene)")
     b.add_argument("--frames", type=int, default=5, help="timed frames per setting after 0.3 s of warm-up frames (>= 5)")
     b.add_argument("--spp", type=_int_list, default=None, help="Mitsuba samples per pixel (default 1,2,4,...,1024)")
     b.add_argument("--face-sizes", type=_int_list, default=None,
@@ -433,47 +322,24 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--no-rays", action="store_true", help="skip the ray-throughput comparison with Embree")
     b.add_argument("--readme", default=None, help="also refresh this scene's row of the table in this README")
     b.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a scene value")
-    b.add_argument("--fiv-scaling", action="store_true",
-                   help="instead of a scene: fiv's per-frame cost against the number of occluders (N bunnies)")
-    b.add_argument("--fiv-counts", type=_int_list, default=(1, 10, 30, 60), help="occluder counts (default 1,10,30,60)")
-    b.add_argument("--fiv-samples", type=_samples_arg, default=(128, 65, 30), metavar="PHI,THETA,RADII",
-                   help="the bunny's field (default 128,65,30 as the paper's Table 2)")
-    b.add_argument("--fiv-resolution", type=int, default=512, help="image side in pixels (default 512)")
-    b.add_argument("--fiv-mitsuba-count", type=int, default=10,
-                   help="also compare with Mitsuba at equal error on this many bunnies (0: skip; default 10)")
-    b.add_argument("--fiv-mitsuba-resolution", type=int, default=128,
-                   help="image side of that comparison (default 128)")
+    for technique in techniques():
+        technique.add_bench_arguments(b)
 
-    f = sub.add_parser("bake-fiv", help="bake the FIV occlusion field of a mesh under an env map (docs/fiv.md)")
-    f.add_argument("mesh", help="occluder mesh file (.obj, .ply, .off, .stl)")
-    f.add_argument("--env", required=True, help="env map file, or a procedural map name (sky, constant, ...)")
-    f.add_argument("--samples", type=_samples_arg, default=(32, 17, 15), metavar="PHI,THETA,RADII",
-                   help="grid in the paper's notation (default 32,17,15)")
-    f.add_argument("-o", "--output", required=True, metavar="FILE",
-                   help="bake file (.pnfiv); an unfinished bake there is resumed")
-    f.add_argument("--precision", choices=("float16", "float32"), default="float16")
-    f.add_argument("--face-size", type=int, default=32, help="env directions: cube face size (default 32)")
-    f.add_argument("--sun-supersampling", type=int, default=4,
-                   help="sub-texels per bright texel side (default 4)")
-    f.add_argument("--sun-threshold", type=float, default=0.1,
-                   help="share of the brightest texel's power that counts as bright (default 0.1)")
-    f.add_argument("--inner-radius", type=float, default=0.2, help="innermost sphere, bounding radii (default 0.2)")
-    f.add_argument("--error-target", type=float, default=0.01,
-                   help="outermost sphere at R / sqrt(error_target) (default 0.01: 10 R)")
-    f.add_argument("--env-rotation", type=float, default=0.0, metavar="DEG",
-                   help="env map rotation about +y, as [environment] rotation_deg (default 0)")
-    f.add_argument("--env-intensity", type=float, default=1.0, help="env radiance scale (default 1)")
-
-    i = sub.add_parser("fiv-info", help="print the header of a FIV bake file")
-    i.add_argument("file", help="bake file (.pnfiv)")
-    i.add_argument("--json", action="store_true", help="print the info as JSON")
-    return p
+    commands = {}
+    for technique in techniques():
+        commands.update(technique.add_commands(sub))
+    return p, commands
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    handlers = {"info": cmd_info, "render": cmd_render, "demo": cmd_demo, "export-mitsuba": cmd_export_mitsuba,
-                "bench": cmd_bench, "bake-fiv": cmd_bake_fiv, "fiv-info": cmd_fiv_info}
+    try:
+        parser, commands = build_parser()
+    except PenumbraError as exc:
+        print(f"penumbra: error: {exc}", file=sys.stderr)
+        return 2
+    args = parser.parse_args(argv)
+    handlers = {"info": cmd_info, "methods": cmd_methods, "render": cmd_render, "demo": cmd_demo,
+                "export-mitsuba": cmd_export_mitsuba, "bench": cmd_bench, **commands}
     try:
         return handlers[args.command](args)
     except PenumbraError as exc:

@@ -19,7 +19,8 @@ from . import _native
 from ._native import call, lib
 from .errors import InputError
 
-LOBES = {"phong": 0, "blinn_phong": 1, "ggx": 2}
+# Specular lobe names in the order of their pn_lobe values, from the library.
+LOBES = _native.lobes()
 
 
 def _ptr(array: np.ndarray) -> int:
@@ -219,7 +220,19 @@ class Mesh(_Handle):
         i = _native.MeshInfo()
         self._call("pn_mesh_get_info", self._h, ctypes.byref(i))
         return {"vertices": i.vertex_count, "triangles": i.triangle_count, "bvh_nodes": i.bvh_node_count,
-                "bvh_depth": i.bvh_depth, "bounds": (tuple(i.bounds_lo), tuple(i.bounds_hi))}
+                "bvh_depth": i.bvh_depth, "bounds": (tuple(i.bounds_lo), tuple(i.bounds_hi)),
+                "has_normals": bool(i.has_normals)}
+
+    def geometry(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """(vertices (V, 3) float32, faces (T, 3) uint32, normals (V, 3) float32 or None)
+        as the library holds them (pn_mesh_read_geometry)."""
+        info = self.info
+        v = np.empty((info["vertices"], 3), np.float32)
+        f = np.empty((info["triangles"], 3), np.uint32)
+        n = np.empty((info["vertices"], 3), np.float32) if info["has_normals"] else None
+        self._call("pn_mesh_read_geometry", self._h, _ptr(v) if v.size else None, _ptr(f) if f.size else None,
+                   None if n is None or not n.size else _ptr(n))
+        return v, f, n
 
 
 @dataclass
@@ -237,7 +250,7 @@ class Material:
             raise InputError(f"unknown lobe '{self.lobe}' (one of {', '.join(LOBES)})")
         albedo = np.broadcast_to(np.asarray(self.albedo, dtype=np.float64), (3,))
         return _native.Material((ctypes.c_float * 3)(*albedo), self.specular, self.shininess, self.roughness,
-                                LOBES[self.lobe])
+                                LOBES.index(self.lobe))
 
 
 @dataclass
@@ -267,6 +280,15 @@ def _transform_3x4(transform) -> np.ndarray | None:
     return np.ascontiguousarray(t, dtype=np.float32)
 
 
+def uniform_scale(transform) -> float:
+    """s when the object-to-world ``transform`` (3x4 or 4x4) is a translation times
+    s * identity, else 0 (pn_transform_uniform_scale: the library's test)."""
+    t = _transform_3x4(transform)
+    s = ctypes.c_float()
+    call("pn_transform_uniform_scale", None, _ptr(t), ctypes.byref(s))
+    return float(s.value)
+
+
 class Scene(_Handle):
     """Instances of meshes (transform + material), a camera and an env map."""
 
@@ -276,6 +298,7 @@ class Scene(_Handle):
         super().__init__(ctx)
         call("pn_scene_create", ctx._h, ctx._h, ctypes.byref(self._h))
         self._keep: dict[int, Any] = {}
+        self._assets: dict[int, dict[type, Any]] = {}   # attachments by instance, one per kind (kept alive)
         self.envmap: EnvMap | None = None
         self.camera: Camera | None = None
         self.lights = np.zeros((0, 7), np.float32)
@@ -319,8 +342,28 @@ class Scene(_Handle):
         self._call("pn_scene_set_instance_material", self._h, instance, ctypes.byref(m))
 
     def remove(self, instance: int) -> None:
+        """Removes an instance (and its attachments)."""
         self._call("pn_scene_remove_instance", self._h, instance)
         self._keep.pop(instance, None)
+        self._assets.pop(instance, None)
+
+    def attach(self, instance: int, asset) -> None:
+        """Attaches a technique's asset (an occlusion field, a height field, ...)
+        to ``instance``, replacing what it had of the same kind (pn_scene_attach;
+        takes effect at commit)."""
+        self._call("pn_scene_attach", self._h, instance, asset._h)
+        self._assets.setdefault(instance, {})[type(asset)] = asset
+
+    def detach(self, instance: int, asset=None) -> None:
+        """Drops ``asset`` from ``instance`` (None: all its attachments; pn_scene_detach)."""
+        self._call("pn_scene_detach", self._h, instance, None if asset is None else asset._h)
+        kept = self._assets.get(instance, {})
+        for kind in [k for k, a in kept.items() if asset is None or a is asset]:
+            del kept[kind]
+
+    def attachment(self, instance: int, kind: type):
+        """The asset of type ``kind`` attached to ``instance`` (through this object), or None."""
+        return self._assets.get(instance, {}).get(kind)
 
     def commit(self) -> None:
         self._call("pn_scene_commit", self._h)
@@ -433,67 +476,6 @@ class Image(_Handle):
         return out
 
 
-HEIGHTFIELD_OUTPUTS = {"env": 0, "light": 1, "total": 2, "env_horizons": 3, "light_horizons": 4,
-                       "env_visibility": 5, "light_visibility": 6, "normals": 7}
-
-
-class HeightFieldHandle(_Handle):
-    """A height field in the library (pn_heightfield, docs/heightfield.md):
-    heights (D rows along +z, W columns along +x), placement and an optional
-    per-vertex albedo map. ``set_heights`` each frame makes it dynamic."""
-
-    _release = "pn_heightfield_release"
-
-    def __init__(self, ctx: Context, heights, origin=(0.0, 0.0, 0.0), size=None, height_scale: float = 1.0,
-                 albedo=None):
-        super().__init__(ctx)
-        call("pn_heightfield_create", ctx._h, ctx._h, ctypes.byref(self._h))
-        h = self._heights(heights)
-        depth, width = h.shape
-        self.shape = h.shape
-        size = (width - 1.0, depth - 1.0) if size is None else size
-        p = _native.HeightfieldPlacement((ctypes.c_float * 3)(*[float(x) for x in origin]),
-                                         (ctypes.c_float * 2)(*[float(x) for x in size]), float(height_scale))
-        self._call("pn_heightfield_set_placement", self._h, ctypes.byref(p))
-        self._call("pn_heightfield_set_heights", self._h, _ptr(h), width, depth)
-        if albedo is not None:
-            a = np.ascontiguousarray(albedo, dtype=np.float32)
-            if a.shape != (depth, width, 3):
-                raise InputError(f"albedo map must have shape {(depth, width, 3)}, got {a.shape}")
-            self._call("pn_heightfield_set_albedo", self._h, _ptr(a), a.size)
-        self._call("pn_heightfield_commit", self._h)
-
-    @staticmethod
-    def _heights(heights) -> np.ndarray:
-        h = np.ascontiguousarray(heights, dtype=np.float32)
-        if h.ndim != 2:
-            raise InputError(f"heights must be a 2D array (rows along z, columns along x), got shape {h.shape}")
-        return h
-
-    def set_heights(self, heights) -> None:
-        """New heights of the same size (a new frame of a dynamic terrain)."""
-        h = self._heights(heights)
-        if h.shape != self.shape:
-            raise InputError(f"new heights have shape {h.shape}, the field is {self.shape}")
-        self._call("pn_heightfield_set_heights", self._h, _ptr(h), h.shape[1], h.shape[0])
-        self._call("pn_heightfield_commit", self._h)
-
-    def mesh(self) -> Mesh:
-        """The committed heights as a triangle mesh in world space."""
-        out = ctypes.c_void_p()
-        self._call("pn_heightfield_build_mesh", self._h, ctypes.byref(out))
-        return Mesh._adopt(self._ctx, out)
-
-
-def set_scene_heightfields(scene: Scene, fields: Sequence[tuple[HeightFieldHandle, int]]) -> None:
-    """Declares which instances of ``scene`` are height fields: (field, instance id) pairs."""
-    n = len(fields)
-    handles = (ctypes.c_void_p * max(n, 1))(*[f._h.value for f, _ in fields])
-    ids = (ctypes.c_uint32 * max(n, 1))(*[int(i) for _, i in fields])
-    call("pn_scene_set_heightfields", scene._ctx._h, scene._h, handles if n else None, ids if n else None, n)
-    scene._heightfields = list(fields)  # keep them alive with the scene
-
-
 class Renderer(_Handle):
     """A shading method by name (``"unshadowed"``) with its parameters."""
 
@@ -506,47 +488,52 @@ class Renderer(_Handle):
         self.set(**params)
         self._call("pn_renderer_commit", self._h)
 
+    def _param(self, name: str):
+        from .methods import spec
+
+        return spec(self.method).param(name)
+
     def set(self, **params) -> None:
+        """Sets parameters by name, as the method declares them (int or float);
+        the library checks names and ranges."""
         for name, value in params.items():
             if not isinstance(value, (bool, int, float, np.integer, np.floating)):
                 raise InputError(f"renderer parameter {name} must be a number, got {value!r}")
-            if isinstance(value, (bool, int, np.integer)):
-                self._call("pn_renderer_set_int", self._h, name.encode(), int(value))
-            else:
+            p = self._param(name)
+            # A float parameter gets set_float; so does a fractional value (the library refuses it for an int).
+            as_float = (p is not None and p.type == "float") or not float(value).is_integer() or (
+                p is None and not isinstance(value, (bool, int, np.integer)))
+            if as_float:
                 self._call("pn_renderer_set_float", self._h, name.encode(), float(value))
+            else:
+                self._call("pn_renderer_set_int", self._h, name.encode(), int(value))
         self._call("pn_renderer_commit", self._h)
 
     def get(self, name: str) -> int | float:
         """A parameter's current value (int or float, as the method declares it)."""
+        p = self._param(name)
+        if p is not None and p.type == "float":
+            f = ctypes.c_float()
+            self._call("pn_renderer_get_float", self._h, name.encode(), ctypes.byref(f))
+            return f.value
         v = ctypes.c_int32()
-        try:
-            self._call("pn_renderer_get_int", self._h, name.encode(), ctypes.byref(v))
-            return v.value
-        except InputError as exc:
-            if "float parameter" not in str(exc):
-                raise
-        f = ctypes.c_float()
-        self._call("pn_renderer_get_float", self._h, name.encode(), ctypes.byref(f))
-        return f.value
+        self._call("pn_renderer_get_int", self._h, name.encode(), ctypes.byref(v))
+        return v.value
 
     def execute(self, scene: Scene, gbuffer: GBuffer, image: Image) -> None:
         self._call("pn_renderer_execute", self._h, scene._h, gbuffer._h, image._h)
 
-    def read_heightfield(self, scene: Scene, what: str = "total", field: int = 0, light: int = 0) -> np.ndarray:
-        """A per-vertex output of a ``heightfield`` renderer, computed for the
-        scene as it is now (pn_renderer_read_heightfield): (D, W, k) float32
-        with k = 4 (radiance rgb, 1 / normals), azimuths (horizons, radians) or
-        bands² (SH visibility). ``what`` is one of HEIGHTFIELD_OUTPUTS."""
-        if what not in HEIGHTFIELD_OUTPUTS:
-            raise InputError(f"unknown height-field output '{what}' (one of {', '.join(HEIGHTFIELD_OUTPUTS)})")
-        fields = getattr(scene, "_heightfields", [])
-        if not 0 <= field < len(fields):
-            raise InputError(f"height field {field}: the scene has {len(fields)}")
-        depth, width = fields[field][0].shape
-        per = {"env_horizons": "azimuths", "light_horizons": "azimuths", "env_visibility": "bands",
-               "light_visibility": "bands"}.get(what)
-        k = 4 if per is None else self.get(per) if per == "azimuths" else self.get("bands") ** 2
-        out = np.empty((depth, width, k), np.float32)
-        self._call("pn_renderer_read_heightfield", self._h, scene._h, field, HEIGHTFIELD_OUTPUTS[what], light,
+    def read_output(self, scene: Scene, name: str, instance: int, index: int = 0, shape=None) -> np.ndarray:
+        """One of the method's outputs (pn_renderer_read_output, computed for the
+        scene as it is now) of ``instance`` (e.g. a height field's), item
+        ``index`` of it (e.g. a light), as a float32 array of ``shape``
+        (default: the shape the method's Python module gives, e.g. (D, W, k)
+        per vertex of a height field)."""
+        from .methods import technique
+
+        if shape is None:
+            shape = technique(self.method).output_shape(self, scene, name, instance)
+        out = np.empty(shape, np.float32)
+        self._call("pn_renderer_read_output", self._h, scene._h, name.encode(), int(instance), int(index),
                    _ptr(out), out.nbytes)
         return out

@@ -1,5 +1,6 @@
-"""Height fields: a grid of heights placed in the world, its mesh and normals,
-file loaders and the procedural terrains of the seed's test scenes.
+"""Height fields: a grid of heights placed in the world, file loaders and the
+procedural terrains of the seed's test scenes. Its triangle mesh and normals
+are the library's (penumbra.methods.heightfield.HeightFieldHandle.mesh).
 
 Conventions (docs/heightfield.md, "Grid and frame"): heights ``h[j][i]``,
 ``W`` columns (i, along world +x) by ``D`` rows (j, along world +z),
@@ -9,8 +10,7 @@ Conventions (docs/heightfield.md, "Grid and frame"): heights ``h[j][i]``,
 Vertex normals are ``normalize(-dH/dx, 1, -dH/dz)`` with ``H = height_scale h``,
 central differences inside and one-sided differences on the border.
 
-* :class:`HeightField` holds and validates a grid and its placement;
-  :meth:`HeightField.to_mesh` turns it into a :class:`~penumbra.meshio.Mesh`.
+* :class:`HeightField` holds and validates a grid and its placement.
 * :func:`load_heights` reads ``.npy``, OpenEXR and greyscale PNG height maps,
   :func:`load_albedo` an RGB albedo map.
 * :data:`TERRAINS` / :func:`make_terrain`: procedural heights after the seed's
@@ -33,7 +33,6 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .meshio import Mesh
 
 __all__ = [
     "HeightField", "load_heights", "load_albedo", "HEIGHT_EXTENSIONS", "ALBEDO_EXTENSIONS",
@@ -179,44 +178,6 @@ class HeightField:
         x0, y0, z0 = self.origin
         h = self.heights.astype(np.float64) * self.height_scale
         return (x0, y0 + float(h.min()), z0), (x0 + self.size[0], y0 + float(h.max()), z0 + self.size[1])
-
-    def vertex_positions(self) -> np.ndarray:
-        """World positions, float32 (D * W, 3); vertex (i, j) at index j * W + i."""
-        x0, y0, z0 = self.origin
-        sx, sz = self.spacing
-        x = x0 + np.arange(self.width, dtype=np.float64) * sx
-        z = z0 + np.arange(self.depth, dtype=np.float64) * sz
-        xx, zz = np.meshgrid(x, z)  # (D, W)
-        y = y0 + self.heights.astype(np.float64) * self.height_scale
-        return np.stack([xx.ravel(), y.ravel(), zz.ravel()], axis=1).astype(np.float32)
-
-    def vertex_normals(self) -> np.ndarray:
-        """Unit normals, float32 (D * W, 3) in vertex order: normalize(-dH/dx, 1, -dH/dz),
-        central differences inside, one-sided on the border (docs/heightfield.md)."""
-        h = self.heights.astype(np.float64) * self.height_scale
-        sx, sz = self.spacing
-        dhdx = np.gradient(h, sx, axis=1)  # edge_order=1: one-sided differences on the border
-        dhdz = np.gradient(h, sz, axis=0)
-        n = np.stack([-dhdx, np.ones_like(h), -dhdz], axis=-1).reshape(-1, 3)
-        return (n / np.linalg.norm(n, axis=1, keepdims=True)).astype(np.float32)
-
-    def faces(self) -> np.ndarray:
-        """Triangles, uint32 ((W-1)(D-1) * 2, 3): per cell (i, j), with a = (i, j),
-        b = (i+1, j), c = (i, j+1), d = (i+1, j+1), the triangles (a, c, b) and
-        (b, c, d), split along the b-c diagonal, counter-clockwise seen from +y
-        (cross(c - a, b - a) = +y on a flat field)."""
-        w, d = self.width, self.depth
-        idx = np.arange(w * d, dtype=np.int64).reshape(d, w)
-        a, b, c, dd = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
-        first = np.stack([a, c, b], axis=-1).reshape(-1, 3)
-        second = np.stack([b, c, dd], axis=-1).reshape(-1, 3)
-        # Keep a cell's two triangles together: cell (i, j) holds triangles 2 (j (W-1) + i) and that + 1.
-        return np.stack([first, second], axis=1).reshape(-1, 3).astype(np.uint32)
-
-    def to_mesh(self) -> Mesh:
-        """The height field as a triangle mesh: one vertex per sample (index j * W + i, world
-        positions), two triangles per cell facing +y (:meth:`faces`), :meth:`vertex_normals`."""
-        return Mesh(self.vertex_positions(), self.faces(), self.vertex_normals())
 
     def vertex_albedo(self, default: Sequence[float] = (0.8, 0.8, 0.8)) -> np.ndarray:
         """Per-vertex albedo, float32 (D * W, 3): the map, the constant, or ``default`` when none is set."""

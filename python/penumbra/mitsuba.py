@@ -7,7 +7,7 @@
 * :func:`export` writes the same scene as a standalone XML file with the PLY
   meshes and the EXR environment map it references.
 * Height fields (``[[heightfield]]``) go to Mitsuba as their triangle meshes
-  (:meth:`penumbra.heightfield.HeightField.to_mesh`: one vertex per sample,
+  (the library's mesh of the field, read back: one vertex per sample,
   world coordinates, the vertex normals penumbra uses) with a two-sided
   diffuse BSDF: a constant ``albedo`` as its reflectance, an ``albedo_map`` as
   per-vertex colour (the ``vertex_color`` mesh attribute, linear RGB,
@@ -45,7 +45,7 @@ from .errors import InputError
 from .fileutil import atomic_write, atomic_write_text
 from .imageio import write_exr
 from .render import environment_latlong, object_geometry
-from .scenefile import CameraDesc, HeightfieldDesc, ObjectDesc, SceneDescription
+from .scenefile import CameraDesc, ObjectDesc, SceneDescription
 
 __all__ = ["DEFAULT_VARIANT", "FALLBACK_VARIANT", "PLUGIN_NAME", "select_variant", "register_plugin",
            "envmap_for_mitsuba", "scene_dict", "export", "load_file", "PixelCentreRenderer", "render",
@@ -294,11 +294,6 @@ def envmap_for_mitsuba(latlong: np.ndarray, supersample: int | None = None) -> n
     return np.ascontiguousarray(out)
 
 
-def _geometry_key(obj: ObjectDesc) -> tuple:
-    # As penumbra.render.build_scene: same file, or same primitive and params, share one mesh.
-    return (obj.mesh, obj.primitive, repr(sorted(obj.params.items())))
-
-
 def _camera_frame(cam: CameraDesc) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(position, forward, up) after the checks the native library does."""
     p = np.asarray(cam.position, np.float64)
@@ -345,7 +340,7 @@ def _clip_range(desc: SceneDescription, meshes: dict[tuple, tuple]) -> tuple[flo
     p, _, _ = _camera_frame(desc.camera)
     far = float(np.linalg.norm(np.asarray(desc.camera.look_at) - p))
     for obj in desc.objects:
-        v = meshes[_geometry_key(obj)][0].astype(np.float64)
+        v = meshes[obj.geometry_key()][0].astype(np.float64)
         m = obj.transform()
         lo, hi = v.min(axis=0), v.max(axis=0)
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
@@ -387,11 +382,11 @@ class _Heightfield:
     colors: np.ndarray | None = None          # albedo map: float32 (W * D, 3) linear RGB in vertex order
 
 
-def _heightfield_descs(desc: SceneDescription) -> list[HeightfieldDesc]:
+def _heightfield_descs(desc: SceneDescription) -> list:
     return list(getattr(desc, "heightfields", None) or [])
 
 
-def _heightfield_key(d: HeightfieldDesc) -> tuple:
+def _heightfield_key(d) -> tuple:
     # Not a (mesh, primitive, params) key of an object: the two never collide.
     return ("[[heightfield]]", d.name)
 
@@ -402,15 +397,20 @@ def _load_geometry(desc: SceneDescription) -> tuple[dict[tuple, tuple], list[_He
     transform), and each height field's albedo."""
     meshes: dict[tuple, tuple] = {}
     for obj in desc.objects:
-        key = _geometry_key(obj)
+        key = obj.geometry_key()
         if key not in meshes:
             meshes[key] = object_geometry(obj)
     fields = []
-    for d in _heightfield_descs(desc):
-        field = d.load()
-        mesh = field.to_mesh()
+    descs = _heightfield_descs(desc)
+    if descs:
+        from .core import Context
+        from .methods.heightfield import world_geometry
+
+        ctx = Context()
+    for d in descs:
+        geometry, field = world_geometry(d, ctx)
         key = _heightfield_key(d)
-        meshes[key] = (mesh.vertices, mesh.faces, mesh.normals)
+        meshes[key] = geometry
         a = field.albedo
         if a is not None and np.ndim(a) == 3:  # an albedo map: per-vertex colour
             fields.append(_Heightfield(d.name, key, (1.0, 1.0, 1.0), field.vertex_albedo()))
@@ -480,7 +480,7 @@ def scene_dict(desc: SceneDescription, *, variant: str | None = None, hide_emitt
                             "to_world": mi.ScalarTransform4f().rotate(axis=[0.0, 1.0, 0.0],
                                                                       angle=float(desc.environment.rotation_deg))}
     for i, obj in enumerate(desc.objects):
-        v, faces, n = meshes[_geometry_key(obj)]
+        v, faces, n = meshes[obj.geometry_key()]
         d[f"object{i}"] = _world_mesh(mi, f"object{i}:{obj.name}", obj.transform(), _bsdf_dict(obj), v, faces, n)
     for i, hf in enumerate(fields):
         v, faces, n = meshes[hf.key]
@@ -704,7 +704,7 @@ def export(desc: SceneDescription, out_dir: str | os.PathLike, *, spp: int = 256
                   '        </transform>',
                   '    </emitter>']
     for i, obj in enumerate(desc.objects):
-        normals = meshes[_geometry_key(obj)][2]
+        normals = meshes[obj.geometry_key()][2]
         m = obj.transform()
         lines += [f'    <shape type="ply" id="object{i}">',
                   f'        <!-- {_xml_comment(obj.name)} -->',
@@ -742,7 +742,7 @@ def export(desc: SceneDescription, out_dir: str | os.PathLike, *, spp: int = 256
 
 
 def _file_key(obj: ObjectDesc) -> tuple:
-    return _geometry_key(obj), bool(np.linalg.det(obj.transform()[:3, :3]) < 0)
+    return obj.geometry_key(), bool(np.linalg.det(obj.transform()[:3, :3]) < 0)
 
 
 def _xml_comment(text: str) -> str:

@@ -56,7 +56,7 @@ def _world_geometry(desc: SceneDescription) -> tuple[np.ndarray, list[int]]:
     parts, counts = [], []
     cache: dict[tuple, tuple] = {}
     for obj in desc.objects:
-        key = (obj.mesh, obj.primitive, repr(sorted(obj.params.items())))
+        key = obj.geometry_key()
         if key not in cache:  # the same geometry is loaded once, as build_scene does
             v, f, _ = object_geometry(obj)
             cache[key] = (np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64))

@@ -17,14 +17,12 @@ from typing import Any
 
 import numpy as np
 
+from .core import LOBES
 from .errors import InputError
-from .heightfield import (ALBEDO_EXTENSIONS, HEIGHT_EXTENSIONS, TERRAINS, HeightField, check_terrain_params, load_albedo,
-                          load_heights, make_terrain)
 
 PROCEDURAL_ENVS = ("sky", "constant", "directional", "area_lights")
 PRIMITIVES = ("sphere", "box", "plane", "torus", "cylinder", "cone", "torus_knot")
-LOBES = ("phong", "blinn_phong", "ggx")
-FIV_PRECISIONS = ("float16", "float32")
+DEFAULT_METHOD = "unshadowed"    # [render] method when the file names none
 
 
 @dataclass
@@ -60,12 +58,16 @@ class ObjectDesc:
     shininess: float = 100.0
     roughness: float = 0.3
     lobe: str = "phong"
-    occluder: bool | None = None     # casts `fiv` shadows; None: True for a mesh file, False for a primitive
+    occluder: bool | None = None     # casts shadows in the methods that need occluders; None: True for a mesh file
 
     @property
     def is_occluder(self) -> bool:
-        """Whether the `fiv` method bakes a field for this object (docs/scene-format.md)."""
+        """Whether methods that shadow from occluders' assets treat it as one (docs/scene-format.md)."""
         return self.mesh is not None if self.occluder is None else bool(self.occluder)
+
+    def geometry_key(self) -> tuple:
+        """Objects with equal keys have the same geometry (one mesh and BVH serve them)."""
+        return (self.mesh, self.primitive, repr(sorted(self.params.items())))
 
     def transform(self) -> np.ndarray:
         """4x4 object-to-world matrix: scale, then rotate about x, y, z (in that order), then translate."""
@@ -98,68 +100,6 @@ class LightDesc:
 
 
 @dataclass
-class FivDesc:
-    """``[fiv]``: how the ``fiv`` method bakes occlusion fields (docs/fiv.md).
-    ``samples`` is (phi, theta, radii), the paper's notation ("32x17x15")."""
-
-    samples: tuple[int, int, int] = (32, 17, 15)
-    precision: str = "float16"
-    inner_radius: float = 0.2
-    error_target: float = 0.01
-    face_size: int = 32
-    sun_supersampling: int = 4
-    sun_threshold: float = 0.1
-    cache: str | None = None         # bake folder (resolved); None: $PENUMBRA_CACHE/fiv or ~/.cache/penumbra/fiv
-
-    def bake_options(self) -> dict[str, Any]:
-        """The bake options as keyword arguments of ``penumbra.FivOptions`` (samples as theta, phi, radii)."""
-        phi, theta, radii = self.samples
-        return {"samples": (theta, phi, radii), "precision": self.precision, "inner_radius": self.inner_radius,
-                "error_target": self.error_target, "face_size": self.face_size,
-                "sun_supersampling": self.sun_supersampling, "sun_threshold": self.sun_threshold}
-
-
-@dataclass
-class HeightfieldDesc:
-    """``[[heightfield]]``: a height field from a file or a procedural terrain, placed in the
-    world (docs/scene-format.md, docs/heightfield.md). :meth:`load` makes the :class:`HeightField`."""
-
-    name: str
-    file: str | None = None          # resolved height map path, or None for a terrain
-    terrain: str | None = None       # one of heightfield.TERRAINS
-    size_px: tuple[int, int] | None = None  # [W, D] of a terrain (parse default: (256, 256)); None for a file
-    params: dict[str, Any] = field(default_factory=dict)  # arguments of the terrain
-    origin: tuple[float, float, float] = (-5.0, 0.0, -5.0)  # vertex (0, 0); parse default: centred on x = z = 0
-    size: tuple[float, float] = (10.0, 10.0)   # (size_x, size_z)
-    height_scale: float = 1.0
-    albedo: tuple[float, float, float] = (0.8, 0.8, 0.8)
-    albedo_map: str | None = None    # resolved albedo map path (replaces albedo)
-
-    def load(self) -> HeightField:
-        """Reads or makes the heights (and albedo map); errors name this table."""
-        t = f"[heightfield '{self.name}']"
-        try:
-            if self.file is not None:
-                heights = load_heights(self.file)
-            else:
-                try:
-                    heights = make_terrain(self.terrain, *(self.size_px or HEIGHTFIELD_DEFAULT_SIZE_PX), **self.params)
-                except InputError as exc:
-                    raise InputError(f"params: {exc}") from None
-            albedo = self.albedo
-            if self.albedo_map is not None:
-                albedo = load_albedo(self.albedo_map)
-                if albedo.shape[:2] != heights.shape:
-                    raise InputError(f"albedo_map {self.albedo_map} is {albedo.shape[1]} x {albedo.shape[0]} "
-                                     f"pixels but the heights are {heights.shape[1]} x {heights.shape[0]} "
-                                     "(W x D): it needs one texel per height sample")
-            return HeightField(heights, origin=self.origin, size=self.size, height_scale=self.height_scale,
-                               albedo=albedo)
-        except InputError as exc:
-            raise InputError(f"{t} {exc}") from None
-
-
-@dataclass
 class SceneDescription:
     environment: EnvironmentDesc
     camera: CameraDesc
@@ -167,8 +107,15 @@ class SceneDescription:
     lights: list[LightDesc] = field(default_factory=list)
     render: dict[str, Any] = field(default_factory=dict)  # method = "...", other keys: method parameters
     source: str = "<dict>"
-    fiv: FivDesc = field(default_factory=FivDesc)
-    heightfields: list[HeightfieldDesc] = field(default_factory=list)
+    # The tables the techniques own (penumbra.methods: SceneTable), by attribute
+    # name; desc.<attr> reads them (e.g. desc.fiv, desc.heightfields).
+    tables: dict[str, Any] = field(default_factory=dict)
+
+    def __getattr__(self, name: str):
+        tables = self.__dict__.get("tables")
+        if tables is not None and name in tables:
+            return tables[name]
+        raise AttributeError(f"{type(self).__name__} has no attribute {name!r}")
 
 
 # ---------------------------------------------------------------- checking
@@ -268,13 +215,33 @@ _OBJECT_KEYS = {"name", "mesh", "primitive", "params", "translate", "rotate_deg"
                 "shininess", "roughness", "lobe", "occluder"}
 
 
-def _object(d: dict, index: int, base: Path) -> ObjectDesc:
+def _named_entry(d: Any, index: int, array: str, keys: set[str]) -> tuple[str, str]:
+    """(name, label for messages) of entry ``index`` of an array of tables
+    ``[[array]]`` with a ``name`` key (default ``<array><index>``); its keys checked."""
     if not isinstance(d, dict):
-        raise InputError(f"[[object]] #{index} must be a table")
-    name = d.get("name", f"object{index}")
-    t = f"object '{name}'"
-    _check_keys(t, d, _OBJECT_KEYS)
-    o = ObjectDesc(name=_string(t, "name", name))
+        raise InputError(f"[[{array}]] #{index} must be a table")
+    name = d.get("name", f"{array}{index}")
+    t = f"{array} '{name}'"
+    _check_keys(t, d, keys)
+    return _string(t, "name", name), t
+
+
+def _named_entries(value: Any, array: str, what: str, parse) -> list:
+    """The entries of ``[[array]]`` (None: none), each ``parse(entry, index)``; their names unique."""
+    value = [] if value is None else value
+    if not isinstance(value, list):
+        raise InputError(f"{what}s are given as [[{array}]] tables")
+    descs = [parse(x, i) for i, x in enumerate(value)]
+    names = [x.name for x in descs]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise InputError(f"{what} names must be unique; repeated: {', '.join(sorted(dup))}")
+    return descs
+
+
+def _object(d: dict, index: int, base: Path) -> ObjectDesc:
+    name, t = _named_entry(d, index, "object", _OBJECT_KEYS)
+    o = ObjectDesc(name=name)
     if ("mesh" in d) == ("primitive" in d):
         raise InputError(f"[{t}] needs exactly one of 'mesh' (a file) or 'primitive' ({', '.join(PRIMITIVES)})")
     if "mesh" in d:
@@ -299,55 +266,6 @@ def _object(d: dict, index: int, base: Path) -> ObjectDesc:
     return o
 
 
-FIV_SAMPLE_LIMITS = (("phi", 4, 2048), ("theta", 3, 1025), ("radii", 2, 256))  # as pn_fiv_options
-
-
-def _fiv(d: dict, base: Path) -> FivDesc:
-    t = "fiv"
-    _check_keys(t, d, {"samples", "precision", "inner_radius", "error_target", "face_size", "sun_supersampling",
-                       "sun_threshold", "cache"})
-    f = FivDesc()
-    samples = d.get("samples", list(f.samples))
-    if not isinstance(samples, (list, tuple)) or len(samples) != 3:
-        raise InputError(f"{_where(t, 'samples')} must be [phi, theta, radii] (the paper's notation, e.g. "
-                         f"[32, 17, 15]), got {samples!r}")
-    f.samples = tuple(_integer(t, f"samples[{i}] ({name})", v, lo, hi)
-                      for i, ((name, lo, hi), v) in enumerate(zip(FIV_SAMPLE_LIMITS, samples)))
-    if math.prod(f.samples) > 1 << 28:
-        raise InputError(f"{_where(t, 'samples')} = {list(f.samples)} has more than 2^28 samples")
-    f.precision = _string(t, "precision", d.get("precision", f.precision), FIV_PRECISIONS)
-    f.inner_radius = _number(t, "inner_radius", d.get("inner_radius", f.inner_radius), lo=0.0, hi=1.0, lo_open=True)
-    if f.inner_radius >= 1.0:
-        raise InputError(f"{_where(t, 'inner_radius')} = {f.inner_radius} must be < 1 (bounding radii)")
-    f.error_target = _number(t, "error_target", d.get("error_target", f.error_target), lo=0.0, hi=0.5, lo_open=True)
-    f.face_size = _integer(t, "face_size", d.get("face_size", f.face_size), 1, 256)
-    f.sun_supersampling = _integer(t, "sun_supersampling", d.get("sun_supersampling", f.sun_supersampling), 1, 16)
-    if f.face_size * f.sun_supersampling > 2048:
-        raise InputError(f"[fiv] face_size {f.face_size} x sun_supersampling {f.sun_supersampling} must be <= 2048")
-    f.sun_threshold = _number(t, "sun_threshold", d.get("sun_threshold", f.sun_threshold), lo=0.0, hi=1.0,
-                              lo_open=True)
-    if "cache" in d:
-        f.cache = _resolve(base, _string(t, "cache", d["cache"]))
-    return f
-
-
-def _geometry_key(o: ObjectDesc) -> tuple:
-    """Objects with equal keys share one mesh (render.build_scene)."""
-    return (o.mesh, o.primitive, repr(sorted(o.params.items())))
-
-
-def _check_occluders(objects: list[ObjectDesc]) -> None:
-    # A field applies to every instance of its mesh, so instances of one mesh cannot differ.
-    flags: dict[tuple, ObjectDesc] = {}
-    for o in objects:
-        first = flags.setdefault(_geometry_key(o), o)
-        if first.is_occluder != o.is_occluder:
-            raise InputError(f"[object '{o.name}'] occluder = {str(o.is_occluder).lower()} but [object '{first.name}'] "
-                             f"has the same {'mesh' if o.mesh else 'primitive and params'} with occluder = "
-                             f"{str(first.is_occluder).lower()}: objects that share a mesh share its occlusion field, "
-                             "so they must agree")
-
-
 def _light(d: dict, index: int) -> LightDesc:
     if not isinstance(d, dict):
         raise InputError(f"[[light]] #{index} must be a table")
@@ -361,103 +279,47 @@ def _light(d: dict, index: int) -> LightDesc:
                      radiance=_vector(t, "radiance", d["radiance"], broadcast=True, lo=0.0))
 
 
-_HEIGHTFIELD_KEYS = {"name", "file", "terrain", "size_px", "params", "origin", "size", "height_scale", "albedo",
-                     "albedo_map"}
-HEIGHTFIELD_MAX_SIZE_PX = 8192
-HEIGHTFIELD_DEFAULT_SIZE_PX = (256, 256)  # the seed's texture resolution
+def _render(d: dict) -> dict[str, Any]:
+    """[render]: the method (a method of the library) and its renderer
+    parameters, checked against the library's metadata (frame and plan
+    parameters of that method; a bake option names the table it goes in)."""
+    from .methods import names, technique
 
-
-def _file_key(t: str, key: str, d: dict, base: Path, extensions: tuple[str, ...]) -> str:
-    value = _string(t, key, d[key])
-    if Path(value).suffix.lower() not in extensions:
-        raise InputError(f"{_where(t, key)} = {value!r} must be a {', '.join(extensions)} file")
-    return _resolve(base, value)
-
-
-def _heightfield(d: dict, index: int, base: Path) -> HeightfieldDesc:
-    if not isinstance(d, dict):
-        raise InputError(f"[[heightfield]] #{index} must be a table")
-    name = d.get("name", f"heightfield{index}")
-    t = f"heightfield '{name}'"
-    _check_keys(t, d, _HEIGHTFIELD_KEYS)
-    h = HeightfieldDesc(name=_string(t, "name", name))
-    if ("file" in d) == ("terrain" in d):
-        raise InputError(f"[{t}] needs exactly one of 'file' (a {', '.join(HEIGHT_EXTENSIONS)} height map) or "
-                         f"'terrain' ({', '.join(TERRAINS)})")
-    if "file" in d:
-        for key in ("size_px", "params"):
-            if key in d:
-                raise InputError(f"{_where(t, key)} only applies to a 'terrain' (a file has its own size)")
-        h.file = _file_key(t, "file", d, base, HEIGHT_EXTENSIONS)
-    else:
-        h.terrain = _string(t, "terrain", d["terrain"], tuple(TERRAINS))
-        px = d.get("size_px", list(HEIGHTFIELD_DEFAULT_SIZE_PX))
-        if not isinstance(px, (list, tuple)) or len(px) != 2:
-            raise InputError(f"{_where(t, 'size_px')} must be [W, D] (samples along x and z), got {px!r}")
-        h.size_px = tuple(_integer(t, f"size_px[{i}]", v, 2, HEIGHTFIELD_MAX_SIZE_PX) for i, v in enumerate(px))
-        params = d.get("params", {})
-        if not isinstance(params, dict):
-            raise InputError(f"{_where(t, 'params')} must be a table")
-        try:
-            check_terrain_params(h.terrain, params)
-        except InputError as exc:
-            raise InputError(f"{_where(t, 'params')}: {exc}") from None
-        h.params = dict(params)
-    size = d.get("size", list(h.size))
-    if not isinstance(size, (list, tuple)) or len(size) != 2:
-        raise InputError(f"{_where(t, 'size')} must be [size_x, size_z], got {size!r}")
-    h.size = tuple(_number(t, f"size[{i}]", v, lo=0.0, lo_open=True) for i, v in enumerate(size))
-    h.origin = _vector(t, "origin", d.get("origin", [-h.size[0] / 2, 0.0, -h.size[1] / 2]))
-    h.height_scale = _number(t, "height_scale", d.get("height_scale", h.height_scale))
-    if "albedo" in d and "albedo_map" in d:
-        raise InputError(f"[{t}] has both 'albedo' and 'albedo_map'; give one (the map replaces the constant)")
-    h.albedo = _vector(t, "albedo", d.get("albedo", h.albedo), broadcast=True, lo=0.0, hi=1.0)
-    if "albedo_map" in d:
-        h.albedo_map = _file_key(t, "albedo_map", d, base, ALBEDO_EXTENSIONS)
-    return h
+    render = dict(d)
+    method = _string("render", "method", render.get("method", DEFAULT_METHOD), names())
+    params = technique(method).check_render_table({k: v for k, v in render.items() if k != "method"})
+    return {**({"method": method} if "method" in render else {}), **params}
 
 
 def parse_scene(data: dict, base_dir: str | Path = ".", source: str = "<dict>") -> SceneDescription:
     """Checks a scene given as a dict (the parsed TOML) and returns its description."""
+    from .methods import scene_tables
+
     base = Path(base_dir)
-    _check_keys("scene", data, {"environment", "camera", "object", "light", "render", "fiv", "heightfield"})
-    for table in ("environment", "camera", "render", "fiv"):
+    owned = scene_tables()
+    _check_keys("scene", data, {"environment", "camera", "object", "light", "render", *(t.key for t in owned)})
+    for table in ("environment", "camera", "render", *(t.key for t in owned if not t.array)):
         if table in data and not isinstance(data[table], dict):
             raise InputError(f"[{table}] must be a table")
-    objects = data.get("object", [])
-    if not isinstance(objects, list):
-        raise InputError("objects are given as [[object]] tables")
-    descs = [_object(o, i, base) for i, o in enumerate(objects)]
-    names = [o.name for o in descs]
-    dup = {n for n in names if names.count(n) > 1}
-    if dup:
-        raise InputError(f"object names must be unique; repeated: {', '.join(sorted(dup))}")
-    _check_occluders(descs)
+    descs = _named_entries(data.get("object"), "object", "object", lambda o, i: _object(o, i, base))
     lights = data.get("light", [])
     if not isinstance(lights, list):
         raise InputError("lights are given as [[light]] tables")
-    heightfields = data.get("heightfield", [])
-    if not isinstance(heightfields, list):
-        raise InputError("height fields are given as [[heightfield]] tables")
-    hdescs = [_heightfield(x, i, base) for i, x in enumerate(heightfields)]
-    hnames = [x.name for x in hdescs]
-    hdup = {n for n in hnames if hnames.count(n) > 1}
-    if hdup:
-        raise InputError(f"height field names must be unique; repeated: {', '.join(sorted(hdup))}")
-    render = dict(data.get("render", {}))
-    if "method" in render:
-        _string("render", "method", render["method"])
     return SceneDescription(environment=_environment(data.get("environment", {}), base),
                             camera=_camera(data.get("camera", {})), objects=descs,
-                            lights=[_light(x, i) for i, x in enumerate(lights)], render=render, source=source,
-                            fiv=_fiv(data.get("fiv", {}), base), heightfields=hdescs)
+                            lights=[_light(x, i) for i, x in enumerate(lights)], render=_render(data.get("render", {})),
+                            source=source, tables={t.attr: t.parse(data.get(t.key), base, data) for t in owned})
 
 
 def apply_overrides(data: dict, overrides: list[str]) -> dict:
     """Applies ``--set`` overrides ``table.key=value`` (value in TOML syntax, bare
     words taken as strings) to the parsed TOML. Objects are addressed by name or
-    index: ``object.bunny.albedo=[1,0,0]``, ``object.0.translate=[0,1,0]``; height fields
-    likewise: ``heightfield.0.height_scale=2``; lights by index: ``light.0.radius=0.2``."""
+    index: ``object.bunny.albedo=[1,0,0]``, ``object.0.translate=[0,1,0]``; the
+    techniques' arrays of tables likewise (``heightfield.0.height_scale=2``);
+    lights by index: ``light.0.radius=0.2``."""
+    from .methods import scene_tables
+
+    arrays = {"object": "object", "light": "light", **{t.key: t.key for t in scene_tables() if t.array}}
     data = copy.deepcopy(data)
     for item in overrides:
         if "=" not in item:
@@ -468,8 +330,8 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict:
         except tomllib.TOMLDecodeError:
             value = raw
         parts = key.strip().split(".")
-        if parts[0] in ("object", "heightfield", "light"):
-            kind = {"object": "object", "heightfield": "height field", "light": "light"}[parts[0]]
+        if parts[0] in arrays:
+            kind = arrays[parts[0]]
             if len(parts) != 3:
                 raise InputError(f"--set {key}: {kind}s are set as {parts[0]}.NAME_OR_INDEX.key")
             objs = data.setdefault(parts[0], [])
