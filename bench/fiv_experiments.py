@@ -63,7 +63,7 @@ from harness import (HEAT_FRACTION, REPO, Experiment, Suite, Variant, f4, kernel
 from penumbra import procedural  # noqa: E402
 from penumbra.core import Camera, Context, EnvMap, GBuffer, Image, Material, Mesh, Renderer, Scene  # noqa: E402
 from penumbra.fileutil import atomic_write_text  # noqa: E402
-from penumbra.fiv import FivField, FivOptions, envmap_hash, mesh_hash, set_scene_fields  # noqa: E402
+from penumbra.methods.fiv import FivField, FivOptions, attach_by_mesh, envmap_hash, mesh_hash  # noqa: E402
 from penumbra.imageio import read_envmap  # noqa: E402
 from penumbra.render import object_geometry  # noqa: E402
 from penumbra.scenefile import parse_scene  # noqa: E402
@@ -375,7 +375,7 @@ class Runner(harness.Runner):
         the reference; NRMSE etc. over the pixels of object `mask_of`.
         `oracle(gbuffer planes, mask, unshadowed irradiance)` may add
         (label, image) variants computed with the exact occlusion per pixel."""
-        set_scene_fields(built.scene, fields)
+        attach_by_mesh(built.scene, fields)
         built.scene.commit()
         ref, ref_s = self.reference(built)
         uns_img, gbuf, uns_ms = shade(built, "unshadowed", background=0, planes=True)
@@ -544,7 +544,7 @@ def overlap_kernel_check(r: Runner, data: dict, env: str, field: FivField, both:
         for name in ("bunny_a", "bunny_b"):
             one = {"camera": data["camera"], "object": [o for o in data["object"] if o["name"] in (name, "ground")]}
             b1 = Built(r.ctx, one, env)
-            set_scene_fields(b1.scene, [field])
+            attach_by_mesh(b1.scene, [field])
             b1.scene.commit()
             img, g, _ = shade(b1, "fiv", background=0, partial=partial, planes=True)
             imgs[name], masks[name] = img[..., :3].astype(np.float64), g["instance"] == b1.instance_ids["ground"]

@@ -10,7 +10,7 @@ it adds (marked * in the report, no renderer output).
 
 Penumbra functions used: penumbra.core.EnvMap (cube_directions,
 cube_radiance), penumbra.core.Scene (add, commit, occluded) and
-penumbra.fiv.FivField.info.
+penumbra.methods.fiv.FivField.info.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from penumbra.core import Context, EnvMap, Mesh, Scene
-from penumbra.fiv import FivField
+from penumbra.methods.fiv import FivField
 
 if TYPE_CHECKING:
     from fiv_experiments import Built, Runner

@@ -72,7 +72,8 @@ from penumbra import procedural  # noqa: E402
 from penumbra.core import Camera, EnvMap, GBuffer, Image, Renderer, Scene  # noqa: E402
 from penumbra.heightfield import cones_circle_light  # noqa: E402
 from penumbra.imageio import read_envmap  # noqa: E402
-from penumbra.render import add_heightfields  # noqa: E402
+from penumbra.methods import spec  # noqa: E402
+from penumbra.methods.heightfield import add_fields  # noqa: E402
 from penumbra.scenefile import parse_scene  # noqa: E402
 
 DATA = REPO.parent / "shared" / "data"
@@ -181,7 +182,7 @@ class Case:
         self.scene = Scene(ctx)
         self.scene.set_envmap(run.envmap(env_name, full_env))
         meshes: list = []
-        self.handle, self.instance = add_heightfields(ctx, self.scene, desc, meshes)[terrain]
+        self.handle, self.instance = add_fields(ctx, self.scene, desc.heightfields, meshes)[terrain]
         self.mesh = meshes[0]
         self.camera = Camera(position=cam["position"], look_at=cam["look_at"], fov_deg=FOV,
                              resolution=tuple(cam["resolution"]))
@@ -259,15 +260,8 @@ class Runner(harness.Runner):
         return self._envs[(name, full)]
 
     def _probe_params(self) -> dict:
-        r = Renderer(self.ctx, "heightfield")
-        out = {}
-        for name in ("level_step", "level_offset", "azimuths", "bands", "exact_horizon", "light_threshold",
-                     "exact_unoccluded", "sun_threshold", "light_visibility", "reconstruction"):
-            try:
-                out[name] = r.get(name)
-            except Exception:  # noqa: BLE001 - a parameter this build does not have
-                pass
-        return out
+        """The method's parameters and defaults, as the library describes them."""
+        return {p.name: p.default for p in spec("heightfield").params if p.name != "background"}
 
     def has(self, name: str) -> bool:
         return name in self.params
@@ -435,7 +429,7 @@ def cone_face_check(run: Runner, c: Case, exact: dict, pyramid: dict | None = No
         r = run.renderer("heightfield", params, c.env_name)
         r.execute(c.scene, c.gbuffer, c.image)
         run.ctx.finish()
-        got[label] = r.read_heightfield(c.scene, "light")[..., :3].mean(axis=-1)
+        got[label] = r.read_output(c.scene, "light", c.instance)[..., :3].mean(axis=-1)
     f = c.field
     pos = f.vertex_positions().reshape(f.depth, f.width, 3)
     inner = (np.abs(pos[..., 0]) <= EXTENT / 2 - MARGIN) & (np.abs(pos[..., 2]) <= EXTENT / 2 - MARGIN)
@@ -593,7 +587,7 @@ def exp_d(run: Runner) -> dict:
             changed_ms = statistics.median(changed)
             # Directly: new heights, then the normals read back (pyramid + normals + read-back, no pass),
             # minus the same read-back on an unchanged field.
-            read = lambda: r.read_heightfield(c.scene, "normals")  # noqa: E731
+            read = lambda: r.read_output(c.scene, "normals", c.instance)  # noqa: E731
             read()
             read_ms, _ = median_ms(read, runs, ctx.finish)
             direct, upload = [], []
@@ -815,7 +809,7 @@ def report(results: dict) -> str:
               "a warm-up. env frame = execute on a scene without lights and an unchanged field (environment pass + "
               "G-buffer shading); pyramid (frames) = execute right after `set_heights` (new heights, as a dynamic "
               "terrain) minus the env frame: within the noise of the multi-second frames; pyramid (direct) = "
-              "`set_heights` then `read_heightfield(\"normals\")` (pyramid, normals, read-back; no pass) minus the "
+              "`set_heights` then `read_output(\"normals\")` (pyramid, normals, read-back; no pass) minus the "
               "same read-back of an unchanged field; set_heights = its host time (copy, checks, commit); per light = execute with 1 light minus without; "
               "floor = the floor kernel on the same G-buffer. set-up = the first execute of a new renderer "
               "(wedge tables, env SH, upper-half irradiance). "
