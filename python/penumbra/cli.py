@@ -168,9 +168,11 @@ def cmd_demo(args) -> int:
     runs = [(m, args.frames, {}) for m in interactive()]
     if args.reference_face_size > 0:
         runs.append(("reference", 1, {"face_size": args.reference_face_size}))
-    with _BakeBars() as bakes, _progress(sum(f + (m != "reference") for m, f, _ in runs), "demo") as bar:
+    # Warm-up frames only for methods that are timed frame after frame.
+    warm = {m: technique(m).interactive for m, _, _ in runs}
+    with _BakeBars() as bakes, _progress(sum(f + warm[m] for m, f, _ in runs), "demo") as bar:
         for method, frames, params in runs:
-            result = render(built, method, frames=frames, progress=bar, warmup=method != "reference",
+            result = render(built, method, frames=frames, progress=bar, warmup=warm[method],
                             bake_progress=bakes, **params)
             rgb = np.ascontiguousarray(result.image[..., :3])
             write_exr(out / f"{method}.exr", rgb)
