@@ -338,3 +338,20 @@ def test_against_reference_dawn_grating_with_light(ctx, overcast_env):
     h = make_terrain("sine_grating", 49, 49, period=0.25)
     err, base = terrain_scene_error(ctx, overcast_env, h, 1.5, lights=[light_row((0.0, 1.5, 0.0), 0.15, (30,) * 3)])
     assert err < 0.052 and err < 0.5 * base, (err, base)
+
+
+@pytest.mark.parametrize("terrain,scale", [("fbm", 2.0), ("city_blocks", 3.0)])
+def test_mesh_normals_are_the_method_normals(ctx, constant_env, terrain, scale):
+    """The triangle mesh the library builds for a height field (G-buffer,
+    reference, Mitsuba export) and the heightfield method's own per-vertex
+    normals come from one rule, central differences of the world heights
+    (host C for the mesh, the hf_normals kernel for the method): they agree
+    to float rounding, so the two cannot drift apart. The mesh's vertices are
+    the placed heights."""
+    h = make_terrain(terrain, 33, 29, seed=5)
+    rig = Rig(ctx, h, constant_env, size=(6.0, 5.0), height_scale=scale)
+    v, f, n = rig.mesh.geometry()
+    assert n is not None and f.shape == (2 * 32 * 28, 3)
+    method = rig.read("normals")[..., :3].reshape(-1, 3)
+    np.testing.assert_allclose(n, method, atol=2e-6)
+    np.testing.assert_allclose(v[:, 1].reshape(29, 33), scale * h, rtol=1e-6, atol=1e-6)
