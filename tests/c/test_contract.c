@@ -2530,6 +2530,15 @@ static void test_enqueue_only(pn_context ctx)
         pn_fiv_get_info(field, &info);
         CHECK("a fresh bake reports its rays and time", info.rays > 0 && info.bake_seconds > 0.0 &&
                                                             info.radii_done == 3);
+        /* New geometry for the occluder's mesh after the attach: refused, not shaded with a stale field. */
+        float pos[24];
+        uint32_t idx[36];
+        const float moved[3] = {0.1f, 0, 0};
+        make_box(0.4f, moved, pos, idx);
+        if (expect_ok("new geometry", pn_mesh_set_geometry(r.mesh, pos, 8, idx, 12, NULL), ctx) &&
+            expect_ok("its commit", pn_mesh_commit(r.mesh), ctx) && expect_ok("scene", pn_scene_commit(r.scene), ctx))
+            expect_error("a field of the mesh's old geometry", rig_render_with(&r, fivr), PN_ERROR_INVALID_ARGUMENT, ctx,
+                         "bake the field again", NULL);
         char path[] = "/tmp/pn_header_XXXXXX";
         int fd = mkstemp(path);
         if (fd >= 0) {

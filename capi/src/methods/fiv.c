@@ -201,6 +201,11 @@ static pn_status build_records(pn_renderer r, pn_scene scene, uint32_t *count_ou
         const uint32_t id = a->instance, fi = field_index(s, a->asset);
         const pn_fiv f = s->fields[fi];
         const pn_instance *inst = pn_scene_instance(scene, id);
+        if (inst->mesh->content_hash != f->mesh_hash) /* the mesh was given new geometry after the attach */
+            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                           "instance %u's mesh is now %016llx but its occlusion field was baked for %016llx: bake "
+                           "the field again and attach it",
+                           id, (unsigned long long)inst->mesh->content_hash, (unsigned long long)f->mesh_hash);
         const float sc = pn_uniform_scale(inst->object_to_world);
         if (sc == 0.0f)
             return pn_fail(ctx, PN_ERROR_UNSUPPORTED,
