@@ -125,9 +125,12 @@ def sg_product(axis1, lam1, mu1, axis2, lam2, mu2):
     lam_m = np.sqrt((l1 - l2) ** 2 + l1 * l2 * plus)
     denom = l1 + l2 + lam_m
     expo = np.where(denom > 0, -l1 * l2 * minus / np.where(denom > 0, denom, 1.0), 0.0)
-    v = l1[..., None] * a1 + l2[..., None] * a2
-    safe = np.where(lam_m > 0, lam_m, 1.0)[..., None]
-    axis = np.where((lam_m > 0)[..., None], v / safe, np.broadcast_to(a1, v.shape))
+    # v = lam1 xi1 + lam2 xi2 from the sum and difference of the axes (each exact to
+    # rounding even when the lobes nearly cancel), normalised by its own length
+    v = (0.5 * (l1 + l2))[..., None] * (a1 + a2) + (0.5 * (l1 - l2))[..., None] * (a1 - a2)
+    norm = np.linalg.norm(v, axis=-1)
+    safe = np.where(norm > 0, norm, 1.0)[..., None]
+    axis = np.where((norm > 0)[..., None], v / safe, np.broadcast_to(a1, v.shape))
     return axis, lam_m, np.asarray(mu1, np.float64) * np.asarray(mu2, np.float64) * np.exp(expo)
 
 
@@ -208,7 +211,7 @@ def sg_cosine_closed(t, lam, k_factor: float = COSINE_SHAPE_K) -> np.ndarray:
     between its exact values O(0) = E(0) and O(1) = (E(1) + E(-1)) / 2 by the
     even shape of the large-lam limit,
       q(t) = t erf(k t) + (exp(-k^2 t^2) - 1) / (k sqrt(pi)),  k = k_factor sqrt(lam / 2),
-      O(t) = O(0) + (O(1) - O(0)) q(t) / q(1)."""
+      O(t) = O(0) + (O(1) - O(0)) q(t) / q(1), clamped at 0."""
     t = np.asarray(t, np.float64)
     lam = np.asarray(lam, np.float64)
     e_up, e_down, e_zero = sg_cosine_ends(lam)
@@ -225,7 +228,9 @@ def sg_cosine_closed(t, lam, k_factor: float = COSINE_SHAPE_K) -> np.ndarray:
 
     ta = np.abs(t)
     shape = q(ta) / q(np.ones_like(ta))
-    return sg_cosine_odd(t, lam) + e_zero + (o1 - e_zero) * shape
+    # E >= 0; the interpolation can dip a hair below 0 (1e-4 of E(1)) for a sharp lobe
+    # far below the horizon, where E is ~0
+    return np.maximum(sg_cosine_odd(t, lam) + e_zero + (o1 - e_zero) * shape, 0.0)
 
 
 # --------------------------------------------------------------------------- quadrature helpers
