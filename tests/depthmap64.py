@@ -417,3 +417,33 @@ def phong_energy(a, r: float, n: float, nodes: int = 400) -> float:
         vals = np.array([a(math.cos(p)) for p in psi])
         total += float(np.sum(w * vals * 2.0 * math.pi * np.sin(psi)))
     return total / (2.0 * math.pi / (n + 1))
+
+
+# --------------------------------------------------------------------------- docs table
+
+
+def error_rows(env, ns=(16, 32, 64, 128, 256), seed: int = 1, n_normals: int = 512):
+    """[(N, Lloyd error, median-cut error, Lloyd iterations)] for docs/depthmap.md."""
+    tex = env if isinstance(env, Texels) else texels(env)
+    normals = fibonacci_sphere(n_normals)
+    exact = exact_irradiance(tex, normals)
+    rows = []
+    for n in ns:
+        dom = decompose(tex, n, seed)
+        rows.append((n, irradiance_error(tex, dom, normals, exact=exact),
+                     irradiance_error(tex, median_cut(tex, n), normals, exact=exact), dom.iterations))
+    return rows
+
+
+if __name__ == "__main__":  # python tests/depthmap64.py [map.hdr ...]: the error-by-N table
+    import sys
+
+    from penumbra import procedural
+    from penumbra.imageio import read_envmap
+
+    maps = [("procedural sky 128x64", procedural.sky(128, 64)), ("procedural sky 512x256", procedural.sky(512, 256))]
+    maps += [(p.rsplit("/", 1)[-1], read_envmap(p)) for p in sys.argv[1:]]
+    for name, env in maps:
+        print(f"\n{name} ({env.shape[1]}x{env.shape[0]})\n\n| N | Lloyd | median cut | ratio | Lloyd iterations |\n|---|---|---|---|---|")
+        for n, e_l, e_c, it in error_rows(env):
+            print(f"| {n} | {e_l:.3g} | {e_c:.3g} | {e_c / e_l:.1f} | {it} |", flush=True)
