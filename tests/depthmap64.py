@@ -1,0 +1,449 @@
+"""float64 twin of the decomposition and the average-reflectivity terms of the
+depth-map method (docs/depthmap.md; seed: Barsi, Szirmay-Kalos, Szecsi,
+"Image-based illumination on the GPU"). No depth maps and no shading kernel
+yet: this is the reference the kernels will be written against.
+
+Plain numpy, float64 throughout. Conventions:
+
+* Env maps are (H, W, 3) lat-long arrays in the project's convention
+  (docs/conventions.md, penumbra.procedural): y up, row 0 at the top, texel
+  k = j * W + i (row-major) with direction and solid angle from
+  ``latlong_directions`` / ``latlong_row_solid_angles``.
+* A texel's weight (its "power") is luminance(L) * d_omega with Rec. 709
+  luminance (kernels/common/math.cl pn_luminance). Non-black means weight > 0.
+* Directions are unit (.., 3) arrays; RGB quantities are (.., 3).
+
+Functions:
+
+  texels        texels(env) -> Texels
+  sampling      texel_uniforms(seed, count), initial_samples(tex, n, seed)
+  Lloyd         nearest(dirs, centres), spread(tex, centres, assign),
+                lloyd(tex, centres, max_iter), decompose(env, n, seed, max_iter)
+  median cut    median_cut(env, n)
+  domains       domains_from_assignment(tex, centres, assign), cap_radius(solid_angle)
+  irradiance    exact_irradiance(tex, normals), domain_irradiance(dom, normals, cap),
+                clamped_cosine_cap(cos_theta, r), irradiance_error(env, dom, normals),
+                fibonacci_sphere(n)
+  Phong         phong_cap_average(cos_psi_c, r, n, nodes), phong_cap_average_centre(r, n),
+                seed_blend(cos_psi_c, r, n), phong_energy(a, r, n)
+
+Readings where the seed leaves a choice (docs/depthmap.md says why):
+initial samples are drawn without replacement (Efraimidis-Spirakis keys from a
+splitmix64 hash of (seed, texel index), reproducible bit for bit in C); nearest
+centre = largest dot product, ties to the lowest centre index; Lloyd stops
+when no texel changes cell (or after max_iter); a cell holding no weight keeps
+its centre; the spread minimised is sum_k w_k (1 - w_k . c_a(k)) (half the
+weighted squared chord distance).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from penumbra.procedural import latlong_directions, latlong_row_solid_angles
+
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+CHUNK = 1 << 16  # texels per block of the nearest-centre search (bounds memory to CHUNK x N)
+
+
+class DecompositionError(ValueError):
+    """Bad input to a decomposition: the message names what is wrong."""
+
+
+# --------------------------------------------------------------------------- texels
+
+
+@dataclass
+class Texels:
+    """The texels of a W x H lat-long map, flattened row-major."""
+
+    width: int
+    height: int
+    dirs: np.ndarray      # (M, 3) unit directions of the texel centres
+    omega: np.ndarray     # (M,) solid angles
+    radiance: np.ndarray  # (M, 3) RGB radiance
+    weight: np.ndarray    # (M,) luminance * solid angle
+
+    @property
+    def power(self) -> np.ndarray:
+        """(M, 3) L * d_omega."""
+        return self.radiance * self.omega[:, None]
+
+    @property
+    def nonblack(self) -> int:
+        return int(np.count_nonzero(self.weight > 0))
+
+
+def texels(env) -> Texels:
+    env = np.asarray(env)
+    if env.ndim != 3 or env.shape[2] != 3 or env.shape[0] < 1 or env.shape[1] < 1:
+        raise DecompositionError(f"environment map must be an (H, W, 3) array, got shape {env.shape}")
+    rad = env.astype(np.float64).reshape(-1, 3)
+    if not np.isfinite(rad).all():
+        raise DecompositionError("environment map holds NaN or Inf radiance")
+    if (rad < 0).any():
+        raise DecompositionError("environment map holds negative radiance")
+    h, w = env.shape[:2]
+    dirs = latlong_directions(w, h).reshape(-1, 3)
+    omega = np.repeat(latlong_row_solid_angles(w, h), w)
+    return Texels(w, h, dirs, omega, rad, (rad @ LUMINANCE) * omega)
+
+
+# --------------------------------------------------------------------------- initial samples
+
+
+def splitmix64(x: np.ndarray) -> np.ndarray:
+    """splitmix64 finaliser of uint64 array x (wrapping arithmetic, as in C)."""
+    z = np.asarray(x, dtype=np.uint64) + np.uint64(0x9E3779B97F4A7C15)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
+def texel_uniforms(seed: int, count: int) -> np.ndarray:
+    """u_k in (0, 1), k = 0..count-1: ((splitmix64(seed * 2^32 + k) >> 11) + 0.5) * 2^-53."""
+    base = np.uint64((int(seed) & 0xFFFFFFFF) << 32)
+    with np.errstate(over="ignore"):
+        h = splitmix64(base + np.arange(count, dtype=np.uint64))
+    return ((h >> np.uint64(11)).astype(np.float64) + 0.5) * 2.0 ** -53
+
+
+def check_count(tex: Texels, n: int) -> int:
+    if int(n) != n or n < 1:
+        raise DecompositionError(f"number of directions must be a positive integer, got {n!r}")
+    if n > tex.nonblack:
+        raise DecompositionError(
+            f"{int(n)} directions requested but the environment map has only {tex.nonblack} non-black texels"
+            + (" (it is black)" if tex.nonblack == 0 else ""))
+    return int(n)
+
+
+def initial_samples(tex: Texels, n: int, seed: int = 0) -> np.ndarray:
+    """Indices of n distinct texels drawn without replacement with probability
+    proportional to weight: the n smallest keys -log(u_k) / w_k (Efraimidis &
+    Spirakis; ties to the lower index). Black texels are never drawn."""
+    n = check_count(tex, n)
+    u = texel_uniforms(seed, tex.weight.size)
+    with np.errstate(divide="ignore"):
+        key = np.where(tex.weight > 0, -np.log(u) / tex.weight, np.inf)
+    return np.argsort(key, kind="stable")[:n]
+
+
+# --------------------------------------------------------------------------- Lloyd relaxation
+
+
+def nearest(dirs: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Index of the centre with the largest dot product for each direction (ties to the lowest index)."""
+    out = np.empty(len(dirs), dtype=np.int64)
+    for s in range(0, len(dirs), CHUNK):
+        out[s:s + CHUNK] = np.argmax(dirs[s:s + CHUNK] @ centres.T, axis=1)
+    return out
+
+
+def spread(tex: Texels, centres: np.ndarray, assign: np.ndarray) -> float:
+    """sum_k w_k (1 - d_k . c_assign(k)): what weighted Lloyd minimises."""
+    return float(np.sum(tex.weight * (1.0 - np.einsum("ka,ka->k", tex.dirs, centres[assign]))))
+
+
+def weighted_means(tex: Texels, centres: np.ndarray, assign: np.ndarray) -> np.ndarray:
+    """Normalised weighted mean direction of each cell; a cell whose weighted sum
+    vanishes keeps its centre."""
+    s = np.zeros_like(centres)
+    np.add.at(s, assign, tex.weight[:, None] * tex.dirs)
+    norm = np.linalg.norm(s, axis=1)
+    ok = norm > 0
+    new = centres.copy()
+    new[ok] = s[ok] / norm[ok, None]
+    return new
+
+
+@dataclass
+class Domains:
+    """A decomposition of the sphere into N directional domains."""
+
+    centres: np.ndarray      # (N, 3) unit sample directions
+    radiance: np.ndarray     # (N, 3) total radiance sum L d_omega over the domain
+    solid_angle: np.ndarray  # (N,) sum of d_omega
+    cap_radius: np.ndarray   # (N,) radius of the cap with that solid angle
+    assign: np.ndarray       # (M,) domain of each texel
+    spreads: list = field(default_factory=list)  # spread after each assignment (Lloyd only)
+    iterations: int = 0
+    converged: bool = True
+
+
+def cap_radius(solid_angle) -> np.ndarray:
+    """r with 2 pi (1 - cos r) = Omega, i.e. r = 2 asin(sqrt(Omega / 4 pi)) (no cancellation at small Omega)."""
+    return 2.0 * np.arcsin(np.sqrt(np.clip(np.asarray(solid_angle, np.float64) / (4.0 * np.pi), 0.0, 1.0)))
+
+
+def domains_from_assignment(tex: Texels, centres: np.ndarray, assign: np.ndarray, **extra) -> Domains:
+    n = len(centres)
+    radiance = np.zeros((n, 3))
+    np.add.at(radiance, assign, tex.power)
+    omega = np.bincount(assign, weights=tex.omega, minlength=n).astype(np.float64)
+    return Domains(centres, radiance, omega, cap_radius(omega), assign, **extra)
+
+
+def lloyd(tex: Texels, centres: np.ndarray, max_iter: int = 100) -> Domains:
+    """Weighted Lloyd relaxation from the given centres: assign every texel to its
+    nearest centre, move each centre to its cell's weighted mean direction,
+    until no texel changes cell. Each half-step cannot increase the spread."""
+    centres = np.array(centres, dtype=np.float64)
+    if centres.ndim != 2 or centres.shape[1] != 3 or not np.isfinite(centres).all():
+        raise DecompositionError(f"centres must be finite (N, 3), got shape {centres.shape}")
+    centres /= np.linalg.norm(centres, axis=1, keepdims=True)
+    assign = nearest(tex.dirs, centres)
+    spreads = [spread(tex, centres, assign)]
+    converged = False
+    it = 0
+    while it < max_iter:
+        it += 1
+        centres = weighted_means(tex, centres, assign)
+        spreads.append(spread(tex, centres, assign))
+        new = nearest(tex.dirs, centres)
+        spreads.append(spread(tex, centres, new))
+        if np.array_equal(new, assign):
+            converged = True
+            break
+        assign = new
+    return domains_from_assignment(tex, centres, assign, spreads=spreads, iterations=it, converged=converged)
+
+
+def decompose(env, n: int, seed: int = 0, max_iter: int = 100) -> Domains:
+    """The seed's decomposition: n samples by power, weighted Lloyd relaxation,
+    texels to the nearest centre, per-domain radiance, solid angle, cap radius."""
+    tex = env if isinstance(env, Texels) else texels(env)
+    start = initial_samples(tex, n, seed)
+    return lloyd(tex, tex.dirs[start], max_iter)
+
+
+# --------------------------------------------------------------------------- median cut (Debevec 2005)
+
+
+def _split(tex: Texels, w2d: np.ndarray, region):
+    """Cut a region (j0, j1, i0, i1) across its longer side (width measured at
+    the region's middle latitude) where the cumulative weight is nearest half."""
+    j0, j1, i0, i1 = region
+    h, w = tex.height, tex.width
+    theta_mid = math.pi * 0.5 * (j0 + j1) / h
+    width_angle = (i1 - i0) * (2.0 * math.pi / w) * math.sin(theta_mid)
+    height_angle = (j1 - j0) * math.pi / h
+    sub = w2d[j0:j1, i0:i1]
+    along_rows = (height_angle >= width_angle and j1 - j0 > 1) or i1 - i0 == 1
+    profile = sub.sum(axis=1) if along_rows else sub.sum(axis=0)
+    cum = np.cumsum(profile)[:-1]  # weight before each possible cut 1..len-1
+    cut = 1 + int(np.argmin(np.abs(cum - 0.5 * profile.sum())))
+    if along_rows:
+        return (j0, j0 + cut, i0, i1), (j0 + cut, j1, i0, i1)
+    return (j0, j1, i0, i0 + cut), (j0, j1, i0 + cut, i1)
+
+
+def median_cut(env, n: int) -> Domains:
+    """Debevec's median cut: split every region in two (across its longer side,
+    at the weight median) level by level; when n is not a power of two the last
+    level splits only the heaviest regions. A domain's centre is its weighted
+    mean direction (the solid-angle mean where it holds no weight)."""
+    tex = env if isinstance(env, Texels) else texels(env)
+    n = check_count(tex, n)
+    w2d = tex.weight.reshape(tex.height, tex.width)
+    regions = [(0, tex.height, 0, tex.width)]
+    while len(regions) < n:
+        splittable = [r for r in regions if (r[1] - r[0]) * (r[3] - r[2]) > 1]
+        order = sorted(splittable, key=lambda r: -w2d[r[0]:r[1], r[2]:r[3]].sum())
+        chosen = set(order[:n - len(regions)])
+        nxt = []
+        for r in regions:
+            nxt.extend(_split(tex, w2d, r) if r in chosen else [r])
+        regions = nxt
+    assign = np.empty((tex.height, tex.width), dtype=np.int64)
+    for k, (j0, j1, i0, i1) in enumerate(regions):
+        assign[j0:j1, i0:i1] = k
+    assign = assign.ravel()
+    s = np.zeros((n, 3))
+    np.add.at(s, assign, tex.weight[:, None] * tex.dirs)
+    g = np.zeros((n, 3))
+    np.add.at(g, assign, tex.omega[:, None] * tex.dirs)
+    s = np.where((np.linalg.norm(s, axis=1) > 0)[:, None], s, g)
+    centres = s / np.linalg.norm(s, axis=1, keepdims=True)
+    return domains_from_assignment(tex, centres, assign)
+
+
+# --------------------------------------------------------------------------- irradiance
+
+
+def fibonacci_sphere(n: int) -> np.ndarray:
+    """n near-uniform unit directions (spherical Fibonacci lattice)."""
+    k = np.arange(n) + 0.5
+    y = 1.0 - 2.0 * k / n
+    phi = math.pi * (3.0 - math.sqrt(5.0)) * k
+    s = np.sqrt(1.0 - y * y)
+    return np.stack([s * np.cos(phi), y, s * np.sin(phi)], axis=-1)
+
+
+def exact_irradiance(tex: Texels, normals: np.ndarray) -> np.ndarray:
+    """E(n) = sum_k L_k d_omega_k max(0, n . d_k), (P, 3): the unshadowed irradiance of the map."""
+    out = np.zeros((len(normals), 3))
+    p = tex.power
+    for s in range(0, len(tex.dirs), CHUNK):
+        out += np.maximum(normals @ tex.dirs[s:s + CHUNK].T, 0.0) @ p[s:s + CHUNK]
+    return out
+
+
+def _cap_inside(cos_theta, r):
+    """int over the cap (radius r <= pi/2, centre at angle theta from n) of max(0, n . w) dw.
+    Fully above the horizon (cos^2 theta > sin^2 r, theta < pi/2): pi sin^2 r cos theta; fully
+    below: 0; straddling: Snyder's formula (as in Lagarde & de Rousiers 2014, eq. 21)."""
+    ct = np.clip(cos_theta, -1.0, 1.0)
+    st = np.sqrt(np.maximum(1.0 - ct * ct, 0.0))
+    s2 = np.sin(r) ** 2
+    whole = np.pi * s2 * np.maximum(ct, 0.0)
+    straddle = ct * ct < s2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x = np.sqrt(np.maximum(1.0 / s2 - 1.0, 0.0))  # cot r
+        y = np.clip(-x * ct / st, -1.0, 1.0)
+        sy = st * np.sqrt(1.0 - y * y)
+        part = (ct * np.arccos(y) - x * sy) * s2 + np.arctan2(sy, x)
+    return np.where(straddle, np.maximum(part, 0.0), whole)
+
+
+def clamped_cosine_cap(cos_theta, r) -> np.ndarray:
+    """Average of max(0, n . w) over a cap of radius r in [0, pi] whose centre is at
+    angle theta from n. For r > pi/2 the cap is the sphere minus the cap of radius
+    pi - r around the opposite centre: integral = pi - inside(-cos theta, pi - r)."""
+    ct, r = np.broadcast_arrays(np.asarray(cos_theta, np.float64), np.asarray(r, np.float64))
+    big = r > 0.5 * np.pi
+    integral = np.where(big, np.pi - _cap_inside(-ct, np.pi - r), _cap_inside(ct, np.minimum(r, 0.5 * np.pi)))
+    area = 4.0 * np.pi * np.sin(0.5 * r) ** 2  # 2 pi (1 - cos r)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        avg = integral / area
+    return np.where(area > 0, avg, np.maximum(ct, 0.0))  # a point: the cosine itself
+
+
+def domain_irradiance(dom: Domains, normals: np.ndarray, cap: bool = False) -> np.ndarray:
+    """sum_i L~_i a_i(n), (P, 3): a_i = max(0, n . c_i) (the seed's diffuse term) or,
+    with cap=True, the exact clamped-cosine average over the domain's equivalent cap."""
+    cos_t = normals @ dom.centres.T
+    a = clamped_cosine_cap(cos_t, dom.cap_radius[None, :]) if cap else np.maximum(cos_t, 0.0)
+    return a @ dom.radiance
+
+
+def irradiance_error(tex: Texels, dom: Domains, normals: np.ndarray, cap: bool = False,
+                     exact: np.ndarray | None = None) -> float:
+    """Relative RMS error of the luminance of the domain irradiance over the normals:
+    RMS(E_dom - E) / RMS(E)."""
+    e = (exact_irradiance(tex, normals) if exact is None else exact) @ LUMINANCE
+    d = domain_irradiance(dom, normals, cap) @ LUMINANCE
+    return float(np.sqrt(np.mean((d - e) ** 2) / np.mean(e ** 2)))
+
+
+# --------------------------------------------------------------------------- Phong average reflectivity
+
+
+def _gl_mapped(a: float, b: float, nodes: int):
+    """Gauss-Legendre nodes/weights on [a, b] after x = a + (b - a)(1 - cos(pi s))/2,
+    which turns sqrt-type end-point behaviour into smooth behaviour in s."""
+    t, w = np.polynomial.legendre.leggauss(nodes)
+    s = 0.5 * (t + 1.0)
+    x = a + (b - a) * 0.5 * (1.0 - np.cos(np.pi * s))
+    return x, w * 0.5 * (b - a) * 0.5 * np.pi * np.sin(np.pi * s)
+
+
+def phong_cap_average(cos_psi_c: float, r: float, n: float, nodes: int = 200) -> float:
+    """Exact (1 / Omega_cap) int_cap max(0, R . w)^n dw for a cap of radius r whose
+    centre is at angle psi_c from R, by quadrature over psi (angle from R): the circle
+    of radius psi around R lies in the cap over an azimuth 2 phi(psi) with
+    cos phi = (cos r - cos psi cos psi_c) / (sin psi sin psi_c), so
+    average = int_0^{pi/2} cos^n psi 2 phi(psi) sin psi dpsi / (2 pi (1 - cos r)).
+    The pieces are split at the kinks |psi_c - r| and psi_c + r. n = 0 counts the
+    part of the cap in R's hemisphere."""
+    cpc = min(1.0, max(-1.0, float(cos_psi_c)))
+    psi_c = math.acos(cpc)
+    lo, hi = abs(psi_c - r), min(psi_c + r, math.pi)
+    if psi_c <= r:  # R inside the cap: whole circles up to r - psi_c
+        lo_full = r - psi_c
+    else:
+        lo_full = 0.0
+    top = 0.5 * math.pi
+    total = 0.0
+    if psi_c <= r and lo_full > 0:  # full circles: 2 pi int_0^{min(lo, pi/2)} cos^n sin
+        b = min(lo_full, top)
+        total += 2.0 * math.pi * (1.0 - math.cos(b) ** (n + 1)) / (n + 1)
+    a, b = (lo_full if psi_c <= r else lo), min(hi, top)
+    # a cap reaching past R's antipode (psi_c + r > pi) holds whole circles again beyond 2 pi - psi_c - r
+    cuts = sorted({a, b, *[x for x in (2.0 * math.pi - psi_c - r,) if a < x < b]}) if b > a else []
+    s_c = math.sqrt(max(1.0 - cpc * cpc, 0.0))
+    for lo_p, hi_p in zip(cuts[:-1], cuts[1:]):
+        psi, w = _gl_mapped(lo_p, hi_p, nodes)
+        sp, cp = np.sin(psi), np.cos(psi)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            c = (math.cos(r) - cp * cpc) / (sp * s_c)
+        phi = np.arccos(np.clip(np.nan_to_num(c, nan=1.0), -1.0, 1.0))
+        total += float(np.sum(w * cp ** n * 2.0 * phi * sp))
+    return total / (4.0 * math.pi * math.sin(0.5 * r) ** 2)
+
+
+def phong_cap_average_centre(r, n) -> np.ndarray:
+    """Closed form at psi_c = 0: (1 - cos^{n+1} r) / ((n + 1)(1 - cos r)) for r <= pi/2
+    (cos r clamped at 0 beyond: the lobe is cut at pi/2)."""
+    r = np.asarray(r, np.float64)
+    c = np.maximum(np.cos(r), 0.0)
+    return (1.0 - c ** (n + 1)) / ((n + 1) * 2.0 * np.sin(0.5 * r) ** 2)
+
+
+def seed_blend(cos_psi_c, r, n) -> np.ndarray:
+    """The seed's average reflectivity (per unit k_s): for psi_c < r,
+    A0 (cos psi_c - cos r)/(1 - cos r) + cos^n psi_c (1 - cos psi_c)/(1 - cos r) with A0 the
+    psi_c = 0 closed form; for psi_c >= r the point sample cos^n psi_c (clamped at 0)."""
+    cpc, r = np.broadcast_arrays(np.asarray(cos_psi_c, np.float64), np.asarray(r, np.float64))
+    cr = np.cos(r)
+    one_minus = 2.0 * np.sin(0.5 * r) ** 2
+    t = (1.0 - cpc) / one_minus  # 0 at the centre, 1 at the cap's edge
+    point = np.maximum(cpc, 0.0) ** n
+    inside = cpc > cr
+    return np.where(inside, phong_cap_average_centre(r, n) * (1.0 - t) + point * t, point)
+
+
+def phong_energy(a, r: float, n: float, nodes: int = 400) -> float:
+    """int over reflection directions R of a(cos psi_c) dR divided by its exact value
+    2 pi / (n + 1) (which the exact cap average and the point sample both have):
+    the fraction of the specular energy an approximation a keeps. a is a function of
+    cos psi_c; the integral is split at psi_c = r and pi/2 + r."""
+    total = 0.0
+    for lo, hi in ((0.0, r), (r, min(0.5 * math.pi + r, math.pi))):
+        psi, w = _gl_mapped(lo, hi, nodes)
+        vals = np.array([a(math.cos(p)) for p in psi])
+        total += float(np.sum(w * vals * 2.0 * math.pi * np.sin(psi)))
+    return total / (2.0 * math.pi / (n + 1))
+
+
+# --------------------------------------------------------------------------- docs table
+
+
+def error_rows(env, ns=(16, 32, 64, 128, 256), seed: int = 1, n_normals: int = 512):
+    """[(N, Lloyd error, median-cut error, Lloyd iterations)] for docs/depthmap.md."""
+    tex = env if isinstance(env, Texels) else texels(env)
+    normals = fibonacci_sphere(n_normals)
+    exact = exact_irradiance(tex, normals)
+    rows = []
+    for n in ns:
+        dom = decompose(tex, n, seed)
+        rows.append((n, irradiance_error(tex, dom, normals, exact=exact),
+                     irradiance_error(tex, median_cut(tex, n), normals, exact=exact), dom.iterations))
+    return rows
+
+
+if __name__ == "__main__":  # python tests/depthmap64.py [map.hdr ...]: the error-by-N table
+    import sys
+
+    from penumbra import procedural
+    from penumbra.imageio import read_envmap
+
+    maps = [("procedural sky 128x64", procedural.sky(128, 64)), ("procedural sky 512x256", procedural.sky(512, 256))]
+    maps += [(p.rsplit("/", 1)[-1], read_envmap(p)) for p in sys.argv[1:]]
+    for name, env in maps:
+        print(f"\n{name} ({env.shape[1]}x{env.shape[0]})\n\n| N | Lloyd | median cut | ratio | Lloyd iterations |\n|---|---|---|---|---|")
+        for n, e_l, e_c, it in error_rows(env):
+            print(f"| {n} | {e_l:.3g} | {e_c:.3g} | {e_c / e_l:.1f} | {it} |", flush=True)
