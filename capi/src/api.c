@@ -571,6 +571,12 @@ const char *pn_method_name(uint32_t index)
     return m ? m->name : NULL;
 }
 
+/* Renderer parameters and bake options together, as the metadata lists them. */
+static uint32_t param_total(const pn_method_desc *m)
+{
+    return (uint32_t)(m->param_count + m->bake_param_count);
+}
+
 pn_status pn_method_get_info(const char *method, pn_method_info *info)
 {
     CHECK_NAME(NULL, method);
@@ -582,7 +588,7 @@ pn_status pn_method_get_info(const char *method, pn_method_info *info)
     info->summary = m->summary;
     info->stage = m->stage;
     info->doc_page = m->doc_page;
-    info->param_count = (uint32_t)(m->param_count + m->bake_param_count);
+    info->param_count = param_total(m);
     info->output_count = (uint32_t)m->output_count;
     info->inputs = m->inputs;
     return PN_SUCCESS;
@@ -595,7 +601,7 @@ pn_status pn_method_get_param(const char *method, uint32_t index, pn_param_info 
     const pn_method_desc *m = pn_method_find(method);
     if (!m)
         return PN_ERROR_INVALID_ARGUMENT;
-    const uint32_t total = (uint32_t)(m->param_count + m->bake_param_count);
+    const uint32_t total = param_total(m);
     if (index >= total)
         return pn_fail(NULL, PN_ERROR_OUT_OF_RANGE, "method %s has %u parameters; there is no parameter %u", m->name,
                        total, index);

@@ -13,7 +13,7 @@
 enum { P_BACKGROUND, P_OVERLAP, P_PARTIAL, P_SELF_SHADOW, P_TRILINEAR, P_CULL_THRESHOLD };
 
 static const pn_param_desc params[] = {
-    {"background", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "", "1: background pixels show the environment, 0: black."},
+    PN_PARAM_BACKGROUND,
     {"overlap", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 2, "",
      "Several occluders: 0 sum, 1 unit-bounding-disc correction, 2 multiplied visibility."},
     {"partial", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",

@@ -21,7 +21,7 @@ enum { P_BACKGROUND, P_LEVEL_STEP, P_LEVEL_OFFSET, P_AZIMUTHS, P_BANDS, P_EXACT_
        P_EXACT_UNOCCLUDED, P_SUN_THRESHOLD, P_LIGHT_VISIBILITY, P_RECONSTRUCTION };
 
 static const pn_param_desc params[] = {
-    {"background", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "", "1: background pixels show the environment, 0: black."},
+    PN_PARAM_BACKGROUND,
     {"level_step", PN_PARAM_INT, PN_PARAM_PLAN, 4, 1, 8, "levels per octave", "Pyramid levels per octave."},
     {"level_offset", PN_PARAM_FLOAT, PN_PARAM_FRAME, 4, 0, 8, "octaves",
      "Pyramid level read, in octaves finer than the sample spacing."},

@@ -17,6 +17,10 @@
 
 #define PN_MAX_METHOD_PARAMS 16
 
+/* The parameter every env-lit method has, first in its table (slot 0). */
+#define PN_PARAM_BACKGROUND                                                                                   \
+    { "background", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "", "1: background pixels show the environment, 0: black." }
+
 typedef struct pn_output_desc {
     const char *name, *doc;
 } pn_output_desc;

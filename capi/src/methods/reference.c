@@ -10,7 +10,7 @@
 enum { P_BACKGROUND, P_FACE_SIZE, P_SUN_SUPERSAMPLING, P_SUN_THRESHOLD, P_LIGHT_SAMPLES, P_VISIBILITY, P_RAY_OFFSET };
 
 static const pn_param_desc params[] = {
-    {"background", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "", "1: background pixels show the environment, 0: black."},
+    PN_PARAM_BACKGROUND,
     {"face_size", PN_PARAM_INT, PN_PARAM_PLAN, 32, 1, 256, "texels",
      "Directions per cube-face side (32: 6144 directions)."},
     {"sun_supersampling", PN_PARAM_INT, PN_PARAM_PLAN, 1, 1, 16, "",

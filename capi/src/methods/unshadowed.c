@@ -3,7 +3,7 @@
 #include "methods/method.h"
 
 static const pn_param_desc params[] = {
-    {"background", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "", "1: background pixels show the environment, 0: black."},
+    PN_PARAM_BACKGROUND,
 };
 
 pn_status pn_unshadowed_enqueue(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image, int background)
