@@ -470,7 +470,7 @@ def test_example_scene_refers_to_the_shared_data(shared_data):
     assert Path(s.environment.map).is_file() and Path(bunny.mesh).is_file()
 
 
-def test_example_scene_renders(capsys, tmp_path, monkeypatch):
+def test_example_scene_renders(capsys, tmp_path, monkeypatch, shared_data):
     monkeypatch.chdir(tmp_path)
     code, out, err = run_cli(capsys, "render", EXAMPLE_SCENE, "--set", "camera.resolution=[48,36]",
                              "-o", "bunny.exr", "--png", "bunny.png", "--frames", "1")
@@ -485,7 +485,7 @@ def test_example_scene_renders(capsys, tmp_path, monkeypatch):
 CONES_SCENE = Path(__file__).resolve().parents[1] / "examples" / "scenes" / "cones_dawn_lights.toml"
 
 
-def test_heightfield_example_renders_with_its_lights(capsys, tmp_path, monkeypatch):
+def test_heightfield_example_renders_with_its_lights(capsys, tmp_path, monkeypatch, shared_data):
     """The cones example with --method heightfield: terrain pixels lit by the
     dawn sky and both lights (the centre light makes the middle bright), the
     same scene without lights darker there."""
@@ -503,7 +503,7 @@ def test_heightfield_example_renders_with_its_lights(capsys, tmp_path, monkeypat
     assert lit[18, 24].mean() > 1.5 * dark[18, 24].mean()
 
 
-def test_heightfield_bad_terrain_parameter_exits_2(capsys, tmp_path):
+def test_heightfield_bad_terrain_parameter_exits_2(capsys, tmp_path, shared_data):
     code, out, err = run_cli(capsys, "render", CONES_SCENE, "--method", "heightfield", "-o", tmp_path / "x.exr",
                              "--set", "heightfield.cones.params={height=1}")
     assert code == 2

@@ -752,14 +752,14 @@ def fiv_scaling(out_dir: str | Path, counts=FIV_SCALING_COUNTS, samples=(128, 65
         raise InputError(f"frames = {frames}: the measuring protocol takes the median of at least 5")
     out = Path(out_dir)
     (out / "scenes").mkdir(parents=True, exist_ok=True)
-    if data_dir is None:  # ../shared/data beside the checkout: from the working directory, or from this file
-        data_dir = next((d for d in (Path.cwd().parent / "shared" / "data",
-                                     Path(__file__).resolve().parents[4] / "shared" / "data") if d.is_dir()),
-                        Path.cwd().parent / "shared" / "data")
-    data = Path(data_dir)
+    from .. import data as test_data
+
+    if data_dir is None and not test_data.available():
+        raise InputError(f"the fiv scaling benchmark {test_data.missing_reason()}")
+    data = Path(data_dir) if data_dir is not None else test_data.data_dir()
     for rel in (SCALING_MESH, SCALING_ENV):
         if not (data / rel).is_file():
-            raise InputError(f"{data / rel} not found (the scaling benchmark needs ../shared/data beside the checkout)")
+            raise InputError(f"{data / rel} not found (the fiv scaling benchmark reads it from the test data folder)")
 
     def rel(p: Path) -> str:
         return Path(os.path.relpath(p.resolve(), (out / "scenes").resolve())).as_posix()

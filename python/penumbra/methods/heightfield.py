@@ -147,7 +147,7 @@ def _file_key(t: str, key: str, d: dict, base: Path, extensions: tuple[str, ...]
     value = _string(t, key, d[key])
     if Path(value).suffix.lower() not in extensions:
         raise InputError(f"{_where(t, key)} = {value!r} must be a {', '.join(extensions)} file")
-    return _resolve(base, value)
+    return _resolve(base, value, _where(t, key))
 
 
 def _parse_one(d: dict, index: int, base: Path) -> HeightfieldDesc:
