@@ -333,7 +333,7 @@ class Runner(harness.Runner):
                 log(f"  bake {built.env_name} {obj_name} {grid_name(grid)} {precision}: {100 * done / total:.0f} %")
             return False
 
-        f = FivField.bake(built.envmap, mesh, opts, path, progress)
+        f = FivField.bake(built.envmap, mesh, opts, path, progress, quiet=True)   # its cache of bakes
         info = f.info()
         if info["rays"] > 0:  # baked (or resumed) now
             rec = {"grid": grid_name(grid), "precision": precision, "rays": info["rays"],

@@ -17,12 +17,14 @@ Fullsphere Irradiance Vectors.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import json
 import os
 import signal
 import sys
 import time
+import warnings
 import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -180,12 +182,17 @@ def _finished_header(path) -> dict | None:
     return head if head["radii_done"] >= head["samples"][2] else None
 
 
+class FivReuseWarning(UserWarning):
+    """:meth:`FivField.bake` found a finished bake of the same inputs at its ``path`` and loaded it."""
+
+
 class FivField:
     """An occlusion field: bake with :meth:`bake`, or :meth:`load` a bake file.
-    ``baked_now``: whether :meth:`bake` traced its rays (False: it found the
-    finished bake in its file)."""
+    ``baked_now``: whether :meth:`bake` traced its rays; ``reused``: whether it
+    loaded a finished bake of the same inputs from its file instead."""
 
     baked_now = False
+    reused = False
 
     def __init__(self, ctx: Context, handle: ctypes.c_void_p):
         self._ctx = ctx
@@ -193,12 +200,23 @@ class FivField:
 
     @classmethod
     def bake(cls, env: EnvMap, mesh: Mesh, options: FivOptions | None = None, path: str | os.PathLike | None = None,
-             progress: Callable[[int, int], bool | None] | None = None) -> "FivField":
-        """Bakes ``mesh`` under ``env``. With ``path`` the bake checkpoints to that
-        file, resumes an unfinished bake there, and loads a finished one of the
-        same inputs; ``progress(done, total)`` returning True stops it."""
+             progress: Callable[[int, int], bool | None] | None = None, reuse: bool = True,
+             quiet: bool = False) -> "FivField":
+        """Bakes ``mesh`` under ``env``; ``progress(done, total)`` returning True stops it.
+
+        With ``path`` the bake checkpoints to that file and resumes an
+        unfinished bake of the same inputs there. A finished bake of the same
+        inputs (the library compares the mesh hash, the env map hash and the
+        options) is loaded instead of baked: ``reused`` is True and a
+        :class:`FivReuseWarning` says so (not with ``quiet``, for caches). A
+        file of other inputs is an :class:`~penumbra.errors.InputError` naming
+        what differs, and is left alone. ``reuse=False`` replaces whatever is
+        at ``path`` with a new bake."""
         opts = (options or FivOptions()).native()
         out = ctypes.c_void_p()
+        if path is not None and not reuse:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(path)
         before = _finished_header(path)
 
         def trampoline(_user, done, total):
@@ -212,6 +230,10 @@ class FivField:
              None if path is None else os.fsencode(path), cb, None, ctypes.byref(out))
         f = cls(env._ctx, out)
         f.baked_now = before is None or before != _finished_header(path)
+        f.reused = not f.baked_now
+        if f.reused and not quiet:
+            warnings.warn(f"{path} holds a finished bake of this mesh, env map and options: loaded it instead of "
+                          "baking (reuse=False bakes anew)", FivReuseWarning, stacklevel=2)
         return f
 
     @classmethod
@@ -282,7 +304,7 @@ def cached_field(env: EnvMap, mesh: Mesh, options: FivOptions | None = None,
     except OSError as exc:
         raise PenumbraError(f"cannot create the FIV cache folder {folder}: {exc}") from exc
     path = folder / f"{mesh_hash(mesh)}-{envmap_hash(env)}-{options.key()}.pnfiv"
-    return FivField.bake(env, mesh, options, path, progress)
+    return FivField.bake(env, mesh, options, path, progress, quiet=True)   # a cache hit is the point of a cache
 
 
 # ---------------------------------------------------------------- the scene file's [fiv] table
@@ -506,6 +528,9 @@ class Fiv(Technique):
     def summary_lines(self, built) -> list[str]:
         return [summary(state(built).records)]
 
+    def bake_report(self, built) -> dict:
+        return {"fields": [dict(r) for r in state(built).records]}
+
     def bench_extras(self, built) -> dict:
         # The precomputation: fields, their memory, and the bake time when baked now.
         recs = state(built).records
@@ -639,7 +664,7 @@ def cmd_bake_fiv(args) -> int:
     label = Path(args.mesh).name
     try:
         with bars:
-            fld = FivField.bake(env, mesh, options, out, progress=lambda d, t: bars(label, d, t))
+            fld = FivField.bake(env, mesh, options, out, progress=lambda d, t: bars(label, d, t), quiet=True)
     except PenumbraError as exc:
         if exc.status == _native.ERROR_CANCELLED:  # stopped by Ctrl-C after a checkpoint
             print(f"penumbra: interrupted: {exc} (the same command resumes it)", file=sys.stderr)

@@ -242,6 +242,7 @@ class Heightfield(Technique):
     scene_tables = (SceneTable(NAME, "heightfields", True, _parse_tables, content=True),)
     readme_setting: dict = {}           # the README's benchmark table shows the defaults
     readme_label = "defaults"
+    per_pixel = False                   # its passes run over the height field's texels, not the image's pixels
 
     def applies_to(self, desc) -> bool:
         return bool(getattr(desc, "heightfields", None))
