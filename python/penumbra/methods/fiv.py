@@ -761,12 +761,12 @@ def fiv_scaling(out_dir: str | Path, counts=FIV_SCALING_COUNTS, samples=(128, 65
                 log=print) -> dict:
     """Per-frame cost of ``fiv`` against the number of occluders: renders
     N = ``counts`` bunnies (one shared field of ``samples`` = (phi, theta,
-    radii)) at ``resolution``², timing fiv shading and the floor kernel in the
+    radii)) at ``resolution`` x ``resolution`` pixels, timing fiv shading and the floor kernel in the
     same run, next to the paper's frame rates. With ``mitsuba_count``, also
     runs the speed-against-error benchmark (run()) on that scene at
     ``mitsuba_resolution``² (fiv against the ground truth and Mitsuba 3).
     ``overrides``: ``--set`` strings applied to every scene. Writes
-    scenes/*.toml, results.json and report.md into ``out_dir``."""
+    ``scenes/*.toml``, results.json and report.md into ``out_dir``."""
     from .. import __version__
     from ..bench import BenchOptions, _exposure, run, scene_toml
     from ..fileutil import atomic_write_text

@@ -79,7 +79,7 @@ class HeightFieldHandle(_Handle):
 def output_shape(renderer, scene, output: str, instance: int) -> tuple[int, ...]:
     """The array shape of a per-vertex output of the height field attached to
     ``instance``: (D, W, k) float32 with k = 4 (radiance rgb and 1, or the
-    normal), ``azimuths`` (horizon elevations, radians) or ``bands``² (SH
+    normal), ``azimuths`` (horizon elevations, radians) or ``bands`` squared (SH
     visibility) as the renderer is set."""
     hf = scene.attachment(instance, HeightFieldHandle)
     if hf is None:
