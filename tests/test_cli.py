@@ -678,7 +678,7 @@ def test_render_help_lists_every_method_on_one_line(capsys):
         main(["render", "--help"])
     lines = capsys.readouterr().out.splitlines()
     for name, m in catalog().items():
-        assert any(line.split() and line.split()[0] == name and line.endswith(m.summary) for line in lines), name
+        assert any(line.split() and line.split()[0] == f"{name}:" and line.endswith(m.summary) for line in lines), name
 
 
 @pytest.mark.parametrize("module", ["mitsuba", "matplotlib", "embreex"])

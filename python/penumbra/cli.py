@@ -330,9 +330,9 @@ def cmd_bench(args) -> int:
 
 def method_list(catalog: dict) -> str:
     """The methods, one line each (the library's summaries), for --help."""
-    width = max(map(len, catalog)) + 2
+    width = max(map(len, catalog)) + 3
     return "methods (--method; `penumbra methods` lists their parameters):\n" + "\n".join(
-        f"  {name:<{width}}{m.summary}" for name, m in catalog.items()) + "\n"
+        f"  {name + ':':<{width}}{m.summary}" for name, m in catalog.items()) + "\n"
 
 
 def build_parser() -> tuple[argparse.ArgumentParser, dict]:

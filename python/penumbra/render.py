@@ -31,6 +31,7 @@ BandProgress = Callable[[int, int], Any]
 BANDS = 48
 # Bytes per pixel of each G-buffer plane (docs/gbuffer.md).
 _PLANE_BYTES = {p: np.dtype(t).itemsize * k for p, (t, k) in _PLANE_DTYPE.items()}
+_IMAGE_BYTES = 16   # an image pixel: float4 RGBA
 
 
 def environment_latlong(env: EnvironmentDesc) -> np.ndarray:
@@ -163,7 +164,8 @@ def _shade_in_bands(ctx: Context, renderer: Renderer, scene: Scene, gbuffer: GBu
     w, h = gbuffer.width, gbuffer.height
     _, queue = ctx.cl_objects()
     align = max(queue.device.mem_base_addr_align // 8, 1)    # sub-buffer origins must be aligned to this
-    unit = align // math.gcd(align, 4 * w)                   # rows per aligned step of the 4-byte plane
+    row = w * min(_PLANE_BYTES.values())                     # bytes per row of the narrowest plane (the instance ids)
+    unit = align // math.gcd(align, row)                     # rows per aligned step: aligns every plane and the image
     rows = max(unit, -(-max(h // BANDS, 1) // unit) * unit)
     fg = (gbuffer.read("instance") != 0xFFFFFFFF).sum(axis=1)
     planes = {p: gbuffer.cl_buffer(p) for p in _PLANE_BYTES}
@@ -174,7 +176,7 @@ def _shade_in_bands(ctx: Context, renderer: Renderer, scene: Scene, gbuffer: GBu
         n = min(rows, h - y0)
         sub = {p: buf.get_sub_region(y0 * w * _PLANE_BYTES[p], n * w * _PLANE_BYTES[p], cl.mem_flags.READ_WRITE)
                for p, buf in planes.items()}
-        band_image = Image(ctx, w, n, buffer=image_buffer.get_sub_region(y0 * w * 16, n * w * 16,
+        band_image = Image(ctx, w, n, buffer=image_buffer.get_sub_region(y0 * w * _IMAGE_BYTES, n * w * _IMAGE_BYTES,
                                                                          cl.mem_flags.READ_WRITE))
         renderer.execute(scene, GBuffer(ctx, w, n, planes=sub), band_image)
         ctx.finish()
@@ -217,7 +219,7 @@ def render(built: BuiltScene, method: str = "unshadowed", frames: int = 5, progr
         renderer.execute(built.scene, gbuffer, image)
         ctx.finish()
         warmup = time.perf_counter() < warm_until
-    banded = band_progress is not None and frames == 1 and not warmup and technique.per_pixel
+    banded = band_progress is not None and frames == 1 and not warmed and technique.per_pixel
     for _ in range(frames):
         gtimes.append(_timed(lambda: built.scene.render_gbuffer(gbuffer), ctx))
         if banded:
