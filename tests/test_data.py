@@ -143,3 +143,14 @@ def test_data_examples_say_they_need_the_data(tmp_path, monkeypatch):
         assert "needs the test data" in path.read_text()
         with pytest.raises(InputError, match="needs penumbra's test data"):
             load_scene(path)
+
+
+def test_bake_fiv_takes_data_paths(capsys, tmp_path, monkeypatch):
+    """bake-fiv's MESH and --env resolve data: as scene files do (no 'file not found' without the data)."""
+    monkeypatch.setenv(data.ENV_VAR, str(tmp_path / "no_data"))
+    code = main(["bake-fiv", "data:meshes/bunny_odedstein_3k.obj", "--env", "sky", "--samples", "8,5,4",
+                 "-o", str(tmp_path / "b.pnfiv")])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "MESH 'data:meshes/bunny_odedstein_3k.obj' needs penumbra's test data" in err
+    assert not (tmp_path / "b.pnfiv").exists()

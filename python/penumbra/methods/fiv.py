@@ -627,6 +627,7 @@ TECHNIQUE = Fiv(NAME)
 
 def cmd_bake_fiv(args) -> int:
     from .. import cli
+    from ..data import resolve as resolve_path
     from ..meshio import load_mesh
     from ..render import environment_latlong
     from ..scenefile import PROCEDURAL_ENVS, EnvironmentDesc
@@ -638,12 +639,14 @@ def cmd_bake_fiv(args) -> int:
     options = FivOptions.checked(given, lambda k: "--" + k.replace("_", "-"))
     if args.env_intensity < 0:
         raise InputError(f"--env-intensity {args.env_intensity} must be >= 0")
-    env_desc = EnvironmentDesc(map=args.env if args.env in PROCEDURAL_ENVS else str(Path(args.env).expanduser()),
-                               rotation_deg=args.env_rotation, intensity=args.env_intensity)
+    # Files as in scene files: data:REL in the test data folder, else relative to the working directory.
+    env_file = args.env if args.env in PROCEDURAL_ENVS else resolve_path(args.env, Path.cwd(), "--env")
+    mesh_file = resolve_path(args.mesh, Path.cwd(), "MESH")
+    env_desc = EnvironmentDesc(map=env_file, rotation_deg=args.env_rotation, intensity=args.env_intensity)
     ctx = Context(args.device)
     env = EnvMap(ctx, environment_latlong(env_desc), rotation_deg=env_desc.rotation_deg,
                  intensity=env_desc.intensity)
-    m = load_mesh(args.mesh)
+    m = load_mesh(mesh_file)
     mesh = Mesh(ctx, m.vertices, m.faces, m.normals)
     out = Path(args.output)
     try:
