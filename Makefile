@@ -6,11 +6,13 @@ PY := $(VENV)/bin/python
 DEBS := pocl-opencl-icd ocl-icd-opencl-dev opencl-headers cmake ninja-build g++ pkg-config python3-venv libllvm19
 STAMP_DEPS := $(VENV)/.deps-installed
 STAMP_PKG := $(VENV)/.penumbra-installed
+# The documentation site (make docs): Sphinx with Markdown pages through myst-parser.
+DOCS_PIP := "sphinx>=7" "myst-parser>=2"
 # Mitsuba 3's LLVM variant (cross-validation, benchmarks) loads Debian's libLLVM 19.
 export DRJIT_LIBLLVM_PATH ?= /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
 SOURCES := $(shell find capi kernels python cmake -type f) CMakeLists.txt pyproject.toml
 
-.PHONY: all deps venv install demo test test-c test-python bench bench-fiv-scaling clean
+.PHONY: all deps venv install demo test test-c test-python docs bench bench-fiv-scaling clean
 
 all: install
 
@@ -27,7 +29,8 @@ $(STAMP_DEPS): pyproject.toml | deps
 	python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q "scikit-build-core>=0.10" "numpy>=1.24" "pyopencl>=2023.1" "OpenEXR>=3.2" \
-	  "libigl>=2.5" "pillow>=10" "tqdm>=4.60" "pytest>=7" "mitsuba>=3.5" "embreex>=2.17" "matplotlib>=3.7"
+	  "libigl>=2.5" "pillow>=10" "tqdm>=4.60" "pytest>=7" "mitsuba>=3.5" "embreex>=2.17" "matplotlib>=3.7" \
+	  $(DOCS_PIP)
 	touch $@
 
 venv: $(STAMP_DEPS)
@@ -52,7 +55,15 @@ test-python: install
 
 test: test-c test-python
 
-# Speed against error on the standard scenes (bench/scenes, data from ../shared/data):
+# The documentation site, warnings as errors: docs/*.md, the Python API from the
+# docstrings, the gallery (docs/sphinx/; images made by docs/sphinx/make_gallery.py).
+# A venv made before Sphinx joined the pip line gets it here.
+docs: install
+	@$(PY) -c "import sphinx, myst_parser" 2>/dev/null || $(PY) -m pip install -q $(DOCS_PIP)
+	$(PY) -m sphinx -E -W --keep-going -q -b html -c docs/sphinx docs build/docs/html
+	@echo "documentation in build/docs/html/sphinx/index.html"
+
+# Speed against error on the standard scenes (bench/scenes; test data from $PENUMBRA_DATA, default ../shared/data):
 # reports in bench/results/<scene>/, and the table in README.md refreshed.
 BENCH_SCENES := $(wildcard bench/scenes/*.toml)
 bench: install

@@ -40,7 +40,8 @@ reference, error heat map). --quick writes to OUT/quick/. Bakes and reference
 images are cached in OUT/cache or $PENUMBRA_CACHE/fiv-experiments (never
 committed: OUT/.gitignore), so a rerun only renders. A full run from an empty
 cache takes about an hour on 2 cores (--big: the 256x129x30 bakes, ~20 min more).
-Data files are read from ../shared/data beside the checkout, never copied.
+Data files are read from the test data folder (penumbra.data: $PENUMBRA_DATA, default
+../shared/data beside the checkout), never copied.
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ import harness  # noqa: E402
 from harness import (HEAT_FRACTION, REPO, Experiment, Suite, Variant, f4, kernel_hash, log,  # noqa: E402
                      median_ms, settings)
 
-from penumbra import procedural  # noqa: E402
+from penumbra import data as test_data, procedural  # noqa: E402
 from penumbra.core import Camera, Context, EnvMap, GBuffer, Image, Material, Mesh, Renderer, Scene  # noqa: E402
 from penumbra.fileutil import atomic_write_text  # noqa: E402
 from penumbra.methods.fiv import FivField, FivOptions, attach_by_mesh, envmap_hash, mesh_hash  # noqa: E402
@@ -71,8 +72,8 @@ from penumbra.scenefile import parse_scene  # noqa: E402
 from fiv_oracle import (OracleSetup, bake_directions, lens_area, overlap_oracle, pixels,  # noqa: E402
                         plane_oracle, self_oracle)
 
-# Data, relative to the repository root (never copied into the repository).
-DATA = "../shared/data"
+# The test data (penumbra.data: $PENUMBRA_DATA, default ../shared/data beside the checkout; never copied).
+DATA = test_data.data_dir().as_posix()
 BUNNY = f"{DATA}/meshes/bunny_stanford_full_ajacobson.obj"   # 35,947 vertices, 69,451 triangles
 QUEEN = f"{DATA}/meshes/chess_queen_scenevr.obj"
 SUNNY = f"{DATA}/envmaps/immenstadter_horn_1k_polyhaven.hdr"   # stands in for the paper's Eucalyptus Grove
@@ -332,7 +333,7 @@ class Runner(harness.Runner):
                 log(f"  bake {built.env_name} {obj_name} {grid_name(grid)} {precision}: {100 * done / total:.0f} %")
             return False
 
-        f = FivField.bake(built.envmap, mesh, opts, path, progress)
+        f = FivField.bake(built.envmap, mesh, opts, path, progress, quiet=True)   # its cache of bakes
         info = f.info()
         if info["rays"] > 0:  # baked (or resumed) now
             rec = {"grid": grid_name(grid), "precision": precision, "rays": info["rays"],

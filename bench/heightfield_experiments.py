@@ -68,7 +68,7 @@ from harness import (HEAT_FRACTION, REPO, Experiment, Suite, Variant, f4, fmt_pa
 from harness import link as _img  # noqa: E402
 
 import penumbra  # noqa: E402
-from penumbra import procedural  # noqa: E402
+from penumbra import data as test_data, procedural  # noqa: E402
 from penumbra.core import Camera, EnvMap, GBuffer, Image, Renderer, Scene  # noqa: E402
 from penumbra.heightfield import cones_circle_light  # noqa: E402
 from penumbra.imageio import read_envmap  # noqa: E402
@@ -76,7 +76,7 @@ from penumbra.methods import spec  # noqa: E402
 from penumbra.methods.heightfield import add_fields  # noqa: E402
 from penumbra.scenefile import parse_scene  # noqa: E402
 
-DATA = REPO.parent / "shared" / "data"
+DATA = test_data.data_dir()   # penumbra.data: $PENUMBRA_DATA, default ../shared/data beside the checkout
 ENV_FILES = {"overcast": "envmaps/potsdamer_platz_1k_polyhaven.hdr",     # max/mean radiance 20: soft
              "sunny": "envmaps/immenstadter_horn_1k_polyhaven.hdr"}      # a sun 35 degrees up, 26 % of the power
 SCRIPT = "bench/heightfield_experiments.py"

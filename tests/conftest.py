@@ -11,9 +11,23 @@ import numpy as np
 import pytest
 
 import penumbra
+from penumbra import data
 from penumbra.kernels import expand
 
-SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+# The real test data (penumbra.data: $PENUMBRA_DATA, default ../shared/data
+# beside the checkout). Tests reach it through the ``shared_data`` fixture (or
+# ``needs_data()``): absent, they skip with one reason; with
+# PENUMBRA_REQUIRE_DATA=1 (CI) they fail instead.
+SHARED_DATA = data.data_dir()
+
+
+def needs_data() -> Path:
+    """The data folder, or the test skips (fails under PENUMBRA_REQUIRE_DATA=1) when it is absent."""
+    if not data.available():
+        if data.required():
+            pytest.fail(f"{data.REQUIRE_VAR} is set and the test {data.missing_reason()}", pytrace=False)
+        pytest.skip(f"{data.missing_reason()}")
+    return SHARED_DATA
 
 
 @pytest.fixture(scope="session")
@@ -45,10 +59,11 @@ def build_test_kernel(cl_pair):
 
 @pytest.fixture(scope="session")
 def shared_data() -> Path:
-    if not (SHARED_DATA / "SHA256SUMS").is_file():
-        pytest.fail(f"test data not found at {SHARED_DATA} (the project expects ../shared/data beside the checkout)")
-    return SHARED_DATA
+    """The real test data folder (see needs_data)."""
+    return needs_data()
 
 
 def pytest_report_header(config):
-    return f"penumbra {penumbra.__version__}, library {penumbra._native.library_path}"
+    where = SHARED_DATA if data.available() else f"absent ({SHARED_DATA}): data tests skip"
+    return (f"penumbra {penumbra.__version__}, library {penumbra._native.library_path}; test data {where}"
+            + (f" ({data.REQUIRE_VAR} set: required)" if data.required() else ""))

@@ -470,7 +470,7 @@ def test_example_scene_refers_to_the_shared_data(shared_data):
     assert Path(s.environment.map).is_file() and Path(bunny.mesh).is_file()
 
 
-def test_example_scene_renders(capsys, tmp_path, monkeypatch):
+def test_example_scene_renders(capsys, tmp_path, monkeypatch, shared_data):
     monkeypatch.chdir(tmp_path)
     code, out, err = run_cli(capsys, "render", EXAMPLE_SCENE, "--set", "camera.resolution=[48,36]",
                              "-o", "bunny.exr", "--png", "bunny.png", "--frames", "1")
@@ -485,7 +485,7 @@ def test_example_scene_renders(capsys, tmp_path, monkeypatch):
 CONES_SCENE = Path(__file__).resolve().parents[1] / "examples" / "scenes" / "cones_dawn_lights.toml"
 
 
-def test_heightfield_example_renders_with_its_lights(capsys, tmp_path, monkeypatch):
+def test_heightfield_example_renders_with_its_lights(capsys, tmp_path, monkeypatch, shared_data):
     """The cones example with --method heightfield: terrain pixels lit by the
     dawn sky and both lights (the centre light makes the middle bright), the
     same scene without lights darker there."""
@@ -503,7 +503,7 @@ def test_heightfield_example_renders_with_its_lights(capsys, tmp_path, monkeypat
     assert lit[18, 24].mean() > 1.5 * dark[18, 24].mean()
 
 
-def test_heightfield_bad_terrain_parameter_exits_2(capsys, tmp_path):
+def test_heightfield_bad_terrain_parameter_exits_2(capsys, tmp_path, shared_data):
     code, out, err = run_cli(capsys, "render", CONES_SCENE, "--method", "heightfield", "-o", tmp_path / "x.exr",
                              "--set", "heightfield.cones.params={height=1}")
     assert code == 2
@@ -539,3 +539,155 @@ def test_exit_codes_as_a_subprocess(bunny_scene, tmp_path):
     version = subprocess.run([sys.executable, "-m", "penumbra", "--version"], capture_output=True, text=True,
                              env=env, timeout=120)
     assert version.returncode == 0 and version.stdout.startswith("penumbra ")
+
+
+# ---------------------------------------------------------------- a newcomer's time (procedural: no data needed)
+
+PROCEDURAL_SCENE = """
+[environment]
+map = "sky"
+face_size = 16
+irradiance_face_size = 8
+
+[camera]
+position = [0.0, 1.2, 3.5]
+look_at = [0.0, 0.3, 0.0]
+fov_deg = 45
+resolution = [40, 30]
+
+[fiv]
+samples = [8, 5, 4]
+
+[[object]]
+name = "ground"
+primitive = "plane"
+params = { size = [6.0, 6.0] }
+
+[[object]]
+name = "ball"
+primitive = "sphere"
+occluder = true
+translate = [0.0, 0.5, 0.0]
+scale = 0.5
+"""
+
+
+@pytest.fixture()
+def sky_scene(tmp_path, monkeypatch) -> Path:
+    monkeypatch.setenv("PENUMBRA_CACHE", str(tmp_path / "cache"))
+    path = tmp_path / "sky.toml"
+    path.write_text(PROCEDURAL_SCENE)
+    return path
+
+
+def _count_executes(monkeypatch) -> list:
+    calls = []
+    real = penumbra.core.Renderer.execute
+    monkeypatch.setattr(penumbra.core.Renderer, "execute", lambda self, *a: (calls.append(self.method), real(self, *a)))
+    return calls
+
+
+def test_render_renders_one_frame_unless_frames_asks_for_timing(capsys, sky_scene, tmp_path, monkeypatch):
+    calls = _count_executes(monkeypatch)
+    code, out, err = run_cli(capsys, "render", sky_scene, "-o", tmp_path / "a.exr", "--json", tmp_path / "a.json")
+    assert code == 0, err
+    assert calls == ["unshadowed"]   # no warm-up frame, no timed frames
+    t = json.loads((tmp_path / "a.json").read_text())["timings_ms"]
+    assert t["frames"] == 1 and t["warmup"] is False
+    assert "one frame" in out and "untimed" in out
+    calls.clear()
+    code, out, err = run_cli(capsys, "render", sky_scene, "-o", tmp_path / "b.exr", "--json", tmp_path / "b.json",
+                             "--frames", "3")
+    assert code == 0, err
+    assert len(calls) >= 4           # warm-up frames (at least one), then 3 timed ones
+    t = json.loads((tmp_path / "b.json").read_text())["timings_ms"]
+    assert t["frames"] == 3 and t["warmup"] is True
+    assert "frame median" in out and "of 3 after warm-up" in out
+    assert run_cli(capsys, "render", sky_scene, "--frames", "0")[0] == 2
+    # The slow reference: one frame, shaded in row bands (progress).
+    calls.clear()
+    code, out, err = run_cli(capsys, "render", sky_scene, "--method", "reference", "--set", "render.face_size=4",
+                             "-o", tmp_path / "c.exr", "--json", tmp_path / "c.json")
+    assert code == 0, err
+    t = json.loads((tmp_path / "c.json").read_text())["timings_ms"]
+    assert t["frames"] == 1 and t["warmup"] is False and t["banded"] is True and len(calls) > 1
+
+
+def test_long_frames_render_in_bands_with_progress_and_the_same_image(ctx, sky_scene):
+    """A reference frame shaded in row bands (sub-G-buffers) equals the one-pass frame; the
+    progress is monotone in foreground pixels and ends at its total."""
+    from penumbra.render import build_scene, render
+
+    built = build_scene(load_scene(sky_scene), ctx)
+    whole = render(built, "reference", frames=1, warmup=False, face_size=4)
+    seen = []
+    banded = render(built, "reference", frames=1, warmup=False, face_size=4,
+                    band_progress=lambda done, total: seen.append((done, total)))
+    assert banded.timings_ms["banded"] and not whole.timings_ms["banded"]
+    np.testing.assert_array_equal(banded.image, whole.image)
+    assert len(seen) >= 4
+    done = [d for d, _ in seen]
+    assert done == sorted(done) and len(set(t for _, t in seen)) == 1 and done[-1] == seen[-1][1]
+    fg = int((whole.gbuffer["instance"] != 0xFFFFFFFF).sum())
+    assert fg <= seen[-1][1] <= fg + len(seen)   # weights: foreground pixels plus one per band
+
+
+def test_render_png_auto_exposes_unless_exposure_is_given(capsys, sky_scene, tmp_path):
+    from penumbra.imageio import auto_exposure
+
+    code, out, err = run_cli(capsys, "render", sky_scene, "-o", tmp_path / "x.exr", "--png", tmp_path / "auto.png",
+                             "--json", tmp_path / "r.json")
+    assert code == 0, err
+    rep = json.loads((tmp_path / "r.json").read_text())
+    assert rep["png_exposure"] < -0.5 and "(auto)" in out   # the sky's sun needs darkening, not exposure 0
+    lit = np.asarray(Image.open(tmp_path / "auto.png"))[..., :3]
+    assert (lit.max(axis=2) == 255).mean() < 0.1            # not blown out
+    code, out, err = run_cli(capsys, "render", sky_scene, "--png", tmp_path / "zero.png", "--exposure", "0")
+    assert code == 0, err
+    assert "(auto)" not in out and "exposure +0.00 stops" in out
+    zero = np.asarray(Image.open(tmp_path / "zero.png"))[..., :3]
+    assert (zero.max(axis=2) == 255).mean() > 2 * (lit.max(axis=2) == 255).mean()
+    # The auto exposure maps the 97th percentile of the lit pixels' luminance to 0.9.
+    img = np.zeros((1, 100, 4), np.float32)
+    img[0, :, :3], img[0, :50, 3] = np.linspace(0.01, 4.0, 100)[:, None], 1.0
+    level = np.percentile(img[0, :50, 0], 97)
+    assert auto_exposure(img) == pytest.approx(np.log2(0.9 / level))
+
+
+def test_render_json_report_has_the_parameters_in_effect_and_the_bake(capsys, sky_scene, tmp_path, ctx):
+    from penumbra.methods import spec
+
+    code, out, err = run_cli(capsys, "render", sky_scene, "--method", "fiv", "-o", tmp_path / "x.exr",
+                             "--json", tmp_path / "r.json", "--set", "render.overlap=0")
+    assert code == 0, err
+    rep = json.loads((tmp_path / "r.json").read_text())
+    want = {p.name: p.default for p in spec("fiv").params_of("frame", "plan")}
+    want["overlap"] = 0
+    assert rep["params"] == want
+    assert rep["device"] == ctx.device_name
+    fields = rep["bake"]["fields"]
+    assert len(fields) == 1 and fields[0]["objects"] == ["ball"] and fields[0]["samples"] == [8, 5, 4]
+    assert fields[0]["baked"] and fields[0]["bake_s"] > 0 and rep["bake"]["prepare_s"] >= fields[0]["bake_s"]
+    assert "preparation (bakes, loads)" in out and "not in the frame" in out
+
+
+def test_render_help_lists_every_method_on_one_line(capsys):
+    from penumbra.methods import catalog
+
+    with pytest.raises(SystemExit):
+        main(["render", "--help"])
+    lines = capsys.readouterr().out.splitlines()
+    for name, m in catalog().items():
+        assert any(line.split() and line.split()[0] == f"{name}:" and line.endswith(m.summary) for line in lines), name
+
+
+@pytest.mark.parametrize("module", ["mitsuba", "matplotlib", "embreex"])
+def test_bench_reports_a_missing_dependency_before_any_work(capsys, sky_scene, tmp_path, monkeypatch, module):
+    monkeypatch.setitem(sys.modules, module, None)   # import fails, find_spec says absent
+    calls = _count_executes(monkeypatch)
+    code, out, err = run_cli(capsys, "bench", sky_scene, "--out", tmp_path / "out")
+    assert code == 2
+    assert "not installed" in err and "-m pip install" in err and f"'{module}>=" in err
+    assert calls == [] and not (tmp_path / "out").exists()   # no ground truth, no output folder
+    if module == "embreex":   # the ray comparison can be skipped instead
+        assert "--no-rays" in err

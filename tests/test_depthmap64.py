@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import SHARED_DATA
+from conftest import needs_data
 
 import depthmap64 as dm
 from penumbra import procedural as pr
@@ -207,9 +207,7 @@ def test_cap_average_is_not_better_for_lloyd(sunny):
 @pytest.mark.parametrize("name", ["uffizi_probulator_256x128.hdr"])
 def test_real_map_lloyd_beats_median_cut(name):
     """Uffizi (the seed's Florence), 256 x 128, N = 64, 256 normals: measured Lloyd 2.5e-3, median cut 1.2e-2."""
-    path = SHARED_DATA / "envmaps" / name
-    if not path.exists():
-        pytest.skip(f"{path} is missing (real env maps live in ../shared/data)")
+    path = needs_data() / "envmaps" / name
     from penumbra.imageio import read_envmap
 
     tex = dm.texels(read_envmap(path))

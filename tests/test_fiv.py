@@ -25,7 +25,7 @@ from geometry64 import cast, unit
 from tolerances import (FIV_BAKE_ATOL, FIV_CONTINUITY_ATOL, FIV_FALLOFF_RTOL, FIV_MONOTONE_ATOL,
                         FIV_OVERLAP_INCREASE_MAX, FIV_SCALED_INSTANCE_ATOL, FIV_SHADE_ATOL, IRRADIANCE_RTOL)
 
-from penumbra.methods.fiv import read_header
+from penumbra.methods.fiv import FivReuseWarning, read_header
 from penumbra import (BACKGROUND, EnvMap, FivField, FivOptions, GBuffer, Image, InputError, Mesh, PenumbraError,
                       Renderer, Scene, procedural)
 from penumbra import _native
@@ -496,7 +496,8 @@ def test_foreign_checkpoint_is_left_alone(ctx, env, meshes, saved, other):
 
 def test_finished_checkpoint_is_loaded(ctx, env, meshes, fields, saved):
     calls = []
-    g = FivField.bake(env, meshes["box"][1], OPTS32, path=saved, progress=lambda d, t: calls.append(d))
+    with pytest.warns(FivReuseWarning):
+        g = FivField.bake(env, meshes["box"][1], OPTS32, path=saved, progress=lambda d, t: calls.append(d))
     assert calls == [] and not g.baked_now and g.info()["rays"] == fields["box"].info()["rays"] > 0
     assert np.array_equal(g.samples(), fields["box"].samples(), equal_nan=True)
 

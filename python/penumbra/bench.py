@@ -110,6 +110,8 @@ def run(scene_path: str | Path, out_dir: str | Path, opts: BenchOptions | None =
     opts = opts or BenchOptions()
     for m in opts.methods or ():
         methods.spec(m)  # unknown: InputError listing the methods
+        if m not in opts.sweeps:
+            raise InputError(f"method '{m}' has no benchmark sweep (swept: {', '.join(opts.sweeps)})")
     if opts.frames < 5:
         raise InputError(f"frames = {opts.frames}: the measuring protocol takes the median of at least 5")
     desc = load_scene(scene_path, list(overrides))

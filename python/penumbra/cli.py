@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -12,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .errors import PenumbraError
+from .errors import InputError, PenumbraError
 
 
 def _progress(total: int, desc: str):
@@ -108,51 +109,95 @@ def _write_outputs(result, out: str | None, png: str | None, exposure: float) ->
     return written
 
 
-def report(result, scene_source: str) -> dict:
+def report(result, scene_source: str, png_exposure: float | None = None) -> dict:
+    """The JSON report of a render: the method with every renderer parameter in
+    effect (defaults included), the bake parameters given and what the
+    technique's preparation made (bake files, sizes, times), the device, the
+    timings (frames and whether they were timed after warm-up)."""
     h, w = result.image.shape[:2]
-    return {"method": result.method, "device": result.device, "resolution": [w, h], "params": result.params,
-            "scene": scene_source, "timings_ms": result.timings_ms, "penumbra_version": __version__}
+    rep = {"method": result.method, "device": result.device, "resolution": [w, h], "params": result.params,
+           "bake": {"params": result.bake_params, "prepare_s": result.prepare_s, **result.bake},
+           "scene": scene_source, "timings_ms": result.timings_ms, "penumbra_version": __version__}
+    if png_exposure is not None:
+        rep["png_exposure"] = png_exposure
+    return rep
+
+
+class _BandBar:
+    """band_progress for render(): a bar over the frame's foreground pixels, so
+    its rate and ETA come from the work done, not from rows."""
+
+    def __init__(self, desc: str):
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=1, desc=desc, unit="px", unit_scale=True, leave=False, disable=None, file=sys.stderr)
+
+    def __call__(self, done: int, total: int) -> None:
+        self.bar.total = total
+        self.bar.update(done - self.bar.n)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.bar.close()
 
 
 def cmd_render(args) -> int:
     from .core import Context
     from .fileutil import atomic_write_text
+    from .imageio import auto_exposure
     from .render import build_scene, render
-    from .methods import technique
+    from .methods import spec, technique
     from .scenefile import DEFAULT_METHOD, load_scene
 
-    desc = load_scene(args.scene, args.set)
-    method = args.method or desc.render.get("method", DEFAULT_METHOD)
+    if args.frames is not None and args.frames < 1:
+        raise InputError(f"--frames {args.frames} must be >= 1")
+    if args.method:
+        spec(args.method)   # unknown: InputError listing the methods
+    # --method goes in as [render] method, so the file's [render] keys are checked against that method.
+    desc = load_scene(args.scene, args.set + ([f"render.method={args.method}"] if args.method else []))
+    method = desc.render.get("method", DEFAULT_METHOD)
     params = {k: v for k, v in desc.render.items() if k != "method"}
     ctx = Context(args.device)
     built = build_scene(desc, ctx)
-    with _BakeBars() as bakes, _progress(args.frames, f"render {method}") as bar:
-        result = render(built, method, frames=args.frames, progress=bar, bake_progress=bakes, **params)
+    # One frame unless --frames asks for timing (then warm-up frames first, by the measuring protocol).
+    timed = args.frames is not None
+    frames = args.frames if timed else 1
+    with contextlib.ExitStack() as stack:
+        bakes = stack.enter_context(_BakeBars())
+        # Timed frames: a bar over frames. One frame of a slow method (not interactive, e.g. the
+        # reference): a bar over its pixels, shaded in row bands (Technique.per_pixel).
+        bar = stack.enter_context(_progress(frames, f"render {method}")) if timed else None
+        slow = not timed and not technique(method).interactive
+        bands = stack.enter_context(_BandBar(f"render {method}")) if slow else None
+        result = render(built, method, frames=frames, warmup=timed, progress=bar, bake_progress=bakes,
+                        band_progress=bands, **params)
     for line in technique(method).summary_lines(built):
         print(line)
     out = args.output if args.output or args.png else "out.exr"
-    written = _write_outputs(result, out, args.png, args.exposure)
-    rep = report(result, str(args.scene))
+    exposure = args.exposure if args.exposure is not None else auto_exposure(result.image)
+    written = _write_outputs(result, out, args.png, exposure)
+    rep = report(result, str(args.scene), exposure if args.png else None)
     if args.json:
         atomic_write_text(args.json, json.dumps(rep, indent=2) + "\n")
         written.append(args.json)
     t = result.timings_ms
-    print(f"{method} on {result.device}: frame median {t['frame_median']:.2f} ms "
-          f"(G-buffer {t['gbuffer_median']:.2f} ms, shading {t['shade_median']:.2f} ms); wrote {', '.join(written)}")
+    if timed:
+        frame = (f"frame median {t['frame_median']:.2f} ms of {frames} after warm-up "
+                 f"(G-buffer {t['gbuffer_median']:.2f} ms, shading {t['shade_median']:.2f} ms)")
+    else:
+        frame = (f"one frame {t['frame_median']:.2f} ms (G-buffer {t['gbuffer_median']:.2f} ms, shading "
+                 f"{t['shade_median']:.2f} ms; untimed: --frames N to measure)")
+    prep = f"; preparation (bakes, loads) {result.prepare_s:.2f} s, not in the frame" if result.prepare_s >= 0.01 else ""
+    png = f"; PNG exposure {exposure:+.2f} stops{' (auto)' if args.exposure is None else ''}" if args.png else ""
+    print(f"{method} on {result.device}: {frame}{prep}{png}; wrote {', '.join(written)}")
     return 0
-
-
-def auto_exposure(image: np.ndarray, percentile: float = 97.0) -> float:
-    """Exposure (stops) that maps the given percentile of the lit pixels' luminance to 0.9."""
-    lum = image[..., :3] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
-    lit = lum[image[..., 3] > 0]
-    level = float(np.percentile(lit, percentile)) if lit.size else 0.0
-    return float(np.log2(0.9 / level)) if level > 0 else 0.0
 
 
 def cmd_demo(args) -> int:
     from .core import Context
-    from .imageio import write_exr, write_png
+    from .imageio import auto_exposure, write_exr, write_png
     from .methods import interactive, technique
     from .render import GBUFFER_VIEWS, build_scene, render
     from .scenefile import default_scene_path, load_scene
@@ -227,11 +272,35 @@ def _int_list(text: str) -> tuple[int, ...]:
         raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of integers") from None
 
 
+# Optional dependencies (pyproject's "bench" extra): module -> (what needs it, pip requirement).
+OPTIONAL = {"mitsuba": ("Mitsuba 3, the renderer the benchmark compares against", "mitsuba>=3.5"),
+            "matplotlib": ("matplotlib, for the benchmark's plots", "matplotlib>=3.7"),
+            "embreex": ("Embree (embreex), for the ray-throughput comparison (skip it with --no-rays)",
+                        "embreex>=2.17")}
+
+
+def require(command: str, modules: list[str]) -> None:
+    """InputError naming each missing optional module and the pip command that
+    installs it, before the command does any work."""
+    import importlib.util
+
+    missing = [m for m in modules if importlib.util.find_spec(m) is None]
+    if missing:
+        what = "; ".join(OPTIONAL[m][0] for m in missing)
+        pip = " ".join(f"'{OPTIONAL[m][1]}'" for m in missing)
+        raise InputError(f"{command} needs {what}, which is not installed: {sys.executable} -m pip install {pip} "
+                         "(or pip install 'penumbra[bench]')")
+
+
 def cmd_bench(args) -> int:
     from .bench import BenchOptions, run
-    from .errors import InputError
     from .methods import techniques
 
+    # fiv's scaling experiment runs the Mitsuba comparison (without rays) only with a --fiv-mitsuba-count.
+    scaling = getattr(args, "fiv_scaling", False)
+    compares = not scaling or bool(getattr(args, "fiv_mitsuba_count", 0))
+    require("penumbra bench", (["mitsuba", "matplotlib"] if compares else [])
+            + (["embreex"] if not scaling and not args.no_rays else []))
     for technique in techniques():  # a technique's own experiment, when its options ask for it
         code = technique.run_bench(args)
         if code is not None:
@@ -259,6 +328,13 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def method_list(catalog: dict) -> str:
+    """The methods, one line each (the library's summaries), for --help."""
+    width = max(map(len, catalog)) + 3
+    return "methods (--method; `penumbra methods` lists their parameters):\n" + "\n".join(
+        f"  {name + ':':<{width}}{m.summary}" for name, m in catalog.items()) + "\n"
+
+
 def build_parser() -> tuple[argparse.ArgumentParser, dict]:
     """The parser and the handlers of the techniques' own commands."""
     from .methods import catalog as read_catalog, techniques
@@ -276,18 +352,23 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict]:
                     "as JSON")
     ms.add_argument("--markdown", action="store_true", help="print the parameter tables of docs/api.md")
 
-    r = sub.add_parser("render", help="render a TOML scene file")
+    r = sub.add_parser("render", help="render a TOML scene file", formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog=method_list(catalog))
     r.add_argument("scene", help="scene file (docs/scene-format.md)")
     r.add_argument("--method", default=None, metavar="METHOD",
-                   help="shading method (default: the scene's [render] method): "
-                   + "; ".join(f"{name}: {m.summary}" for name, m in catalog.items()))
+                   help=f"shading method, one of {', '.join(catalog)} (listed below; default: the scene's "
+                   "[render] method)")
     r.add_argument("-o", "--output", default=None, help="EXR output (default out.exr)")
     r.add_argument("--png", default=None, help="also write a tone-mapped sRGB PNG")
-    r.add_argument("--json", default=None, help="write a JSON report (method, device, resolution, params, timings_ms)")
+    r.add_argument("--json", default=None, help="write a JSON report (method, every parameter in effect, bake, "
+                   "device, resolution, timings_ms)")
     r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scene value, e.g. camera.fov_deg=30 or object.bunny.albedo=[1,0,0]")
-    r.add_argument("--frames", type=int, default=5, help="timed frames after 0.3 s of warm-up frames (default 5)")
-    r.add_argument("--exposure", type=float, default=0.0, help="PNG exposure in stops")
+    r.add_argument("--frames", type=int, default=None, metavar="N",
+                   help="time N frames after 0.3 s of warm-up frames (default: render one frame, untimed, "
+                   "with progress)")
+    r.add_argument("--exposure", type=float, default=None,
+                   help="PNG exposure in stops (default: auto, the 97th percentile of the lit pixels to 0.9)")
 
     d = sub.add_parser("demo", help="render the built-in procedural scene with every method")
     d.add_argument("--out", default="out/demo", help="output directory (default out/demo)")

@@ -36,12 +36,27 @@ def _host(array, dtype, shape_tail: tuple[int, ...], what: str) -> np.ndarray:
     return a
 
 
-def _mem_handle(obj: Any, what: str) -> int:
-    """The cl_mem handle of a pyopencl Buffer or Array (offset 0), for the C API."""
+def _holds(dtype: np.dtype, scalar: np.dtype) -> bool:
+    """Whether an array dtype is ``scalar`` or a vector of it (pyopencl.cltypes.float4: fields of float32)."""
+    if dtype.fields:
+        return all(np.dtype(f[0]) == scalar for f in dtype.fields.values())
+    return dtype == scalar
+
+
+def _mem_handle(obj: Any, what: str, scalar: Any = None) -> int:
+    """The cl_mem handle of a pyopencl Buffer or Array (offset 0), for the C API.
+    An Array must be contiguous and hold ``scalar`` elements (e.g. float32, or
+    cltypes.float4): the library reads its bytes as such, so a float64 array
+    would be silently misread."""
     base = getattr(obj, "base_data", None)
     if base is not None:  # pyopencl.array.Array
         if getattr(obj, "offset", 0):
             raise InputError(f"{what}: pyopencl arrays with a nonzero offset are not supported")
+        if scalar is not None and not _holds(np.dtype(obj.dtype), np.dtype(scalar)):
+            raise InputError(f"{what}: a pyopencl array of {np.dtype(obj.dtype)} elements; it must hold "
+                             f"{np.dtype(scalar).name} (convert it with .astype(numpy.{np.dtype(scalar).name}))")
+        if not (obj.flags.c_contiguous or obj.flags.f_contiguous):
+            raise InputError(f"{what}: the pyopencl array is not contiguous")
         return base.int_ptr
     ptr = getattr(obj, "int_ptr", None)
     if ptr is None:
@@ -417,7 +432,8 @@ class GBuffer(_Handle):
             missing = [p for p in _native.GBUFFER_PLANES if p not in planes]
             if missing:
                 raise InputError(f"G-buffer planes missing: {', '.join(missing)}")
-            arr = (ctypes.c_void_p * 5)(*[_mem_handle(planes[p], f"G-buffer plane {p}") for p in _native.GBUFFER_PLANES])
+            arr = (ctypes.c_void_p * 5)(*[_mem_handle(planes[p], f"G-buffer plane {p}", _PLANE_DTYPE[p][0])
+                                          for p in _native.GBUFFER_PLANES])
             call("pn_gbuffer_create_from_cl", ctx._h, ctx._h, self.width, self.height, arr, ctypes.byref(self._h))
             self._borrowed = planes
 
@@ -467,13 +483,21 @@ class Image(_Handle):
             call("pn_image_create", ctx._h, ctx._h, self.width, self.height, ctypes.byref(self._h))
         else:
             call("pn_image_create_from_cl", ctx._h, ctx._h, self.width, self.height,
-                 _mem_handle(buffer, "image buffer"), ctypes.byref(self._h))
+                 _mem_handle(buffer, "image buffer", np.float32), ctypes.byref(self._h))
             self._borrowed = buffer
 
     def read(self) -> np.ndarray:
         out = np.empty((self.height, self.width, 4), np.float32)
         self._call("pn_image_read", self._h, _ptr(out), out.nbytes)
         return out
+
+    def cl_buffer(self):
+        """The image's buffer as a pyopencl Buffer (shares the device memory)."""
+        import pyopencl as cl
+
+        out = ctypes.c_void_p()
+        self._call("pn_image_get_cl", self._h, ctypes.byref(out))
+        return cl.Buffer.from_int_ptr(out.value, retain=True)
 
 
 class Renderer(_Handle):

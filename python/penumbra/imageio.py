@@ -100,6 +100,16 @@ def write_exr(path: str | os.PathLike, image: np.ndarray) -> None:
     atomic_write(path, lambda tmp: OpenEXR.File(header, channels).write(tmp))
 
 
+def auto_exposure(image: np.ndarray, percentile: float = 97.0) -> float:
+    """Exposure (stops) for :func:`write_png` that maps the given percentile of
+    the lit pixels' luminance to 0.9 (an RGBA image: alpha > 0 marks the lit
+    pixels; an RGB image: every pixel). 0 for an image without light."""
+    lum = image[..., :3] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    lit = lum[image[..., 3] > 0] if image.shape[-1] == 4 else lum.ravel()
+    level = float(np.percentile(lit, percentile)) if lit.size else 0.0
+    return float(np.log2(0.9 / level)) if level > 0 and math.isfinite(level) else 0.0
+
+
 def write_png(path: str | os.PathLike, image: np.ndarray, exposure: float = 0.0) -> None:
     """Write a linear RGB/RGBA image as an 8-bit sRGB PNG.
 

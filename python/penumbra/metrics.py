@@ -190,7 +190,7 @@ def colormap(values) -> np.ndarray:
 
 
 def error_magnitude(ref, img, mask=None) -> np.ndarray:
-    """Per-pixel error (H, W) float64: RMS over channels of img - ref (|img - ref| for (H, W) images).
+    """Per-pixel error (H, W) float64: RMS over channels of ``img - ref`` (``|img - ref|`` for (H, W) images).
 
     Pixels outside the mask are 0. Same checks as :func:`compare`.
     """

@@ -573,7 +573,7 @@ def rounded_cube(size: float = 1.0, radius: float = 0.15, segments: int = 8) -> 
     rounding and ``segments`` / 2 steps through it (``segments`` is the number
     of steps per quarter circle). Each grid point q is mapped to the rounded
     surface: with c = q clamped to the inner box (half-size - radius),
-    the point is c + radius * (q - c)/|q - c|, and that unit vector is the
+    the point is ``c + radius * (q - c) / |q - c|``, and that unit vector is the
     normal. Flat regions stay flat, edges become quarter cylinders and corners
     sphere octants; the mesh is closed with shared vertices.
     """

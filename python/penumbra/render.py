@@ -5,6 +5,7 @@ and minimum of N frames)."""
 
 from __future__ import annotations
 
+import math
 import statistics
 import time
 from dataclasses import dataclass, field
@@ -13,7 +14,7 @@ from typing import Any, Callable
 import numpy as np
 
 from . import methods, procedural
-from .core import Camera, Context, EnvMap, GBuffer, Image, Material, Mesh, Renderer, Scene
+from .core import _PLANE_DTYPE, Camera, Context, EnvMap, GBuffer, Image, Material, Mesh, Renderer, Scene
 from .errors import InputError
 from .imageio import read_envmap
 from .meshio import load_mesh
@@ -24,6 +25,13 @@ METHODS = methods.names()
 BakeProgress = Callable[[str, int, int], Any]
 # G-buffer views the CLI and demo can write next to shaded images.
 GBUFFER_VIEWS = ("normals", "albedo", "depth")
+# band_progress(weight done, weight total): called after each row band of a banded frame.
+BandProgress = Callable[[int, int], Any]
+# A banded frame is shaded in about this many row bands.
+BANDS = 48
+# Bytes per pixel of each G-buffer plane (docs/gbuffer.md).
+_PLANE_BYTES = {p: np.dtype(t).itemsize * k for p, (t, k) in _PLANE_DTYPE.items()}
+_IMAGE_BYTES = 16   # an image pixel: float4 RGBA
 
 
 def environment_latlong(env: EnvironmentDesc) -> np.ndarray:
@@ -106,8 +114,11 @@ class RenderResult:
     image: np.ndarray                     # (H, W, 4) linear RGBA
     gbuffer: dict[str, np.ndarray]        # planes read back from the device
     timings_ms: dict[str, float]
-    params: dict[str, Any] = field(default_factory=dict)
+    params: dict[str, Any] = field(default_factory=dict)   # the renderer parameters in effect, defaults included
     device: str = ""
+    bake_params: dict[str, Any] = field(default_factory=dict)  # bake parameters given (they override the scene's table)
+    prepare_s: float = 0.0                # the technique's preparation (bakes, loads, attaches): not in timings_ms
+    bake: dict[str, Any] = field(default_factory=dict)     # what the preparation made (Technique.bake_report)
 
     def view(self, name: str) -> np.ndarray:
         """A G-buffer view as an RGB image: normals (0.5 + 0.5 n), albedo, depth."""
@@ -141,8 +152,41 @@ def _timed(fn, ctx: Context) -> float:
     return 1000.0 * (time.perf_counter() - t0)
 
 
+def _shade_in_bands(ctx: Context, renderer: Renderer, scene: Scene, gbuffer: GBuffer, image: Image,
+                    band_progress: BandProgress) -> None:
+    """Shades one frame band by band: rows [y0, y0 + rows) as a G-buffer and an
+    image over sub-buffers of the full ones (no copies), finishing each band
+    and reporting ``band_progress(done, total)`` in foreground pixels (plus one
+    per band): background pixels cost next to nothing, so the weights keep an
+    ETA honest when the object fills only part of the frame."""
+    import pyopencl as cl
+
+    w, h = gbuffer.width, gbuffer.height
+    _, queue = ctx.cl_objects()
+    align = max(queue.device.mem_base_addr_align // 8, 1)    # sub-buffer origins must be aligned to this
+    row = w * min(_PLANE_BYTES.values())                     # bytes per row of the narrowest plane (the instance ids)
+    unit = align // math.gcd(align, row)                     # rows per aligned step: aligns every plane and the image
+    rows = max(unit, -(-max(h // BANDS, 1) // unit) * unit)
+    fg = (gbuffer.read("instance") != 0xFFFFFFFF).sum(axis=1)
+    planes = {p: gbuffer.cl_buffer(p) for p in _PLANE_BYTES}
+    image_buffer = image.cl_buffer()
+    weights = [int(fg[y0:y0 + rows].sum()) + 1 for y0 in range(0, h, rows)]
+    total, done = sum(weights), 0
+    for band, y0 in enumerate(range(0, h, rows)):
+        n = min(rows, h - y0)
+        sub = {p: buf.get_sub_region(y0 * w * _PLANE_BYTES[p], n * w * _PLANE_BYTES[p], cl.mem_flags.READ_WRITE)
+               for p, buf in planes.items()}
+        band_image = Image(ctx, w, n, buffer=image_buffer.get_sub_region(y0 * w * _IMAGE_BYTES, n * w * _IMAGE_BYTES,
+                                                                         cl.mem_flags.READ_WRITE))
+        renderer.execute(scene, GBuffer(ctx, w, n, planes=sub), band_image)
+        ctx.finish()
+        done += weights[band]
+        band_progress(done, total)
+
+
 def render(built: BuiltScene, method: str = "unshadowed", frames: int = 5, progress=None, warmup: bool = True,
-           bake_progress: BakeProgress | None = None, **params) -> RenderResult:
+           bake_progress: BakeProgress | None = None, band_progress: BandProgress | None = None,
+           **params) -> RenderResult:
     """Renders `built` with `method`. Kernel builds happen before timing; then
     warm-up frames for at least WARMUP_SECONDS (at least one; none when
     `warmup` is False: for one-off slow renders whose time is not a
@@ -150,13 +194,17 @@ def render(built: BuiltScene, method: str = "unshadowed", frames: int = 5, progr
     `params` are split by the library's metadata: renderer parameters, and
     bake parameters that override the technique's scene table (e.g. fiv's
     ``samples``); the technique prepares its assets first (bakes, loads,
-    attaches; Technique.prepare, not timed)."""
+    attaches; Technique.prepare, timed apart as ``prepare_s``).
+    `band_progress(done, total)`: for a single frame without warm-up of a
+    method whose pixels shade independently (Technique.per_pixel), shades it
+    in row bands and reports after each (progress of long frames)."""
     technique = methods.technique(method)
     if frames < 1:
         raise InputError(f"frames = {frames} must be >= 1")
-    shown = dict(params)
     params, bake = technique.split_params(params, f"render(..., {method!r})")
+    t0 = time.perf_counter()
     technique.prepare(built, bake, bake_progress)
+    prepare_s = time.perf_counter() - t0
     ctx = built.ctx
     for stage in ("raycast", technique.spec.stage):
         ctx.build(stage)
@@ -165,20 +213,28 @@ def render(built: BuiltScene, method: str = "unshadowed", frames: int = 5, progr
     renderer = Renderer(ctx, method, **params)
     gtimes, stimes = [], []
     warm_until = time.perf_counter() + WARMUP_SECONDS
+    warmed = warmup
     while warmup:  # caches, and an OpenCL CPU runtime's idle worker threads
         built.scene.render_gbuffer(gbuffer)
         renderer.execute(built.scene, gbuffer, image)
         ctx.finish()
         warmup = time.perf_counter() < warm_until
+    banded = band_progress is not None and frames == 1 and not warmed and technique.per_pixel
     for _ in range(frames):
         gtimes.append(_timed(lambda: built.scene.render_gbuffer(gbuffer), ctx))
-        stimes.append(_timed(lambda: renderer.execute(built.scene, gbuffer, image), ctx))
+        if banded:
+            stimes.append(_timed(lambda: _shade_in_bands(ctx, renderer, built.scene, gbuffer, image, band_progress),
+                                 ctx))
+        else:
+            stimes.append(_timed(lambda: renderer.execute(built.scene, gbuffer, image), ctx))
         if progress is not None:
             progress.update(1)
     planes = {p: gbuffer.read(p) for p in ("position", "normal", "albedo", "material", "instance")}
     totals = [a + b for a, b in zip(gtimes, stimes)]
     timings = {"frame_median": statistics.median(totals), "frame_min": min(totals),
                "gbuffer_median": statistics.median(gtimes), "shade_median": statistics.median(stimes),
-               "shade_min": min(stimes), "frames": frames}
-    return RenderResult(method=method, image=image.read(), gbuffer=planes, timings_ms=timings, params=shown,
-                        device=ctx.device_name)
+               "shade_min": min(stimes), "frames": frames, "warmup": warmed, "banded": banded}
+    effective = {**technique.spec.defaults(*methods.RENDERER_STAGES), **params}
+    return RenderResult(method=method, image=image.read(), gbuffer=planes, timings_ms=timings, params=effective,
+                        device=ctx.device_name, bake_params=bake, prepare_s=prepare_s,
+                        bake=technique.bake_report(built))

@@ -3,7 +3,8 @@
 :func:`load_scene` turns a file (or a dict) into a :class:`SceneDescription`
 of plain values, checked key by key: an unknown key, a wrong type or a value
 out of range raises :class:`~penumbra.errors.InputError` naming the table and
-key. Relative paths resolve against the scene file's directory.
+key. Relative paths resolve against the scene file's directory; ``data:REL``
+names a file of the test data folder (:func:`penumbra.data.data_dir`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from .core import LOBES
+from .data import resolve as resolve_path
 from .errors import InputError
 
 PROCEDURAL_ENVS = ("sky", "constant", "directional", "area_lights")
@@ -170,9 +172,9 @@ def _check_keys(table: str, data: dict, allowed: set[str]) -> None:
         raise InputError(f"[{table}] has unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(allowed))}")
 
 
-def _resolve(base: Path, p: str) -> str:
-    path = Path(p).expanduser()
-    return str(path if path.is_absolute() else (base / path).resolve())
+def _resolve(base: Path, p: str, where: str = "") -> str:
+    """A file path of the scene: ``data:REL`` in the test data folder (penumbra.data), else against ``base``."""
+    return resolve_path(p, base, where)
 
 
 def _environment(d: dict, base: Path) -> EnvironmentDesc:
@@ -180,7 +182,7 @@ def _environment(d: dict, base: Path) -> EnvironmentDesc:
     _check_keys(t, d, {"map", "intensity", "rotation_deg", "face_size", "irradiance_face_size", "params"})
     e = EnvironmentDesc()
     m = _string(t, "map", d.get("map", "sky"))
-    e.map = m if m in PROCEDURAL_ENVS else _resolve(base, m)
+    e.map = m if m in PROCEDURAL_ENVS else _resolve(base, m, _where(t, "map"))
     e.intensity = _number(t, "intensity", d.get("intensity", 1.0), lo=0.0)
     e.rotation_deg = _number(t, "rotation_deg", d.get("rotation_deg", 0.0))
     e.face_size = _integer(t, "face_size", d.get("face_size", 64), 1, 2048)
@@ -245,7 +247,7 @@ def _object(d: dict, index: int, base: Path) -> ObjectDesc:
     if ("mesh" in d) == ("primitive" in d):
         raise InputError(f"[{t}] needs exactly one of 'mesh' (a file) or 'primitive' ({', '.join(PRIMITIVES)})")
     if "mesh" in d:
-        o.mesh = _resolve(base, _string(t, "mesh", d["mesh"]))
+        o.mesh = _resolve(base, _string(t, "mesh", d["mesh"]), _where(t, "mesh"))
     else:
         o.primitive = _string(t, "primitive", d["primitive"], PRIMITIVES)
     params = d.get("params", {})

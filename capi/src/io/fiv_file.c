@@ -10,7 +10,9 @@
 #include "assets/assets.h"
 
 #include <errno.h>
+#include <fcntl.h>
 #include <math.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -121,6 +123,22 @@ static void encode_header(pn_fiv f, uint64_t payload_checksum, unsigned char *h)
     put_u64(h + 248, pn_hash_bytes(PN_HASH_SEED, h, 248));
 }
 
+/* Creates the temporary file beside `path` (its name written to `tmp`) with
+ * mode 0666, so the umask decides the finished file's permissions as for any
+ * file a program creates (mkstemp's 0600 would make every bake file private;
+ * rename keeps the temporary's mode). Returns the descriptor, or -1 (errno). */
+static int create_temp_beside(const char *path, char *tmp, size_t size)
+{
+    static atomic_uint counter;
+    for (int attempt = 0; attempt < 100; ++attempt) {
+        snprintf(tmp, size, "%s.tmp-%ld-%u", path, (long)getpid(), atomic_fetch_add(&counter, 1u));
+        int fd = open(tmp, O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+        if (fd >= 0 || errno != EEXIST)
+            return fd;
+    }
+    return -1;
+}
+
 pn_status pn_fiv_write_file(pn_fiv f, const char *path)
 {
     pn_context ctx = f->obj.ctx;
@@ -131,14 +149,14 @@ pn_status pn_fiv_write_file(pn_fiv f, const char *path)
     unsigned char header[HEADER_BYTES];
     encode_header(f, pn_hash_bytes(PN_HASH_SEED, payload, bytes), header);
     size_t len = strlen(path);
-    char *tmp = malloc(len + 16);
+    const size_t tmp_size = len + 40; /* ".tmp-<pid>-<counter>" */
+    char *tmp = malloc(tmp_size);
     pn_status st = PN_SUCCESS;
     if (!tmp) {
         free(payload);
         return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory writing %s", path);
     }
-    snprintf(tmp, len + 16, "%s.tmp-XXXXXX", path);
-    int fd = mkstemp(tmp);
+    int fd = create_temp_beside(path, tmp, tmp_size);
     FILE *file = fd >= 0 ? fdopen(fd, "wb") : NULL;
     if (!file) {
         st = pn_fail(ctx, PN_ERROR_FILE, "cannot create a temporary file beside %s: %s", path, strerror(errno));

@@ -41,6 +41,9 @@ class Technique:
     interactive = True
     #: part of a benchmark's default method list (when it applies to the scene).
     benchmarked = True
+    #: each pixel's shading reads only its own G-buffer texel and the scene, so
+    #: a long frame can be shaded in row bands (render(band_progress=...)).
+    per_pixel = True
     #: the scene-file tables it owns.
     scene_tables: tuple[SceneTable, ...] = ()
     #: the table its bake parameters go to (None: it has none).
@@ -136,6 +139,10 @@ class Technique:
     def summary_lines(self, built) -> list[str]:
         """Lines `penumbra render` / `demo` print after rendering with this method."""
         return []
+
+    def bake_report(self, built) -> dict[str, Any]:
+        """What Technique.prepare made for ``built`` (bakes: options, sizes, times), JSON-ready, for reports."""
+        return {}
 
     def bench_extras(self, built) -> dict[str, Any]:
         """Extra fields of a benchmark result row (e.g. its assets' memory)."""

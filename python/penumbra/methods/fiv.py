@@ -17,12 +17,14 @@ Fullsphere Irradiance Vectors.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import json
 import os
 import signal
 import sys
 import time
+import warnings
 import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -180,12 +182,17 @@ def _finished_header(path) -> dict | None:
     return head if head["radii_done"] >= head["samples"][2] else None
 
 
+class FivReuseWarning(UserWarning):
+    """:meth:`FivField.bake` found a finished bake of the same inputs at its ``path`` and loaded it."""
+
+
 class FivField:
     """An occlusion field: bake with :meth:`bake`, or :meth:`load` a bake file.
-    ``baked_now``: whether :meth:`bake` traced its rays (False: it found the
-    finished bake in its file)."""
+    ``baked_now``: whether :meth:`bake` traced its rays; ``reused``: whether it
+    loaded a finished bake of the same inputs from its file instead."""
 
     baked_now = False
+    reused = False
 
     def __init__(self, ctx: Context, handle: ctypes.c_void_p):
         self._ctx = ctx
@@ -193,12 +200,23 @@ class FivField:
 
     @classmethod
     def bake(cls, env: EnvMap, mesh: Mesh, options: FivOptions | None = None, path: str | os.PathLike | None = None,
-             progress: Callable[[int, int], bool | None] | None = None) -> "FivField":
-        """Bakes ``mesh`` under ``env``. With ``path`` the bake checkpoints to that
-        file, resumes an unfinished bake there, and loads a finished one of the
-        same inputs; ``progress(done, total)`` returning True stops it."""
+             progress: Callable[[int, int], bool | None] | None = None, reuse: bool = True,
+             quiet: bool = False) -> "FivField":
+        """Bakes ``mesh`` under ``env``; ``progress(done, total)`` returning True stops it.
+
+        With ``path`` the bake checkpoints to that file and resumes an
+        unfinished bake of the same inputs there. A finished bake of the same
+        inputs (the library compares the mesh hash, the env map hash and the
+        options) is loaded instead of baked: ``reused`` is True and a
+        :class:`FivReuseWarning` says so (not with ``quiet``, for caches). A
+        file of other inputs is an :class:`~penumbra.errors.InputError` naming
+        what differs, and is left alone. ``reuse=False`` replaces whatever is
+        at ``path`` with a new bake."""
         opts = (options or FivOptions()).native()
         out = ctypes.c_void_p()
+        if path is not None and not reuse:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(path)
         before = _finished_header(path)
 
         def trampoline(_user, done, total):
@@ -212,6 +230,10 @@ class FivField:
              None if path is None else os.fsencode(path), cb, None, ctypes.byref(out))
         f = cls(env._ctx, out)
         f.baked_now = before is None or before != _finished_header(path)
+        f.reused = not f.baked_now
+        if f.reused and not quiet:
+            warnings.warn(f"{path} holds a finished bake of this mesh, env map and options: loaded it instead of "
+                          "baking (reuse=False bakes anew)", FivReuseWarning, stacklevel=2)
         return f
 
     @classmethod
@@ -282,7 +304,7 @@ def cached_field(env: EnvMap, mesh: Mesh, options: FivOptions | None = None,
     except OSError as exc:
         raise PenumbraError(f"cannot create the FIV cache folder {folder}: {exc}") from exc
     path = folder / f"{mesh_hash(mesh)}-{envmap_hash(env)}-{options.key()}.pnfiv"
-    return FivField.bake(env, mesh, options, path, progress)
+    return FivField.bake(env, mesh, options, path, progress, quiet=True)   # a cache hit is the point of a cache
 
 
 # ---------------------------------------------------------------- the scene file's [fiv] table
@@ -506,6 +528,9 @@ class Fiv(Technique):
     def summary_lines(self, built) -> list[str]:
         return [summary(state(built).records)]
 
+    def bake_report(self, built) -> dict:
+        return {"fields": [dict(r) for r in state(built).records]}
+
     def bench_extras(self, built) -> dict:
         # The precomputation: fields, their memory, and the bake time when baked now.
         recs = state(built).records
@@ -602,6 +627,7 @@ TECHNIQUE = Fiv(NAME)
 
 def cmd_bake_fiv(args) -> int:
     from .. import cli
+    from ..data import resolve as resolve_path
     from ..meshio import load_mesh
     from ..render import environment_latlong
     from ..scenefile import PROCEDURAL_ENVS, EnvironmentDesc
@@ -613,12 +639,14 @@ def cmd_bake_fiv(args) -> int:
     options = FivOptions.checked(given, lambda k: "--" + k.replace("_", "-"))
     if args.env_intensity < 0:
         raise InputError(f"--env-intensity {args.env_intensity} must be >= 0")
-    env_desc = EnvironmentDesc(map=args.env if args.env in PROCEDURAL_ENVS else str(Path(args.env).expanduser()),
-                               rotation_deg=args.env_rotation, intensity=args.env_intensity)
+    # Files as in scene files: data:REL in the test data folder, else relative to the working directory.
+    env_file = args.env if args.env in PROCEDURAL_ENVS else resolve_path(args.env, Path.cwd(), "--env")
+    mesh_file = resolve_path(args.mesh, Path.cwd(), "MESH")
+    env_desc = EnvironmentDesc(map=env_file, rotation_deg=args.env_rotation, intensity=args.env_intensity)
     ctx = Context(args.device)
     env = EnvMap(ctx, environment_latlong(env_desc), rotation_deg=env_desc.rotation_deg,
                  intensity=env_desc.intensity)
-    m = load_mesh(args.mesh)
+    m = load_mesh(mesh_file)
     mesh = Mesh(ctx, m.vertices, m.faces, m.normals)
     out = Path(args.output)
     try:
@@ -639,7 +667,7 @@ def cmd_bake_fiv(args) -> int:
     label = Path(args.mesh).name
     try:
         with bars:
-            fld = FivField.bake(env, mesh, options, out, progress=lambda d, t: bars(label, d, t))
+            fld = FivField.bake(env, mesh, options, out, progress=lambda d, t: bars(label, d, t), quiet=True)
     except PenumbraError as exc:
         if exc.status == _native.ERROR_CANCELLED:  # stopped by Ctrl-C after a checkpoint
             print(f"penumbra: interrupted: {exc} (the same command resumes it)", file=sys.stderr)
@@ -736,12 +764,12 @@ def fiv_scaling(out_dir: str | Path, counts=FIV_SCALING_COUNTS, samples=(128, 65
                 log=print) -> dict:
     """Per-frame cost of ``fiv`` against the number of occluders: renders
     N = ``counts`` bunnies (one shared field of ``samples`` = (phi, theta,
-    radii)) at ``resolution``², timing fiv shading and the floor kernel in the
+    radii)) at ``resolution`` x ``resolution`` pixels, timing fiv shading and the floor kernel in the
     same run, next to the paper's frame rates. With ``mitsuba_count``, also
     runs the speed-against-error benchmark (run()) on that scene at
     ``mitsuba_resolution``² (fiv against the ground truth and Mitsuba 3).
     ``overrides``: ``--set`` strings applied to every scene. Writes
-    scenes/*.toml, results.json and report.md into ``out_dir``."""
+    ``scenes/*.toml``, results.json and report.md into ``out_dir``."""
     from .. import __version__
     from ..bench import BenchOptions, _exposure, run, scene_toml
     from ..fileutil import atomic_write_text
@@ -752,14 +780,14 @@ def fiv_scaling(out_dir: str | Path, counts=FIV_SCALING_COUNTS, samples=(128, 65
         raise InputError(f"frames = {frames}: the measuring protocol takes the median of at least 5")
     out = Path(out_dir)
     (out / "scenes").mkdir(parents=True, exist_ok=True)
-    if data_dir is None:  # ../shared/data beside the checkout: from the working directory, or from this file
-        data_dir = next((d for d in (Path.cwd().parent / "shared" / "data",
-                                     Path(__file__).resolve().parents[4] / "shared" / "data") if d.is_dir()),
-                        Path.cwd().parent / "shared" / "data")
-    data = Path(data_dir)
+    from .. import data as test_data
+
+    if data_dir is None and not test_data.available():
+        raise InputError(f"the fiv scaling benchmark {test_data.missing_reason()}")
+    data = Path(data_dir) if data_dir is not None else test_data.data_dir()
     for rel in (SCALING_MESH, SCALING_ENV):
         if not (data / rel).is_file():
-            raise InputError(f"{data / rel} not found (the scaling benchmark needs ../shared/data beside the checkout)")
+            raise InputError(f"{data / rel} not found (the fiv scaling benchmark reads it from the test data folder)")
 
     def rel(p: Path) -> str:
         return Path(os.path.relpath(p.resolve(), (out / "scenes").resolve())).as_posix()

@@ -79,7 +79,7 @@ class HeightFieldHandle(_Handle):
 def output_shape(renderer, scene, output: str, instance: int) -> tuple[int, ...]:
     """The array shape of a per-vertex output of the height field attached to
     ``instance``: (D, W, k) float32 with k = 4 (radiance rgb and 1, or the
-    normal), ``azimuths`` (horizon elevations, radians) or ``bands``² (SH
+    normal), ``azimuths`` (horizon elevations, radians) or ``bands`` squared (SH
     visibility) as the renderer is set."""
     hf = scene.attachment(instance, HeightFieldHandle)
     if hf is None:
@@ -147,7 +147,7 @@ def _file_key(t: str, key: str, d: dict, base: Path, extensions: tuple[str, ...]
     value = _string(t, key, d[key])
     if Path(value).suffix.lower() not in extensions:
         raise InputError(f"{_where(t, key)} = {value!r} must be a {', '.join(extensions)} file")
-    return _resolve(base, value)
+    return _resolve(base, value, _where(t, key))
 
 
 def _parse_one(d: dict, index: int, base: Path) -> HeightfieldDesc:
@@ -242,6 +242,7 @@ class Heightfield(Technique):
     scene_tables = (SceneTable(NAME, "heightfields", True, _parse_tables, content=True),)
     readme_setting: dict = {}           # the README's benchmark table shows the defaults
     readme_label = "defaults"
+    per_pixel = False                   # its passes run over the height field's texels, not the image's pixels
 
     def applies_to(self, desc) -> bool:
         return bool(getattr(desc, "heightfields", None))
