@@ -180,6 +180,46 @@ PN_API pn_status pn_envmap_read(pn_envmap env, pn_envmap_data what, void *host, 
  * intensity and supersampling (not the cube sizes). Occlusion fields record it. */
 PN_API pn_status pn_envmap_get_hash(pn_envmap env, uint64_t *hash);
 
+/* Directional domains of an env map (docs/depthmap.md, "Decomposition"):
+ * the sphere split into N cells, each lit as one directional light. */
+typedef struct pn_env_domain {
+    float direction[3];   /* unit centre direction (world space, the map's rotation applied), towards the light */
+    float solid_angle;    /* of the domain's texels, sr */
+    float radiance[3];    /* total incoming radiance L~: sum of texel radiance x solid angle (intensity applied) */
+    float cap_radius;     /* equivalent cap half-angle r (rad): solid_angle = 2 pi (1 - cos r) */
+} pn_env_domain;          /* 32 bytes, also the device layout (two float4) */
+
+typedef struct pn_env_decompose_options {
+    uint32_t count;          /* N, 1..1024 */
+    uint32_t seed;           /* the draw is deterministic for a given seed (32 bits: the twin's counter is seed * 2^32 + texel) */
+    uint32_t max_iterations; /* Lloyd iterations cap (0 = the library's default, 100) */
+} pn_env_decompose_options;
+
+/* count 64, seed 1, max_iterations 0. */
+PN_API pn_env_decompose_options pn_env_decompose_options_default(void);
+
+/* Splits the committed env map into options->count directional domains
+ * (Barsi, Szirmay-Kalos, Szecsi): N distinct lat-long texels drawn with
+ * probability proportional to luminance x solid angle (Efraimidis-Spirakis
+ * keys from splitmix64 of (seed, texel)), spread by weighted Lloyd relaxation
+ * on the sphere (every texel to its nearest centre on the device, centres to
+ * their cells' weighted mean direction) until no texel changes cell or
+ * max_iterations passes; then per domain its centre, the sum of L x dw of its
+ * texels, its solid angle and equivalent cap radius. Every texel (black ones
+ * too) is in exactly one domain: the radiances sum to the map's power and the
+ * solid angles to 4 pi. Works on the lat-long texels themselves (not the
+ * resampled cube), so a one-texel sun keeps its exact power and position.
+ * Deterministic for a given seed on a given device; the result is cached per
+ * (env content, N, seed, max_iterations) until the next commit.
+ * Writes `count` domains to `domains`, in no particular order. Errors:
+ * PN_ERROR_NULL_HANDLE (env), PN_ERROR_NOT_COMMITTED (the map changed since
+ * its commit), PN_ERROR_INVALID_ARGUMENT (options or domains NULL, count 0 or
+ * > 1024, max_iterations > 10000, count larger than the map's non-black
+ * texels: the message names both numbers and says when the map is black),
+ * PN_ERROR_INVALID_SIZE (capacity < count). */
+PN_API pn_status pn_envmap_decompose(pn_envmap env, const pn_env_decompose_options *options, pn_env_domain *domains,
+                                     uint32_t capacity);
+
 /* ------------------------------------------------------------------ mesh */
 
 PN_API pn_status pn_mesh_create(pn_context ctx, pn_mesh *out);

@@ -198,6 +198,29 @@ pn_status pn_envmap_sample_cube(pn_envmap env, int face, float *radiance, float 
  * brightest split into s x s sub-texels. *records is malloc'ed. */
 pn_status pn_envmap_direction_records(pn_envmap env, int f, int s, float threshold, float **records, size_t *count);
 
+/* ------------------------------------------------ environment domains */
+
+#define PN_ENV_DOMAINS_MAX 1024
+#define PN_ENV_LLOYD_DEFAULT_ITERATIONS 100
+
+/* The decomposition of a committed env map into directional domains
+ * (core/env_domains.c, pn_envmap_decompose): `count` domains, and for the
+ * sharp-part extraction the domain of every lat-long texel. */
+typedef struct pn_env_decomposition {
+    uint32_t count;
+    pn_env_domain *domains;   /* count */
+    int32_t *assignment;      /* width*height, row-major, the domain of each texel */
+    uint32_t iterations;      /* Lloyd iterations run */
+    bool converged;           /* no texel changed cell at the last iteration */
+} pn_env_decomposition;
+
+/* The method's plan-time entry point: checks options (as pn_envmap_decompose)
+ * and returns the env map's cached decomposition for them, computing it when
+ * the env content, N, seed or iteration cap changed. *out stays owned by the
+ * env map and valid until its next decomposition with other options or its
+ * next commit (copy what you keep). */
+pn_status pn_envmap_domains(pn_envmap env, const pn_env_decompose_options *options, const pn_env_decomposition **out);
+
 /* ------------------------------------------------------- G-buffer, image */
 
 struct pn_gbuffer_impl {
