@@ -721,6 +721,21 @@ pn_status pn_envmap_get_hash(pn_envmap env, uint64_t *hash)
     return PN_SUCCESS;
 }
 
+pn_env_decompose_options pn_env_decompose_options_default(void)
+{
+    pn_env_decompose_options o = {64, 1, 0};
+    return o;
+}
+
+pn_status pn_envmap_decompose(pn_envmap env, const pn_env_decompose_options *options, pn_env_domain *domains,
+                              uint32_t capacity)
+{
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    CHECK_PTR(env->obj.ctx, options);
+    CHECK_PTR(env->obj.ctx, domains);
+    return pn_envmap_do_decompose(env, options, domains, capacity);
+}
+
 pn_status pn_fiv_bake(pn_envmap env, pn_mesh mesh, const pn_fiv_options *options, const char *checkpoint_path,
                       pn_progress_callback progress, void *user, pn_fiv *out)
 {
