@@ -27,11 +27,14 @@
 #define DM_SPECULAR_SEED 1
 #define DM_SPECULAR_CAP 2
 
-kernel void depthmap_clear(global uint *depth, int count)
+/* Clears every map to empty and the rasteriser's list of large triangles. */
+kernel void depthmap_clear(global uint *depth, int count, global uint *large_count)
 {
     int gid = get_global_id(0);
     if (gid < count)
         depth[gid] = DM_EMPTY;
+    if (gid == 0)
+        *large_count = 0u;
 }
 
 /* Ray-cast maps: one closest-hit ray per texel centre, from just outside the
@@ -58,20 +61,19 @@ kernel void depthmap_raycast(PN_SCENE_ARGS, global const float4 *frames, int map
     depth[gid] = z;
 }
 
-/* Rasterised maps: one work-item per (triangle, map). The triangle is
- * projected into the map and every texel whose centre it covers takes the
- * interpolated depth by atomic_min. `ranges`: per instance (slot into
- * `objects`), the first triangle in `tris` and the count; `objects`: per
- * instance its object-to-world rows (3 float4); `starts`: the exclusive prefix
- * sum of the counts (instance_total entries). */
-kernel void depthmap_raster(global const float4 *tris, global const uint2 *ranges, global const uint *starts,
-                            global const float4 *objects, int instance_total, int triangle_total,
-                            global const float4 *frames, int map_count, int res, volatile global uint *depth)
+/* Rasterised maps. A triangle's three vertices in map m: texel coordinates
+ * q and depths z; false when it is degenerate in this projection. */
+typedef struct {
+    float2 q[3];
+    float z[3];
+    float inv_area;
+    int i0, i1, j0, j1; /* texel bounding box, clipped to the map */
+} dm_projected;
+
+inline bool dm_project(global const float4 *tris, global const uint2 *ranges, global const uint *starts,
+                       global const float4 *objects, int instance_total, int g, global const float4 *f, int res,
+                       dm_projected *t)
 {
-    int gid = get_global_id(0);
-    if (gid >= triangle_total * map_count)
-        return;
-    int m = gid / triangle_total, g = gid - m * triangle_total;
     /* The instance holding triangle g: the last start <= g. */
     int lo = 0, hi = instance_total - 1;
     while (lo < hi) {
@@ -81,40 +83,92 @@ kernel void depthmap_raster(global const float4 *tris, global const uint2 *range
         else
             hi = mid - 1;
     }
-    uint t = ranges[lo].x + (uint)(g - (int)starts[lo]);
+    uint k = ranges[lo].x + (uint)(g - (int)starts[lo]);
     global const float4 *rows = objects + 3 * lo;
-    global const float4 *f = frames + DM_FRAME * m;
     float3 e1 = f[0].xyz, e2 = f[1].xyz, d = f[2].xyz;
     float inv_du = 1.0f / f[3].x, inv_dv = 1.0f / f[3].y;
-    float2 q[3];
-    float z[3];
     for (int c = 0; c < 3; ++c) {
-        float3 p = pn_xform_point(rows, pn_load3(tris + 3 * t + c));
-        q[c] = (float2)((dot(p, e1) - f[0].w) * inv_du, (dot(p, e2) - f[1].w) * inv_dv);
-        z[c] = f[2].w - dot(p, d);
+        float3 p = pn_xform_point(rows, pn_load3(tris + 3 * k + c));
+        t->q[c] = (float2)((dot(p, e1) - f[0].w) * inv_du, (dot(p, e2) - f[1].w) * inv_dv);
+        t->z[c] = f[2].w - dot(p, d);
     }
-    float area = (q[1].x - q[0].x) * (q[2].y - q[0].y) - (q[2].x - q[0].x) * (q[1].y - q[0].y);
+    float area = (t->q[1].x - t->q[0].x) * (t->q[2].y - t->q[0].y) - (t->q[2].x - t->q[0].x) * (t->q[1].y - t->q[0].y);
     if (!(fabs(area) > 0.0f))
-        return; /* zero-area (or NaN) in this projection: covers no texel centre */
-    float inv_area = 1.0f / area;
-    int i0 = max((int)floor(fmin(q[0].x, fmin(q[1].x, q[2].x)) - 0.5f), 0);
-    int i1 = min((int)ceil(fmax(q[0].x, fmax(q[1].x, q[2].x)) - 0.5f), res - 1);
-    int j0 = max((int)floor(fmin(q[0].y, fmin(q[1].y, q[2].y)) - 0.5f), 0);
-    int j1 = min((int)ceil(fmax(q[0].y, fmax(q[1].y, q[2].y)) - 0.5f), res - 1);
-    volatile global uint *map = depth + (size_t)m * res * res;
-    for (int j = j0; j <= j1; ++j) {
-        float y = (float)j + 0.5f;
-        for (int i = i0; i <= i1; ++i) {
-            float x = (float)i + 0.5f;
-            /* Barycentric weights of the texel centre; inside when all >= 0. */
-            float w1 = ((x - q[0].x) * (q[2].y - q[0].y) - (q[2].x - q[0].x) * (y - q[0].y)) * inv_area;
-            float w2 = ((q[1].x - q[0].x) * (y - q[0].y) - (x - q[0].x) * (q[1].y - q[0].y)) * inv_area;
-            float w0 = 1.0f - w1 - w2;
-            if (w0 < 0.0f || w1 < 0.0f || w2 < 0.0f)
-                continue;
-            float zz = fmax(w0 * z[0] + w1 * z[1] + w2 * z[2], 0.0f);
-            atomic_min(map + j * res + i, as_uint(zz));
+        return false; /* zero-area (or NaN) in this projection: covers no texel centre */
+    t->inv_area = 1.0f / area;
+    t->i0 = max((int)floor(fmin(t->q[0].x, fmin(t->q[1].x, t->q[2].x)) - 0.5f), 0);
+    t->i1 = min((int)ceil(fmax(t->q[0].x, fmax(t->q[1].x, t->q[2].x)) - 0.5f), res - 1);
+    t->j0 = max((int)floor(fmin(t->q[0].y, fmin(t->q[1].y, t->q[2].y)) - 0.5f), 0);
+    t->j1 = min((int)ceil(fmax(t->q[0].y, fmax(t->q[1].y, t->q[2].y)) - 0.5f), res - 1);
+    return t->i0 <= t->i1 && t->j0 <= t->j1;
+}
+
+/* Texel (i, j) takes the triangle's depth at its centre when covered. */
+inline void dm_texel(const dm_projected *t, int i, int j, int res, volatile global uint *map)
+{
+    float x = (float)i + 0.5f, y = (float)j + 0.5f;
+    /* Barycentric weights of the texel centre; inside when all >= 0. */
+    float w1 = ((x - t->q[0].x) * (t->q[2].y - t->q[0].y) - (t->q[2].x - t->q[0].x) * (y - t->q[0].y)) * t->inv_area;
+    float w2 = ((t->q[1].x - t->q[0].x) * (y - t->q[0].y) - (x - t->q[0].x) * (t->q[1].y - t->q[0].y)) * t->inv_area;
+    float w0 = 1.0f - w1 - w2;
+    if (w0 < 0.0f || w1 < 0.0f || w2 < 0.0f)
+        return;
+    float zz = fmax(w0 * t->z[0] + w1 * t->z[1] + w2 * t->z[2], 0.0f);
+    atomic_min(map + j * res + i, as_uint(zz));
+}
+
+/* One work-item per (triangle, map). `ranges`: per instance the first
+ * triangle in `tris` and the count; `objects`: per instance its
+ * object-to-world rows (3 float4); `starts`: the exclusive prefix sum of the
+ * counts. A triangle covering more than DM_LARGE texels of bounding box goes
+ * to the `large` list (map, triangle) for depthmap_raster_large, where a
+ * whole work-group shares it; when the list is full it is drawn here. */
+#define DM_LARGE 256
+kernel void depthmap_raster(global const float4 *tris, global const uint2 *ranges, global const uint *starts,
+                            global const float4 *objects, int instance_total, int triangle_total,
+                            global const float4 *frames, int map_count, int res, volatile global uint *depth,
+                            volatile global uint *large_count, global uint2 *large, int large_capacity)
+{
+    int gid = get_global_id(0);
+    if (gid >= triangle_total * map_count)
+        return;
+    int m = gid / triangle_total, g = gid - m * triangle_total;
+    dm_projected t;
+    if (!dm_project(tris, ranges, starts, objects, instance_total, g, frames + DM_FRAME * m, res, &t))
+        return;
+    if ((t.i1 - t.i0 + 1) * (t.j1 - t.j0 + 1) > DM_LARGE) {
+        uint slot = atomic_inc(large_count);
+        if (slot < (uint)large_capacity) {
+            large[slot] = (uint2)((uint)m, (uint)g);
+            return;
         }
+    }
+    volatile global uint *map = depth + (size_t)m * res * res;
+    for (int j = t.j0; j <= t.j1; ++j)
+        for (int i = t.i0; i <= t.i1; ++i)
+            dm_texel(&t, i, j, res, map);
+}
+
+/* The large triangles: work-groups take list entries in turn, and the
+ * work-items of a group split the entry's bounding box, so every lane of a
+ * group does the same amount of work. */
+kernel void depthmap_raster_large(global const float4 *tris, global const uint2 *ranges, global const uint *starts,
+                                  global const float4 *objects, int instance_total, global const float4 *frames,
+                                  int res, volatile global uint *depth, global const uint *large_count,
+                                  global const uint2 *large, int large_capacity)
+{
+    uint count = min(*large_count, (uint)large_capacity);
+    int lid = get_local_id(0), lsize = get_local_size(0);
+    for (uint e = get_group_id(0); e < count; e += get_num_groups(0)) {
+        uint2 entry = large[e];
+        dm_projected t;
+        if (!dm_project(tris, ranges, starts, objects, instance_total, (int)entry.y, frames + DM_FRAME * entry.x,
+                        res, &t))
+            continue;
+        volatile global uint *map = depth + (size_t)entry.x * res * res;
+        int w = t.i1 - t.i0 + 1, texels = w * (t.j1 - t.j0 + 1);
+        for (int k = lid; k < texels; k += lsize)
+            dm_texel(&t, t.i0 + k % w, t.j0 + k / w, res, map);
     }
 }
 

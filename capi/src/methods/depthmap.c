@@ -16,6 +16,8 @@
 
 #define DM_FRAME_FLOATS 16 /* kernels/depthmap.cl DM_FRAME float4 */
 #define DM_MAX_TEXELS (1u << 28) /* maps x res^2 (1 GiB of depths) */
+#define DM_LARGE_CAPACITY (1u << 20) /* (map, triangle) entries of the rasteriser's large-triangle list */
+#define DM_LARGE_GROUPS 256          /* work-groups of depthmap_raster_large */
 
 enum { P_BACKGROUND, P_DIRECTIONS, P_SEED, P_RESOLUTION, P_MAP_RENDERER, P_BIAS, P_SLOPE_BIAS, P_PCF, P_SPECULAR,
        P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS };
@@ -64,6 +66,7 @@ typedef struct state {
     uint32_t map_count, res;       /* what `frames` / `depth` are sized for */
     float *host_frames;
     cl_mem ranges, starts, objects; /* rasteriser instance tables */
+    cl_mem large, large_count;      /* its list of large triangles and their count */
     size_t table_capacity;          /* instances the tables hold */
     uint32_t *host_ranges, *host_starts;
     float *host_objects;
@@ -186,7 +189,11 @@ static pn_status plan(pn_renderer r, pn_scene scene)
     s->host_frames = host;
     s->map_count = 0;
     s->maps_drawn = false;
-    if ((st = pn_alloc(ctx, (size_t)maps * DM_FRAME_FLOATS * sizeof(float), CL_MEM_READ_ONLY, NULL, &s->frames,
+    if ((!s->large &&
+         ((st = pn_alloc(ctx, (size_t)DM_LARGE_CAPACITY * 8, CL_MEM_READ_WRITE, NULL, &s->large,
+                         "the rasteriser's large triangles")) ||
+          (st = pn_alloc(ctx, 4, CL_MEM_READ_WRITE, NULL, &s->large_count, "the rasteriser's count")))) ||
+        (st = pn_alloc(ctx, (size_t)maps * DM_FRAME_FLOATS * sizeof(float), CL_MEM_READ_ONLY, NULL, &s->frames,
                        "the depth-map frames")) ||
         (st = pn_alloc(ctx, texels * sizeof(uint32_t), CL_MEM_READ_WRITE, NULL, &s->depth, "the depth maps")))
         return st;
@@ -359,9 +366,9 @@ static pn_status draw_maps(pn_renderer r, pn_scene scene)
     if ((st = pn_context_kernel(ctx, "depthmap", "depthmap_clear", &k)))
         return st;
     {
-        const size_t sizes[] = {sizeof(cl_mem), sizeof count};
-        const void *vals[] = {&s->depth, &count};
-        if ((st = pn_set_args(ctx, k, "depthmap_clear", 2, sizes, vals)) ||
+        const size_t sizes[] = {sizeof(cl_mem), sizeof count, sizeof(cl_mem)};
+        const void *vals[] = {&s->depth, &count, &s->large_count};
+        if ((st = pn_set_args(ctx, k, "depthmap_clear", 3, sizes, vals)) ||
             (st = pn_enqueue_1d(ctx, k, "depthmap_clear", texels, 64)))
             return st;
     }
@@ -369,14 +376,24 @@ static pn_status draw_maps(pn_renderer r, pn_scene scene)
         return PN_SUCCESS;
     if ((st = pn_context_kernel(ctx, "depthmap", "depthmap_raster", &k)))
         return st;
-    const cl_int inst = (cl_int)instances, tri_total = (cl_int)triangles;
+    const cl_int inst = (cl_int)instances, tri_total = (cl_int)triangles, capacity = (cl_int)DM_LARGE_CAPACITY;
     const size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof inst,
-                            sizeof tri_total, sizeof(cl_mem), sizeof maps, sizeof res, sizeof(cl_mem)};
-    const void *vals[] = {&scene->tris, &s->ranges, &s->starts, &s->objects, &inst, &tri_total,
-                          &s->frames, &maps, &res, &s->depth};
-    if ((st = pn_set_args(ctx, k, "depthmap_raster", 10, sizes, vals)))
+                            sizeof tri_total, sizeof(cl_mem), sizeof maps, sizeof res, sizeof(cl_mem),
+                            sizeof(cl_mem), sizeof(cl_mem), sizeof capacity};
+    const void *vals[] = {&scene->tris, &s->ranges, &s->starts, &s->objects, &inst, &tri_total, &s->frames,
+                          &maps, &res, &s->depth, &s->large_count, &s->large, &capacity};
+    if ((st = pn_set_args(ctx, k, "depthmap_raster", 13, sizes, vals)) ||
+        (st = pn_enqueue_1d(ctx, k, "depthmap_raster", (size_t)triangles * (size_t)maps, 64)) ||
+        (st = pn_context_kernel(ctx, "depthmap", "depthmap_raster_large", &k)))
         return st;
-    return pn_enqueue_1d(ctx, k, "depthmap_raster", (size_t)triangles * (size_t)maps, 64);
+    const size_t lsizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof inst,
+                             sizeof(cl_mem), sizeof res, sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem),
+                             sizeof capacity};
+    const void *lvals[] = {&scene->tris, &s->ranges, &s->starts, &s->objects, &inst, &s->frames,
+                           &res, &s->depth, &s->large_count, &s->large, &capacity};
+    if ((st = pn_set_args(ctx, k, "depthmap_raster_large", 11, lsizes, lvals)))
+        return st;
+    return pn_enqueue_1d(ctx, k, "depthmap_raster_large", (size_t)DM_LARGE_GROUPS * 64, 64);
 }
 
 /* Frames and maps of the scene as it is (enqueued); *use_maps false when
@@ -483,6 +500,8 @@ static void destroy(pn_renderer r)
     pn_mem_release(&s->ranges);
     pn_mem_release(&s->starts);
     pn_mem_release(&s->objects);
+    pn_mem_release(&s->large);
+    pn_mem_release(&s->large_count);
     free(s->domains);
     free(s->caller);
     free(s->host_frames);
