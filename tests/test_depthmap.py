@@ -417,3 +417,28 @@ def test_the_library_decomposition_is_used_without_caller_domains(ctx, box_scene
     dm.set_domains(r, None)
     r.execute(s["scene"], s["gb"], img)
     assert np.array_equal(img.read(), own)
+
+
+@pytest.mark.parametrize("n,samples,pointwise", [(10, 4, 2e-3), (100, 16, 0.012), (1000, 64, 0.08)])
+def test_cap_quadrature_against_the_exact_cap_average(n, samples, pointwise):
+    """float64: the cap quadrature's average of cos^n over a cap of radius
+    pi/8 against the exact cap average (depthmap64.phong_cap_average), R
+    from the centre to twice the radius; unlike the seed's blend it keeps the
+    specular energy (docs/depthmap.md gives the table)."""
+    r = math.pi / 8
+    centre = np.array([0.0, 0.0, 1.0])
+    pts = d64.cap_points(centre, r, samples)
+
+    def quad(cpc):
+        s = math.sqrt(max(1.0 - cpc * cpc, 0.0))
+        rs = [np.array([s * math.cos(a), s * math.sin(a), cpc]) for a in np.linspace(0, 2 * math.pi, 16, endpoint=False)]
+        return float(np.mean([np.mean(np.maximum(pts @ rr, 0) ** n) for rr in rs]))
+
+    psis = np.linspace(0, 2 * r, 21)
+    exact = np.array([d64.phong_cap_average(math.cos(p), r, n) for p in psis])
+    got = np.array([quad(math.cos(p)) for p in psis])
+    assert np.abs(got - exact).max() <= pointwise * exact[0]
+    assert abs(d64.phong_energy(quad, r, n, nodes=60) - 1.0) < 0.015
+    blend = d64.phong_energy(lambda c: float(d64.seed_blend(c, r, n)), r, n, nodes=60)
+    if n >= 100:
+        assert blend < 0.7  # the seed's blend loses a third and more of the lobe here
