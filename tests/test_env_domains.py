@@ -293,3 +293,110 @@ def test_deterministic_for_a_seed_and_cached(ctx):
     em.set_latlong(env * 2.0)  # new content: recomputed
     em.commit()
     np.testing.assert_allclose(em.decompose(24, seed=7).radiance, 2.0 * first.radiance, rtol=1e-6)
+
+
+# --------------------------------------------------------------------------- the sharp part
+
+
+def lamps_map(w=128, h=64, level=1e4, where=((0.3, 0.7, -0.2), (-0.6, 0.2, 0.5), (0.1, -0.4, -0.9))):
+    """A constant sky of radiance 1 with 3 x 3-texel lamps of radiance `level`; their pixels."""
+    env = pr.constant((1.0, 0.9, 0.8), w, h).astype(np.float32)
+    pixels = []
+    for d in where:
+        i, j = pr.direction_to_pixel(d, w, h)
+        env[j - 1:j + 2, [(i - 1) % w, i, (i + 1) % w]] = level
+        pixels.append((i, j))
+    return env, pixels
+
+
+def test_sharp_part_of_a_sunny_sky_is_its_sun(ctx):
+    """pr.sky's 1e4 sun: one domain at the sun holding its excess over T; the
+    residual is the twin's (float rounding), bounded by T, and residual + sharp
+    part is the map's power to float rounding."""
+    import env_sharp64 as sh
+
+    env = pr.sky(256, 128).astype(np.float32)
+    dom, residual = penumbra.EnvMap(ctx, env).extract_sharp(max_count=1, threshold=100.0)
+    res64, sharp64, hot = sh.split(env, 100.0)
+    assert hot.any() and len(dom) == 1
+    np.testing.assert_allclose(residual, res64, rtol=1e-6, atol=0)
+    tex = dm.texels(env)
+    limit = 100.0 * tex.weight.sum() / (4 * math.pi)
+    assert (residual.reshape(-1, 3).astype(np.float64) @ dm.LUMINANCE).max() <= limit * (1 + 1e-6)
+    res_power = dm.texels(residual).power.sum(0)
+    np.testing.assert_allclose(res_power + dom.radiance.sum(0), tex.power.sum(0), rtol=1e-6)
+    rad, omega = sh.sharp_domains(sharp64, hot, dom.directions.astype(np.float64))
+    np.testing.assert_allclose(dom.radiance, rad, rtol=1e-6)
+    np.testing.assert_allclose(dom.solid_angle, omega, rtol=1e-6)
+    sun = tex.dirs[np.argmax(tex.weight)]
+    assert np.linalg.norm(dom.directions[0] - sun) < 2 * math.pi / 256  # within a texel
+
+
+@pytest.mark.parametrize("max_count", [3, 8])
+def test_sharp_part_of_three_lamps(ctx, max_count):
+    """Three 3 x 3 lamps on a constant sky: max_count = 3 puts one domain on each
+    lamp (their 9 texels' solid angle); 8 splits them further but every domain
+    stays on a lamp, and the domains hold the lamps' excess in all."""
+    import env_sharp64 as sh
+
+    env, pixels = lamps_map()
+    dom, residual = penumbra.EnvMap(ctx, env).extract_sharp(max_count=max_count, threshold=50.0)
+    res64, sharp64, hot = sh.split(env, 50.0)
+    assert hot.sum() == 27 and len(dom) == max_count
+    np.testing.assert_allclose(residual, res64, rtol=1e-6)
+    np.testing.assert_allclose(dom.radiance.sum(0), dm.texels(sharp64).power.sum(0), rtol=1e-6)
+    lamp_dirs = np.array([pr.latlong_directions(128, 64)[j, i] for i, j in pixels])
+    nearest_lamp = np.argmax(dom.directions @ lamp_dirs.T, axis=1)
+    chord = np.linalg.norm(dom.directions - lamp_dirs[nearest_lamp], axis=1)
+    assert chord.max() < 2.5 * 2 * math.pi / 128  # within the lamp's 3 x 3 texels
+    if max_count == 3:
+        assert sorted(nearest_lamp) == [0, 1, 2]
+        omega9 = [9 * pr.latlong_row_solid_angles(128, 64)[j] for _, j in pixels]
+        np.testing.assert_allclose(sorted(dom.solid_angle), sorted(omega9), rtol=2e-2)  # rows j-1..j+1 differ
+        np.testing.assert_allclose(2 * math.pi * (1 - np.cos(dom.cap_radius.astype(float))), dom.solid_angle, rtol=1e-4)
+
+
+def test_sharp_part_of_a_1e5_sun_is_one_small_domain(ctx):
+    """The hard case: a one-texel 1e5:1 sun is the whole sharp part, its cap the texel's."""
+    w, h = 128, 64
+    env = pr.constant(1.0, w, h).astype(np.float32)
+    i, j = pr.direction_to_pixel((0.3, 0.7, -0.2), w, h)
+    env[j, i] = 1e5
+    dom, residual = penumbra.EnvMap(ctx, env).extract_sharp()
+    tex = dm.texels(env)
+    assert len(dom) == 1
+    assert np.linalg.norm(dom.directions[0] - tex.dirs[j * w + i]) < 1e-6
+    np.testing.assert_allclose(dom.solid_angle[0], tex.omega[j * w + i], rtol=1e-6)
+    limit = 100.0 * tex.weight.sum() / (4 * math.pi)
+    np.testing.assert_allclose(dom.radiance[0], (1e5 - limit) * tex.omega[j * w + i], rtol=1e-5)
+    np.testing.assert_allclose(residual[j, i], limit, rtol=1e-6)
+
+
+@pytest.mark.parametrize("kind", ["constant", "black", "overcast"])
+def test_maps_without_a_sharp_part_give_none(ctx, shared_data, kind):
+    env = {"constant": lambda: pr.constant(2.0, 64, 32),
+           "black": lambda: np.zeros((32, 64, 3)),
+           "overcast": lambda: read_envmap(shared_data / "envmaps" / "potsdamer_platz_1k_polyhaven.hdr")}[kind]()
+    env = np.asarray(env, np.float32)
+    import env_sharp64 as sh
+
+    if kind == "overcast":
+        assert not sh.split(env, 100.0)[2].any()  # what makes it a case without sharp part
+    dom, residual = penumbra.EnvMap(ctx, env).extract_sharp()
+    assert len(dom) == 0
+    np.testing.assert_array_equal(residual, env)
+
+
+def test_sharp_part_refuses_bad_options(ctx):
+    em = penumbra.EnvMap(ctx, pr.sky(64, 32))
+    with pytest.raises(PenumbraError, match="threshold 1 must be"):
+        em.extract_sharp(threshold=1.0)
+    with pytest.raises(PenumbraError, match="threshold nan"):
+        em.extract_sharp(threshold=float("nan"))
+    with pytest.raises(PenumbraError, match="max_count 0 must be 1..64"):
+        em.extract_sharp(max_count=0)
+    with pytest.raises(InputError, match="max_count"):
+        em.extract_sharp(max_count=65)
+    em.set(intensity=2.0)
+    with pytest.raises(PenumbraError, match="pn_envmap_commit"):
+        em.extract_sharp()
