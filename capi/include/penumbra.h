@@ -636,6 +636,16 @@ PN_API pn_status pn_renderer_execute(pn_renderer renderer, pn_scene scene, pn_gb
 PN_API pn_status pn_renderer_read_output(pn_renderer renderer, pn_scene scene, const char *output, uint32_t instance,
                                          uint32_t index, void *host, size_t bytes);
 
+/* The caller's own directional domains for a method that shades with them
+ * (depthmap): `count` domains (copied; 1..1024) replace the decomposition of
+ * the scene's env map from the next execute on; count 0 returns to the
+ * decomposition. The env map still gives the background. Errors:
+ * PN_ERROR_UNSUPPORTED (a method without domains), PN_ERROR_INVALID_ARGUMENT
+ * (NULL with count > 0, more than 1024, a non-finite or non-unit direction,
+ * a non-finite or negative radiance, a cap radius outside [0, pi], a
+ * non-finite or negative solid angle: the message names the domain). */
+PN_API pn_status pn_renderer_set_env_domains(pn_renderer renderer, const pn_env_domain *domains, uint32_t count);
+
 #ifdef __cplusplus
 }
 #endif

@@ -709,6 +709,12 @@ pn_status pn_renderer_read_output(pn_renderer renderer, pn_scene scene, const ch
     return pn_renderer_do_read_output(renderer, scene, output, instance, index, host, bytes);
 }
 
+pn_status pn_renderer_set_env_domains(pn_renderer renderer, const pn_env_domain *domains, uint32_t count)
+{
+    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    return pn_renderer_do_set_env_domains(renderer, domains, count);
+}
+
 /* ------------------------------------------------------ occlusion fields */
 
 pn_status pn_envmap_get_hash(pn_envmap env, uint64_t *hash)

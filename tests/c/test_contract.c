@@ -2570,6 +2570,54 @@ static void check_enqueue_only(pn_context ctx, rig *r, pn_renderer renderer, con
     free(second);
 }
 
+static void test_depthmap(pn_context ctx, rig *r)
+{
+    pn_env_domain d[3] = {{{0.0f, 1.0f, 0.0f}, 1.0f, {1.0f, 1.0f, 1.0f}, 0.5f},
+                          {{0.6f, 0.8f, 0.0f}, 1.0f, {0.5f, 0.4f, 0.3f}, 0.5f},
+                          {{0.0f, 0.0f, 1.0f}, 1.0f, {0.2f, 0.2f, 0.2f}, 0.5f}};
+    pn_renderer dr = NULL;
+    if (!expect_ok("depthmap renderer", pn_renderer_create(ctx, "depthmap", &dr), ctx))
+        return;
+    expect_ok("caller domains", pn_renderer_set_env_domains(dr, d, 3), ctx);
+    pn_renderer_set_int(dr, "resolution", 16);
+    for (int k = 0; k < 2; ++k) {
+        pn_renderer_set_int(dr, "map_renderer", k);
+        pn_renderer_commit(dr);
+        check_enqueue_only(ctx, r, dr, k ? "depthmap (ray-cast maps)" : "depthmap (rasterised maps)");
+    }
+    float depth[16 * 16];
+    expect_ok("read a depth map", pn_renderer_read_output(dr, r->scene, "depth_map", 0, 1, depth, sizeof depth), ctx);
+    int covered = 0;
+    for (int i = 0; i < 256; ++i)
+        covered += isfinite(depth[i]) && depth[i] >= 0.0f;
+    CHECK("the box covers its depth map", covered > 100);
+    expect_error("a depth map past the domains", pn_renderer_read_output(dr, r->scene, "depth_map", 0, 3, depth,
+                                                                        sizeof depth),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "depth map 3", NULL);
+    expect_error("a depth map of the wrong size", pn_renderer_read_output(dr, r->scene, "depth_map", 0, 0, depth, 100),
+                 PN_ERROR_INVALID_SIZE, ctx, "needs 1024 bytes", NULL);
+    pn_env_domain bad[3];
+    memcpy(bad, d, sizeof d);
+    bad[1].radiance[2] = NAN;
+    expect_error("NaN domain radiance", pn_renderer_set_env_domains(dr, bad, 3), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "domain 1 has a non-finite radiance", NULL);
+    memcpy(bad, d, sizeof d);
+    bad[2].direction[0] = INFINITY;
+    expect_error("Inf domain direction", pn_renderer_set_env_domains(dr, bad, 3), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "domain 2 has a non-finite direction", NULL);
+    memcpy(bad, d, sizeof d);
+    bad[0].direction[1] = 0.5f;
+    expect_error("non-unit direction", pn_renderer_set_env_domains(dr, bad, 3), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "must be unit", NULL);
+    expect_error("NULL domains", pn_renderer_set_env_domains(dr, NULL, 3), PN_ERROR_INVALID_ARGUMENT, ctx, "NULL",
+                 NULL);
+    expect_error("domains for unshadowed", pn_renderer_set_env_domains(r->renderer, d, 3), PN_ERROR_UNSUPPORTED, ctx,
+                 "takes no env domains", NULL);
+    expect_error("NULL renderer", pn_renderer_set_env_domains(NULL, d, 3), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_renderer_set_env_domains", NULL);
+    pn_renderer_release(dr);
+}
+
 static void test_enqueue_only(pn_context ctx)
 {
     rig r;
@@ -2586,6 +2634,8 @@ static void test_enqueue_only(pn_context ctx)
             pn_renderer_release(renderer);
         }
     }
+    /* depthmap: the caller's domains (both map renderers), then the contract of pn_renderer_set_env_domains. */
+    test_depthmap(ctx, &r);
     /* fiv: a small field of the rig's box attached to it. */
     pn_fiv_options o = pn_fiv_options_default();
     o.theta = 5;
