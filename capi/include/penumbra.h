@@ -220,6 +220,41 @@ PN_API pn_env_decompose_options pn_env_decompose_options_default(void);
 PN_API pn_status pn_envmap_decompose(pn_envmap env, const pn_env_decompose_options *options, pn_env_domain *domains,
                                      uint32_t capacity);
 
+/* The sharp part of an env map: its concentrated light (a sun, a few lamps)
+ * as at most max_count domains, for depth-map shadows, and the rest as a
+ * residual lat-long map for a smooth-lighting method (FIV, ISG). */
+typedef struct pn_env_sharp_options {
+    uint32_t max_count;      /* most sharp domains, 1..64 */
+    float threshold;         /* a texel is sharp where its luminance exceeds threshold x the map's mean luminance, > 1 */
+    uint32_t seed;           /* of the decomposition of the sharp texels */
+    uint32_t max_iterations; /* its Lloyd cap (0 = the default, 100) */
+} pn_env_sharp_options;
+
+/* max_count 4, threshold 100, seed 1, max_iterations 0. */
+PN_API pn_env_sharp_options pn_env_sharp_options_default(void);
+
+/* Splits the committed map into sharp domains and a residual map with
+ * residual + sharp part = the map: every texel whose luminance exceeds
+ * T = threshold x the mean luminance (sum over texels of luminance x dw, over
+ * 4 pi) keeps luminance T in the residual (its colour unchanged) and gives its
+ * excess to the sharp part: the residual has no hole where the sun was, its
+ * range is bounded by T, and no light is lost or counted twice. The excess is
+ * split into min(max_count, its texel count) domains by the decomposition of
+ * pn_envmap_decompose (so a large or bright source may take several); a
+ * domain's radiance is its excess L~, its solid angle and cap radius those of
+ * its sharp texels (the source's own size). Directions and radiance as in
+ * pn_envmap_decompose (world space, intensity applied); `residual` is
+ * width*height RGB floats in the input's frame and units (before rotation and
+ * intensity), so an env map made of it with the same rotation_deg and
+ * intensity lights the rest. A map with no texel above T (overcast, constant,
+ * black) gives *count = 0 and residual = the map. Errors:
+ * PN_ERROR_NOT_COMMITTED, PN_ERROR_INVALID_ARGUMENT (NULL pointers, max_count
+ * outside 1..64, threshold not finite or <= 1, max_iterations > 10000),
+ * PN_ERROR_INVALID_SIZE (capacity < max_count, residual_floats not
+ * width*height*3). */
+PN_API pn_status pn_envmap_extract_sharp(pn_envmap env, const pn_env_sharp_options *options, pn_env_domain *domains,
+                                         uint32_t capacity, uint32_t *count, float *residual, size_t residual_floats);
+
 /* ------------------------------------------------------------------ mesh */
 
 PN_API pn_status pn_mesh_create(pn_context ctx, pn_mesh *out);

@@ -742,6 +742,23 @@ pn_status pn_envmap_decompose(pn_envmap env, const pn_env_decompose_options *opt
     return pn_envmap_do_decompose(env, options, domains, capacity);
 }
 
+pn_env_sharp_options pn_env_sharp_options_default(void)
+{
+    pn_env_sharp_options o = {4, 100.0f, 1, 0};
+    return o;
+}
+
+pn_status pn_envmap_extract_sharp(pn_envmap env, const pn_env_sharp_options *options, pn_env_domain *domains,
+                                  uint32_t capacity, uint32_t *count, float *residual, size_t residual_floats)
+{
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    CHECK_PTR(env->obj.ctx, options);
+    CHECK_PTR(env->obj.ctx, domains);
+    CHECK_PTR(env->obj.ctx, count);
+    CHECK_PTR(env->obj.ctx, residual);
+    return pn_envmap_do_extract_sharp(env, options, domains, capacity, count, residual, residual_floats);
+}
+
 pn_status pn_fiv_bake(pn_envmap env, pn_mesh mesh, const pn_fiv_options *options, const char *checkpoint_path,
                       pn_progress_callback progress, void *user, pn_fiv *out)
 {

@@ -107,6 +107,11 @@ class EnvDecomposeOptions(ctypes.Structure):
     _fields_ = [("count", ctypes.c_uint32), ("seed", ctypes.c_uint32), ("max_iterations", ctypes.c_uint32)]
 
 
+class EnvSharpOptions(ctypes.Structure):
+    _fields_ = [("max_count", ctypes.c_uint32), ("threshold", ctypes.c_float), ("seed", ctypes.c_uint32),
+                ("max_iterations", ctypes.c_uint32)]
+
+
 # int (*)(void *user, uint64_t done, uint64_t total): nonzero stops the bake.
 PROGRESS = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_uint64, ctypes.c_uint64)
 
@@ -132,6 +137,7 @@ _SIGNATURES = {
     "pn_envmap_commit": [_H],
     "pn_envmap_read": [_H, ctypes.c_int, _P, _size],
     "pn_envmap_decompose": [_H, ctypes.POINTER(EnvDecomposeOptions), _P, _u32],
+    "pn_envmap_extract_sharp": [_H, ctypes.POINTER(EnvSharpOptions), _P, _u32, ctypes.POINTER(_u32), _P, _size],
     "pn_mesh_create": [_H, _OUT], "pn_mesh_release": [_H],
     "pn_mesh_set_geometry": [_H, _P, _u32, _P, _u32, _P],
     "pn_mesh_commit": [_H],

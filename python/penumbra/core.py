@@ -166,6 +166,11 @@ class EnvMap(_Handle):
         if a.ndim != 3 or a.shape[2] != 3:
             raise InputError(f"env map must have shape (height, width, 3), got {a.shape}")
         self._call("pn_envmap_set_latlong", self._h, _ptr(a), a.shape[1], a.shape[0])
+        self._shape = (a.shape[1], a.shape[0])
+
+    def _size(self) -> tuple[int, int]:
+        """(width, height) of the lat-long map last set."""
+        return self._shape
 
     def set(self, **params) -> None:
         for name, value in params.items():
@@ -217,6 +222,25 @@ class EnvMap(_Handle):
         out = np.empty((max(int(n), 1), 8), np.float32)
         self._call("pn_envmap_decompose", self._h, ctypes.byref(opts), _ptr(out), int(n))
         return _domains_from_records(out)
+
+    def extract_sharp(self, max_count: int = 4, threshold: float = 100.0, seed: int = 1,
+                      max_iterations: int = 0) -> tuple[EnvDomains, np.ndarray]:
+        """The map's concentrated light as at most max_count domains (texels
+        brighter than threshold x the mean luminance, their excess over that
+        level) and the residual (H, W, 3) lat-long map, in the input's frame and
+        units: residual + sharp part = the map (pn_envmap_extract_sharp)."""
+        for name, v, hi in (("max_count", max_count, 64), ("seed", seed, 2**32 - 1),
+                            ("max_iterations", max_iterations, 10000)):
+            if int(v) != v or not 0 <= v <= hi:
+                raise InputError(f"{name} must be an integer in [0, {hi}], got {v!r}")
+        opts = _native.EnvSharpOptions(int(max_count), float(threshold), int(seed), int(max_iterations))
+        out = np.empty((max(int(max_count), 1), 8), np.float32)
+        count = ctypes.c_uint32()
+        w, h = self._size()
+        residual = np.empty((h, w, 3), np.float32)
+        self._call("pn_envmap_extract_sharp", self._h, ctypes.byref(opts), _ptr(out), int(max_count),
+                   ctypes.byref(count), _ptr(residual), residual.size)
+        return _domains_from_records(out[:count.value]), residual
 
 
 class Mesh(_Handle):

@@ -503,6 +503,80 @@ static void test_config(void)
     CHECK("failed pn_context_create leaves *out NULL", c == NULL);
 }
 
+/* pn_envmap_decompose: every documented error, then a valid split whose
+ * domains cover the sphere. */
+static void test_env_decompose(pn_context ctx)
+{
+    const uint32_t W = 16, H = 8;
+    pn_envmap env = NULL;
+    if (!expect_ok("decompose: pn_envmap_create", pn_envmap_create(ctx, &env), ctx))
+        return;
+    float *rgb = constant_env(W, H, 0.0f);
+    if (!rgb) {
+        CHECK("decompose: test map allocated", rgb != NULL);
+        pn_envmap_release(env);
+        return;
+    }
+    pn_env_domain domains[8];
+    pn_env_decompose_options o = pn_env_decompose_options_default();
+    CHECK("decompose defaults: N 64, seed 1, default iterations", o.count == 64 && o.seed == 1 && o.max_iterations == 0);
+    o.count = 4;
+    expect_error("decompose: NULL env map", pn_envmap_decompose(NULL, &o, domains, 8), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_envmap_decompose", NULL);
+    expect_error("decompose: map never committed", pn_envmap_decompose(env, &o, domains, 8), PN_ERROR_NOT_COMMITTED,
+                 ctx, "pn_envmap_commit", NULL);
+    rgb[3 * (2 * W + 5)] = 1.0f; /* three non-black texels */
+    rgb[3 * (4 * W + 9) + 1] = 2.0f;
+    rgb[3 * (6 * W + 1) + 2] = 0.5f;
+    if (!expect_ok("decompose: set_latlong", pn_envmap_set_latlong(env, rgb, W, H), ctx) ||
+        !expect_ok("decompose: commit", pn_envmap_commit(env), ctx))
+        goto done;
+    expect_error("decompose: NULL options", pn_envmap_decompose(env, NULL, domains, 8), PN_ERROR_INVALID_ARGUMENT,
+                 ctx, "options", NULL);
+    expect_error("decompose: NULL domains", pn_envmap_decompose(env, &o, NULL, 8), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "domains", NULL);
+    o.count = 0;
+    expect_error("decompose: N = 0", pn_envmap_decompose(env, &o, domains, 8), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "0 domains", "1..1024", NULL);
+    o.count = 1025;
+    expect_error("decompose: N = 1025", pn_envmap_decompose(env, &o, domains, 8), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "1025", NULL);
+    o.count = 4;
+    expect_error("decompose: N above the non-black texels", pn_envmap_decompose(env, &o, domains, 8),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "4 directions", "only 3 non-black", NULL);
+    o.count = 3;
+    expect_error("decompose: capacity below N", pn_envmap_decompose(env, &o, domains, 2), PN_ERROR_INVALID_SIZE, ctx,
+                 "capacity 2", NULL);
+    o.max_iterations = 10001;
+    expect_error("decompose: max_iterations too large", pn_envmap_decompose(env, &o, domains, 8),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "max_iterations", NULL);
+    o.max_iterations = 0;
+    if (expect_ok("decompose: N = 3 of 3 non-black texels", pn_envmap_decompose(env, &o, domains, 8), ctx)) {
+        float omega = 0.0f, power = 0.0f;
+        for (int i = 0; i < 3; ++i) {
+            omega += domains[i].solid_angle;
+            power += domains[i].radiance[0] + domains[i].radiance[1] + domains[i].radiance[2];
+            CHECK("decompose: cap radius of the solid angle",
+                  near(domains[i].solid_angle, 6.2831853f * (1.0f - cosf(domains[i].cap_radius)), 1e-4f));
+        }
+        CHECK("decompose: solid angles sum to 4 pi", near(omega, 12.566371f, 1e-4f));
+        CHECK("decompose: every domain holds light", power > 0.0f);
+    }
+    expect_ok("decompose: set_latlong without commit", pn_envmap_set_latlong(env, rgb, W, H), ctx);
+    expect_error("decompose: map changed since its commit", pn_envmap_decompose(env, &o, domains, 8),
+                 PN_ERROR_NOT_COMMITTED, ctx, "pn_envmap_commit", NULL);
+    memset(rgb, 0, 3 * sizeof(float) * W * H);
+    if (expect_ok("decompose: black map", pn_envmap_set_latlong(env, rgb, W, H), ctx) &&
+        expect_ok("decompose: commit black map", pn_envmap_commit(env), ctx)) {
+        o.count = 1;
+        expect_error("decompose: black map refused", pn_envmap_decompose(env, &o, domains, 8),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, "only 0 non-black", "black", NULL);
+    }
+done:
+    free(rgb);
+    pn_envmap_release(env);
+}
+
 static void test_envmap(pn_context ctx)
 {
     pn_envmap env = NULL;
@@ -2670,6 +2744,7 @@ int main(void)
     test_null_handles(ctx);
     test_null_pointers(ctx);
     test_envmap(ctx);
+    test_env_decompose(ctx);
     test_mesh(ctx);
     test_scene(ctx);
     test_renderer(ctx);

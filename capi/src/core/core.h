@@ -228,6 +228,10 @@ pn_status pn_envmap_domains(pn_envmap env, const pn_env_decompose_options *optio
 /* pn_envmap_decompose: the domains copied to `domains` (capacity >= count). */
 pn_status pn_envmap_do_decompose(pn_envmap env, const pn_env_decompose_options *options, pn_env_domain *domains,
                                  uint32_t capacity);
+/* pn_envmap_extract_sharp (core/env_domains.c). */
+#define PN_ENV_SHARP_MAX 64
+pn_status pn_envmap_do_extract_sharp(pn_envmap env, const pn_env_sharp_options *options, pn_env_domain *domains,
+                                     uint32_t capacity, uint32_t *count, float *residual, size_t residual_floats);
 /* Frees the cached decomposition (env map destruction). */
 void pn_envmap_forget_domains(pn_envmap env);
 

@@ -47,6 +47,12 @@ static void texels_free(texels *t)
     memset(t, 0, sizeof *t);
 }
 
+/* Rec. 709 luminance (pn_luminance), in double. */
+static double luminance64(const float *l)
+{
+    return 0.2126 * l[0] + 0.7152 * l[1] + 0.0722 * l[2];
+}
+
 static void texel_dir(const texels *t, size_t k, double d[3])
 {
     const size_t j = k / t->width, i = k % t->width;
@@ -55,30 +61,18 @@ static void texel_dir(const texels *t, size_t k, double d[3])
     d[2] = -t->cos_phi[i] * t->sin_theta[j];
 }
 
-static pn_status texels_read(pn_envmap env, texels *t)
+/* The tables and weights of t->rgb (t->width, t->height, t->count set);
+ * `dark` (an intensity of 0) makes every texel black as lit. */
+static pn_status texels_init(pn_context ctx, texels *t, bool dark)
 {
-    pn_context ctx = env->obj.ctx;
-    memset(t, 0, sizeof *t);
-    t->width = env->width;
-    t->height = env->height;
-    t->count = (size_t)env->width * env->height;
-    t->rgb = pn_malloc(ctx, t->count * 3 * sizeof(float), "the lat-long texels");
     t->sin_phi = pn_malloc(ctx, t->width * sizeof(double), "the texel column table");
     t->cos_phi = pn_malloc(ctx, t->width * sizeof(double), "the texel column table");
     t->sin_theta = pn_malloc(ctx, t->height * sizeof(double), "the texel row table");
     t->cos_theta = pn_malloc(ctx, t->height * sizeof(double), "the texel row table");
     t->omega = pn_malloc(ctx, t->height * sizeof(double), "the texel solid angles");
     t->weight = pn_malloc(ctx, t->count * sizeof(double), "the texel weights");
-    if (!t->rgb || !t->sin_phi || !t->cos_phi || !t->sin_theta || !t->cos_theta || !t->omega || !t->weight) {
-        texels_free(t);
+    if (!t->sin_phi || !t->cos_phi || !t->sin_theta || !t->cos_theta || !t->omega || !t->weight)
         return PN_ERROR_OUT_OF_MEMORY;
-    }
-    cl_int err = clEnqueueReadBuffer(ctx->queue, env->latlong, CL_TRUE, 0, t->count * 3 * sizeof(float), t->rgb, 0,
-                                     NULL, NULL);
-    if (err != CL_SUCCESS) {
-        texels_free(t);
-        return pn_fail_cl(ctx, err, "reading the lat-long env map for its decomposition");
-    }
     for (uint32_t i = 0; i < t->width; ++i) {
         double phi = 2.0 * PI * (i + 0.5) / t->width;
         t->sin_phi[i] = sin(phi);
@@ -91,15 +85,30 @@ static pn_status texels_read(pn_envmap env, texels *t)
         /* (2 pi / W)(cos theta_j - cos theta_j+1), the twin's latlong_row_solid_angles */
         t->omega[j] = (2.0 * PI / t->width) * (cos(PI * j / t->height) - cos(PI * (j + 1.0) / t->height));
     }
-    /* An intensity of 0 lights nothing: every texel is black as lit. */
-    const bool dark = env->intensity == 0.0f;
+    t->nonblack = 0;
     for (size_t k = 0; k < t->count; ++k) {
-        const float *l = t->rgb + 3 * k;
-        double lum = 0.2126 * l[0] + 0.7152 * l[1] + 0.0722 * l[2];
-        t->weight[k] = dark ? 0.0 : lum * t->omega[k / t->width];
+        t->weight[k] = dark ? 0.0 : luminance64(t->rgb + 3 * k) * t->omega[k / t->width];
         t->nonblack += t->weight[k] > 0.0;
     }
     return PN_SUCCESS;
+}
+
+/* The env map's lat-long texels, read back from the device. */
+static pn_status texels_read(pn_envmap env, texels *t)
+{
+    pn_context ctx = env->obj.ctx;
+    memset(t, 0, sizeof *t);
+    t->width = env->width;
+    t->height = env->height;
+    t->count = (size_t)env->width * env->height;
+    t->rgb = pn_malloc(ctx, t->count * 3 * sizeof(float), "the lat-long texels");
+    if (!t->rgb)
+        return PN_ERROR_OUT_OF_MEMORY;
+    cl_int err = clEnqueueReadBuffer(ctx->queue, env->latlong, CL_TRUE, 0, t->count * 3 * sizeof(float), t->rgb, 0,
+                                     NULL, NULL);
+    if (err != CL_SUCCESS)
+        return pn_fail_cl(ctx, err, "reading the lat-long env map for its decomposition");
+    return texels_init(ctx, t, env->intensity == 0.0f);
 }
 
 /* -------------------------------------------------------- initial samples */
@@ -466,4 +475,104 @@ pn_status pn_envmap_do_decompose(pn_envmap env, const pn_env_decompose_options *
         return st;
     memcpy(domains, d->domains, d->count * sizeof *domains);
     return PN_SUCCESS;
+}
+
+/* ------------------------------------------------------ the sharp part */
+
+/* The map's concentrated light (a sun, lamps) as a few domains, and the rest
+ * as a residual lat-long map (pn_envmap_extract_sharp; twin
+ * tests/env_sharp64.py). A texel is hot where its luminance exceeds
+ * T = threshold x the map's mean luminance (sum lum dw / 4 pi); its luminance
+ * is clipped to T in the residual (colour kept: L T / lum) and the excess
+ * L (1 - T / lum) goes to the sharp part, so residual + sharp part = the map
+ * exactly and the residual's dynamic range is bounded by T. The hot excess is
+ * split into at most max_count domains by the same decomposition (power
+ * sampling, Lloyd); each domain's solid angle and cap radius are those of its
+ * hot texels only (the light's own size, not its Voronoi cell). */
+pn_status pn_envmap_do_extract_sharp(pn_envmap env, const pn_env_sharp_options *o, pn_env_domain *domains,
+                                     uint32_t capacity, uint32_t *count, float *residual, size_t residual_floats)
+{
+    pn_context ctx = env->obj.ctx;
+    *count = 0;
+    if (!env->committed)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "env map changed since its last commit; call pn_envmap_commit");
+    if (o->max_count < 1 || o->max_count > PN_ENV_SHARP_MAX)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "sharp part: max_count %u must be 1..%d", o->max_count,
+                       PN_ENV_SHARP_MAX);
+    if (!isfinite(o->threshold) || !(o->threshold > 1.0f))
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                       "sharp part: threshold %g must be finite and > 1 (times the map's mean luminance)",
+                       (double)o->threshold);
+    if (o->max_iterations > MAX_ITERATIONS)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "sharp part: max_iterations %u exceeds %d", o->max_iterations,
+                       MAX_ITERATIONS);
+    if (capacity < o->max_count)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "sharp part: capacity %u is below max_count %u", capacity,
+                       o->max_count);
+    const size_t need = 3 * (size_t)env->width * env->height;
+    if (residual_floats != need)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "sharp part: the residual map needs %zu floats (%ux%ux3), got %zu",
+                       need, env->width, env->height, residual_floats);
+    texels t, hot = {0};
+    pn_env_decomposition d = {0};
+    pn_status st = texels_read(env, &t);
+    double mean = 0.0;
+    for (size_t k = 0; !st && k < t.count; ++k)
+        mean += t.weight[k];
+    mean /= 4.0 * PI;
+    const double limit = o->threshold * mean;
+    size_t hot_count = 0;
+    if (!st) {
+        memcpy(residual, t.rgb, need * sizeof(float));
+        hot.width = t.width;
+        hot.height = t.height;
+        hot.count = t.count;
+        if (!(hot.rgb = pn_malloc(ctx, need * sizeof(float), "the sharp part")))
+            st = PN_ERROR_OUT_OF_MEMORY;
+    }
+    for (size_t k = 0; !st && k < t.count; ++k) {
+        const double lum = t.weight[k] > 0.0 ? luminance64(t.rgb + 3 * k) : 0.0;
+        for (int c = 0; c < 3; ++c)
+            hot.rgb[3 * k + c] = 0.0f;
+        if (!(mean > 0.0) || !(lum > limit))
+            continue;
+        ++hot_count;
+        const double keep = limit / lum;
+        for (int c = 0; c < 3; ++c) {
+            residual[3 * k + c] = (float)(t.rgb[3 * k + c] * keep);
+            hot.rgb[3 * k + c] = t.rgb[3 * k + c] - residual[3 * k + c]; /* sum = the map to float rounding */
+        }
+    }
+    if (!st && hot_count > 0)
+        st = texels_init(ctx, &hot, false);
+    if (!st && hot_count > 0) {
+        pn_env_decompose_options dopt = {o->max_count < hot.nonblack ? o->max_count : (uint32_t)hot.nonblack, o->seed,
+                                         o->max_iterations};
+        if (dopt.count > 0 && !(st = decompose(env, &hot, &dopt, &d))) {
+            /* Radiance of each domain's excess, solid angle of its hot texels only. */
+            double sums[4 * PN_ENV_SHARP_MAX] = {0};
+            for (size_t k = 0; k < hot.count; ++k) {
+                if (!(hot.weight[k] > 0.0))
+                    continue;
+                double *s = sums + 4 * d.assignment[k];
+                const double w = hot.omega[k / hot.width];
+                for (int c = 0; c < 3; ++c)
+                    s[c] += hot.rgb[3 * k + c] * w;
+                s[3] += w;
+            }
+            for (uint32_t i = 0; i < d.count; ++i) {
+                domains[i] = d.domains[i]; /* the centre, turned to the world */
+                for (int c = 0; c < 3; ++c)
+                    domains[i].radiance[c] = (float)(env->intensity * sums[4 * i + c]);
+                domains[i].solid_angle = (float)sums[4 * i + 3];
+                domains[i].cap_radius = (float)(2.0 * asin(sqrt(fmin(sums[4 * i + 3] / (4.0 * PI), 1.0))));
+            }
+            *count = d.count;
+        }
+    }
+    free(d.domains);
+    free(d.assignment);
+    texels_free(&hot);
+    texels_free(&t);
+    return st;
 }
