@@ -119,10 +119,10 @@ def experiment_maps(ctx, out: Path, log) -> dict:
 # --------------------------------------------------------------------------- error
 
 
-def experiment_error(ctx, out: Path, log, scenes=SEED_SCENES) -> dict:
+def experiment_error(ctx, out: Path, log, scenes=SEED_SCENES, size=None, save=lambda rows: None) -> dict:
     rows = []
     for name in scenes:
-        built = load(name, ctx)
+        built = load(name, ctx, [f"camera.resolution=[{size[0]},{size[1]}]"] if size else [])
         gb = gbuffer(built)
         ref = truth(built, gb, name, out)
         mask = gb.read("instance") != 0xFFFFFFFF
@@ -136,14 +136,18 @@ def experiment_error(ctx, out: Path, log, scenes=SEED_SCENES) -> dict:
         for knob, params in settings:
             img, _, _ = shade(built, gb, "depthmap", **base, **params)
             m = compare(ref, img, mask)
-            row = dict(scene=name, knob=knob, params=params, nrmse=m["nrmse"], rel_rms=m["rel_rms"])
+            row = dict(scene=name, size=list(built.camera.resolution), knob=knob, params=params, nrmse=m["nrmse"],
+                       rel_rms=m["rel_rms"])
             log(json.dumps(row))
             rows.append(row)
         img, _, _ = shade(built, gb, "depthmap", **base)
         exposure = 1.0 / max(float(np.percentile(ref[mask], 99)), 1e-6)
         write_png(out / f"{name}_depthmap.png", img, exposure=exposure)
         write_png(out / f"{name}_reference.png", ref, exposure=exposure)
-        rows.append(dict(scene=name, knob="default", params={}, nrmse=compare(ref, img, mask)["nrmse"]))
+        m = compare(ref, img, mask)
+        rows.append(dict(scene=name, size=list(built.camera.resolution), knob="default", params={}, nrmse=m["nrmse"],
+                         rel_rms=m["rel_rms"]))
+        save(rows)
     return {"rows": rows}
 
 
@@ -183,8 +187,9 @@ def report(results: dict) -> str:
         lines.append("")
     if "error" in results:
         lines += ["## NRMSE against the reference (face 64, sun 4 x 4), defaults except the knob", "",
-                  "| scene | knob | setting | NRMSE | rel. RMS |", "|---|---|---|---|---|"]
-        lines += [f"| {r['scene']} | {r['knob']} | {json.dumps(r['params'])} | {r['nrmse']:.4f} | "
+                  "| scene | pixels | knob | setting | NRMSE | rel. RMS |", "|---|---|---|---|---|---|"]
+        lines += [f"| {r['scene']} | {'x'.join(map(str, r.get('size', [])))} | {r['knob']} | {json.dumps(r['params'])} | "
+                  f"{r['nrmse']:.4f} | "
                   f"{r.get('rel_rms', float('nan')):.4f} |" for r in results["error"]["rows"]]
         lines.append("")
     if "speed" in results:
@@ -203,6 +208,7 @@ def main(argv=None) -> int:
     ap.add_argument("--only", default="maps,error,speed")
     ap.add_argument("--out", default=str(REPO / "bench" / "results" / "depthmap"))
     ap.add_argument("--scenes", default=",".join(SEED_SCENES), help="scenes of the error experiment")
+    ap.add_argument("--size", default="", help="WxH: the error experiment's image size (default: the scenes')")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -212,8 +218,21 @@ def main(argv=None) -> int:
     results["device"] = ctx.device_name
     for key in args.only.split(","):
         t0 = time.perf_counter()
-        kwargs = {"scenes": tuple(args.scenes.split(","))} if key == "error" else {}
+        kwargs = {}
+        if key == "error":  # rows of other scenes from earlier runs stay; each scene's rows are saved when done
+            scenes = tuple(args.scenes.split(","))
+            earlier = [r for r in results.get("error", {}).get("rows", []) if r["scene"] not in scenes]
+
+            def save(rows):
+                results["error"] = {"rows": earlier + rows}
+                atomic_write_text(path, json.dumps(results, indent=1))
+                atomic_write_text(out / "report.md", report(results))
+
+            kwargs = {"scenes": scenes, "save": save,
+                      "size": tuple(int(x) for x in args.size.split("x")) if args.size else None}
         results[key] = EXPERIMENTS[key](ctx, out, lambda s: print(s, flush=True), **kwargs)
+        if key == "error":
+            results[key]["rows"] = earlier + results[key]["rows"]
         results[key]["seconds"] = time.perf_counter() - t0
         atomic_write_text(path, json.dumps(results, indent=1))
         atomic_write_text(out / "report.md", report(results))
