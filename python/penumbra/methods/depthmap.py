@@ -69,8 +69,7 @@ def domain_count(renderer) -> int:
 
 
 class Depthmap(Technique):
-    readme_setting: dict = {}
-    readme_label = "defaults"
+    # Not in the README's benchmark table yet (its rows come from `make bench`); docs/depthmap.md has its results.
 
     def output_shape(self, renderer, scene, output: str, instance: int) -> tuple[int, ...]:
         if output == "depth_map":
@@ -82,9 +81,9 @@ class Depthmap(Technique):
         raise InputError(f"method {NAME} has no output '{output}' (outputs: domains, map_frames, depth_map)")
 
     def sweep(self) -> list[dict]:
-        # Directions and map resolution from the cheapest up to the defaults and beyond.
-        return [{"directions": 16, "resolution": 128}, {"directions": 32, "resolution": 128},
-                {"directions": 64, "resolution": 128}, {}, {"directions": 128}, {"directions": 256}]
+        # Directions and map resolution from the cheapest up to the defaults and beyond (docs/depthmap.md).
+        return [{"directions": 16, "resolution": 128}, {"directions": 32, "resolution": 128}, {"directions": 32},
+                {}, {"pcf": 1}, {"resolution": 512}, {"directions": 128, "resolution": 512}]
 
 
 TECHNIQUE = Depthmap(NAME)
