@@ -12,7 +12,7 @@
   python bench/depthmap_experiments.py [--only maps,error,speed] [--out bench/results/depthmap]
 
 Writes results.json and report.md (atomically) and a few PNGs into --out.
-Ground truths are cached there as .npy by scene and resolution.
+Ground truths are cached in --out/cache/ as .npy by scene and resolution.
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def shade(built, gb, method, **params):
 
 def truth(built, gb, name, out: Path):
     w, h = built.camera.resolution
-    path = out / f"reference-{name}-{w}x{h}.npy"
+    path = out / "cache" / f"reference-{name}-{w}x{h}.npy"
     if path.is_file():
         return np.load(path)
     img, _, _ = shade(built, gb, "reference", face_size=64, sun_supersampling=4, background=0)
