@@ -30,6 +30,7 @@ OUT/report.md rewritten from it (--report-only). --quick (256 x 128 and
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from pathlib import Path
@@ -94,7 +95,7 @@ def run_time(run) -> dict:
             full = timed_decompose(run.ctx, env, n)
             log(f"time {label} ({env.shape[1]}x{env.shape[0]}) N={n}: {full:.2f} s, 1 iteration {one:.2f} s")
             rows.append({"map": label, "width": env.shape[1], "height": env.shape[0], "n": n, "seconds": full,
-                         "one_iteration_seconds": one})
+                         "one_iteration_seconds": one, "loadavg": os.getloadavg()[0]})
     return {"map": TIME_MAP, "rows": rows}
 
 
@@ -137,10 +138,13 @@ def report(results: dict) -> str:
     if "time" in ex:
         t = ex["time"]
         L += [f"## Decomposition time (`{t['map']}`, seed {SEED}, at most 100 Lloyd iterations)", "",
-              "| map | N | seconds | 1 iteration (fixed cost) |", "|---|---|---|---|"]
+              "| map | N | seconds | 1 iteration (fixed cost) | load average |", "|---|---|---|---|---|"]
         for r in t["rows"]:
+            load = r.get("loadavg")
             L.append(f"| {r['map']} ({r['width']}x{r['height']}) | {r['n']} | {r['seconds']:.2f} | "
-                     f"{r['one_iteration_seconds']:.2f} |")
+                     f"{r['one_iteration_seconds']:.2f} | {'-' if load is None else f'{load:.1f}'} |")
+        if t.get("note"):
+            L += ["", t["note"]]
         L.append("")
     if "error" in ex:
         rows = ex["error"]["rows"]

@@ -400,3 +400,20 @@ def test_sharp_part_refuses_bad_options(ctx):
     em.set(intensity=2.0)
     with pytest.raises(PenumbraError, match="pn_envmap_commit"):
         em.extract_sharp()
+
+
+@pytest.mark.parametrize("script,folder", [("env_domains_experiments", "env_domains"),
+                                           ("sharp_fiv_experiment", "sharp_fiv")])
+def test_committed_reports_regenerate_byte_for_byte(script, folder):
+    """The numbers of docs/depthmap.md's decomposition and sharp-part tables come from these
+    committed reports, which their suites rebuild exactly from the committed results.json."""
+    import importlib
+    import json
+    import sys
+    from pathlib import Path
+
+    bench = Path(__file__).resolve().parents[1] / "bench"
+    sys.path.insert(0, str(bench))
+    mod = importlib.import_module(script)
+    res = bench / "results" / folder
+    assert mod.SUITE.report(json.loads((res / "results.json").read_text())) == (res / "report.md").read_text()

@@ -571,6 +571,29 @@ static void test_env_decompose(pn_context ctx)
         o.count = 1;
         expect_error("decompose: black map refused", pn_envmap_decompose(env, &o, domains, 8),
                      PN_ERROR_INVALID_ARGUMENT, ctx, "only 0 non-black", "black", NULL);
+        /* The sharp part: its errors, and a black map has none. */
+        pn_env_sharp_options so = pn_env_sharp_options_default();
+        CHECK("sharp defaults: 4 domains, threshold 100", so.max_count == 4 && so.threshold == 100.0f);
+        uint32_t count = 99;
+        const size_t floats = 3 * (size_t)W * H;
+        expect_error("sharp: NULL count", pn_envmap_extract_sharp(env, &so, domains, 8, NULL, rgb, floats),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, "count", NULL);
+        expect_error("sharp: residual size", pn_envmap_extract_sharp(env, &so, domains, 8, &count, rgb, floats - 3),
+                     PN_ERROR_INVALID_SIZE, ctx, "16x8x3", NULL);
+        expect_error("sharp: capacity below max_count",
+                     pn_envmap_extract_sharp(env, &so, domains, 2, &count, rgb, floats), PN_ERROR_INVALID_SIZE, ctx,
+                     "capacity 2", NULL);
+        so.threshold = 1.0f;
+        expect_error("sharp: threshold 1", pn_envmap_extract_sharp(env, &so, domains, 8, &count, rgb, floats),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, "threshold", NULL);
+        so.threshold = 100.0f;
+        so.max_count = 0;
+        expect_error("sharp: max_count 0", pn_envmap_extract_sharp(env, &so, domains, 8, &count, rgb, floats),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, "max_count", NULL);
+        so.max_count = 4;
+        rgb[0] = 5.0f; /* overwritten by the residual: the black map itself */
+        if (expect_ok("sharp: black map", pn_envmap_extract_sharp(env, &so, domains, 8, &count, rgb, floats), ctx))
+            CHECK("sharp: a black map has no sharp part and is its own residual", count == 0 && rgb[0] == 0.0f);
     }
 done:
     free(rgb);
