@@ -3,7 +3,7 @@
   maps    map rendering, rasteriser against ray caster, at 64 and 256 maps
           on a 29k- and a 100k-triangle mesh (time ratios in one process)
   error   NRMSE against the reference (face 64, sun split 4 x 4) on the seed's
-          scenes (bench/scenes/*.toml): by N, by map resolution, by PCF and
+          scenes (bench/scenes/depthmap/*.toml): by N, by map resolution, by PCF and
           by specular rule (point, seed blend, cap quadrature)
   speed   per-frame time at 512 x 512 with 64 and 128 directions for one and
           two armadillos, split into map rendering and shading, as ratios
@@ -36,7 +36,7 @@ from penumbra.metrics import compare  # noqa: E402
 from penumbra.render import build_scene  # noqa: E402
 from penumbra.scenefile import apply_overrides, parse_scene, read_toml  # noqa: E402
 
-SCENES = REPO / "bench" / "scenes"
+SCENES = REPO / "bench" / "scenes" / "depthmap"  # not in `make bench`: its ground truths take minutes each
 SEED_SCENES = ("armadillo_uffizi", "two_armadillos_sunny", "phong_spheres_uffizi", "phong_spheres_outdoor")
 
 
@@ -95,7 +95,7 @@ def experiment_maps(ctx, out: Path, log) -> dict:
     for mesh, label in (("armadillo_odedstein", "armadillo 29k"), ("dragon_photon", "dragon 100k")):
         over = ["camera.resolution=[64,64]"]
         if mesh != "armadillo_odedstein":
-            over += [f"object.armadillo.mesh=\"../../../shared/data/meshes/{mesh}.obj\"",
+            over += [f"object.armadillo.mesh=\"../../../../shared/data/meshes/{mesh}.obj\"",
                      "object.armadillo.scale=0.1", "object.armadillo.translate=[0,-0.5716,0]"]
         built = load("armadillo_uffizi", ctx, over)
         gb = gbuffer(built)
