@@ -21,16 +21,6 @@ inline float3 pn_shadow_origin(float3 p, float3 n, float3 camera, float offset, 
     return p + (offset * (scene_scale + fast_length(p - camera))) * n;
 }
 
-/* Unit vectors t, b completing n to an orthonormal frame (Duff et al. 2017). */
-inline void pn_frame(float3 n, float3 *t, float3 *b)
-{
-    float s = n.z >= 0.0f ? 1.0f : -1.0f;
-    float a = -1.0f / (s + n.z);
-    float c = n.x * n.y * a;
-    *t = (float3)(1.0f + s * n.x * n.x * a, s * c, -s * n.x);
-    *b = (float3)(c, s + n.y * n.y * a, -n.y);
-}
-
 /* Radiance from one spherical light (centre, radius | radiance), sampled on a
  * side x side stratified grid over the solid angle of its cap. A receiver
  * inside the sphere sees its back faces, which do not emit. */

@@ -1,7 +1,7 @@
 """float64 twin of the decomposition and the average-reflectivity terms of the
 depth-map method (docs/depthmap.md; seed: Barsi, Szirmay-Kalos, Szecsi,
-"Image-based illumination on the GPU"). No depth maps and no shading kernel
-yet: this is the reference the kernels will be written against.
+"Image-based illumination on the GPU"), and of its depth maps, lookup and
+shading kernel (kernels/depthmap.cl).
 
 Plain numpy, float64 throughout. Conventions:
 
@@ -26,6 +26,10 @@ Functions:
                 fibonacci_sphere(n)
   Phong         phong_cap_average(cos_psi_c, r, n, nodes), phong_cap_average_centre(r, n),
                 seed_blend(cos_psi_c, r, n), phong_energy(a, r, n)
+  depth maps    map_coordinates(frame, p), rasterise(frame, tris, res), map_bias(...),
+                visibility(frame, depth, p, b, pcf, margin)
+  shading       cap_points(d, r, samples), lobe_reaches(...), specular_average(...),
+                shade(planes, camera, domains, frames, maps, ...) (twins of kernels/depthmap.cl)
 
 Readings where the seed leaves a choice (docs/depthmap.md says why):
 initial samples are drawn without replacement (Efraimidis-Spirakis keys from a
@@ -417,6 +421,182 @@ def phong_energy(a, r: float, n: float, nodes: int = 400) -> float:
         vals = np.array([a(math.cos(p)) for p in psi])
         total += float(np.sum(w * vals * 2.0 * math.pi * np.sin(psi)))
     return total / (2.0 * math.pi / (n + 1))
+
+
+# --------------------------------------------------------------------------- depth maps and shading
+#
+# The float64 twins of kernels/depthmap.cl: the rasterised maps (given the
+# map frames the library fitted, read back through the `map_frames` output),
+# the depth-map lookup with its bias and PCF, the cap quadrature and the
+# per-pixel sum. Frames are (16,) arrays: e1 | u_min, e2 | v_min, d | far,
+# du, dv, depth extent, 0.
+
+GOLDEN_ANGLE = 2.39996322972865332
+MAX_SLOPE = 32.0  # DM_MAX_SLOPE
+LOBE_CULL = 1e-3  # DM_LOBE_CULL
+
+
+def map_coordinates(frame, p):
+    """(tu, tv, z) of points p (.., 3) in a map: texel coordinates and depth."""
+    f = np.asarray(frame, np.float64)
+    p = np.asarray(p, np.float64)
+    return (p @ f[0:3] - f[3]) / f[12], (p @ f[4:7] - f[7]) / f[13], f[11] - p @ f[8:11]
+
+
+def rasterise(frame, tris, res: int) -> np.ndarray:
+    """(res, res) depths of world triangles (T, 3, 3) in one map: per texel
+    centre covered (all barycentric weights >= 0), the least interpolated
+    depth (clamped at 0); +inf where nothing covers it."""
+    out = np.full((res, res), np.inf)
+    for tri in np.asarray(tris, np.float64):
+        tu, tv, z = map_coordinates(frame, tri)
+        area = (tu[1] - tu[0]) * (tv[2] - tv[0]) - (tu[2] - tu[0]) * (tv[1] - tv[0])
+        if not abs(area) > 0:
+            continue
+        i0, i1 = max(int(np.floor(tu.min() - 0.5)), 0), min(int(np.ceil(tu.max() - 0.5)), res - 1)
+        j0, j1 = max(int(np.floor(tv.min() - 0.5)), 0), min(int(np.ceil(tv.max() - 0.5)), res - 1)
+        if i1 < i0 or j1 < j0:
+            continue
+        x, y = np.meshgrid(np.arange(i0, i1 + 1) + 0.5, np.arange(j0, j1 + 1) + 0.5)
+        w1 = ((x - tu[0]) * (tv[2] - tv[0]) - (tu[2] - tu[0]) * (y - tv[0])) / area
+        w2 = ((tu[1] - tu[0]) * (y - tv[0]) - (x - tu[0]) * (tv[1] - tv[0])) / area
+        w0 = 1.0 - w1 - w2
+        inside = (w0 >= 0) & (w1 >= 0) & (w2 >= 0)
+        depth = np.maximum(w0 * z[0] + w1 * z[1] + w2 * z[2], 0.0)
+        block = out[j0:j1 + 1, i0:i1 + 1]
+        np.minimum(block, np.where(inside, depth, np.inf), out=block)
+    return out
+
+
+def map_bias(frame, cos_theta, bias: float, slope_bias: float, pcf: int):
+    """The depth bias of a lookup (world units): texel x (bias + slope_bias (pcf + 1) min(tan theta, 32))."""
+    c = np.asarray(cos_theta, np.float64)
+    tan = np.minimum(np.sqrt(np.maximum(1.0 - c * c, 0.0)) / c, MAX_SLOPE)
+    return max(frame[12], frame[13]) * (bias + slope_bias * (pcf + 1.0) * tan)
+
+
+def visibility(frame, depth, p, b, pcf: int, margin: float = 0.0):
+    """The share of the (2 pcf + 1)^2 texels around p's whose depth is not in
+    front of p by more than the bias b (1 outside the map). With a margin m,
+    (lo, hi): the share when comparisons within m of their threshold go dark /
+    lit (the float32 kernel may decide those either way)."""
+    res = depth.shape[0]
+    tu, tv, z = map_coordinates(frame, p)
+    z = z - b
+    if not (0 <= tu < res and 0 <= tv < res):
+        return 1.0, 1.0
+    ci, cj = int(tu), int(tv)
+    lo = hi = taps = 0
+    for dj in range(-pcf, pcf + 1):
+        for di in range(-pcf, pcf + 1):
+            i, j = ci + di, cj + dj
+            taps += 1
+            if i < 0 or j < 0 or i >= res or j >= res:
+                lo += 1
+                hi += 1
+                continue
+            stored = depth[j, i]
+            lo += z <= stored - margin
+            hi += z <= stored + margin
+    return lo / taps, hi / taps
+
+
+def cap_points(d, r: float, samples: int) -> np.ndarray:
+    """The cap quadrature's points (samples, 3): rings of equal solid angle
+    around unit d within radius r, golden-angle azimuths (dm_cap_lobe)."""
+    d = np.asarray(d, np.float64)
+    s = 1.0 if d[2] >= 0 else -1.0
+    a = -1.0 / (s + d[2])
+    b = d[0] * d[1] * a
+    t = np.array([1.0 + s * d[0] * d[0] * a, s * b, -s * d[0]])
+    bb = np.array([b, s + d[1] * d[1] * a, -d[1]])
+    k = np.arange(samples)
+    u = (1.0 - math.cos(r)) * (k + 0.5) / samples
+    sb = np.sqrt(np.maximum(u * (2.0 - u), 0.0))
+    ang = GOLDEN_ANGLE * k
+    return (sb * np.cos(ang))[:, None] * t + (sb * np.sin(ang))[:, None] * bb + (1.0 - u)[:, None] * d
+
+
+def lobe_reaches(n, v, refl, d, r, lobe_fn) -> bool:
+    """dm_lobe_reaches: whether the lobe at the cap point nearest to R is at
+    least LOBE_CULL of its value at R (always when R is inside the cap or under the horizon)."""
+    c = refl @ d
+    if c >= math.cos(r):
+        return True
+    side = refl - c * d
+    sl = np.linalg.norm(side)
+    if not sl > 0:
+        return True
+    near = math.cos(r) * d + math.sin(r) * side / sl
+    nl, nr = near @ n, refl @ n
+    if not nr > 0:
+        return True
+    if not nl > 0:
+        return False
+    return lobe_fn(near) * nl >= LOBE_CULL * lobe_fn(refl) * nr
+
+
+SPECULAR_POINT, SPECULAR_SEED, SPECULAR_CAP = 0, 1, 2
+
+
+def specular_average(n, v, d, r, mat, specular: int, cap_samples: int) -> float:
+    """a_i per unit k_s: the lobe times the cosine over domain (d, r) by the chosen rule."""
+    from penumbra.brdf import LOBES, lobe as brdf_lobe
+
+    name = LOBES[int(mat[2])]
+    shin, rough = float(mat[0]), float(np.clip(mat[1], 1e-3, 1.0))
+    f = lambda l: float(brdf_lobe(n, v, l, name, shin, rough))  # noqa: E731
+    c = float(n @ d)
+    refl = 2.0 * (n @ v) * n - v
+    if specular == SPECULAR_CAP:
+        if not lobe_reaches(n, v, refl, d, r, f):
+            return 0.0
+        pts = cap_points(d, r, cap_samples)
+        nl = pts @ n
+        up = nl > 0
+        vals = brdf_lobe(n, v, pts[up], name, shin, rough) * nl[up] if up.any() else np.zeros(0)
+        return float(np.sum(vals)) / cap_samples
+    if specular == SPECULAR_SEED and name == "phong":
+        return (shin + 2.0) / (2.0 * math.pi) * float(seed_blend(refl @ d, r, shin)) * c
+    return f(d) * c
+
+
+def shade(planes, camera_position, domains, frames=None, maps=None, bias=1.0, slope_bias=1.0, pcf=1,
+          specular=SPECULAR_CAP, cap_samples=16, margin=0.0):
+    """float64 L_o of every foreground pixel, (lo, hi) as in ``visibility``:
+    sum_i v_i L~_i (rho/pi max(0, n.d_i) + k_s a_i). ``domains``: (N, 8)
+    pn_env_domain records; ``frames`` (N, 16) and ``maps`` (N, res, res) or
+    None (every domain visible). Background pixels are left 0."""
+    from penumbra import BACKGROUND
+
+    h, w = planes["instance"].shape
+    lo, hi = np.zeros((h, w, 3)), np.zeros((h, w, 3))
+    cam = np.asarray(camera_position, np.float32).astype(np.float64)
+    dom = np.asarray(domains, np.float64)
+    dirs, rad, caps = dom[:, :3], dom[:, 4:7], dom[:, 7]
+    for y in range(h):
+        for x in range(w):
+            if planes["instance"][y, x] == BACKGROUND:
+                continue
+            p = planes["position"][y, x, :3].astype(np.float64)
+            n = planes["normal"][y, x, :3].astype(np.float64)
+            n /= np.linalg.norm(n)
+            v = cam - p
+            v /= np.linalg.norm(v)
+            alb, mat = planes["albedo"][y, x].astype(np.float64), planes["material"][y, x].astype(np.float64)
+            for i in np.flatnonzero(dirs @ n > 0):
+                c = float(dirs[i] @ n)
+                v_lo = v_hi = 1.0
+                if maps is not None:
+                    b = map_bias(frames[i], c, bias, slope_bias, pcf)
+                    v_lo, v_hi = visibility(frames[i], maps[i], p, b, pcf, margin)
+                if v_hi == 0:
+                    continue
+                a = specular_average(n, v, dirs[i], caps[i], mat, specular, cap_samples) if alb[3] > 0 else 0.0
+                term = rad[i] * (alb[:3] / math.pi * c + alb[3] * a)
+                lo[y, x] += v_lo * term
+                hi[y, x] += v_hi * term
+    return lo, hi
 
 
 # --------------------------------------------------------------------------- docs table

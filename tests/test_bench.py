@@ -36,7 +36,8 @@ def tiny_bench(tmp_path_factory, shared_data):
     opts = BenchOptions(frames=5, reference_face_size=8, reference_sun_supersampling=1, spp=(1, 4),
                         sweeps={"unshadowed": [{}], "reference": [{"face_size": 4}, {"face_size": 8}],
                                 "fiv": [{"samples": [8, 5, 4], "face_size": 8},
-                                        {"samples": [8, 5, 4], "face_size": 8, "overlap": 0}]})
+                                        {"samples": [8, 5, 4], "face_size": 8, "overlap": 0}],
+                                "depthmap": [{"directions": 8, "resolution": 32}]})
     res = run(SCENE, out, opts, overrides=TINY, log=lambda m: None)
     return out, res
 

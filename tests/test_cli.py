@@ -176,8 +176,8 @@ def test_render_scene_method_can_be_overridden_only_by_known_methods(capsys, bun
     assert code == 2
     assert "raytraced" in err and "unshadowed" in err
     assert not (tmp_path / "x.exr").exists()
-    code, out, err = run_cli(capsys, "render", bunny_scene, "--set", "render.method=depthmap", "--frames", "1")
-    assert code == 2 and "depthmap" in err and "unshadowed" in err
+    code, out, err = run_cli(capsys, "render", bunny_scene, "--set", "render.method=photonmap", "--frames", "1")
+    assert code == 2 and "photonmap" in err and "unshadowed" in err
 
 
 def write_exr_raw(path: Path, rgb: np.ndarray) -> None:

@@ -56,3 +56,14 @@ FIV_OVERLAP_INCREASE_MAX = 0.25
 # same rays hit), the images differ by float32 transforms of centre and v
 # (measured 3.9e-7).
 FIV_SCALED_INSTANCE_ATOL = 1e-5
+# --- depthmap (tests/test_depthmap.py against tests/depthmap64.py) --------
+# Map depths against the float64 rasteriser, times the map's depth extent:
+# z = far - p.d in float32 from transformed float32 vertices, a few ulps of
+# the scene's size (measured below 1e-6); a wrong frame or interpolation is
+# off by texels, i.e. >= 1e-2. Lookups whose comparison falls within this of
+# the threshold count as ambiguous in the twin (lit or dark).
+DEPTHMAP_DEPTH_ATOL = 1e-5
+# Shaded pixels against the float64 sum, relative: at most 64 domains x 16
+# cap points of float32 BRDF terms (pow(x, n) turns x's rounding into
+# n * 1e-7, shininess 50 here), as BRDF_RTOL.
+DEPTHMAP_SHADE_RTOL = 3e-4

@@ -180,6 +180,81 @@ PN_API pn_status pn_envmap_read(pn_envmap env, pn_envmap_data what, void *host, 
  * intensity and supersampling (not the cube sizes). Occlusion fields record it. */
 PN_API pn_status pn_envmap_get_hash(pn_envmap env, uint64_t *hash);
 
+/* Directional domains of an env map (docs/depthmap.md, "Decomposition"):
+ * the sphere split into N cells, each lit as one directional light. */
+typedef struct pn_env_domain {
+    float direction[3];   /* unit centre direction (world space, the map's rotation applied), towards the light */
+    float solid_angle;    /* of the domain's texels, sr */
+    float radiance[3];    /* total incoming radiance L~: sum of texel radiance x solid angle (intensity applied) */
+    float cap_radius;     /* equivalent cap half-angle r (rad): solid_angle = 2 pi (1 - cos r) */
+} pn_env_domain;          /* 32 bytes, also the device layout (two float4) */
+
+typedef struct pn_env_decompose_options {
+    uint32_t count;          /* N, 1..1024 */
+    uint32_t seed;           /* the draw is deterministic for a given seed (32 bits: the twin's counter is seed * 2^32 + texel) */
+    uint32_t max_iterations; /* Lloyd iterations cap (0 = the library's default, 100) */
+} pn_env_decompose_options;
+
+/* count 64, seed 1, max_iterations 0. */
+PN_API pn_env_decompose_options pn_env_decompose_options_default(void);
+
+/* Splits the committed env map into options->count directional domains
+ * (Barsi, Szirmay-Kalos, Szecsi): N distinct lat-long texels drawn with
+ * probability proportional to luminance x solid angle (Efraimidis-Spirakis
+ * keys from splitmix64 of (seed, texel)), spread by weighted Lloyd relaxation
+ * on the sphere (every texel to its nearest centre on the device, centres to
+ * their cells' weighted mean direction) until no texel changes cell or
+ * max_iterations passes; then per domain its centre, the sum of L x dw of its
+ * texels, its solid angle and equivalent cap radius. Every texel (black ones
+ * too) is in exactly one domain: the radiances sum to the map's power and the
+ * solid angles to 4 pi. Works on the lat-long texels themselves (not the
+ * resampled cube), so a one-texel sun keeps its exact power and position.
+ * Deterministic for a given seed on a given device; the result is cached per
+ * (env content, N, seed, max_iterations) until the next commit.
+ * Writes `count` domains to `domains`, in no particular order. Errors:
+ * PN_ERROR_NULL_HANDLE (env), PN_ERROR_NOT_COMMITTED (the map changed since
+ * its commit), PN_ERROR_INVALID_ARGUMENT (options or domains NULL, count 0 or
+ * > 1024, max_iterations > 10000, count larger than the map's non-black
+ * texels: the message names both numbers and says when the map is black),
+ * PN_ERROR_INVALID_SIZE (capacity < count). */
+PN_API pn_status pn_envmap_decompose(pn_envmap env, const pn_env_decompose_options *options, pn_env_domain *domains,
+                                     uint32_t capacity);
+
+/* The sharp part of an env map: its concentrated light (a sun, a few lamps)
+ * as at most max_count domains, for depth-map shadows, and the rest as a
+ * residual lat-long map for a smooth-lighting method (FIV, ISG). */
+typedef struct pn_env_sharp_options {
+    uint32_t max_count;      /* most sharp domains, 1..64 */
+    float threshold;         /* a texel is sharp where its luminance exceeds threshold x the map's mean luminance, > 1 */
+    uint32_t seed;           /* of the decomposition of the sharp texels */
+    uint32_t max_iterations; /* its Lloyd cap (0 = the default, 100) */
+} pn_env_sharp_options;
+
+/* max_count 4, threshold 100, seed 1, max_iterations 0. */
+PN_API pn_env_sharp_options pn_env_sharp_options_default(void);
+
+/* Splits the committed map into sharp domains and a residual map with
+ * residual + sharp part = the map: every texel whose luminance exceeds
+ * T = threshold x the mean luminance (sum over texels of luminance x dw, over
+ * 4 pi) keeps luminance T in the residual (its colour unchanged) and gives its
+ * excess to the sharp part: the residual has no hole where the sun was, its
+ * range is bounded by T, and no light is lost or counted twice. The excess is
+ * split into min(max_count, its texel count) domains by the decomposition of
+ * pn_envmap_decompose (so a large or bright source may take several); a
+ * domain's radiance is its excess L~, its solid angle and cap radius those of
+ * its sharp texels (the source's own size). Directions and radiance as in
+ * pn_envmap_decompose (world space, intensity applied); `residual` is
+ * width*height RGB floats in the input's frame and units (before rotation and
+ * intensity), so an env map made of it with the same rotation_deg and
+ * intensity lights the rest. A map with no texel above T (overcast, constant,
+ * black) gives *count = 0 and residual = the map. Errors:
+ * PN_ERROR_NOT_COMMITTED, PN_ERROR_INVALID_ARGUMENT (NULL pointers, max_count
+ * outside 1..64, threshold not finite or <= 1, max_iterations > 10000),
+ * PN_ERROR_INVALID_SIZE (capacity < max_count, residual_floats not
+ * width*height*3). */
+PN_API pn_status pn_envmap_extract_sharp(pn_envmap env, const pn_env_sharp_options *options, pn_env_domain *domains,
+                                         uint32_t capacity, uint32_t *count, float *residual, size_t residual_floats);
+
 /* ------------------------------------------------------------------ mesh */
 
 PN_API pn_status pn_mesh_create(pn_context ctx, pn_mesh *out);
@@ -560,6 +635,16 @@ PN_API pn_status pn_renderer_execute(pn_renderer renderer, pn_scene scene, pn_gb
  * `bytes` must equal the output's size. Blocking. */
 PN_API pn_status pn_renderer_read_output(pn_renderer renderer, pn_scene scene, const char *output, uint32_t instance,
                                          uint32_t index, void *host, size_t bytes);
+
+/* The caller's own directional domains for a method that shades with them
+ * (depthmap): `count` domains (copied; 1..1024) replace the decomposition of
+ * the scene's env map from the next execute on; count 0 returns to the
+ * decomposition. The env map still gives the background. Errors:
+ * PN_ERROR_UNSUPPORTED (a method without domains), PN_ERROR_INVALID_ARGUMENT
+ * (NULL with count > 0, more than 1024, a non-finite or non-unit direction,
+ * a non-finite or negative radiance, a cap radius outside [0, pi], a
+ * non-finite or negative solid angle: the message names the domain). */
+PN_API pn_status pn_renderer_set_env_domains(pn_renderer renderer, const pn_env_domain *domains, uint32_t count);
 
 #ifdef __cplusplus
 }

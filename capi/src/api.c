@@ -709,6 +709,12 @@ pn_status pn_renderer_read_output(pn_renderer renderer, pn_scene scene, const ch
     return pn_renderer_do_read_output(renderer, scene, output, instance, index, host, bytes);
 }
 
+pn_status pn_renderer_set_env_domains(pn_renderer renderer, const pn_env_domain *domains, uint32_t count)
+{
+    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    return pn_renderer_do_set_env_domains(renderer, domains, count);
+}
+
 /* ------------------------------------------------------ occlusion fields */
 
 pn_status pn_envmap_get_hash(pn_envmap env, uint64_t *hash)
@@ -719,6 +725,38 @@ pn_status pn_envmap_get_hash(pn_envmap env, uint64_t *hash)
         return pn_fail(env->obj.ctx, PN_ERROR_NOT_COMMITTED, "env map changed since its last commit; call pn_envmap_commit");
     *hash = env->content_hash;
     return PN_SUCCESS;
+}
+
+pn_env_decompose_options pn_env_decompose_options_default(void)
+{
+    pn_env_decompose_options o = {64, 1, 0};
+    return o;
+}
+
+pn_status pn_envmap_decompose(pn_envmap env, const pn_env_decompose_options *options, pn_env_domain *domains,
+                              uint32_t capacity)
+{
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    CHECK_PTR(env->obj.ctx, options);
+    CHECK_PTR(env->obj.ctx, domains);
+    return pn_envmap_do_decompose(env, options, domains, capacity);
+}
+
+pn_env_sharp_options pn_env_sharp_options_default(void)
+{
+    pn_env_sharp_options o = {4, 100.0f, 1, 0};
+    return o;
+}
+
+pn_status pn_envmap_extract_sharp(pn_envmap env, const pn_env_sharp_options *options, pn_env_domain *domains,
+                                  uint32_t capacity, uint32_t *count, float *residual, size_t residual_floats)
+{
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    CHECK_PTR(env->obj.ctx, options);
+    CHECK_PTR(env->obj.ctx, domains);
+    CHECK_PTR(env->obj.ctx, count);
+    CHECK_PTR(env->obj.ctx, residual);
+    return pn_envmap_do_extract_sharp(env, options, domains, capacity, count, residual, residual_floats);
 }
 
 pn_status pn_fiv_bake(pn_envmap env, pn_mesh mesh, const pn_fiv_options *options, const char *checkpoint_path,

@@ -45,6 +45,16 @@ inline float pn_atan2(float y, float x)
     return copysign(a, y);
 }
 
+/* Unit vectors t, b completing n to an orthonormal frame (Duff et al. 2017). */
+inline void pn_frame(float3 n, float3 *t, float3 *b)
+{
+    float s = n.z >= 0.0f ? 1.0f : -1.0f;
+    float a = -1.0f / (s + n.z);
+    float c = n.x * n.y * a;
+    *t = (float3)(1.0f + s * n.x * n.x * a, s * c, -s * n.x);
+    *b = (float3)(c, s + n.y * n.y * a, -n.y);
+}
+
 inline float pn_luminance(float3 rgb)
 {
     return 0.2126f * rgb.x + 0.7152f * rgb.y + 0.0722f * rgb.z;

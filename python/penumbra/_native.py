@@ -98,6 +98,20 @@ class HeightfieldPlacement(ctypes.Structure):
     _fields_ = [("origin", ctypes.c_float * 3), ("size", ctypes.c_float * 2), ("height_scale", ctypes.c_float)]
 
 
+class EnvDomain(ctypes.Structure):
+    _fields_ = [("direction", ctypes.c_float * 3), ("solid_angle", ctypes.c_float), ("radiance", ctypes.c_float * 3),
+                ("cap_radius", ctypes.c_float)]
+
+
+class EnvDecomposeOptions(ctypes.Structure):
+    _fields_ = [("count", ctypes.c_uint32), ("seed", ctypes.c_uint32), ("max_iterations", ctypes.c_uint32)]
+
+
+class EnvSharpOptions(ctypes.Structure):
+    _fields_ = [("max_count", ctypes.c_uint32), ("threshold", ctypes.c_float), ("seed", ctypes.c_uint32),
+                ("max_iterations", ctypes.c_uint32)]
+
+
 # int (*)(void *user, uint64_t done, uint64_t total): nonzero stops the bake.
 PROGRESS = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_uint64, ctypes.c_uint64)
 
@@ -122,6 +136,8 @@ _SIGNATURES = {
     "pn_envmap_get_int": [_H, _str, ctypes.POINTER(_i32)], "pn_envmap_get_float": [_H, _str, ctypes.POINTER(_f32)],
     "pn_envmap_commit": [_H],
     "pn_envmap_read": [_H, ctypes.c_int, _P, _size],
+    "pn_envmap_decompose": [_H, ctypes.POINTER(EnvDecomposeOptions), _P, _u32],
+    "pn_envmap_extract_sharp": [_H, ctypes.POINTER(EnvSharpOptions), _P, _u32, ctypes.POINTER(_u32), _P, _size],
     "pn_mesh_create": [_H, _OUT], "pn_mesh_release": [_H],
     "pn_mesh_set_geometry": [_H, _P, _u32, _P, _u32, _P],
     "pn_mesh_commit": [_H],
@@ -160,6 +176,7 @@ _SIGNATURES = {
     "pn_renderer_commit": [_H],
     "pn_renderer_execute": [_H, _H, _H, _H],
     "pn_renderer_read_output": [_H, _H, _str, _u32, _u32, _P, _size],
+    "pn_renderer_set_env_domains": [_H, _P, _u32],
     "pn_method_get_info": [_str, ctypes.POINTER(MethodInfo)],
     "pn_method_get_param": [_str, _u32, ctypes.POINTER(ParamInfo)],
     "pn_method_get_output": [_str, _u32, ctypes.POINTER(OutputInfo)],

@@ -140,6 +140,26 @@ class Context(_Handle):
         self._call("pn_context_build_program", self._h, stage.encode())
 
 
+@dataclass
+class EnvDomains:
+    """N directional domains of an env map (pn_envmap_decompose): centre
+    directions (N, 3), total radiance sum L dw (N, 3), solid angles (N,) and
+    equivalent cap radii (N,), float32 as the library computes them."""
+
+    directions: np.ndarray
+    radiance: np.ndarray
+    solid_angle: np.ndarray
+    cap_radius: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.directions)
+
+
+def _domains_from_records(records: np.ndarray) -> EnvDomains:
+    """EnvDomains of an (N, 8) float32 array of pn_env_domain records."""
+    return EnvDomains(records[:, 0:3].copy(), records[:, 4:7].copy(), records[:, 3].copy(), records[:, 7].copy())
+
+
 class EnvMap(_Handle):
     """An environment map: lat-long RGB radiance converted on the device into
     a cube map and an irradiance map. Parameters: face_size,
@@ -161,6 +181,11 @@ class EnvMap(_Handle):
         if a.ndim != 3 or a.shape[2] != 3:
             raise InputError(f"env map must have shape (height, width, 3), got {a.shape}")
         self._call("pn_envmap_set_latlong", self._h, _ptr(a), a.shape[1], a.shape[0])
+        self._shape = (a.shape[1], a.shape[0])
+
+    def _size(self) -> tuple[int, int]:
+        """(width, height) of the lat-long map last set."""
+        return self._shape
 
     def set(self, **params) -> None:
         for name, value in params.items():
@@ -200,6 +225,37 @@ class EnvMap(_Handle):
     def irradiance(self) -> np.ndarray:
         """(6, M, M, 3) irradiance at the vertex-grid directions of each face."""
         return self._read(2, self.get("irradiance_face_size"))[..., :3]
+
+    def decompose(self, n: int, seed: int = 1, max_iterations: int = 0) -> EnvDomains:
+        """The committed map split into n directional domains (power sampling,
+        weighted Lloyd relaxation; docs/depthmap.md). Deterministic for a seed
+        (0 <= seed < 2**32); max_iterations 0 is the library's default (100)."""
+        for name, v, hi in (("n", n, 1024), ("seed", seed, 2**32 - 1), ("max_iterations", max_iterations, 10000)):
+            if int(v) != v or not 0 <= v <= hi:
+                raise InputError(f"{name} must be an integer in [0, {hi}], got {v!r}")
+        opts = _native.EnvDecomposeOptions(int(n), int(seed), int(max_iterations))
+        out = np.empty((max(int(n), 1), 8), np.float32)
+        self._call("pn_envmap_decompose", self._h, ctypes.byref(opts), _ptr(out), int(n))
+        return _domains_from_records(out)
+
+    def extract_sharp(self, max_count: int = 4, threshold: float = 100.0, seed: int = 1,
+                      max_iterations: int = 0) -> tuple[EnvDomains, np.ndarray]:
+        """The map's concentrated light as at most max_count domains (texels
+        brighter than threshold x the mean luminance, their excess over that
+        level) and the residual (H, W, 3) lat-long map, in the input's frame and
+        units: residual + sharp part = the map (pn_envmap_extract_sharp)."""
+        for name, v, hi in (("max_count", max_count, 64), ("seed", seed, 2**32 - 1),
+                            ("max_iterations", max_iterations, 10000)):
+            if int(v) != v or not 0 <= v <= hi:
+                raise InputError(f"{name} must be an integer in [0, {hi}], got {v!r}")
+        opts = _native.EnvSharpOptions(int(max_count), float(threshold), int(seed), int(max_iterations))
+        out = np.empty((max(int(max_count), 1), 8), np.float32)
+        count = ctypes.c_uint32()
+        w, h = self._size()
+        residual = np.empty((h, w, 3), np.float32)
+        self._call("pn_envmap_extract_sharp", self._h, ctypes.byref(opts), _ptr(out), int(max_count),
+                   ctypes.byref(count), _ptr(residual), residual.size)
+        return _domains_from_records(out[:count.value]), residual
 
 
 class Mesh(_Handle):

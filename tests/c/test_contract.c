@@ -503,6 +503,103 @@ static void test_config(void)
     CHECK("failed pn_context_create leaves *out NULL", c == NULL);
 }
 
+/* pn_envmap_decompose: every documented error, then a valid split whose
+ * domains cover the sphere. */
+static void test_env_decompose(pn_context ctx)
+{
+    const uint32_t W = 16, H = 8;
+    pn_envmap env = NULL;
+    if (!expect_ok("decompose: pn_envmap_create", pn_envmap_create(ctx, &env), ctx))
+        return;
+    float *rgb = constant_env(W, H, 0.0f);
+    if (!rgb) {
+        CHECK("decompose: test map allocated", rgb != NULL);
+        pn_envmap_release(env);
+        return;
+    }
+    pn_env_domain domains[8];
+    pn_env_decompose_options o = pn_env_decompose_options_default();
+    CHECK("decompose defaults: N 64, seed 1, default iterations", o.count == 64 && o.seed == 1 && o.max_iterations == 0);
+    o.count = 4;
+    expect_error("decompose: NULL env map", pn_envmap_decompose(NULL, &o, domains, 8), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_envmap_decompose", NULL);
+    expect_error("decompose: map never committed", pn_envmap_decompose(env, &o, domains, 8), PN_ERROR_NOT_COMMITTED,
+                 ctx, "pn_envmap_commit", NULL);
+    rgb[3 * (2 * W + 5)] = 1.0f; /* three non-black texels */
+    rgb[3 * (4 * W + 9) + 1] = 2.0f;
+    rgb[3 * (6 * W + 1) + 2] = 0.5f;
+    if (!expect_ok("decompose: set_latlong", pn_envmap_set_latlong(env, rgb, W, H), ctx) ||
+        !expect_ok("decompose: commit", pn_envmap_commit(env), ctx))
+        goto done;
+    expect_error("decompose: NULL options", pn_envmap_decompose(env, NULL, domains, 8), PN_ERROR_INVALID_ARGUMENT,
+                 ctx, "options", NULL);
+    expect_error("decompose: NULL domains", pn_envmap_decompose(env, &o, NULL, 8), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "domains", NULL);
+    o.count = 0;
+    expect_error("decompose: N = 0", pn_envmap_decompose(env, &o, domains, 8), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "0 domains", "1..1024", NULL);
+    o.count = 1025;
+    expect_error("decompose: N = 1025", pn_envmap_decompose(env, &o, domains, 8), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "1025", NULL);
+    o.count = 4;
+    expect_error("decompose: N above the non-black texels", pn_envmap_decompose(env, &o, domains, 8),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "4 directions", "only 3 non-black", NULL);
+    o.count = 3;
+    expect_error("decompose: capacity below N", pn_envmap_decompose(env, &o, domains, 2), PN_ERROR_INVALID_SIZE, ctx,
+                 "capacity 2", NULL);
+    o.max_iterations = 10001;
+    expect_error("decompose: max_iterations too large", pn_envmap_decompose(env, &o, domains, 8),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "max_iterations", NULL);
+    o.max_iterations = 0;
+    if (expect_ok("decompose: N = 3 of 3 non-black texels", pn_envmap_decompose(env, &o, domains, 8), ctx)) {
+        float omega = 0.0f, power = 0.0f;
+        for (int i = 0; i < 3; ++i) {
+            omega += domains[i].solid_angle;
+            power += domains[i].radiance[0] + domains[i].radiance[1] + domains[i].radiance[2];
+            CHECK("decompose: cap radius of the solid angle",
+                  near(domains[i].solid_angle, 6.2831853f * (1.0f - cosf(domains[i].cap_radius)), 1e-4f));
+        }
+        CHECK("decompose: solid angles sum to 4 pi", near(omega, 12.566371f, 1e-4f));
+        CHECK("decompose: every domain holds light", power > 0.0f);
+    }
+    expect_ok("decompose: set_latlong without commit", pn_envmap_set_latlong(env, rgb, W, H), ctx);
+    expect_error("decompose: map changed since its commit", pn_envmap_decompose(env, &o, domains, 8),
+                 PN_ERROR_NOT_COMMITTED, ctx, "pn_envmap_commit", NULL);
+    memset(rgb, 0, 3 * sizeof(float) * W * H);
+    if (expect_ok("decompose: black map", pn_envmap_set_latlong(env, rgb, W, H), ctx) &&
+        expect_ok("decompose: commit black map", pn_envmap_commit(env), ctx)) {
+        o.count = 1;
+        expect_error("decompose: black map refused", pn_envmap_decompose(env, &o, domains, 8),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, "only 0 non-black", "black", NULL);
+        /* The sharp part: its errors, and a black map has none. */
+        pn_env_sharp_options so = pn_env_sharp_options_default();
+        CHECK("sharp defaults: 4 domains, threshold 100", so.max_count == 4 && so.threshold == 100.0f);
+        uint32_t count = 99;
+        const size_t floats = 3 * (size_t)W * H;
+        expect_error("sharp: NULL count", pn_envmap_extract_sharp(env, &so, domains, 8, NULL, rgb, floats),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, "count", NULL);
+        expect_error("sharp: residual size", pn_envmap_extract_sharp(env, &so, domains, 8, &count, rgb, floats - 3),
+                     PN_ERROR_INVALID_SIZE, ctx, "16x8x3", NULL);
+        expect_error("sharp: capacity below max_count",
+                     pn_envmap_extract_sharp(env, &so, domains, 2, &count, rgb, floats), PN_ERROR_INVALID_SIZE, ctx,
+                     "capacity 2", NULL);
+        so.threshold = 1.0f;
+        expect_error("sharp: threshold 1", pn_envmap_extract_sharp(env, &so, domains, 8, &count, rgb, floats),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, "threshold", NULL);
+        so.threshold = 100.0f;
+        so.max_count = 0;
+        expect_error("sharp: max_count 0", pn_envmap_extract_sharp(env, &so, domains, 8, &count, rgb, floats),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, "max_count", NULL);
+        so.max_count = 4;
+        rgb[0] = 5.0f; /* overwritten by the residual: the black map itself */
+        if (expect_ok("sharp: black map", pn_envmap_extract_sharp(env, &so, domains, 8, &count, rgb, floats), ctx))
+            CHECK("sharp: a black map has no sharp part and is its own residual", count == 0 && rgb[0] == 0.0f);
+    }
+done:
+    free(rgb);
+    pn_envmap_release(env);
+}
+
 static void test_envmap(pn_context ctx)
 {
     pn_envmap env = NULL;
@@ -2496,6 +2593,54 @@ static void check_enqueue_only(pn_context ctx, rig *r, pn_renderer renderer, con
     free(second);
 }
 
+static void test_depthmap(pn_context ctx, rig *r)
+{
+    pn_env_domain d[3] = {{{0.0f, 1.0f, 0.0f}, 1.0f, {1.0f, 1.0f, 1.0f}, 0.5f},
+                          {{0.6f, 0.8f, 0.0f}, 1.0f, {0.5f, 0.4f, 0.3f}, 0.5f},
+                          {{0.0f, 0.0f, 1.0f}, 1.0f, {0.2f, 0.2f, 0.2f}, 0.5f}};
+    pn_renderer dr = NULL;
+    if (!expect_ok("depthmap renderer", pn_renderer_create(ctx, "depthmap", &dr), ctx))
+        return;
+    expect_ok("caller domains", pn_renderer_set_env_domains(dr, d, 3), ctx);
+    pn_renderer_set_int(dr, "resolution", 16);
+    for (int k = 0; k < 2; ++k) {
+        pn_renderer_set_int(dr, "map_renderer", k);
+        pn_renderer_commit(dr);
+        check_enqueue_only(ctx, r, dr, k ? "depthmap (ray-cast maps)" : "depthmap (rasterised maps)");
+    }
+    float depth[16 * 16];
+    expect_ok("read a depth map", pn_renderer_read_output(dr, r->scene, "depth_map", 0, 1, depth, sizeof depth), ctx);
+    int covered = 0;
+    for (int i = 0; i < 256; ++i)
+        covered += isfinite(depth[i]) && depth[i] >= 0.0f;
+    CHECK("the box covers its depth map", covered > 100);
+    expect_error("a depth map past the domains", pn_renderer_read_output(dr, r->scene, "depth_map", 0, 3, depth,
+                                                                        sizeof depth),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "depth map 3", NULL);
+    expect_error("a depth map of the wrong size", pn_renderer_read_output(dr, r->scene, "depth_map", 0, 0, depth, 100),
+                 PN_ERROR_INVALID_SIZE, ctx, "needs 1024 bytes", NULL);
+    pn_env_domain bad[3];
+    memcpy(bad, d, sizeof d);
+    bad[1].radiance[2] = NAN;
+    expect_error("NaN domain radiance", pn_renderer_set_env_domains(dr, bad, 3), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "domain 1 has a non-finite radiance", NULL);
+    memcpy(bad, d, sizeof d);
+    bad[2].direction[0] = INFINITY;
+    expect_error("Inf domain direction", pn_renderer_set_env_domains(dr, bad, 3), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "domain 2 has a non-finite direction", NULL);
+    memcpy(bad, d, sizeof d);
+    bad[0].direction[1] = 0.5f;
+    expect_error("non-unit direction", pn_renderer_set_env_domains(dr, bad, 3), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "must be unit", NULL);
+    expect_error("NULL domains", pn_renderer_set_env_domains(dr, NULL, 3), PN_ERROR_INVALID_ARGUMENT, ctx, "NULL",
+                 NULL);
+    expect_error("domains for unshadowed", pn_renderer_set_env_domains(r->renderer, d, 3), PN_ERROR_UNSUPPORTED, ctx,
+                 "takes no env domains", NULL);
+    expect_error("NULL renderer", pn_renderer_set_env_domains(NULL, d, 3), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_renderer_set_env_domains", NULL);
+    pn_renderer_release(dr);
+}
+
 static void test_enqueue_only(pn_context ctx)
 {
     rig r;
@@ -2512,6 +2657,8 @@ static void test_enqueue_only(pn_context ctx)
             pn_renderer_release(renderer);
         }
     }
+    /* depthmap: the caller's domains (both map renderers), then the contract of pn_renderer_set_env_domains. */
+    test_depthmap(ctx, &r);
     /* fiv: a small field of the rig's box attached to it. */
     pn_fiv_options o = pn_fiv_options_default();
     o.theta = 5;
@@ -2620,6 +2767,7 @@ int main(void)
     test_null_handles(ctx);
     test_null_pointers(ctx);
     test_envmap(ctx);
+    test_env_decompose(ctx);
     test_mesh(ctx);
     test_scene(ctx);
     test_renderer(ctx);

@@ -181,6 +181,10 @@ struct pn_envmap_impl {
     cl_mem cube;             /* 6*F*F float4 radiance */
     cl_mem dirs;             /* 6*F*F float4 direction + solid angle */
     cl_mem irradiance;       /* 6*M*M float4 */
+    /* The last decomposition (core/env_domains.c) and what it was made of. */
+    struct pn_env_decomposition *decomposition;
+    uint64_t decomposition_hash; /* content_hash it was made from */
+    uint32_t decomposition_seed, decomposition_iterations;
 };
 
 pn_status pn_envmap_new(pn_context ctx, pn_envmap *out);
@@ -197,6 +201,39 @@ pn_status pn_envmap_sample_cube(pn_envmap env, int face, float *radiance, float 
  * cube face f, black texels dropped, texels of power >= threshold x the
  * brightest split into s x s sub-texels. *records is malloc'ed. */
 pn_status pn_envmap_direction_records(pn_envmap env, int f, int s, float threshold, float **records, size_t *count);
+
+/* ------------------------------------------------ environment domains */
+
+#define PN_ENV_DOMAINS_MAX 1024
+#define PN_ENV_LLOYD_DEFAULT_ITERATIONS 100
+
+/* The decomposition of a committed env map into directional domains
+ * (core/env_domains.c, pn_envmap_decompose): `count` domains, and for the
+ * sharp-part extraction the domain of every lat-long texel. */
+struct pn_env_decomposition {
+    uint32_t count;
+    pn_env_domain *domains;   /* count */
+    int32_t *assignment;      /* width*height, row-major, the domain of each texel */
+    uint32_t iterations;      /* Lloyd iterations run */
+    bool converged;           /* no texel changed cell at the last iteration */
+};
+typedef struct pn_env_decomposition pn_env_decomposition;
+
+/* The method's plan-time entry point: checks options (as pn_envmap_decompose)
+ * and returns the env map's cached decomposition for them, computing it when
+ * the env content, N, seed or iteration cap changed. *out stays owned by the
+ * env map and valid until its next decomposition with other options or its
+ * next commit (copy what you keep). */
+pn_status pn_envmap_domains(pn_envmap env, const pn_env_decompose_options *options, const pn_env_decomposition **out);
+/* pn_envmap_decompose: the domains copied to `domains` (capacity >= count). */
+pn_status pn_envmap_do_decompose(pn_envmap env, const pn_env_decompose_options *options, pn_env_domain *domains,
+                                 uint32_t capacity);
+/* pn_envmap_extract_sharp (core/env_domains.c). */
+#define PN_ENV_SHARP_MAX 64
+pn_status pn_envmap_do_extract_sharp(pn_envmap env, const pn_env_sharp_options *options, pn_env_domain *domains,
+                                     uint32_t capacity, uint32_t *count, float *residual, size_t residual_floats);
+/* Frees the cached decomposition (env map destruction). */
+void pn_envmap_forget_domains(pn_envmap env);
 
 /* ------------------------------------------------------- G-buffer, image */
 

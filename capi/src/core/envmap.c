@@ -14,6 +14,7 @@ static void destroy_envmap(pn_object *o)
     pn_mem_release(&env->cube);
     pn_mem_release(&env->dirs);
     pn_mem_release(&env->irradiance);
+    pn_envmap_forget_domains(env);
 }
 
 static const pn_object_type envmap_type = {PN_MAGIC_ENVMAP, "env map", destroy_envmap, NULL};

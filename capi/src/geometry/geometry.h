@@ -91,6 +91,8 @@ pn_status pn_scene_do_attach(pn_scene scene, uint32_t instance, pn_object *asset
 pn_status pn_scene_do_detach(pn_scene scene, uint32_t instance, pn_object *asset);
 /* The live instance `id`, or NULL (with no error recorded). */
 const pn_instance *pn_scene_instance(pn_scene scene, uint32_t id);
+/* The committed scene's slot of `mesh` (its node and triangle offsets), or NULL. */
+const pn_mesh_slot *pn_scene_mesh_slot(pn_scene scene, pn_mesh mesh);
 /* The camera position as a kernel argument (w = 0). */
 cl_float4 pn_scene_camera_position(pn_scene scene);
 /* Largest absolute coordinate of the committed scene's bounds (0 when empty). */

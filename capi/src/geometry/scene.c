@@ -432,7 +432,7 @@ static pn_status gather_meshes(pn_scene scene)
     return PN_SUCCESS;
 }
 
-static const pn_mesh_slot *slot_of(pn_scene scene, pn_mesh mesh)
+const pn_mesh_slot *pn_scene_mesh_slot(pn_scene scene, pn_mesh mesh)
 {
     for (uint32_t k = 0; k < scene->mesh_slot_count; ++k)
         if (scene->mesh_slots[k].mesh == mesh)
@@ -510,7 +510,7 @@ pn_status pn_scene_do_commit(pn_scene scene)
         st = pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building the instance BVH");
     for (uint32_t slot = 0; !st && slot < live; ++slot) {
         const pn_instance *inst = &scene->instances[ids[tlas.order[slot]]];
-        const pn_mesh_slot *ms = slot_of(scene, inst->mesh);
+        const pn_mesh_slot *ms = pn_scene_mesh_slot(scene, inst->mesh);
         float *r = records + (size_t)slot * RECORD_FLOATS;
         memcpy(r, inst->world_to_object, 12 * sizeof(float));
         memcpy(r + 12, inst->object_to_world, 12 * sizeof(float));

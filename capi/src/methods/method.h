@@ -44,6 +44,8 @@ typedef struct pn_method_desc {
     pn_status (*execute)(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image);
     pn_status (*read_output)(pn_renderer r, pn_scene scene, int output, uint32_t instance, uint32_t index,
                              void *host, size_t bytes);
+    /* The caller's env domains (pn_renderer_set_env_domains), or NULL when the method takes none. */
+    pn_status (*set_domains)(pn_renderer r, const pn_env_domain *domains, uint32_t count);
 } pn_method_desc;
 
 struct pn_renderer_impl {
@@ -56,7 +58,7 @@ struct pn_renderer_impl {
 
 /* The descriptors, one per method file. */
 extern const pn_method_desc pn_method_unshadowed, pn_method_reference, pn_method_floor, pn_method_fiv,
-    pn_method_heightfield;
+    pn_method_heightfield, pn_method_depthmap;
 
 /* The descriptor named `name`, or NULL with an error listing the methods. */
 const pn_method_desc *pn_method_find(const char *name);
@@ -69,6 +71,7 @@ pn_status pn_renderer_param_int(pn_renderer r, const char *name, int32_t *value,
 pn_status pn_renderer_param_float(pn_renderer r, const char *name, float *value, bool set);
 pn_status pn_renderer_do_commit(pn_renderer r);
 pn_status pn_renderer_do_execute(pn_renderer r, pn_scene scene, pn_gbuffer gbuffer, pn_image image);
+pn_status pn_renderer_do_set_env_domains(pn_renderer r, const pn_env_domain *domains, uint32_t count);
 pn_status pn_renderer_do_read_output(pn_renderer r, pn_scene scene, const char *output, uint32_t instance,
                                      uint32_t index, void *host, size_t bytes);
 

@@ -10,6 +10,7 @@
 
 static const pn_method_desc *const methods[] = {
     &pn_method_unshadowed, &pn_method_reference, &pn_method_floor, &pn_method_fiv, &pn_method_heightfield,
+    &pn_method_depthmap,
 };
 #define METHOD_COUNT (sizeof methods / sizeof methods[0])
 
@@ -190,4 +191,14 @@ pn_status pn_renderer_do_read_output(pn_renderer r, pn_scene scene, const char *
                        output, m->output_count ? list : "none");
     pn_status st = ready(r, scene);
     return st ? st : m->read_output(r, scene, which, instance, index, host, bytes);
+}
+
+pn_status pn_renderer_do_set_env_domains(pn_renderer r, const pn_env_domain *domains, uint32_t count)
+{
+    if (!r->method->set_domains)
+        return pn_fail(r->obj.ctx, PN_ERROR_UNSUPPORTED, "method %s takes no env domains (depthmap does)",
+                       r->method->name);
+    if (count && !domains)
+        return pn_fail(r->obj.ctx, PN_ERROR_INVALID_ARGUMENT, "%u env domains but the pointer is NULL", count);
+    return r->method->set_domains(r, domains, count);
 }

@@ -1,0 +1,531 @@
+/* The `depthmap` method (docs/depthmap.md, kernels/depthmap.cl): depth-map
+ * environment sampling. The env map is split into N directional domains
+ * (pn_envmap_domains, or the caller's through pn_renderer_set_env_domains);
+ * every frame each domain gets an orthographic depth map fitted to the scene
+ * along its direction, and the pixels are shaded with the domains' radiance
+ * times their depth-map visibility.
+ * Plan: the domains uploaded (when the env map, N, seed or the caller's
+ * domains change) and the map buffers sized. Execute: the map frames from
+ * the instances' boxes (host, uploaded without waiting), the maps (clear and
+ * rasterise, or ray cast) and the shading kernel, all enqueued. */
+#include "methods/method.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define DM_FRAME_FLOATS 16 /* kernels/depthmap.cl DM_FRAME float4 */
+#define DM_MAX_TEXELS (1u << 28) /* maps x res^2 (1 GiB of depths) */
+#define DM_LARGE_CAPACITY (1u << 20) /* (map, triangle) entries of the rasteriser's large-triangle list */
+#define DM_LARGE_GROUPS 256          /* work-groups of depthmap_raster_large */
+
+enum { P_BACKGROUND, P_DIRECTIONS, P_SEED, P_RESOLUTION, P_MAP_RENDERER, P_BIAS, P_SLOPE_BIAS, P_PCF, P_SPECULAR,
+       P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS };
+
+static const pn_param_desc params[] = {
+    PN_PARAM_BACKGROUND,
+    {"directions", PN_PARAM_INT, PN_PARAM_PLAN, 64, 1, PN_ENV_DOMAINS_MAX, "domains",
+     "N, the env map's directional domains, one depth map each (ignored when the caller gives its domains)."},
+    {"seed", PN_PARAM_INT, PN_PARAM_PLAN, 1, 0, 4294967295.0, "", "Seed of the decomposition's initial draw."},
+    {"resolution", PN_PARAM_INT, PN_PARAM_PLAN, 256, 8, 4096, "texels", "Depth-map side (maps are square)."},
+    {"map_renderer", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
+     "How the maps are drawn: 0 compute rasteriser (atomic-min depth), 1 BVH ray caster (as fast or faster on "
+     "CPUs, docs/depthmap.md)."},
+    {"bias", PN_PARAM_FLOAT, PN_PARAM_FRAME, 1.0, 0, 64, "texels",
+     "Constant depth bias, in texels of the map."},
+    {"slope_bias", PN_PARAM_FLOAT, PN_PARAM_FRAME, 1.0, 0, 64, "texels",
+     "Depth bias per unit tan(angle to the normal), times pcf + 1, in texels (tan capped at 32)."},
+    {"pcf", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 4, "texels",
+     "Percentage-closer filter radius: (2 pcf + 1)^2 depth comparisons per lookup."},
+    {"specular", PN_PARAM_INT, PN_PARAM_FRAME, 2, 0, 2, "",
+     "Lobe over a domain: 0 point sample at its centre, 1 the seed's average-reflectivity blend (Phong; others "
+     "point), 2 cap quadrature (every lobe)."},
+    {"cap_samples", PN_PARAM_INT, PN_PARAM_FRAME, 16, 1, 256, "", "Points of the cap quadrature (specular 2)."},
+    {"visibility", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "", "1: depth-map shadows, 0: every domain unoccluded."},
+    {"reuse_maps", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
+     "1: keep the maps of the previous frame (nothing moved); the first frame draws them anyway."},
+};
+
+enum { OUT_DOMAINS, OUT_FRAMES, OUT_DEPTH };
+
+static const pn_output_desc outputs[] = {
+    {"domains", "N pn_env_domain (8 floats each): the domains shaded with."},
+    {"map_frames", "16 floats per domain: e1 | u_min, e2 | v_min, d | far, du, dv, depth extent, 0 (kernels/depthmap.cl)."},
+    {"depth_map", "resolution^2 floats of domain `index`, row-major: depth from the light side of its box, +inf empty."},
+};
+
+typedef struct state {
+    pn_env_domain *domains;        /* the domains shaded with (host copy) */
+    uint32_t domain_count;
+    pn_env_domain *caller;         /* the caller's domains, or NULL */
+    uint32_t caller_count;
+    uint64_t caller_version;       /* a new version at each set */
+    uint64_t key_env, key_caller;  /* what `domains` was built from */
+    uint32_t key_n, key_seed;
+    cl_mem device_domains;
+    cl_mem frames, depth;          /* map frames (4 float4 each), depths (uint) */
+    uint32_t map_count, res;       /* what `frames` / `depth` are sized for */
+    float *host_frames;
+    cl_mem ranges, starts, objects; /* rasteriser instance tables */
+    cl_mem large, large_count;      /* its list of large triangles and their count */
+    size_t table_capacity;          /* instances the tables hold */
+    uint32_t *host_ranges, *host_starts;
+    float *host_objects;
+    bool maps_drawn;               /* the maps hold a frame (reuse_maps) */
+} state;
+
+/* --------------------------------------------------------------- domains */
+
+static pn_status check_domains(pn_context ctx, const pn_env_domain *d, uint32_t count)
+{
+    if (count > PN_ENV_DOMAINS_MAX)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "%u env domains: at most %u", count, PN_ENV_DOMAINS_MAX);
+    for (uint32_t i = 0; i < count; ++i) {
+        const float *dir = d[i].direction, *l = d[i].radiance;
+        for (int c = 0; c < 3; ++c)
+            if (!isfinite(dir[c]) || !isfinite(l[c]))
+                return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "env domain %u has a non-finite %s (component %d)", i,
+                               isfinite(dir[c]) ? "radiance" : "direction", c);
+        const double len = sqrt((double)dir[0] * dir[0] + (double)dir[1] * dir[1] + (double)dir[2] * dir[2]);
+        if (fabs(len - 1.0) > 1e-3)
+            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "env domain %u's direction has length %g: it must be unit",
+                           i, len);
+        if (l[0] < 0.0f || l[1] < 0.0f || l[2] < 0.0f)
+            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "env domain %u has a negative radiance (%g, %g, %g)", i,
+                           (double)l[0], (double)l[1], (double)l[2]);
+        if (!(d[i].cap_radius >= 0.0f && d[i].cap_radius <= 3.14159266f) || !(d[i].solid_angle >= 0.0f) ||
+            !isfinite(d[i].solid_angle))
+            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                           "env domain %u has cap radius %g and solid angle %g: the radius must be in [0, pi] rad and "
+                           "the solid angle finite and >= 0",
+                           i, (double)d[i].cap_radius, (double)d[i].solid_angle);
+    }
+    return PN_SUCCESS;
+}
+
+static pn_status set_domains(pn_renderer r, const pn_env_domain *domains, uint32_t count)
+{
+    state *s = r->state;
+    pn_context ctx = r->obj.ctx;
+    pn_status st = check_domains(ctx, domains, count);
+    if (st)
+        return st;
+    pn_env_domain *copy = NULL;
+    if (count && !(copy = pn_malloc(ctx, pn_mul_size(count, 1, sizeof *copy), "the caller's env domains")))
+        return PN_ERROR_OUT_OF_MEMORY;
+    if (count)
+        memcpy(copy, domains, count * sizeof *copy);
+    free(s->caller);
+    s->caller = copy;
+    s->caller_count = count;
+    s->caller_version = pn_next_version();
+    return PN_SUCCESS;
+}
+
+/* The domains to shade with: the caller's, or the env map's decomposition. */
+static pn_status plan_domains(pn_renderer r, pn_scene scene)
+{
+    state *s = r->state;
+    pn_context ctx = r->obj.ctx;
+    const uint32_t n = (uint32_t)r->params[P_DIRECTIONS], seed = (uint32_t)r->params[P_SEED];
+    const bool caller = s->caller_count > 0;
+    if (s->device_domains && (caller ? s->key_caller == s->caller_version
+                                     : (!s->key_caller && s->key_env == scene->env->version && s->key_n == n &&
+                                        s->key_seed == seed)))
+        return PN_SUCCESS;
+    const pn_env_domain *src = s->caller;
+    uint32_t count = s->caller_count;
+    if (!caller) {
+        pn_env_decompose_options o = {n, seed, 0};
+        const pn_env_decomposition *dec = NULL;
+        pn_status st = pn_envmap_domains(scene->env, &o, &dec);
+        if (st)
+            return st;
+        src = dec->domains;
+        count = dec->count;
+    }
+    pn_env_domain *copy = pn_malloc(ctx, pn_mul_size(count ? count : 1, 1, sizeof *copy), "the env domains");
+    if (!copy)
+        return PN_ERROR_OUT_OF_MEMORY;
+    memcpy(copy, src, count * sizeof *copy);
+    pn_mem_release(&s->device_domains);
+    pn_status st = pn_alloc(ctx, (count ? count : 1) * sizeof *copy, CL_MEM_READ_ONLY, copy, &s->device_domains,
+                            "the env domains");
+    if (st) {
+        free(copy);
+        return st;
+    }
+    free(s->domains);
+    s->domains = copy;
+    s->domain_count = count;
+    s->key_caller = caller ? s->caller_version : 0;
+    s->key_env = scene->env->version;
+    s->key_n = n;
+    s->key_seed = seed;
+    s->maps_drawn = false;
+    return PN_SUCCESS;
+}
+
+static pn_status plan(pn_renderer r, pn_scene scene)
+{
+    state *s = r->state;
+    pn_context ctx = r->obj.ctx;
+    pn_status st = plan_domains(r, scene);
+    if (st)
+        return st;
+    const uint32_t maps = s->domain_count ? s->domain_count : 1, res = (uint32_t)r->params[P_RESOLUTION];
+    if (s->depth && s->map_count == maps && s->res == res)
+        return PN_SUCCESS;
+    const size_t texels = pn_mul_size(maps, res, res);
+    if (texels > DM_MAX_TEXELS)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                       "%u depth maps of %u x %u texels are %zu texels, more than %u: lower directions or resolution",
+                       maps, res, res, texels, DM_MAX_TEXELS);
+    float *host = pn_malloc(ctx, pn_mul_size(maps, DM_FRAME_FLOATS, sizeof(float)), "the depth-map frames");
+    if (!host)
+        return PN_ERROR_OUT_OF_MEMORY;
+    pn_mem_release(&s->frames);
+    pn_mem_release(&s->depth);
+    free(s->host_frames);
+    s->host_frames = host;
+    s->map_count = 0;
+    s->maps_drawn = false;
+    if ((!s->large &&
+         ((st = pn_alloc(ctx, (size_t)DM_LARGE_CAPACITY * 8, CL_MEM_READ_WRITE, NULL, &s->large,
+                         "the rasteriser's large triangles")) ||
+          (st = pn_alloc(ctx, 4, CL_MEM_READ_WRITE, NULL, &s->large_count, "the rasteriser's count")))) ||
+        (st = pn_alloc(ctx, (size_t)maps * DM_FRAME_FLOATS * sizeof(float), CL_MEM_READ_ONLY, NULL, &s->frames,
+                       "the depth-map frames")) ||
+        (st = pn_alloc(ctx, texels * sizeof(uint32_t), CL_MEM_READ_WRITE, NULL, &s->depth, "the depth maps")))
+        return st;
+    s->map_count = maps;
+    s->res = res;
+    return PN_SUCCESS;
+}
+
+/* ------------------------------------------------------------ map frames */
+
+/* An orthonormal frame (e1, e2) completing d (Duff et al. 2017, as pn_frame). */
+static void complete_frame(const double d[3], double e1[3], double e2[3])
+{
+    const double sg = d[2] >= 0.0 ? 1.0 : -1.0, a = -1.0 / (sg + d[2]), b = d[0] * d[1] * a;
+    e1[0] = 1.0 + sg * d[0] * d[0] * a;
+    e1[1] = sg * b;
+    e1[2] = -sg * d[0];
+    e2[0] = b;
+    e2[1] = sg + d[1] * d[1] * a;
+    e2[2] = -d[1];
+}
+
+/* Range of p.a over instance `inst`'s world-transformed object box: the box's
+ * centre and half extents in object space against a pulled back into it. */
+static void project_box(const pn_instance *inst, const double a[3], double *lo, double *hi)
+{
+    const float *x = inst->object_to_world;
+    double centre = 0.0, radius = 0.0;
+    for (int c = 0; c < 3; ++c) {
+        const double back = x[c] * a[0] + x[4 + c] * a[1] + x[8 + c] * a[2]; /* (M^T a)_c */
+        const double mid = 0.5 * ((double)inst->mesh->bounds_lo[c] + inst->mesh->bounds_hi[c]);
+        const double half = 0.5 * ((double)inst->mesh->bounds_hi[c] - inst->mesh->bounds_lo[c]);
+        centre += back * mid;
+        radius += fabs(back) * half;
+    }
+    centre += x[3] * a[0] + x[7] * a[1] + x[11] * a[2];
+    *lo = fmin(*lo, centre - radius);
+    *hi = fmax(*hi, centre + radius);
+}
+
+/* Each map's frame: the tight range of every live instance's transformed box
+ * along e1, e2 and d, padded by half a texel so that texel centres cover the
+ * box edges; returns false for a scene without instances (no maps). */
+static bool fit_frames(state *s, pn_scene scene)
+{
+    const uint32_t res = s->res;
+    bool any = false;
+    for (uint32_t m = 0; m < s->domain_count; ++m) {
+        const float *df = s->domains[m].direction;
+        double d[3] = {df[0], df[1], df[2]}, e1[3], e2[3];
+        const double len = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+        for (int c = 0; c < 3; ++c)
+            d[c] /= len;
+        complete_frame(d, e1, e2);
+        double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+        const double *axes[3] = {e1, e2, d};
+        for (uint32_t i = 0; i < scene->instance_count; ++i) {
+            const pn_instance *inst = pn_scene_instance(scene, i);
+            if (!inst || !inst->mesh->triangle_count)
+                continue;
+            any = true;
+            for (int k = 0; k < 3; ++k)
+                project_box(inst, axes[k], &lo[k], &hi[k]);
+        }
+        if (!any)
+            return false;
+        /* A flat or tiny scene still gets texels of positive size. */
+        double scale = 0.0;
+        for (int k = 0; k < 3; ++k)
+            scale = fmax(scale, fmax(fabs(lo[k]), fabs(hi[k])));
+        const double floor_size = 1e-6 * fmax(scale, 1e-30);
+        /* res texels of size du span the range plus one texel: the outermost
+         * texel centres lie on the box's outline. */
+        const double du = fmax(hi[0] - lo[0], floor_size) / (res - 1), dv = fmax(hi[1] - lo[1], floor_size) / (res - 1);
+        const double u0 = 0.5 * (lo[0] + hi[0]) - 0.5 * du * res, v0 = 0.5 * (lo[1] + hi[1]) - 0.5 * dv * res;
+        const double extent = fmax(hi[2] - lo[2], floor_size);
+        float *f = s->host_frames + (size_t)m * DM_FRAME_FLOATS;
+        const double vals[DM_FRAME_FLOATS] = {e1[0], e1[1], e1[2], u0, e2[0], e2[1], e2[2], v0,
+                                              d[0],  d[1],  d[2],  hi[2], du, dv, extent, 0.0};
+        for (int k = 0; k < DM_FRAME_FLOATS; ++k)
+            f[k] = (float)vals[k];
+    }
+    return any;
+}
+
+/* --------------------------------------------------------------- execute */
+
+/* The rasteriser's per-instance tables: triangle range, prefix start and
+ * object-to-world rows of every live instance with triangles. */
+static pn_status raster_tables(pn_renderer r, pn_scene scene, uint32_t *instances, uint32_t *triangles)
+{
+    state *s = r->state;
+    pn_context ctx = r->obj.ctx;
+    const size_t need = scene->instance_count ? scene->instance_count : 1;
+    pn_status st;
+    if (need > s->table_capacity) {
+        free(s->host_ranges);
+        free(s->host_starts);
+        free(s->host_objects);
+        pn_mem_release(&s->ranges);
+        pn_mem_release(&s->starts);
+        pn_mem_release(&s->objects);
+        s->table_capacity = 0;
+        s->host_ranges = pn_malloc(ctx, pn_mul_size(need, 2, sizeof(uint32_t)), "the rasteriser's ranges");
+        s->host_starts = pn_malloc(ctx, pn_mul_size(need, 1, sizeof(uint32_t)), "the rasteriser's starts");
+        s->host_objects = pn_malloc(ctx, pn_mul_size(need, 12, sizeof(float)), "the rasteriser's transforms");
+        if (!s->host_ranges || !s->host_starts || !s->host_objects)
+            return PN_ERROR_OUT_OF_MEMORY;
+        if ((st = pn_alloc(ctx, need * 8, CL_MEM_READ_ONLY, NULL, &s->ranges, "the rasteriser's ranges")) ||
+            (st = pn_alloc(ctx, need * 4, CL_MEM_READ_ONLY, NULL, &s->starts, "the rasteriser's starts")) ||
+            (st = pn_alloc(ctx, need * 48, CL_MEM_READ_ONLY, NULL, &s->objects, "the rasteriser's transforms")))
+            return st;
+        s->table_capacity = need;
+    }
+    uint32_t n = 0;
+    uint64_t total = 0;
+    for (uint32_t i = 0; i < scene->instance_count; ++i) {
+        const pn_instance *inst = pn_scene_instance(scene, i);
+        if (!inst || !inst->mesh->triangle_count)
+            continue;
+        const pn_mesh_slot *slot = pn_scene_mesh_slot(scene, inst->mesh);
+        if (!slot)
+            return pn_fail(ctx, PN_ERROR_INTERNAL, "instance %u's mesh is not in the committed scene", i);
+        s->host_ranges[2 * n] = slot->tri_offset;
+        s->host_ranges[2 * n + 1] = inst->mesh->triangle_count;
+        s->host_starts[n] = (uint32_t)total;
+        memcpy(s->host_objects + 12 * (size_t)n, inst->object_to_world, 12 * sizeof(float));
+        total += inst->mesh->triangle_count;
+        ++n;
+    }
+    if (total * s->domain_count > INT32_MAX)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE,
+                       "%llu triangles x %u maps is more work-items than the rasteriser indexes (2^31): use "
+                       "map_renderer 1 (ray caster) or fewer directions",
+                       (unsigned long long)total, s->domain_count);
+    if (n && ((st = pn_upload_async(ctx, s->ranges, s->host_ranges, (size_t)n * 8, "uploading raster ranges")) ||
+              (st = pn_upload_async(ctx, s->starts, s->host_starts, (size_t)n * 4, "uploading raster starts")) ||
+              (st = pn_upload_async(ctx, s->objects, s->host_objects, (size_t)n * 48, "uploading raster transforms"))))
+        return st;
+    *instances = n;
+    *triangles = (uint32_t)total;
+    return PN_SUCCESS;
+}
+
+static pn_status draw_maps(pn_renderer r, pn_scene scene)
+{
+    state *s = r->state;
+    pn_context ctx = r->obj.ctx;
+    const cl_int maps = (cl_int)s->domain_count, res = (cl_int)s->res;
+    const size_t texels = (size_t)maps * s->res * s->res;
+    cl_kernel k;
+    pn_status st;
+    if ((int)r->params[P_MAP_RENDERER] == 1) {
+        if ((st = pn_context_kernel(ctx, "depthmap", "depthmap_raycast", &k)) ||
+            (st = pn_scene_set_kernel_args(scene, k, "depthmap_raycast", 0)))
+            return st;
+        const size_t sizes[] = {sizeof(cl_mem), sizeof maps, sizeof res, sizeof(cl_mem)};
+        const void *vals[] = {&s->frames, &maps, &res, &s->depth};
+        for (cl_uint i = 0; i < 4; ++i) {
+            cl_int err = clSetKernelArg(k, 6 + i, sizes[i], vals[i]);
+            if (err != CL_SUCCESS)
+                return pn_fail_cl(ctx, err, "setting depthmap_raycast arguments");
+        }
+        return pn_enqueue_1d(ctx, k, "depthmap_raycast", texels, 64);
+    }
+    uint32_t instances = 0, triangles = 0;
+    if ((st = raster_tables(r, scene, &instances, &triangles)))
+        return st;
+    const cl_int count = (cl_int)texels;
+    if ((st = pn_context_kernel(ctx, "depthmap", "depthmap_clear", &k)))
+        return st;
+    {
+        const size_t sizes[] = {sizeof(cl_mem), sizeof count, sizeof(cl_mem)};
+        const void *vals[] = {&s->depth, &count, &s->large_count};
+        if ((st = pn_set_args(ctx, k, "depthmap_clear", 3, sizes, vals)) ||
+            (st = pn_enqueue_1d(ctx, k, "depthmap_clear", texels, 64)))
+            return st;
+    }
+    if (!triangles)
+        return PN_SUCCESS;
+    if ((st = pn_context_kernel(ctx, "depthmap", "depthmap_raster", &k)))
+        return st;
+    const cl_int inst = (cl_int)instances, tri_total = (cl_int)triangles, capacity = (cl_int)DM_LARGE_CAPACITY;
+    const size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof inst,
+                            sizeof tri_total, sizeof(cl_mem), sizeof maps, sizeof res, sizeof(cl_mem),
+                            sizeof(cl_mem), sizeof(cl_mem), sizeof capacity};
+    const void *vals[] = {&scene->tris, &s->ranges, &s->starts, &s->objects, &inst, &tri_total, &s->frames,
+                          &maps, &res, &s->depth, &s->large_count, &s->large, &capacity};
+    if ((st = pn_set_args(ctx, k, "depthmap_raster", 13, sizes, vals)) ||
+        (st = pn_enqueue_1d(ctx, k, "depthmap_raster", (size_t)triangles * (size_t)maps, 64)) ||
+        (st = pn_context_kernel(ctx, "depthmap", "depthmap_raster_large", &k)))
+        return st;
+    const size_t lsizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof inst,
+                             sizeof(cl_mem), sizeof res, sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem),
+                             sizeof capacity};
+    const void *lvals[] = {&scene->tris, &s->ranges, &s->starts, &s->objects, &inst, &s->frames,
+                           &res, &s->depth, &s->large_count, &s->large, &capacity};
+    if ((st = pn_set_args(ctx, k, "depthmap_raster_large", 11, lsizes, lvals)))
+        return st;
+    return pn_enqueue_1d(ctx, k, "depthmap_raster_large", (size_t)DM_LARGE_GROUPS * 64, 64);
+}
+
+/* Frames and maps of the scene as it is (enqueued); *use_maps false when
+ * no map is needed (visibility off, no geometry). */
+static pn_status prepare_maps(pn_renderer r, pn_scene scene, bool *use_maps)
+{
+    state *s = r->state;
+    *use_maps = false;
+    if (!(int)r->params[P_VISIBILITY] || !s->domain_count)
+        return PN_SUCCESS;
+    if ((int)r->params[P_REUSE_MAPS] && s->maps_drawn) {
+        *use_maps = true;
+        return PN_SUCCESS;
+    }
+    if (!fit_frames(s, scene))
+        return PN_SUCCESS; /* no triangles: nothing casts a shadow */
+    pn_status st = pn_upload_async(r->obj.ctx, s->frames, s->host_frames,
+                                   (size_t)s->domain_count * DM_FRAME_FLOATS * sizeof(float), "uploading map frames");
+    if (!st)
+        st = draw_maps(r, scene);
+    s->maps_drawn = !st;
+    *use_maps = !st;
+    return st;
+}
+
+static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image)
+{
+    pn_context ctx = r->obj.ctx;
+    state *s = r->state;
+    pn_envmap env = scene->env;
+    bool maps = false;
+    pn_status st = prepare_maps(r, scene, &maps);
+    cl_kernel k;
+    if (st || (st = pn_context_kernel(ctx, "depthmap", "shade_depthmap", &k)))
+        return st;
+    const cl_int count = (cl_int)(gb->width * gb->height), domains = (cl_int)s->domain_count;
+    const cl_int res = (cl_int)s->res, use_maps = maps ? 1 : 0, pcf = (cl_int)r->params[P_PCF];
+    const cl_float bias = (cl_float)r->params[P_BIAS], slope = (cl_float)r->params[P_SLOPE_BIAS];
+    const cl_int specular = (cl_int)r->params[P_SPECULAR], samples = (cl_int)r->params[P_CAP_SAMPLES];
+    const cl_int n = env->face_size, bg = (cl_int)r->params[P_BACKGROUND];
+    const cl_float4 camera = pn_scene_camera_position(scene);
+    const size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem),
+                            sizeof count, sizeof camera, sizeof(cl_mem), sizeof domains, sizeof(cl_mem),
+                            sizeof(cl_mem), sizeof res, sizeof use_maps, sizeof bias, sizeof slope, sizeof pcf,
+                            sizeof specular, sizeof samples, sizeof(cl_mem), sizeof n, sizeof bg, sizeof(cl_mem)};
+    const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
+                          &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
+                          &gb->planes[PN_GBUFFER_INSTANCE], &count, &camera, &s->device_domains, &domains,
+                          &s->frames, &s->depth, &res, &use_maps, &bias, &slope, &pcf, &specular, &samples,
+                          &env->cube, &n, &bg, &image->buffer};
+    if ((st = pn_set_args(ctx, k, "shade_depthmap", 22, sizes, vals)))
+        return st;
+    return pn_enqueue_1d(ctx, k, "shade_depthmap", (size_t)count, 64);
+}
+
+static pn_status read_output(pn_renderer r, pn_scene scene, int what, uint32_t instance, uint32_t index, void *host,
+                             size_t bytes)
+{
+    (void)instance;
+    state *s = r->state;
+    pn_context ctx = r->obj.ctx;
+    size_t need = 0;
+    if (what == OUT_DOMAINS)
+        need = (size_t)s->domain_count * sizeof(pn_env_domain);
+    else if (what == OUT_FRAMES)
+        need = (size_t)s->domain_count * DM_FRAME_FLOATS * sizeof(float);
+    else
+        need = (size_t)s->res * s->res * sizeof(float);
+    if (bytes != need)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "depthmap output %s needs %zu bytes, the buffer has %zu",
+                       outputs[what].name, need, bytes);
+    if (what == OUT_DOMAINS) {
+        memcpy(host, s->domains, need);
+        return PN_SUCCESS;
+    }
+    if (what == OUT_DEPTH && index >= s->domain_count)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "depth map %u: the method has %u domains", index,
+                       s->domain_count);
+    /* Frames and maps of the scene as it is now, drawn even with visibility 0. */
+    const double visibility = r->params[P_VISIBILITY], reuse = r->params[P_REUSE_MAPS];
+    r->params[P_VISIBILITY] = 1;
+    r->params[P_REUSE_MAPS] = 0;
+    bool maps = false;
+    pn_status st = prepare_maps(r, scene, &maps);
+    r->params[P_VISIBILITY] = visibility;
+    r->params[P_REUSE_MAPS] = reuse;
+    if (st)
+        return st;
+    if (!maps)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "the scene has no triangles: there are no depth maps");
+    cl_int err = what == OUT_FRAMES
+                     ? clEnqueueReadBuffer(ctx->queue, s->frames, CL_TRUE, 0, need, host, 0, NULL, NULL)
+                     : clEnqueueReadBuffer(ctx->queue, s->depth, CL_TRUE, (size_t)index * need, need, host, 0, NULL,
+                                           NULL);
+    return err == CL_SUCCESS ? PN_SUCCESS : pn_fail_cl(ctx, err, "reading a depthmap output");
+}
+
+static void destroy(pn_renderer r)
+{
+    state *s = r->state;
+    pn_mem_release(&s->device_domains);
+    pn_mem_release(&s->frames);
+    pn_mem_release(&s->depth);
+    pn_mem_release(&s->ranges);
+    pn_mem_release(&s->starts);
+    pn_mem_release(&s->objects);
+    pn_mem_release(&s->large);
+    pn_mem_release(&s->large_count);
+    free(s->domains);
+    free(s->caller);
+    free(s->host_frames);
+    free(s->host_ranges);
+    free(s->host_starts);
+    free(s->host_objects);
+}
+
+const pn_method_desc pn_method_depthmap = {
+    .name = "depthmap",
+    .summary = "depth-map environment sampling: N directional domains of the env map, one depth map each per frame, "
+               "diffuse and specular from the domains' radiance",
+    .stage = "depthmap",
+    .doc_page = "docs/depthmap.md",
+    .params = params,
+    .param_count = (int)(sizeof params / sizeof params[0]),
+    .outputs = outputs,
+    .output_count = (int)(sizeof outputs / sizeof outputs[0]),
+    .inputs = PN_INPUT_ENVMAP | PN_INPUT_GEOMETRY | PN_INPUT_CAMERA,
+    .state_size = sizeof(state),
+    .destroy = destroy,
+    .plan = plan,
+    .execute = execute,
+    .read_output = read_output,
+    .set_domains = set_domains,
+};

@@ -1,0 +1,312 @@
+/* `depthmap` method: depth-map environment sampling (docs/depthmap.md; seed:
+ * Barsi, Szirmay-Kalos, Szecsi). The env map is N directional domains (centre
+ * d_i, total radiance L~_i, cap radius r_i); each has one orthographic depth
+ * map along d_i, rendered every frame, and a pixel's outgoing radiance is
+ *   L_o = sum_i v_i L~_i (rho/pi max(0, n.d_i) + k_s a_i)
+ * with v_i the depth-map visibility and a_i the lobe's average over the
+ * domain (a point sample, the seed's Phong blend, or a cap quadrature).
+ * float64 twin: tests/depthmap64.py (shade, rasterise).
+ *
+ * A map's frame is DM_FRAME float4 (host: methods/depthmap.c, fit_frames):
+ *   [0] e1.xyz, u_min     [1] e2.xyz, v_min     [2] d.xyz, far = max p.d
+ *   [3] du, dv, depth extent, 0
+ * texel coordinates of a point p: ((p.e1 - u_min) / du, (p.e2 - v_min) / dv),
+ * its depth z = far - p.d (distance from the light side of the fitted box).
+ * Depths are float bits of z >= 0 in uint (their order is the float order,
+ * so atomic_min works); an empty texel holds +inf. */
+#include "common/brdf.cl"
+#include "common/raytrace.cl"
+#include "common/sphere_maps.cl"
+
+#define DM_FRAME 4
+#define DM_EMPTY 0x7F800000u /* +inf */
+#define DM_MAX_SLOPE 32.0f   /* tan(theta) cap of the slope-scaled bias (88.2 degrees) */
+#define DM_LOBE_CULL 1e-3f   /* a cap whose nearest point sees below this share of the lobe's peak is skipped */
+
+#define DM_SPECULAR_POINT 0
+#define DM_SPECULAR_SEED 1
+#define DM_SPECULAR_CAP 2
+
+/* Clears every map to empty and the rasteriser's list of large triangles. */
+kernel void depthmap_clear(global uint *depth, int count, global uint *large_count)
+{
+    int gid = get_global_id(0);
+    if (gid < count)
+        depth[gid] = DM_EMPTY;
+    if (gid == 0)
+        *large_count = 0u;
+}
+
+/* Ray-cast maps: one closest-hit ray per texel centre, from just outside the
+ * fitted box towards -d. One work-item per texel of every map. */
+kernel void depthmap_raycast(PN_SCENE_ARGS, global const float4 *frames, int map_count, int res,
+                             global uint *depth)
+{
+    int gid = get_global_id(0);
+    int per_map = res * res;
+    if (gid >= per_map * map_count)
+        return;
+    int m = gid / per_map, k = gid - m * per_map;
+    int j = k / res, i = k - j * res;
+    global const float4 *f = frames + DM_FRAME * m;
+    float3 e1 = f[0].xyz, e2 = f[1].xyz, d = f[2].xyz;
+    float extent = f[3].z, margin = 1e-3f * extent + 1e-6f;
+    float u = f[0].w + ((float)i + 0.5f) * f[3].x, v = f[1].w + ((float)j + 0.5f) * f[3].y;
+    float3 org = u * e1 + v * e2 + (f[2].w + margin) * d;
+    pn_scene_view scene = pn_make_scene_view(tlas, instances, blas, tris, instance_count);
+    pn_hit hit;
+    uint z = DM_EMPTY;
+    if (pn_trace(scene, org, -d, 0.0f, extent + 2.0f * margin, &hit, false))
+        z = as_uint(fmax(hit.t - margin, 0.0f));
+    depth[gid] = z;
+}
+
+/* Rasterised maps. A triangle's three vertices in map m: texel coordinates
+ * q and depths z; false when it is degenerate in this projection. */
+typedef struct {
+    float2 q[3];
+    float z[3];
+    float inv_area;
+    int i0, i1, j0, j1; /* texel bounding box, clipped to the map */
+} dm_projected;
+
+inline bool dm_project(global const float4 *tris, global const uint2 *ranges, global const uint *starts,
+                       global const float4 *objects, int instance_total, int g, global const float4 *f, int res,
+                       dm_projected *t)
+{
+    /* The instance holding triangle g: the last start <= g. */
+    int lo = 0, hi = instance_total - 1;
+    while (lo < hi) {
+        int mid = (lo + hi + 1) / 2;
+        if ((int)starts[mid] <= g)
+            lo = mid;
+        else
+            hi = mid - 1;
+    }
+    uint k = ranges[lo].x + (uint)(g - (int)starts[lo]);
+    global const float4 *rows = objects + 3 * lo;
+    float3 e1 = f[0].xyz, e2 = f[1].xyz, d = f[2].xyz;
+    float inv_du = 1.0f / f[3].x, inv_dv = 1.0f / f[3].y;
+    for (int c = 0; c < 3; ++c) {
+        float3 p = pn_xform_point(rows, pn_load3(tris + 3 * k + c));
+        t->q[c] = (float2)((dot(p, e1) - f[0].w) * inv_du, (dot(p, e2) - f[1].w) * inv_dv);
+        t->z[c] = f[2].w - dot(p, d);
+    }
+    float area = (t->q[1].x - t->q[0].x) * (t->q[2].y - t->q[0].y) - (t->q[2].x - t->q[0].x) * (t->q[1].y - t->q[0].y);
+    if (!(fabs(area) > 0.0f))
+        return false; /* zero-area (or NaN) in this projection: covers no texel centre */
+    t->inv_area = 1.0f / area;
+    t->i0 = max((int)floor(fmin(t->q[0].x, fmin(t->q[1].x, t->q[2].x)) - 0.5f), 0);
+    t->i1 = min((int)ceil(fmax(t->q[0].x, fmax(t->q[1].x, t->q[2].x)) - 0.5f), res - 1);
+    t->j0 = max((int)floor(fmin(t->q[0].y, fmin(t->q[1].y, t->q[2].y)) - 0.5f), 0);
+    t->j1 = min((int)ceil(fmax(t->q[0].y, fmax(t->q[1].y, t->q[2].y)) - 0.5f), res - 1);
+    return t->i0 <= t->i1 && t->j0 <= t->j1;
+}
+
+/* Texel (i, j) takes the triangle's depth at its centre when covered. */
+inline void dm_texel(const dm_projected *t, int i, int j, int res, volatile global uint *map)
+{
+    float x = (float)i + 0.5f, y = (float)j + 0.5f;
+    /* Barycentric weights of the texel centre; inside when all >= 0. */
+    float w1 = ((x - t->q[0].x) * (t->q[2].y - t->q[0].y) - (t->q[2].x - t->q[0].x) * (y - t->q[0].y)) * t->inv_area;
+    float w2 = ((t->q[1].x - t->q[0].x) * (y - t->q[0].y) - (x - t->q[0].x) * (t->q[1].y - t->q[0].y)) * t->inv_area;
+    float w0 = 1.0f - w1 - w2;
+    if (w0 < 0.0f || w1 < 0.0f || w2 < 0.0f)
+        return;
+    float zz = fmax(w0 * t->z[0] + w1 * t->z[1] + w2 * t->z[2], 0.0f);
+    atomic_min(map + j * res + i, as_uint(zz));
+}
+
+/* One work-item per (triangle, map). `ranges`: per instance the first
+ * triangle in `tris` and the count; `objects`: per instance its
+ * object-to-world rows (3 float4); `starts`: the exclusive prefix sum of the
+ * counts. A triangle covering more than DM_LARGE texels of bounding box goes
+ * to the `large` list (map, triangle) for depthmap_raster_large, where a
+ * whole work-group shares it; when the list is full it is drawn here. */
+#define DM_LARGE 256
+kernel void depthmap_raster(global const float4 *tris, global const uint2 *ranges, global const uint *starts,
+                            global const float4 *objects, int instance_total, int triangle_total,
+                            global const float4 *frames, int map_count, int res, volatile global uint *depth,
+                            volatile global uint *large_count, global uint2 *large, int large_capacity)
+{
+    int gid = get_global_id(0);
+    if (gid >= triangle_total * map_count)
+        return;
+    int m = gid / triangle_total, g = gid - m * triangle_total;
+    dm_projected t;
+    if (!dm_project(tris, ranges, starts, objects, instance_total, g, frames + DM_FRAME * m, res, &t))
+        return;
+    if ((t.i1 - t.i0 + 1) * (t.j1 - t.j0 + 1) > DM_LARGE) {
+        uint slot = atomic_inc(large_count);
+        if (slot < (uint)large_capacity) {
+            large[slot] = (uint2)((uint)m, (uint)g);
+            return;
+        }
+    }
+    volatile global uint *map = depth + (size_t)m * res * res;
+    for (int j = t.j0; j <= t.j1; ++j)
+        for (int i = t.i0; i <= t.i1; ++i)
+            dm_texel(&t, i, j, res, map);
+}
+
+/* The large triangles: work-groups take list entries in turn, and the
+ * work-items of a group split the entry's bounding box, so every lane of a
+ * group does the same amount of work. */
+kernel void depthmap_raster_large(global const float4 *tris, global const uint2 *ranges, global const uint *starts,
+                                  global const float4 *objects, int instance_total, global const float4 *frames,
+                                  int res, volatile global uint *depth, global const uint *large_count,
+                                  global const uint2 *large, int large_capacity)
+{
+    uint count = min(*large_count, (uint)large_capacity);
+    int lid = get_local_id(0), lsize = get_local_size(0);
+    for (uint e = get_group_id(0); e < count; e += get_num_groups(0)) {
+        uint2 entry = large[e];
+        dm_projected t;
+        if (!dm_project(tris, ranges, starts, objects, instance_total, (int)entry.y, frames + DM_FRAME * entry.x,
+                        res, &t))
+            continue;
+        volatile global uint *map = depth + (size_t)entry.x * res * res;
+        int w = t.i1 - t.i0 + 1, texels = w * (t.j1 - t.j0 + 1);
+        for (int k = lid; k < texels; k += lsize)
+            dm_texel(&t, t.i0 + k % w, t.j0 + k / w, res, map);
+    }
+}
+
+/* Visibility of p along map m's direction: the share of the (2 pcf + 1)^2
+ * texels around p's texel whose stored depth is not in front of p by more
+ * than the bias. Outside the footprint nothing of the scene lies between p
+ * and the light: visible. */
+inline float dm_visibility(global const float4 *f, global const uint *map, int res, float3 p, float bias, int pcf)
+{
+    float tu = (dot(p, f[0].xyz) - f[0].w) / f[3].x, tv = (dot(p, f[1].xyz) - f[1].w) / f[3].y;
+    float z = f[2].w - dot(p, f[2].xyz) - bias;
+    if (!(tu >= 0.0f && tv >= 0.0f && tu < (float)res && tv < (float)res))
+        return 1.0f;
+    int ci = (int)tu, cj = (int)tv;
+    int lit = 0, taps = 0;
+    for (int dj = -pcf; dj <= pcf; ++dj) {
+        int j = cj + dj;
+        for (int di = -pcf; di <= pcf; ++di) {
+            int i = ci + di;
+            ++taps;
+            if (i < 0 || j < 0 || i >= res || j >= res || z <= as_float(map[j * res + i]))
+                ++lit;
+        }
+    }
+    return (float)lit / (float)taps;
+}
+
+/* The seed's average of cos^n psi over a cap of radius r whose centre is
+ * psi_c from R (docs/depthmap.md): inside the cap the exact value at
+ * psi_c = 0 blended toward the point sample, beyond it the point sample. */
+inline float dm_seed_blend(float cos_psi_c, float cos_r, float n)
+{
+    float point = pn_pow0(cos_psi_c, n);
+    if (cos_psi_c <= cos_r)
+        return point;
+    float one_minus_cos_r = 1.0f - cos_r;
+    float a0 = (1.0f - pn_pow0(cos_r, n + 1.0f)) / ((n + 1.0f) * one_minus_cos_r);
+    return a0 * (cos_psi_c - cos_r) / one_minus_cos_r + point * (1.0f - cos_psi_c) / one_minus_cos_r;
+}
+
+/* Average of f_lobe(l) max(0, n.l) over the cap of radius r around d by
+ * `samples` equal-area points (rings of equal solid angle, golden-angle
+ * azimuths); the same points as depthmap64.cap_points. */
+inline float dm_cap_lobe(pn_material m, float3 n, float3 v, float3 d, float one_minus_cos_r, int samples)
+{
+    float3 t, b;
+    pn_frame(d, &t, &b);
+    float sum = 0.0f;
+    for (int k = 0; k < samples; ++k) {
+        float u = one_minus_cos_r * ((float)k + 0.5f) / (float)samples; /* 1 - cos(beta) */
+        float sb = sqrt(fmax(u * (2.0f - u), 0.0f));
+        float a = 2.39996322972865332f * (float)k;
+        float3 l = (sb * cos(a)) * t + (sb * sin(a)) * b + (1.0f - u) * d;
+        float nl = dot(n, l);
+        if (nl > 0.0f)
+            sum += pn_brdf_lobe(m, n, v, l, nl) * nl;
+    }
+    return sum / (float)samples;
+}
+
+/* Whether any of the lobe can reach the cap: the lobe at the cap's point
+ * nearest to the reflection direction R against its value at R. */
+inline bool dm_lobe_reaches(pn_material m, float3 n, float3 v, float3 refl, float3 d, float cos_r)
+{
+    float c = dot(refl, d);
+    if (c >= cos_r)
+        return true; /* R inside the cap */
+    /* Rotate d towards R by the cap radius. */
+    float3 side = refl - c * d;
+    float sl = length(side);
+    if (!(sl > 0.0f))
+        return true;
+    float sin_r = sqrt(fmax(1.0f - cos_r * cos_r, 0.0f));
+    float3 near = cos_r * d + sin_r * (side / sl);
+    float nl = dot(n, near), nr = dot(n, refl);
+    if (!(nr > 0.0f))
+        return true; /* R under the horizon: no cheap bound, sample */
+    if (!(nl > 0.0f))
+        return false;
+    return pn_brdf_lobe(m, n, v, near, nl) * nl >= DM_LOBE_CULL * pn_brdf_lobe(m, n, v, refl, nr) * nr;
+}
+
+/* One work-item per pixel. `domains`: 2 float4 each (pn_env_domain: direction,
+ * solid angle | radiance, cap radius); `frames`, `depth`: the maps (none when
+ * use_maps is 0: every domain visible). bias: in texels, constant and slope
+ * terms; specular: DM_SPECULAR_*. */
+kernel void shade_depthmap(global const float4 *position, global const float4 *normal, global const float4 *albedo,
+                           global const float4 *material, global const uint *instance_id, int count, float4 camera,
+                           global const float4 *domains, int domain_count, global const float4 *frames,
+                           global const uint *depth, int res, int use_maps, float bias_constant, float bias_slope,
+                           int pcf, int specular, int cap_samples, global const float4 *cube, int n_cube,
+                           int show_background, global float4 *image)
+{
+    int gid = get_global_id(0);
+    if (gid >= count)
+        return;
+    if (instance_id[gid] == PN_BACKGROUND) {
+        float3 env = show_background ? pn_cube_texel_lookup(cube, n_cube, normalize(position[gid].xyz))
+                                     : (float3)(0.0f);
+        image[gid] = (float4)(env, 0.0f);
+        return;
+    }
+    float3 p = position[gid].xyz;
+    float3 n = normalize(normal[gid].xyz);
+    float3 v = normalize(camera.xyz - p);
+    pn_material m = pn_material_from_gbuffer(albedo[gid], material[gid]);
+    float3 refl = 2.0f * dot(n, v) * n - v;
+    bool spec = m.ks > 0.0f;
+    float3 sum = (float3)(0.0f);
+    for (int i = 0; i < domain_count; ++i) {
+        float4 dir = domains[2 * i], rad = domains[2 * i + 1];
+        float3 d = dir.xyz;
+        float c = dot(n, d);
+        if (c <= 0.0f)
+            continue; /* the centre below the horizon: the seed's rule, no lookup */
+        float vis = 1.0f;
+        if (use_maps) {
+            global const float4 *f = frames + DM_FRAME * i;
+            float tan_theta = fmin(sqrt(fmax(1.0f - c * c, 0.0f)) / c, DM_MAX_SLOPE);
+            float texel = fmax(f[3].x, f[3].y);
+            float bias = texel * (bias_constant + bias_slope * ((float)pcf + 1.0f) * tan_theta);
+            vis = dm_visibility(f, depth + (size_t)i * res * res, res, p, bias, pcf);
+            if (vis == 0.0f)
+                continue;
+        }
+        float a = 0.0f; /* the lobe's average times the cosine, per unit k_s */
+        if (spec) {
+            if (specular == DM_SPECULAR_CAP) {
+                float cos_r = cos(rad.w);
+                if (dm_lobe_reaches(m, n, v, refl, d, cos_r))
+                    a = dm_cap_lobe(m, n, v, d, 1.0f - cos_r, cap_samples);
+            } else if (specular == DM_SPECULAR_SEED && m.lobe == PN_LOBE_PHONG) {
+                a = (m.shininess + 2.0f) * PN_INV_TWO_PI * dm_seed_blend(dot(refl, d), cos(rad.w), m.shininess) * c;
+            } else {
+                a = pn_brdf_lobe(m, n, v, d, c) * c;
+            }
+        }
+        sum += vis * rad.xyz * (m.albedo * (PN_INV_PI * c) + m.ks * a);
+    }
+    image[gid] = (float4)(fmax(sum, 0.0f), 1.0f);
+}

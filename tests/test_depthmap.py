@@ -1,0 +1,452 @@
+"""The `depthmap` method (kernels/depthmap.cl, capi/src/methods/depthmap.c)
+against its float64 twin (tests/depthmap64.py): the fitted frames, the
+rasterised and ray-cast maps, the lookup with bias and PCF, the specular
+rules and the per-pixel sum; against the `reference` renderer; the bias's
+two failure modes (acne, contact leaks); hard cases and bad input."""
+
+from __future__ import annotations
+
+import math
+
+import depthmap64 as d64
+import numpy as np
+import pytest
+from geometry64 import rotation
+from test_reference import gbuffer_of, make_scene, shade, xform
+from tolerances import DEPTHMAP_DEPTH_ATOL, DEPTHMAP_SHADE_RTOL
+
+from penumbra import BACKGROUND, Camera, EnvMap, Image, InputError, Material, PenumbraError, Renderer, procedural
+from penumbra.methods import depthmap as dm
+
+
+def domains_of(env_image, n, seed=1):
+    dom = d64.decompose(env_image, n, seed=seed)
+    return dm.domain_array(dom.centres, dom.radiance, cap_radius=dom.cap_radius, solid_angle=dom.solid_angle)
+
+
+def render(ctx, scene, gb, domains, **params):
+    r = Renderer(ctx, "depthmap", **params)
+    dm.set_domains(r, domains)
+    img = Image(ctx, gb.width, gb.height)
+    r.execute(scene, gb, img)
+    return img.read(), r
+
+
+def nrmse(got, ref, mask):
+    return float(np.sqrt(np.mean((got[mask] - ref[mask]) ** 2)) / (ref[mask].max() - ref[mask].min()))
+
+
+@pytest.fixture(scope="module")
+def sky():
+    return procedural.sky(64, 32)
+
+
+@pytest.fixture(scope="module")
+def box_scene(ctx, sky):
+    """A rotated box resting on a plane, a floating box, Phong / GGX / Blinn-Phong lobes, under the procedural sky."""
+    env = EnvMap(ctx, sky, face_size=16)
+    objects = [
+        (procedural.plane((4.0, 4.0)), xform(), Material(albedo=(0.7, 0.7, 0.7), specular=0.2, shininess=20.0,
+                                                         lobe="blinn_phong")),
+        (procedural.box((1.0, 0.8, 0.6)), xform(rotation((0, 1, 0), 0.5), (0.0, 0.4, 0.0)),
+         Material(albedo=(0.8, 0.4, 0.2), specular=0.3, shininess=50.0, lobe="phong")),
+        (procedural.box((0.4, 0.4, 0.4)), xform(rotation((1, 1, 0), 0.7), (0.9, 1.3, 0.4)),
+         Material(albedo=(0.2, 0.5, 0.8), specular=0.5, roughness=0.2, lobe="ggx")),
+    ]
+    camera = Camera(position=(1.5, 2.5, 4.0), look_at=(0.0, 0.3, 0.0), fov_deg=50.0, resolution=(32, 24))
+    scene, tris, keep = make_scene(ctx, objects, env, camera)
+    gb, planes = gbuffer_of(ctx, scene, camera)
+    return dict(env=env, scene=scene, tris=tris, keep=keep, camera=camera, gb=gb, planes=planes,
+                domains=domains_of(sky, 16))
+
+
+# --------------------------------------------------------------------------- maps
+
+
+def test_frames_fit_the_scene_tightly(ctx, box_scene):
+    s = box_scene
+    _, r = render(ctx, s["scene"], s["gb"], s["domains"], resolution=32)
+    frames = r.read_output(s["scene"], "map_frames", 0).astype(np.float64)
+    pts = s["tris"].reshape(-1, 3)
+    for f, d in zip(frames, s["domains"]):
+        assert np.allclose(f[8:11], d[:3], atol=1e-6)
+        basis = np.stack([f[0:3], f[4:7], f[8:11]])
+        assert np.allclose(basis @ basis.T, np.eye(3), atol=1e-6)
+        tu, tv, z = d64.map_coordinates(f, pts)
+        # Every vertex inside the map, at least half a texel from its edges, depths within [0, extent].
+        assert tu.min() >= 0.5 - 1e-3 and tu.max() <= 32 - 0.5 + 1e-3
+        assert tv.min() >= 0.5 - 1e-3 and tv.max() <= 32 - 0.5 + 1e-3
+        assert z.min() >= -1e-5 and z.max() <= f[14] + 1e-5
+        # Tight: the boxes' corners are the vertices here, so the fit touches them on each axis.
+        assert min(tu.min(), 32 - tu.max()) < 0.5 + 0.6 and z.min() < 1e-4
+
+
+@pytest.mark.parametrize("renderer", [0, 1])
+def test_maps_match_the_float64_rasteriser(ctx, box_scene, renderer):
+    s = box_scene
+    res = 48
+    _, r = render(ctx, s["scene"], s["gb"], s["domains"], resolution=res, map_renderer=renderer)
+    frames = r.read_output(s["scene"], "map_frames", 0).astype(np.float64)
+    for i in (0, 5, 11):
+        got = r.read_output(s["scene"], "depth_map", 0, i).astype(np.float64)
+        want = d64.rasterise(frames[i], s["tris"], res)
+        both = np.isfinite(got) & np.isfinite(want)
+        # Coverage differs only at texel centres on a triangle edge (float32 vs float64 edge tests).
+        assert (np.isfinite(got) != np.isfinite(want)).sum() <= 0.01 * res * res
+        assert both.sum() > 0.3 * res * res
+        err = np.abs(got[both] - want[both])
+        # A texel centre on an edge between two faces at different depths may take either (a silhouette texel).
+        assert np.mean(err <= DEPTHMAP_DEPTH_ATOL * frames[i][14]) > 0.99, (i, err.max())
+
+
+def test_raycast_and_raster_maps_agree(ctx, box_scene):
+    s = box_scene
+    imgs = [render(ctx, s["scene"], s["gb"], s["domains"], map_renderer=k)[0] for k in (0, 1)]
+    fg = s["planes"]["instance"] != BACKGROUND
+    assert nrmse(imgs[1][..., :3], imgs[0][..., :3], fg) < 2e-3
+
+
+# --------------------------------------------------------------------------- shading against the twin
+
+
+@pytest.mark.parametrize("params", [dict(), dict(pcf=1), dict(pcf=2, bias=0.5), dict(specular=0),
+                                    dict(specular=1), dict(specular=2, cap_samples=5), dict(visibility=0)])
+def test_shading_matches_float64(ctx, box_scene, params):
+    s = box_scene
+    res = 64
+    got, r = render(ctx, s["scene"], s["gb"], s["domains"], resolution=res, **params)
+    got = got[..., :3]
+    p = dict(bias=1.0, slope_bias=1.0, pcf=0, specular=2, cap_samples=16)  # the renderer's defaults
+    p.update({k: v for k, v in params.items() if k in p})
+    if params.get("visibility", 1):
+        frames = r.read_output(s["scene"], "map_frames", 0).astype(np.float64)
+        maps = np.stack([r.read_output(s["scene"], "depth_map", 0, i) for i in range(len(s["domains"]))])
+        maps = maps.astype(np.float64)
+    else:
+        frames = maps = None
+    margin = DEPTHMAP_DEPTH_ATOL * (frames[:, 14].max() if frames is not None else 0.0)
+    lo, hi = d64.shade(s["planes"], s["camera"].position, s["domains"], frames, maps, margin=margin, **p)
+    fg = s["planes"]["instance"] != BACKGROUND
+    scale = np.maximum(hi, 1e-3)
+    ok = (got >= lo - DEPTHMAP_SHADE_RTOL * scale) & (got <= hi + DEPTHMAP_SHADE_RTOL * scale)
+    assert ok[fg].all(), f"{(~ok[fg]).sum()} values off; worst {np.argwhere(~ok & fg[..., None])[:3].tolist()}"
+    assert (hi[fg] > lo[fg] * (1 + 1e-9) + 1e-12).sum() < 0.05 * fg.sum() * 3  # few ambiguous lookups
+    if frames is not None:  # shadows matter in this scene
+        free, _ = render(ctx, s["scene"], s["gb"], s["domains"], visibility=0, **params)
+        assert (free[..., :3][fg] - got[fg]).max() > 0.2 * got[fg].max()
+
+
+def test_background_shows_the_environment(ctx, box_scene):
+    s = box_scene
+    img, _ = render(ctx, s["scene"], s["gb"], s["domains"])
+    ref = shade(ctx, s["scene"], s["gb"], "unshadowed")
+    bg = s["planes"]["instance"] == BACKGROUND
+    assert bg.sum() > 10 and np.array_equal(img[bg], ref[bg])
+    dark, _ = render(ctx, s["scene"], s["gb"], s["domains"], background=0)
+    assert (dark[bg] == 0).all()
+
+
+def test_zero_specular_skips_the_lobe(ctx, sky):
+    """k_s = 0: every specular rule gives the same image, bit for bit."""
+    env = EnvMap(ctx, sky, face_size=8)
+    objects = [(procedural.plane((4.0, 4.0)), xform(), Material(albedo=(0.6, 0.6, 0.6))),
+               (procedural.sphere(0.5), xform(translate=(0, 0.5, 0)), Material(albedo=(0.5, 0.3, 0.2)))]
+    camera = Camera(position=(0.0, 2.0, 3.0), look_at=(0.0, 0.3, 0.0), fov_deg=50.0, resolution=(16, 12))
+    scene, _, keep = make_scene(ctx, objects, env, camera)
+    gb, _ = gbuffer_of(ctx, scene, camera)
+    doms = domains_of(sky, 8)
+    imgs = [render(ctx, scene, gb, doms, specular=k)[0] for k in (0, 1, 2)]
+    assert np.array_equal(imgs[0], imgs[1]) and np.array_equal(imgs[0], imgs[2])
+
+
+# --------------------------------------------------------------------------- against the reference
+
+
+def test_close_to_the_reference(ctx, box_scene):
+    s = box_scene
+    # face 32 with the sun split 4 x 4: face 16 alone is 0.015 off this (the sun's texel).
+    ref = shade(ctx, s["scene"], s["gb"], "reference", face_size=32, sun_supersampling=4)[..., :3]
+    fg = s["planes"]["instance"] != BACKGROUND
+    errs = {}
+    for n in (16, 64):
+        img, _ = render(ctx, s["scene"], s["gb"], domains_of(procedural.sky(64, 32), n), pcf=1)
+        errs[n] = nrmse(img[..., :3], ref, fg)
+    free, _ = render(ctx, s["scene"], s["gb"], domains_of(procedural.sky(64, 32), 64), visibility=0)
+    plain, _ = render(ctx, s["scene"], s["gb"], domains_of(procedural.sky(64, 32), 64))
+    # PCF 1: measured 0.0082 / 0.0071 (the rest: the sun's shadow outline on the 32 x 24 pixel grid); the
+    # default PCF 0: 0.0109 (this scene's hard sun outlines favour the filter, the armadillo's do not:
+    # docs/depthmap.md); unshadowed 0.077.
+    assert errs[64] < 0.01 and errs[16] < 0.012 and errs[64] < errs[16]
+    assert nrmse(plain[..., :3], ref, fg) < 0.013
+    assert nrmse(free[..., :3], ref, fg) > 5 * errs[64]
+
+
+# --------------------------------------------------------------------------- bias: acne and contact
+
+
+def lit_plane(ctx, tilt=0.0, centre=(0.0, 0.0, 0.0), size=4.0):
+    env_image = procedural.constant(1.0)
+    env = EnvMap(ctx, env_image, face_size=8)
+    rot = rotation((1, 0, 0), tilt)
+    objects = [(procedural.plane((size, size), subdivisions=4), xform(rot, centre), Material(albedo=(0.8, 0.8, 0.8)))]
+    up = rot @ np.array([0.0, 1.0, 0.0])
+    c = np.asarray(centre, np.float64)
+    camera = Camera(position=tuple(c + rot @ np.array([0.3, 0.6, 0.8]) * size), look_at=tuple(c), up=tuple(up),
+                    fov_deg=60.0, resolution=(24, 24))
+    scene, tris, keep = make_scene(ctx, objects, env, camera)
+    gb, planes = gbuffer_of(ctx, scene, camera)
+    return scene, gb, planes, keep, env_image
+
+
+@pytest.mark.parametrize("tilt,centre,size", [(0.0, (0, 0, 0), 4.0), (0.6, (0, 0, 0), 4.0),
+                                              (0.3, (3000.0, 1500.0, -900.0), 400.0)])
+def test_no_acne_on_a_lit_plane(ctx, tilt, centre, size):
+    """A plane alone casts no shadow: every lookup must find it lit, at every
+    direction above it including grazing ones (down to 3 degrees)."""
+    scene, gb, planes, keep, env_image = lit_plane(ctx, tilt, centre, size)
+    up = rotation((1, 0, 0), tilt) @ np.array([0.0, 1.0, 0.0])
+    # 64 directions from 3 to 87 degrees of elevation, all azimuths.
+    k = np.arange(64)
+    elev = np.radians(3.0 + 84.0 * (k % 16) / 15.0)
+    az = 2.39996 * k
+    local = np.stack([np.cos(elev) * np.cos(az), np.sin(elev), np.cos(elev) * np.sin(az)], 1)
+    rot = rotation((1, 0, 0), tilt)
+    dirs = local @ rot.T
+    assert np.allclose(dirs @ up, np.sin(elev))
+    doms = dm.domain_array(dirs, np.ones((64, 3)) * 0.05)
+    fg = planes["instance"] != BACKGROUND
+    free, _ = render(ctx, scene, gb, doms, visibility=0)
+    for pcf in (0, 1, 2):
+        got, _ = render(ctx, scene, gb, doms, pcf=pcf)
+        assert np.abs(got[fg] - free[fg]).max() <= 1e-6 * free[fg].max(), pcf
+    # The test can fail: without bias the plane shadows itself.
+    raw, _ = render(ctx, scene, gb, doms, bias=0.0, slope_bias=0.0, pcf=1)
+    assert (raw[fg][:, 0] < 0.95 * free[fg][:, 0]).mean() > 0.1
+
+
+def test_no_light_leak_at_contact(ctx):
+    """A box resting on the floor under a single overhead-ish light: floor
+    pixels within a few texels of the box's footprint on the shadow side stay
+    dark (no peter-panning), as ray-traced visibility says."""
+    env = EnvMap(ctx, procedural.constant(1.0), face_size=8)
+    objects = [(procedural.plane((4.0, 4.0)), xform(), Material(albedo=(0.8, 0.8, 0.8))),
+               (procedural.box((1.0, 1.0, 1.0)), xform(translate=(0, 0.5, 0)), Material(albedo=(0.8, 0.8, 0.8)))]
+    camera = Camera(position=(0.0, 4.0, 2.5), look_at=(0.0, 0.0, 0.0), fov_deg=60.0, resolution=(48, 48))
+    scene, tris, keep = make_scene(ctx, objects, env, camera)
+    gb, planes = gbuffer_of(ctx, scene, camera)
+    d = np.array([0.4, 0.8, -0.8])  # the shadow falls towards +z, the camera's side
+    d /= np.linalg.norm(d)
+    doms = dm.domain_array(d[None], np.ones((1, 3)), cap_radius=[0.0])
+    got, _ = render(ctx, scene, gb, doms, resolution=256)
+    floor = planes["instance"] == 0
+    p = planes["position"][..., :3].astype(np.float64)
+    # Exact shadow of the unit box on the floor (y = 0): the ray from p towards d enters the box.
+    hits = []
+    for s_ in np.linspace(0.0, 1.0, 65):
+        q = p + (s_ / d[1]) * d[None, None, :]
+        hits.append((np.abs(q[..., 0]) < 0.5) & (np.abs(q[..., 2]) < 0.5) & (q[..., 1] <= 1.0))
+    shadowed = np.any(hits, axis=0) & floor
+    lit = floor & ~shadowed
+    # Contact pixels: in the exact shadow and within 0.15 of the box's footprint.
+    gap = np.maximum(np.abs(p[..., [0, 2]]) - 0.5, 0).max(-1)
+    contact = shadowed & (gap < 0.15)
+    assert contact.sum() >= 5 and lit.sum() > 100
+    assert (got[contact][:, 0] == 0).all(), "light leaks under the box"
+    # Away from the shadow's outline (2 texels of the 256 map) the lit floor is lit.
+    assert np.mean(got[lit][:, 0] > 0) > 0.97
+
+
+# --------------------------------------------------------------------------- hard cases
+
+
+def test_strong_sun(ctx, box_scene):
+    """A 10^5 : 1 sun: one domain holds nearly all the power; the image is
+    the sun's hard shadow plus the sky, close to the reference."""
+    s = box_scene
+    sky = np.full((32, 64, 3), 0.2, np.float32)
+    sky[8, 20] = 0.2 * 1e5
+    env = EnvMap(ctx, sky, face_size=16)
+    s["scene"].set_envmap(env)
+    try:
+        doms = domains_of(sky, 16)
+        power = doms[:, 4:7].sum(1)
+        assert power.max() > 0.9 * power.sum()
+        got, _ = render(ctx, s["scene"], s["gb"], doms, pcf=1)
+        hard, _ = render(ctx, s["scene"], s["gb"], doms)
+        # Face 32 with the sun split 8 x 8 (face 16 spreads the 5.6-degree sun texel: 0.035 off).
+        ref = shade(ctx, s["scene"], s["gb"], "reference", face_size=32, sun_supersampling=8)[..., :3]
+        fg = s["planes"]["instance"] != BACKGROUND
+        # PCF 1: measured 0.0148 (0.0094 of it unshadowed: the sun texel as one direction, its cube
+        # resampling). The default PCF 0 gives the 5.6-degree sun a hard outline where the reference has
+        # a penumbra: measured 0.0304.
+        assert nrmse(got[..., :3], ref, fg) < 0.02
+        assert nrmse(hard[..., :3], ref, fg) < 0.035
+    finally:
+        s["scene"].set_envmap(s["env"])
+
+
+def test_black_and_constant_maps(ctx, box_scene):
+    s = box_scene
+    black = dm.domain_array(s["domains"][:, :3], np.zeros((16, 3)))
+    img, _ = render(ctx, s["scene"], s["gb"], black)
+    fg = s["planes"]["instance"] != BACKGROUND
+    assert (img[fg][:, :3] == 0).all()
+    const = domains_of(np.ones((32, 64, 3), np.float32), 32)
+    got, _ = render(ctx, s["scene"], s["gb"], const)
+    free, _ = render(ctx, s["scene"], s["gb"], const, visibility=0)
+    # Unshadowed diffuse under a constant map of radiance 1: rho (up to the domains' quadrature error).
+    plane = s["planes"]["instance"] == 0
+    assert np.all(got[fg] <= free[fg] + 1e-6) and (got[plane] < free[plane]).any()
+
+
+def test_one_domain(ctx, box_scene):
+    s = box_scene
+    doms = domains_of(procedural.sky(64, 32), 1)
+    assert abs(doms[0, 7] - math.pi) < 1e-5
+    img, _ = render(ctx, s["scene"], s["gb"], doms)
+    assert np.isfinite(img).all() and img[..., :3].max() > 0
+
+
+def tiny_box_scene(ctx, floor_size, centre):
+    env = EnvMap(ctx, procedural.constant(1.0), face_size=8)
+    c = np.asarray(centre, np.float64)
+    objects = [(procedural.plane((floor_size, floor_size)), xform(translate=c), Material()),
+               (procedural.box((0.01, 0.01, 0.01)), xform(translate=c + [0, 0.005, 0]), Material())]
+    camera = Camera(position=tuple(c + [0.0, 0.03, 0.02]), look_at=tuple(c), fov_deg=60.0, resolution=(24, 24))
+    scene, _, keep = make_scene(ctx, objects, env, camera)
+    gb, planes = gbuffer_of(ctx, scene, camera)
+    d = np.array([0.6, 0.8, 0.0])
+    doms = dm.domain_array(d[None], np.ones((1, 3)), cap_radius=[0.0])
+    p = planes["position"][..., :3].astype(np.float64) - c
+    floor = planes["instance"] == 0
+    # In the box's exact shadow (it reaches 0.0075 beyond the box towards -x), outside its footprint.
+    shadow = floor & (p[..., 0] > -0.0115) & (p[..., 0] < -0.0065) & (np.abs(p[..., 2]) < 0.004)
+    lit = floor & ((p[..., 0] > 0.007) | (np.abs(p[..., 2]) > 0.007))
+    return scene, gb, doms, shadow, lit, keep
+
+
+def test_tiny_object_far_from_the_origin(ctx):
+    """A 1 cm box on a 10 cm floor 1 km from the origin (float32 positions
+    there are ~6e-5 m, a sixth of the box): the fit is to the scene, so the
+    map still resolves the box; its shadow is there and the rest is lit."""
+    scene, gb, doms, shadow, lit, keep = tiny_box_scene(ctx, 0.1, (1000.0, 0.0, -1000.0))
+    assert shadow.sum() > 3 and lit.sum() > 50
+    got, _ = render(ctx, scene, gb, doms, resolution=256)
+    assert (got[shadow][:, 0] == 0).all() and (got[lit][:, 0] > 0).all()
+
+
+def test_tiny_object_on_a_huge_floor_loses_its_shadow(ctx):
+    """The documented limit of the fit (docs/depthmap.md): every instance is
+    fitted, so a 100 m floor makes 256 texels 39 cm wide and a 1 cm box's
+    shadow is lost; nothing else breaks."""
+    scene, gb, doms, shadow, lit, keep = tiny_box_scene(ctx, 100.0, (0.0, 0.0, 0.0))
+    assert shadow.sum() > 3
+    got, _ = render(ctx, scene, gb, doms, resolution=256)
+    assert np.isfinite(got).all() and (got[shadow][:, 0] > 0).all() and (got[lit][:, 0] > 0).all()
+
+
+def test_receiver_outside_every_footprint(ctx, box_scene):
+    """A caller's G-buffer pixel far outside the scene is lit by every domain above it."""
+    s = box_scene
+    planes = {k: v.copy() for k, v in s["planes"].items()}
+    planes["position"][0, 0] = [50.0, -20.0, 30.0, 1.0]
+    planes["normal"][0, 0] = [0.0, 1.0, 0.0, 0.0]
+    planes["instance"][0, 0] = 0
+    planes["albedo"][0, 0] = [0.5, 0.5, 0.5, 0.0]
+    from penumbra import GBuffer
+
+    gb = GBuffer(ctx, 32, 24)
+    for name, plane in planes.items():
+        gb.write(name, plane)
+    got, _ = render(ctx, s["scene"], gb, s["domains"])
+    free, _ = render(ctx, s["scene"], gb, s["domains"], visibility=0)
+    assert got[0, 0, 0] > 0 and np.allclose(got[0, 0], free[0, 0], rtol=1e-6)
+
+
+def test_empty_scene(ctx, sky):
+    from penumbra import Scene, GBuffer
+
+    env = EnvMap(ctx, sky, face_size=8)
+    scene = Scene(ctx)
+    scene.set_envmap(env)
+    scene.set_camera(Camera(position=(0, 1, 3), look_at=(0, 0, 0), resolution=(8, 6)))
+    scene.commit()
+    gb = GBuffer(ctx, 8, 6)
+    scene.render_gbuffer(gb)
+    img, r = render(ctx, scene, gb, domains_of(sky, 4))
+    assert np.isfinite(img).all()
+    with pytest.raises(PenumbraError, match="no triangles"):
+        r.read_output(scene, "depth_map", 0, 0)
+
+
+@pytest.mark.parametrize("edit,match", [
+    (lambda d: d.__setitem__((2, 0), np.nan), "domain 2 has a non-finite direction"),
+    (lambda d: d.__setitem__((1, 5), np.inf), "domain 1 has a non-finite radiance"),
+    (lambda d: d.__setitem__((0, 4), -1.0), "domain 0 has a negative radiance"),
+    (lambda d: d.__setitem__((3, slice(0, 3)), [2.0, 0.0, 0.0]), "length 2: it must be unit"),
+    (lambda d: d.__setitem__((3, 7), 4.0), "cap radius 4"),
+])
+def test_bad_caller_domains_are_refused(ctx, box_scene, edit, match):
+    doms = box_scene["domains"].copy()
+    edit(doms)
+    r = Renderer(ctx, "depthmap")
+    with pytest.raises(InputError, match=match):
+        dm.set_domains(r, doms)
+
+
+def test_domains_for_other_methods_and_sizes_are_refused(ctx, box_scene):
+    with pytest.raises(PenumbraError, match="takes no env domains"):
+        dm.set_domains(Renderer(ctx, "unshadowed"), box_scene["domains"])
+    with pytest.raises(InputError, match=r"\(N, 8\)"):
+        dm.set_domains(Renderer(ctx, "depthmap"), np.zeros((4, 7)))
+    r = Renderer(ctx, "depthmap")
+    dm.set_domains(r, box_scene["domains"])
+    with pytest.raises(PenumbraError, match="depth map 16: the method has 16 domains"):
+        r.read_output(box_scene["scene"], "depth_map", 0, 16)
+
+
+def test_the_library_decomposition_is_used_without_caller_domains(ctx, box_scene):
+    """No caller domains: the renderer decomposes the scene's env map with its
+    `directions` and `seed`; returning to it after caller domains (count 0) works."""
+    s = box_scene
+    r = Renderer(ctx, "depthmap", directions=16)
+    img = Image(ctx, s["gb"].width, s["gb"].height)
+    r.execute(s["scene"], s["gb"], img)
+    own = img.read()
+    doms = r.read_output(s["scene"], "domains", 0)
+    assert doms.shape == (16, 8)
+    assert np.allclose(doms[:, 4:7].sum(0), s["domains"][:, 4:7].sum(0), rtol=1e-5)
+    twin, _ = render(ctx, s["scene"], s["gb"], s["domains"])
+    fg = s["planes"]["instance"] != BACKGROUND
+    assert nrmse(own[..., :3], twin[..., :3], fg) < 1e-3
+    dm.set_domains(r, s["domains"][:4])
+    r.execute(s["scene"], s["gb"], img)
+    assert r.read_output(s["scene"], "domains", 0).shape == (4, 8)
+    dm.set_domains(r, None)
+    r.execute(s["scene"], s["gb"], img)
+    assert np.array_equal(img.read(), own)
+
+
+@pytest.mark.parametrize("n,samples,pointwise", [(10, 4, 2e-3), (100, 16, 0.012), (1000, 64, 0.08)])
+def test_cap_quadrature_against_the_exact_cap_average(n, samples, pointwise):
+    """float64: the cap quadrature's average of cos^n over a cap of radius
+    pi/8 against the exact cap average (depthmap64.phong_cap_average), R
+    from the centre to twice the radius; unlike the seed's blend it keeps the
+    specular energy (docs/depthmap.md gives the table)."""
+    r = math.pi / 8
+    centre = np.array([0.0, 0.0, 1.0])
+    pts = d64.cap_points(centre, r, samples)
+
+    def quad(cpc):
+        s = math.sqrt(max(1.0 - cpc * cpc, 0.0))
+        rs = [np.array([s * math.cos(a), s * math.sin(a), cpc]) for a in np.linspace(0, 2 * math.pi, 16, endpoint=False)]
+        return float(np.mean([np.mean(np.maximum(pts @ rr, 0) ** n) for rr in rs]))
+
+    psis = np.linspace(0, 2 * r, 21)
+    exact = np.array([d64.phong_cap_average(math.cos(p), r, n) for p in psis])
+    got = np.array([quad(math.cos(p)) for p in psis])
+    assert np.abs(got - exact).max() <= pointwise * exact[0]
+    assert abs(d64.phong_energy(quad, r, n, nodes=60) - 1.0) < 0.015
+    blend = d64.phong_energy(lambda c: float(d64.seed_blend(c, r, n)), r, n, nodes=60)
+    if n >= 100:
+        assert blend < 0.7  # the seed's blend loses a third and more of the lobe here
