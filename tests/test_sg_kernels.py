@@ -394,7 +394,8 @@ def test_device_sg_reflected_matches_the_twin(device):
 
 # Measured max error of the SG shading of one light lobe against quadrature of the float64 BRDF
 # (relative to the largest value at that view and light sharpness; docs/isg.md 6), view 30 deg.
-BRDF_SG_CASES = [("phong", 100.0, 0.3, 0.02), ("blinn_phong", 100.0, 0.3, 0.30), ("ggx", 100.0, 0.2, 0.30)]
+# The bounds: the docs table's 30-degree entries (0.9 %, 3.1 %, 16.8 %) plus a margin for this subset's quadrature.
+BRDF_SG_CASES = [("phong", 100.0, 0.3, 0.015), ("blinn_phong", 100.0, 0.3, 0.04), ("ggx", 100.0, 0.2, 0.20)]
 
 
 @pytest.mark.parametrize("lobe, shin, rough, bound", BRDF_SG_CASES)
