@@ -123,7 +123,8 @@ static void pursue(const texels *t, double *r, double max_lambda, double *g, dou
     for (int a = 0; a < nc; ++a) {
         const double *axis = t->dir + 3 * cand[a];
         /* a near-constant lobe, then octaves from broad to the sharpest allowed */
-        for (double lambda = MIN_SHARPNESS; lambda <= max_lambda * 1.0001; lambda = lambda < 0.0625 ? 0.0625 : 2.0 * lambda) {
+        for (double lambda = MIN_SHARPNESS; lambda <= max_lambda * 1.0001;
+             lambda = lambda < 0.0625 ? 0.0625 : 2.0 * lambda) {
             double amp[3];
             eval_lobe(t, axis, lambda, g);
             const double gain = best_amplitude(t, r, g, amp);
@@ -195,7 +196,8 @@ static double sharpness_of_spread(double s)
     for (int it = 0; it < 60; ++it) {
         const double mid = 0.5 * (lo + hi), l = exp(mid);
         /* coth l - 1/l: series below 1e-2 (cancellation), else exact; e^-2l from expm1 */
-        const double m = l < 1e-2 ? l / 3.0 - l * l * l / 45.0 : (l > 20.0 ? 1.0 : -2.0 / expm1(-2.0 * l) - 1.0) - 1.0 / l;
+        const double coth = l > 20.0 ? 1.0 : -2.0 / expm1(-2.0 * l) - 1.0;
+        const double m = l < 1e-2 ? l / 3.0 - l * l * l / 45.0 : coth - 1.0 / l;
         if (1.0 - m > s)
             lo = mid; /* too broad */
         else
@@ -465,7 +467,8 @@ pn_status pn_envmap_do_fit_sgs(pn_envmap env, uint32_t count, const pn_sg_fit_op
         return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "SG fit: iterations %d is outside [0, 100]", o.iterations);
     if (!isfinite(o.max_sharpness) || o.max_sharpness < 0.0f || (o.max_sharpness > 0.0f && o.max_sharpness < 1.0f))
         return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
-                       "SG fit: max_sharpness %g must be 0 (automatic) or a finite value >= 1", (double)o.max_sharpness);
+                       "SG fit: max_sharpness %g must be 0 (automatic) or a finite value >= 1",
+                       (double)o.max_sharpness);
     if (!env->committed)
         return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "env map changed since its last commit; call pn_envmap_commit");
     /* a lobe no narrower than half a texel: width 1/sqrt(lambda) >= a quarter of the 2/F texel angle */
