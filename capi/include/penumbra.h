@@ -254,6 +254,42 @@ PN_API pn_env_sharp_options pn_env_sharp_options_default(void);
  * width*height*3). */
 PN_API pn_status pn_envmap_extract_sharp(pn_envmap env, const pn_env_sharp_options *options, pn_env_domain *domains,
                                          uint32_t capacity, uint32_t *count, float *residual, size_t residual_floats);
+/* ---------------------------------------------------- spherical Gaussians */
+
+/* One spherical-Gaussian (SG) light lobe (docs/isg.md 1). */
+typedef struct pn_sg_lobe {
+    float axis[3];       /* unit */
+    float sharpness;     /* lambda > 0 */
+    float amplitude[3];  /* RGB: G(v) = amplitude * exp(lambda (v.axis - 1)) */
+    float pad;           /* 0 */
+} pn_sg_lobe;            /* 32 bytes, the device layout */
+
+/* Floats in the ISG table (4 blocks of 57 x 33; layout in kernels/common/sg.cl). */
+#define PN_ISG_TABLE_FLOATS 7524
+
+/* Fills `out` (`count` must be PN_ISG_TABLE_FLOATS) with the table that the
+ * device's pn_isg reads: the normalised Integral Spherical Gaussian's exact
+ * marginals by float64 quadrature (docs/isg.md 3). No context needed. */
+PN_API pn_status pn_isg_table(float *out, size_t count);
+
+/* Options of the env map -> SG lobe fit (docs/isg.md 5). */
+typedef struct pn_sg_fit_options {
+    int32_t face_size;     /* cube face the map is resampled to for the fit, 4..256 (default 32) */
+    int32_t iterations;    /* least-squares refinement sweeps after the power clustering, 0..100 (default 0) */
+    float max_sharpness;   /* cap on lambda; 0 = 4 face_size^2 (no lobe narrower than half a texel) (default 0) */
+} pn_sg_fit_options;
+
+#define PN_SG_FIT_MAX_LOBES 128
+
+PN_API pn_sg_fit_options pn_sg_fit_options_default(void);
+
+/* Fits `count` (1..PN_SG_FIT_MAX_LOBES) SG lobes to the committed env map
+ * (rotation and intensity applied) by solid-angle-weighted least squares with
+ * non-negative RGB amplitudes, and writes them to out[0 .. count) (`capacity`
+ * lobes available). Deterministic. A lobe may have zero amplitude (a black
+ * map gives only such lobes). `options` may be NULL (the defaults). */
+PN_API pn_status pn_envmap_fit_sgs(pn_envmap env, uint32_t count, const pn_sg_fit_options *options, pn_sg_lobe *out,
+                                   size_t capacity);
 
 /* ------------------------------------------------------------------ mesh */
 

@@ -228,6 +228,26 @@ pn_status pn_envmap_read(pn_envmap env, pn_envmap_data what, void *host, size_t 
     return pn_envmap_do_read(env, what, host, bytes);
 }
 
+/* ---------------------------------------------------- spherical Gaussians */
+
+pn_status pn_isg_table(float *out, size_t count)
+{
+    CHECK_PTR(NULL, out);
+    if (count != PN_ISG_TABLE_FLOATS)
+        return pn_fail(NULL, PN_ERROR_INVALID_SIZE, "pn_isg_table needs exactly %d floats, got %zu", PN_ISG_TABLE_FLOATS,
+                       count);
+    pn_isg_table_fill(out);
+    return PN_SUCCESS;
+}
+
+pn_status pn_envmap_fit_sgs(pn_envmap env, uint32_t count, const pn_sg_fit_options *options, pn_sg_lobe *out,
+                            size_t capacity)
+{
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    CHECK_PTR(env->obj.ctx, out);
+    return pn_envmap_do_fit_sgs(env, count, options, out, capacity);
+}
+
 /* ------------------------------------------------------------------ mesh */
 
 pn_status pn_mesh_create(pn_context ctx, pn_mesh *out)

@@ -2748,6 +2748,64 @@ static void test_enqueue_only(pn_context ctx)
     rig_release(&r);
 }
 
+/* Spherical Gaussians: the ISG table and the env map -> SG fit (docs/isg.md). */
+static void test_sg(pn_context ctx)
+{
+    static float table[PN_ISG_TABLE_FLOATS];
+    expect_error("pn_isg_table wrong count", pn_isg_table(table, 10), PN_ERROR_INVALID_SIZE, NULL, "7524", NULL);
+    expect_error("pn_isg_table NULL", pn_isg_table(NULL, PN_ISG_TABLE_FLOATS), PN_ERROR_INVALID_ARGUMENT, NULL, NULL);
+    if (expect_ok("pn_isg_table", pn_isg_table(table, PN_ISG_TABLE_FLOATS), NULL)) {
+        /* block 0, row 0: T rises from 0 to 1/2 */
+        report(table[0] == 0.0f && near(table[32], 0.5f, 1e-6f), "ISG table ends", "T(0) = %g, T(1) = %g",
+               (double)table[0], (double)table[32]);
+    }
+    pn_envmap env = NULL;
+    if (!expect_ok("pn_envmap_create (sg)", pn_envmap_create(ctx, &env), ctx))
+        return;
+    const uint32_t W = 64, H = 32;
+    float *rgb = constant_env(W, H, 1.0f);
+    rgb[3 * (10 * W + 20) + 1] = 1e5f; /* a sun in green */
+    pn_sg_lobe lobes[8];
+    memset(lobes, 0xff, sizeof lobes);
+    if (expect_ok("env set (sg)", pn_envmap_set_latlong(env, rgb, W, H), ctx)) {
+        expect_error("fit before commit", pn_envmap_fit_sgs(env, 4, NULL, lobes, 8), PN_ERROR_NOT_COMMITTED, ctx, NULL);
+        if (expect_ok("env commit (sg)", pn_envmap_commit(env), ctx)) {
+            expect_error("fit 0 lobes", pn_envmap_fit_sgs(env, 0, NULL, lobes, 8), PN_ERROR_INVALID_ARGUMENT, ctx,
+                         "lobe count", NULL);
+            expect_error("fit 129 lobes", pn_envmap_fit_sgs(env, 129, NULL, lobes, 200), PN_ERROR_INVALID_ARGUMENT,
+                         ctx, "lobe count", NULL);
+            expect_error("fit capacity", pn_envmap_fit_sgs(env, 8, NULL, lobes, 7), PN_ERROR_INVALID_SIZE, ctx,
+                         "holds 7", NULL);
+            expect_error("fit NULL out", pn_envmap_fit_sgs(env, 8, NULL, NULL, 8), PN_ERROR_INVALID_ARGUMENT, ctx,
+                         NULL);
+            expect_error("fit NULL env", pn_envmap_fit_sgs(NULL, 8, NULL, lobes, 8), PN_ERROR_NULL_HANDLE, NULL, NULL);
+            pn_sg_fit_options o = pn_sg_fit_options_default();
+            o.max_sharpness = NAN;
+            expect_error("fit NaN option", pn_envmap_fit_sgs(env, 8, &o, lobes, 8), PN_ERROR_INVALID_ARGUMENT, ctx,
+                         "max_sharpness", NULL);
+            for (int refine = 0; refine < 2; ++refine) {
+                o = pn_sg_fit_options_default();
+                o.iterations = refine ? 2 : 0; /* power clustering alone, then with least squares */
+                if (!expect_ok("fit 8 lobes", pn_envmap_fit_sgs(env, 8, &o, lobes, 8), ctx))
+                    continue;
+                int finite = 1, sun = 0;
+                for (int k = 0; k < 8; ++k) {
+                    for (int c = 0; c < 3; ++c)
+                        finite &= isfinite(lobes[k].axis[c]) && isfinite(lobes[k].amplitude[c]) &&
+                                  lobes[k].amplitude[c] >= 0.0f;
+                    finite &= lobes[k].sharpness > 0.0f && lobes[k].pad == 0.0f;
+                    sun += lobes[k].amplitude[1] > 10.0f * lobes[k].amplitude[0];
+                }
+                /* the clustering gives the sun one lobe; least squares may split it */
+                report(finite && (refine || sun == 1), "fitted lobes", "refine %d: finite %d, green sun lobes %d",
+                       refine, finite, sun);
+            }
+        }
+    }
+    free(rgb);
+    pn_envmap_release(env);
+}
+
 int main(void)
 {
     setvbuf(stdout, NULL, _IOLBF, 0);
@@ -2768,6 +2826,7 @@ int main(void)
     test_null_pointers(ctx);
     test_envmap(ctx);
     test_env_decompose(ctx);
+    test_sg(ctx);
     test_mesh(ctx);
     test_scene(ctx);
     test_renderer(ctx);
