@@ -70,4 +70,22 @@ pn_status pn_heightfield_do_build_mesh(pn_heightfield hf, pn_mesh *out);
 /* Grid spacing of the committed field along x and z. */
 void pn_heightfield_spacing(pn_heightfield hf, float *sx, float *sz);
 
+/* ------------------------------------------------------------ sphere sets */
+
+struct pn_sphere_set_impl {
+    pn_object obj;
+    float *spheres;           /* count x (centre xyz, radius), object space */
+    uint32_t count;
+    uint64_t mesh_hash;       /* the mesh it was built for; 0: given by the caller, attaches anywhere */
+    uint32_t grid;            /* voxels along the longest side of the build grid (0: caller's) */
+    float mesh_volume;        /* of the solid, on the build grid */
+    float outside_share, missed_share; /* union outside / solid missed, shares of mesh_volume (NaN: caller's) */
+    double build_seconds;
+};
+
+pn_status pn_sphere_set_do_build(pn_mesh mesh, uint32_t count, pn_sphere_set *out);
+pn_status pn_sphere_set_do_create(pn_context ctx, const float *spheres, uint32_t count, pn_sphere_set *out);
+void pn_sphere_set_fill_info(pn_sphere_set set, pn_sphere_set_info *info);
+pn_status pn_sphere_set_do_read(pn_sphere_set set, float *host, size_t bytes);
+
 #endif
