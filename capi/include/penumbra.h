@@ -181,6 +181,24 @@ PN_API pn_status pn_envmap_read(pn_envmap env, pn_envmap_data what, void *host, 
  * intensity and supersampling (not the cube sizes). Occlusion fields record it. */
 PN_API pn_status pn_envmap_get_hash(pn_envmap env, uint64_t *hash);
 
+/* ---------------------------------------------------- spherical Gaussians */
+
+/* One spherical-Gaussian (SG) light lobe (docs/isg.md 1). */
+typedef struct pn_sg_lobe {
+    float axis[3];       /* unit */
+    float sharpness;     /* lambda > 0 */
+    float amplitude[3];  /* RGB: G(v) = amplitude * exp(lambda (v.axis - 1)) */
+    float pad;           /* 0 */
+} pn_sg_lobe;            /* 32 bytes, the device layout */
+
+/* Floats in the ISG table (4 blocks of 57 x 33; layout in kernels/common/sg.cl). */
+#define PN_ISG_TABLE_FLOATS 7524
+
+/* Fills `out` (`count` must be PN_ISG_TABLE_FLOATS) with the table that the
+ * device's pn_isg reads: the normalised Integral Spherical Gaussian's exact
+ * marginals by float64 quadrature (docs/isg.md 3). No context needed. */
+PN_API pn_status pn_isg_table(float *out, size_t count);
+
 /* ------------------------------------------------------------------ mesh */
 
 PN_API pn_status pn_mesh_create(pn_context ctx, pn_mesh *out);

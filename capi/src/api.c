@@ -228,6 +228,18 @@ pn_status pn_envmap_read(pn_envmap env, pn_envmap_data what, void *host, size_t 
     return pn_envmap_do_read(env, what, host, bytes);
 }
 
+/* ---------------------------------------------------- spherical Gaussians */
+
+pn_status pn_isg_table(float *out, size_t count)
+{
+    CHECK_PTR(NULL, out);
+    if (count != PN_ISG_TABLE_FLOATS)
+        return pn_fail(NULL, PN_ERROR_INVALID_SIZE, "pn_isg_table needs exactly %d floats, got %zu", PN_ISG_TABLE_FLOATS,
+                       count);
+    pn_isg_table_fill(out);
+    return PN_SUCCESS;
+}
+
 /* ------------------------------------------------------------------ mesh */
 
 pn_status pn_mesh_create(pn_context ctx, pn_mesh *out)

@@ -171,6 +171,7 @@ _SIGNATURES = {
     "pn_method_get_output": [_str, _u32, ctypes.POINTER(OutputInfo)],
     "pn_mesh_get_hash": [_H, ctypes.POINTER(ctypes.c_uint64)],
     "pn_envmap_get_hash": [_H, ctypes.POINTER(ctypes.c_uint64)],
+    "pn_isg_table": [_P, _size],
     "pn_fiv_bake": [_H, _H, ctypes.POINTER(FivOptions), _str, PROGRESS, _P, _OUT],
     "pn_fiv_load": [_H, _str, _OUT],
     "pn_fiv_save": [_H, _str],

@@ -223,6 +223,9 @@ pn_status pn_check_cl_buffer(pn_context ctx, cl_mem buffer, size_t needed, const
 
 /* ------------------------------------------------------------------ utils */
 
+/* n-point Gauss–Legendre nodes x and weights w on [-1, 1] (Newton on the recurrence). */
+void pn_gauss_legendre(int n, double *x, double *w);
+
 void *pn_malloc(pn_context ctx, size_t bytes, const char *what);
 /* a * b * c without overflow, or SIZE_MAX. */
 size_t pn_mul_size(size_t a, size_t b, size_t c);

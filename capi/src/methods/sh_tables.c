@@ -10,29 +10,6 @@
 
 #define PI 3.14159265358979323846
 
-/* Gauss–Legendre nodes and weights on [-1, 1] (Newton on the recurrence). */
-static void gauss_legendre(int n, double *x, double *w)
-{
-    for (int i = 0; i < n; ++i) {
-        double z = cos(PI * (i + 0.75) / (n + 0.5)), dp = 1.0;
-        for (int it = 0; it < 100; ++it) {
-            double p0 = 1.0, p1 = z;
-            for (int k = 2; k <= n; ++k) {
-                double p2 = ((2.0 * k - 1.0) * z * p1 - (k - 1.0) * p0) / k;
-                p0 = p1;
-                p1 = p2;
-            }
-            dp = n * (z * p1 - p0) / (z * z - 1.0);
-            double dz = p1 / dp;
-            z -= dz;
-            if (fabs(dz) < 1e-15)
-                break;
-        }
-        x[i] = z;
-        w[i] = 2.0 / ((1.0 - z * z) * dp * dp);
-    }
-}
-
 /* All y_lm (l < nb) at polar cosine ct, sine st and azimuth phi; index l*l + l + m.
  * Associated Legendre with the Condon–Shortley phase, by the standard recurrences. */
 void pn_sh_eval64(int nb, double ct, double st, double phi, double *out)
@@ -66,7 +43,7 @@ void pn_sh_eval64(int nb, double ct, double st, double phi, double *out)
 void pn_sh_clamped_cosine64(int nb, double *a)
 {
     double x[16], w[16];
-    gauss_legendre(16, x, w);
+    pn_gauss_legendre(16, x, w);
     for (int l = 0; l < nb; ++l) {
         double s = 0.0;
         for (int i = 0; i < 16; ++i) {
@@ -102,8 +79,8 @@ static pn_status compute_wedge_table(pn_context ctx, int n_phi, int nb, bool lig
     const double lo = light ? -0.5 * PI : 0.0, hi = 0.5 * PI, dphi = 2.0 * PI / n_phi;
     double xp[24], wp[24], xt[32], wt[32], p[PN_SH_MAX_BANDS * PN_SH_MAX_BANDS], acc[PN_SH_MAX_BANDS * PN_SH_MAX_BANDS];
     double trig[24][2 * PN_SH_MAX_BANDS]; /* cos(m phi), sin(m phi) per azimuth node */
-    gauss_legendre(NP, xp, wp);
-    gauss_legendre(NT, xt, wt);
+    pn_gauss_legendre(NP, xp, wp);
+    pn_gauss_legendre(NT, xt, wt);
     for (int i = 0; i < NP; ++i)
         for (int m = 0; m < nb; ++m) {
             const double phi = 0.5 * dphi * (xp[i] + 1.0);
@@ -161,7 +138,7 @@ static pn_status compute_triple_product(pn_context ctx, int nb, double **out)
         return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for the SH triple-product tensor");
     }
     double xz[3 * PN_SH_MAX_BANDS], wz[3 * PN_SH_MAX_BANDS];
-    gauss_legendre(NZ, xz, wz);
+    pn_gauss_legendre(NZ, xz, wz);
     for (int i = 0; i < NZ; ++i)
         for (int f = 0; f < NF; ++f)
             pn_sh_eval64(nb, xz[i], sqrt(1.0 - xz[i] * xz[i]), 2.0 * PI * (f + 0.5) / NF, y + ((size_t)i * NF + f) * nc);
