@@ -15,7 +15,8 @@
  * meets a sphere is occluded (once, however many spheres cover it: a bit
  * mask), and
  *   V = 1 - sum over occluded patches of ISG(patch) / ISG(window)
- * with the ISG from the table of common/sg.cl (the seed's eqs. 5-9).
+ * with the ISG from the table of common/sg.cl (the seed's eqs. 5-9), separable
+ * in the window: 2 (M + 1) table evaluations per lobe, not 4 per patch.
  * Spheres outside the window's cone (axis angle > window + sphere angle) and
  * behind the receiver plane are culled before any patch work.
  *
@@ -58,7 +59,12 @@ inline float pn_isg_visibility(pn_sg g, float3 p, float3 n, uint self_id, int se
     const float w = pn_isg_window(g.sharpness);
     const float lo = 0.5f * PN_PI - w, step = 2.0f * w / (float)grid;
     /* The window's cone: its corners lie within w * sqrt(2) of the axis. */
-    const float cone = fmin(w * 1.41421356f, PN_PI);
+    const float cone = fmin(w * 1.41421356f, PN_PI), cos_cone = cos(cone), sin_cone = sin(cone);
+    float sin_c[PN_ISG_MAX_GRID], cos_c[PN_ISG_MAX_GRID]; /* of the patch centres' angles (theta and phi alike) */
+    for (int i = 0; i < grid; ++i) {
+        const float a = lo + ((float)i + 0.5f) * step;
+        sin_c[i] = sin(a), cos_c[i] = cos(a);
+    }
     uint mask[PN_ISG_MASK_WORDS];
     for (int i = 0; i < PN_ISG_MASK_WORDS; ++i)
         mask[i] = 0u;
@@ -79,57 +85,63 @@ inline float pn_isg_visibility(pn_sg g, float3 p, float3 n, uint self_id, int se
         }
         const float d = sqrt(d2);
         const float3 u = v / d;
-        const float alpha = asin(fmin(r / d, 1.0f));
-        if (dot(u, g.axis) < cos(fmin(cone + alpha, PN_PI))) /* outside the window's cone */
+        const float sa = fmin(r / d, 1.0f), ca = sqrt(fmax(1.0f - sa * sa, 0.0f));
+        /* Outside the window's cone: axis angle > cone + alpha (possible only when cone + alpha < pi). */
+        if (cos_cone > -ca && dot(u, g.axis) < cos_cone * ca - sin_cone * sa)
             continue;
+        const float alpha = asin(sa);
         const float2 tp = pn_isg_angles(u, x, y, g.axis);
         /* Patch rows and columns the cap can reach (lat-long bounds of a cap). */
         int i0 = (int)floor((tp.x - alpha - lo) / step), i1 = (int)floor((tp.x + alpha - lo) / step);
         int j0, j1;
         const float st = sin(tp.x);
-        if (tp.x - alpha <= 0.0f || tp.x + alpha >= PN_PI || sin(alpha) >= st) {
+        if (tp.x - alpha <= 0.0f || tp.x + alpha >= PN_PI || sa >= st) {
             j0 = 0, j1 = grid - 1;
         } else {
-            const float dphi = asin(fmin(sin(alpha) / st, 1.0f));
+            const float dphi = asin(fmin(sa / st, 1.0f));
             float ph = tp.y;
             if (ph > 1.5f * PN_PI) /* behind the lobe, on the phi seam side */
                 ph -= PN_TWO_PI;
             j0 = (int)floor((ph - dphi - lo) / step), j1 = (int)floor((ph + dphi - lo) / step);
         }
         i0 = max(i0, 0), j0 = max(j0, 0), i1 = min(i1, grid - 1), j1 = min(j1, grid - 1);
-        const float ca = cos(alpha);
         const float3 ul = (float3)(dot(u, x), dot(u, y), dot(u, g.axis));
-        for (int i = i0; i <= i1; ++i) {
-            const float th = lo + ((float)i + 0.5f) * step;
-            const float sth = sin(th), cth = cos(th);
+        for (int i = i0; i <= i1; ++i)
             for (int j = j0; j <= j1; ++j) {
-                const float ph = lo + ((float)j + 0.5f) * step;
-                const float dotc = sth * cos(ph) * ul.x + cth * ul.y + sth * sin(ph) * ul.z;
+                const float dotc = sin_c[i] * (cos_c[j] * ul.x + sin_c[j] * ul.z) + cos_c[i] * ul.y;
                 if (dotc >= ca) {
                     const int b = i * grid + j;
                     mask[b >> 5] |= 1u << (b & 31);
                     any = 1;
                 }
             }
-        }
     }
     if (!any)
         return 1.0f;
-    const float lambda = g.sharpness, hi = lo + 2.0f * w;
-    const float total = pn_isg_patch(lambda, lo, hi, lo, hi, table);
-    if (!(total > 0.0f))
-        return 1.0f;
+    /* The window lies in the front half (phi <= pi), where the table's ISG is
+     * A(theta) B(phi): a patch is (A(t1) - A(t0)) (B(p1) - B(p0)), the four
+     * corners of the seed's formula in 2 (M + 1) evaluations. The constant
+     * factors A(pi), B(pi) of pn_isg(., pi) cancel in the ratio. */
+    const float lambda = g.sharpness;
+    float a_prev = pn_isg(lambda, lo, PN_PI, table), b_edge[PN_ISG_MAX_GRID + 1];
+    for (int j = 0; j <= grid; ++j)
+        b_edge[j] = pn_isg(lambda, PN_PI, lo + (float)j * step, table);
     float occluded = 0.0f;
+    const float a_first = a_prev;
     for (int i = 0; i < grid; ++i) {
-        const float t0 = lo + (float)i * step;
+        const float a_next = pn_isg(lambda, lo + (float)(i + 1) * step, PN_PI, table);
+        float row = 0.0f;
         for (int j = 0; j < grid; ++j) {
             const int b = i * grid + j;
-            if (mask[b >> 5] & (1u << (b & 31))) {
-                const float p0 = lo + (float)j * step;
-                occluded += pn_isg_patch(lambda, t0, t0 + step, p0, p0 + step, table);
-            }
+            if (mask[b >> 5] & (1u << (b & 31)))
+                row += b_edge[j + 1] - b_edge[j];
         }
+        occluded += (a_next - a_prev) * row;
+        a_prev = a_next;
     }
+    const float total = (a_prev - a_first) * (b_edge[grid] - b_edge[0]);
+    if (!(total > 0.0f))
+        return 1.0f;
     return clamp(1.0f - occluded / total, 0.0f, 1.0f);
 }
 
