@@ -491,7 +491,7 @@ PN_API pn_status pn_heightfield_build_mesh(pn_heightfield hf, pn_mesh *out);
 
 /* ------------------------------------------------------------ sphere sets */
 
-/* Occluder proxies of the isg method (docs/isg.md section 5): spheres
+/* Occluder proxies of the isg method (docs/isg.md section 6): spheres
  * (centre xyz, radius; object space of the instance they attach to).
  * pn_sphere_set_build approximates the solid of a committed mesh by `count`
  * spheres (1..4096) with a voxel form of Wang et al.'s variational sphere
@@ -519,6 +519,14 @@ typedef struct pn_sphere_set_info {
 PN_API pn_status pn_sphere_set_get_info(pn_sphere_set set, pn_sphere_set_info *info);
 /* The spheres, count x 4 floats; bytes must be exactly count * 16. */
 PN_API pn_status pn_sphere_set_read(pn_sphere_set set, float *spheres, size_t bytes);
+/* Deforming objects: moves a built set's spheres with `mesh` (committed,
+ * the same vertex count as the mesh it was built on, new positions): each
+ * centre is a fixed affine combination of its 8 nearest vertices at build
+ * (exact at rest), each radius scales with their mean distance from it. No
+ * rebuild; the set then belongs to the mesh's new content hash. A set of the
+ * caller's spheres is PN_ERROR_INVALID_ARGUMENT, another vertex count
+ * PN_ERROR_INVALID_SIZE. */
+PN_API pn_status pn_sphere_set_deform(pn_sphere_set set, pn_mesh mesh);
 
 /* -------------------------------------------------------------- renderer */
 

@@ -906,3 +906,10 @@ pn_status pn_sphere_set_read(pn_sphere_set set, float *spheres, size_t bytes)
     CHECK_PTR(set->obj.ctx, spheres);
     return pn_sphere_set_do_read(set, spheres, bytes);
 }
+
+pn_status pn_sphere_set_deform(pn_sphere_set set, pn_mesh mesh)
+{
+    CHECK_HANDLE(set, PN_MAGIC_SPHERES, "sphere set");
+    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    return pn_sphere_set_do_deform(set, mesh);
+}

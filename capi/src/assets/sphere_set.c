@@ -1,4 +1,4 @@
-/* Sphere sets (docs/isg.md section 5): the occluder proxies of the isg
+/* Sphere sets (docs/isg.md section 6): the occluder proxies of the isg
  * method. A set is built from a committed mesh or given by the caller
  * (xyz centre, radius, object space), and attaches to instances.
  *
@@ -47,7 +47,8 @@ static pn_status check_attach(const pn_object *asset, pn_scene scene, uint32_t i
 
 static void destroy_set(pn_object *o)
 {
-    free(((pn_sphere_set)o)->spheres);
+    pn_sphere_set s = (pn_sphere_set)o;
+    free(s->spheres), free(s->anchor_ids), free(s->anchor_weights), free(s->rest_spread), free(s->rest_radius);
 }
 
 static const pn_object_type sphere_set_type = {PN_MAGIC_SPHERES, "sphere set", destroy_set, check_attach};
@@ -489,6 +490,139 @@ static bool recall(pn_context ctx, uint64_t mesh_hash, uint32_t count, pn_sphere
     return false;
 }
 
+/* ------------------------------------------------------------- deformation */
+
+/* Solves the 4 x 4 system m x = b in place (partial pivoting); false when singular. */
+static bool solve4(double m[4][4], double b[4])
+{
+    for (int c = 0; c < 4; ++c) {
+        int piv = c;
+        for (int r = c + 1; r < 4; ++r)
+            if (fabs(m[r][c]) > fabs(m[piv][c]))
+                piv = r;
+        if (fabs(m[piv][c]) < 1e-12)
+            return false;
+        for (int k = 0; k < 4; ++k) {
+            const double t = m[c][k];
+            m[c][k] = m[piv][k], m[piv][k] = t;
+        }
+        const double tb = b[c];
+        b[c] = b[piv], b[piv] = tb;
+        for (int r = 0; r < 4; ++r) {
+            if (r == c)
+                continue;
+            const double f = m[r][c] / m[c][c];
+            for (int k = c; k < 4; ++k)
+                m[r][k] -= f * m[c][k];
+            b[r] -= f * b[c];
+        }
+    }
+    for (int c = 0; c < 4; ++c)
+        b[c] /= m[c][c];
+    return true;
+}
+
+/* Anchors of every sphere: its PN_SPHERE_ANCHORS nearest vertices and the
+ * least-norm affine weights (sum w = 1, sum w v = centre, exactly); when
+ * those vertices are coplanar, inverse-distance weights (the centre then
+ * follows approximately). */
+static pn_status make_anchors(pn_context ctx, pn_sphere_set s, pn_mesh mesh)
+{
+    const uint32_t k = PN_SPHERE_ANCHORS, nv = mesh->vertex_count;
+    if (nv < k)
+        return PN_SUCCESS; /* too few vertices to anchor: the set cannot deform */
+    s->anchor_ids = malloc((size_t)s->count * k * sizeof *s->anchor_ids);
+    s->anchor_weights = malloc((size_t)s->count * k * sizeof *s->anchor_weights);
+    s->rest_spread = malloc((size_t)s->count * sizeof *s->rest_spread);
+    s->rest_radius = malloc((size_t)s->count * sizeof *s->rest_radius);
+    if (!s->anchor_ids || !s->anchor_weights || !s->rest_spread || !s->rest_radius)
+        return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory anchoring a sphere set");
+    for (uint32_t i = 0; i < s->count; ++i) {
+        const float *c = s->spheres + 4 * i;
+        uint32_t *ids = s->anchor_ids + (size_t)i * k;
+        float best[PN_SPHERE_ANCHORS];
+        for (uint32_t j = 0; j < k; ++j)
+            best[j] = INFINITY, ids[j] = 0;
+        for (uint32_t v = 0; v < nv; ++v) { /* insertion into the k nearest */
+            float d = dist2(mesh->positions + 3 * v, c);
+            if (d >= best[k - 1])
+                continue;
+            uint32_t j = k - 1;
+            while (j > 0 && best[j - 1] > d) {
+                best[j] = best[j - 1], ids[j] = ids[j - 1];
+                --j;
+            }
+            best[j] = d, ids[j] = v;
+        }
+        /* w = A^T (A A^T)^-1 b with A = [v_j; 1] (4 x k), b = [c; 1]. */
+        double a[4][PN_SPHERE_ANCHORS], aat[4][4], b[4] = {c[0], c[1], c[2], 1.0};
+        for (uint32_t j = 0; j < k; ++j) {
+            const float *v = mesh->positions + 3 * ids[j];
+            a[0][j] = v[0] - c[0], a[1][j] = v[1] - c[1], a[2][j] = v[2] - c[2], a[3][j] = 1.0;
+        }
+        b[0] = b[1] = b[2] = 0.0; /* centred on c: better conditioned */
+        for (int r = 0; r < 4; ++r)
+            for (int q = 0; q < 4; ++q) {
+                aat[r][q] = 0.0;
+                for (uint32_t j = 0; j < k; ++j)
+                    aat[r][q] += a[r][j] * a[q][j];
+            }
+        float *w = s->anchor_weights + (size_t)i * k;
+        if (solve4(aat, b)) {
+            for (uint32_t j = 0; j < k; ++j)
+                w[j] = (float)(a[0][j] * b[0] + a[1][j] * b[1] + a[2][j] * b[2] + a[3][j] * b[3]);
+        } else {
+            double sum = 0.0;
+            for (uint32_t j = 0; j < k; ++j)
+                sum += 1.0 / (sqrt((double)best[j]) + 1e-12);
+            for (uint32_t j = 0; j < k; ++j)
+                w[j] = (float)(1.0 / (sqrt((double)best[j]) + 1e-12) / sum);
+        }
+        double spread = 0.0;
+        for (uint32_t j = 0; j < k; ++j)
+            spread += sqrt((double)best[j]);
+        s->rest_spread[i] = (float)(spread / k);
+        s->rest_radius[i] = c[3];
+    }
+    s->vertex_count = nv;
+    return PN_SUCCESS;
+}
+
+pn_status pn_sphere_set_do_deform(pn_sphere_set s, pn_mesh mesh)
+{
+    pn_context ctx = s->obj.ctx;
+    if (!s->anchor_ids)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                       "pn_sphere_set_deform: the set was not built from a mesh (or its mesh has fewer than %d "
+                       "vertices): it has no vertex anchors to follow",
+                       PN_SPHERE_ANCHORS);
+    if (!mesh->committed)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "pn_sphere_set_deform: the mesh is not committed");
+    if (mesh->vertex_count != s->vertex_count)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE,
+                       "pn_sphere_set_deform: the mesh has %u vertices but the set was built on %u: a deformed "
+                       "mesh keeps its vertices (new positions only)",
+                       mesh->vertex_count, s->vertex_count);
+    const uint32_t k = PN_SPHERE_ANCHORS;
+    for (uint32_t i = 0; i < s->count; ++i) {
+        const uint32_t *ids = s->anchor_ids + (size_t)i * k;
+        const float *w = s->anchor_weights + (size_t)i * k;
+        double c[3] = {0, 0, 0};
+        for (uint32_t j = 0; j < k; ++j)
+            for (int a = 0; a < 3; ++a)
+                c[a] += (double)w[j] * mesh->positions[3 * ids[j] + a];
+        float *o = s->spheres + 4 * i;
+        o[0] = (float)c[0], o[1] = (float)c[1], o[2] = (float)c[2];
+        double spread = 0.0;
+        for (uint32_t j = 0; j < k; ++j)
+            spread += sqrt(dist2(mesh->positions + 3 * ids[j], o));
+        const float scale = s->rest_spread[i] > 0.0f ? (float)(spread / k) / s->rest_spread[i] : 1.0f;
+        o[3] = s->rest_radius[i] * scale;
+    }
+    s->mesh_hash = mesh->content_hash; /* it now describes the deformed mesh */
+    return PN_SUCCESS;
+}
+
 /* ------------------------------------------------------------------ build */
 
 pn_status pn_sphere_set_do_build(pn_mesh mesh, uint32_t count, pn_sphere_set *out)
@@ -500,7 +634,13 @@ pn_status pn_sphere_set_do_build(pn_mesh mesh, uint32_t count, pn_sphere_set *ou
         return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "pn_sphere_set_build: %u spheres asked for (1 to 4096)", count);
     pn_status st = PN_SUCCESS;
     if (recall(ctx, mesh->content_hash, count, out, &st))
+    {
+        if (!st && (st = make_anchors(ctx, *out, mesh))) {
+            PN_RELEASE(*out);
+            *out = NULL;
+        }
         return st;
+    }
     const clock_t t0 = clock();
     float ext_min = INFINITY;
     for (int a = 0; a < 3; ++a)
@@ -579,6 +719,10 @@ pn_status pn_sphere_set_do_build(pn_mesh mesh, uint32_t count, pn_sphere_set *ou
     s->missed_share = missed;
     s->build_seconds = (double)(clock() - t0) / CLOCKS_PER_SEC;
     remember(ctx, s);
+    if ((st = make_anchors(ctx, s, mesh))) {
+        PN_RELEASE(s);
+        *out = NULL;
+    }
 done:
     free(pts), free(d2), free(centres), free(spheres), free(reach), free(label), free(cell_of_point), free(covered),
         free(buf), free(g.inside);
