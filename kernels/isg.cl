@@ -1,6 +1,6 @@
 /* `isg` method: env lighting as K spherical-Gaussian lobes, occluders as sphere
  * sets, per-pixel diffuse and specular soft shadows by the Integral Spherical
- * Gaussian (Iwasaki et al.; docs/isg.md section 6; float64 twin:
+ * Gaussian (Iwasaki et al.; docs/isg.md section 7; float64 twin:
  * tests/isg_shading64.py).
  *
  * For every light lobe G_k and every pixel (p, n):

@@ -1,4 +1,4 @@
-"""float64 twin of the isg shading kernel (kernels/isg.cl, docs/isg.md section 6)
+"""float64 twin of the isg shading kernel (kernels/isg.cl, docs/isg.md section 7)
 and the exact visible integrals it approximates.
 
 The twin follows the kernel step by step (the same frame, window, patch grid,
