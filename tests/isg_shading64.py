@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from isg64 import HALF_PI, isg_exact_grid, sg_cosine_exact, sg_product
+from isg64 import HALF_PI, isg_exact_grid, sg_cosine_exact, sg_hemisphere_integral, sg_product
 
 WINDOW_SIGMAS = 3.0
 TOUCH = 1e-3
@@ -109,22 +109,63 @@ def brdf_sg(n, view, shininess, roughness, lobe):
     return r, 2.0 / (a2 * 4.0 * nv), _g1(nv, a2) * _g1(nl, a2) / (math.pi * a2 * 4.0 * nl * nv)
 
 
+def cube_face(d) -> int:
+    """The face pn_dir_to_cube picks for direction d (+x, -x, +y, -y, +z, -z)."""
+    ax, ay, az = abs(d[0]), abs(d[1]), abs(d[2])
+    if ax >= ay and ax >= az:
+        return 0 if d[0] > 0 else 1
+    if ay >= az:
+        return 2 if d[1] > 0 else 3
+    return 4 if d[2] > 0 else 5
+
+
+def env_specular(axis, lam, mu, p, n, self_id, self_occlusion, spheres, owners, grid, face_rgb) -> np.ndarray:
+    """pn_isg_env_specular with a cube of one texel per face (face_rgb (6, 3)):
+    mu H(lam) sum over visible patches of ISG(patch) L(centre) max(n.centre, 0)."""
+    mask, inside = patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid)
+    if inside:
+        return np.zeros(3)
+    x, y = frame(axis)
+    w = window(lam)
+    edges = HALF_PI - w + np.arange(grid + 1) * (2.0 * w / grid)
+    s = isg_exact_grid(lam, edges, edges)
+    patches = s[1:, 1:] - s[:-1, 1:] - s[1:, :-1] + s[:-1, :-1]
+    centres = HALF_PI - w + (np.arange(grid) + 0.5) * (2.0 * w / grid)
+    out = np.zeros(3)
+    for i, th in enumerate(centres):
+        for j, ph in enumerate(centres):
+            if mask[i, j]:
+                continue
+            d = math.sin(th) * math.cos(ph) * x + math.cos(th) * y + math.sin(th) * math.sin(ph) * axis
+            c = float(d @ n)
+            if c > 0:
+                out += patches[i, j] * c * np.asarray(face_rgb[cube_face(d)], np.float64)
+    return np.asarray(mu, np.float64) * float(sg_hemisphere_integral(lam)) * out
+
+
 def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, grid, self_occlusion=1,
-          specular_shadows=1) -> np.ndarray:
-    """One pixel of shade_isg. lobes: (K, 7) axis xyz, sharpness, amplitude rgb."""
+          specular_shadows=1, env_sharpness=math.inf, face_rgb=None) -> np.ndarray:
+    """One pixel of shade_isg. lobes: (K, 7) axis xyz, sharpness, amplitude rgb;
+    face_rgb: the env cube as one RGB per face (used by the env specular path,
+    for BRDF lobes at least env_sharpness sharp)."""
     p, n = np.asarray(p, np.float64), np.asarray(n, np.float64)
     n = n / np.linalg.norm(n)
     diffuse, specular = np.zeros(3), np.zeros(3)
+    env_path = False
     if ks > 0:
         view = np.asarray(camera, np.float64) - p
         b_axis, b_lam, b_mu = brdf_sg(n, view / np.linalg.norm(view), *material)
+        env_path = b_lam >= env_sharpness
+        if env_path:
+            specular = env_specular(b_axis, b_lam, b_mu, p, n, self_id, self_occlusion if specular_shadows else 0,
+                                    spheres if specular_shadows else [], owners, grid, face_rgb)
     for lobe in np.asarray(lobes, np.float64):
         axis, lam, mu = lobe[:3], lobe[3], lobe[4:7]
         e = irradiance(axis, lam, mu, n)
         if (e > 0).any():
             m_axis, m_lam, _ = sg_product(axis, lam, 1.0, n, COS_SHARPNESS, COS_AMPLITUDE)
             diffuse += e * visibility(m_axis, float(m_lam), p, n, self_id, self_occlusion, spheres, owners, grid)
-        if ks > 0:
+        if ks > 0 and not env_path:
             g_axis, g_lam, g_mu = sg_product(axis, lam, 1.0, b_axis, b_lam, b_mu)
             s = irradiance(g_axis, float(g_lam), mu * g_mu, n)
             if (s > 0).any():

@@ -49,8 +49,12 @@ LOBES = np.array([lobe([0.3, 1.0, 0.2], 300.0, [20.0, 18.0, 15.0]),   # a sun
                   lobe([0.5, -0.6, 0.1], 5.0, [0.5, 0.5, 0.5])])      # a lobe below the horizon
 
 
+FACES = np.array([[1.0, 0.9, 0.8], [0.2, 0.3, 0.4], [3.0, 2.8, 2.5], [0.1, 0.1, 0.1], [0.6, 0.7, 0.9],
+                  [0.5, 0.4, 0.3]])  # the env cube of the env-specular path: one RGB per face
+
+
 def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=16, self_occlusion=1,
-               specular_shadows=1, camera=(0.0, 3.0, 6.0)):
+               specular_shadows=1, camera=(0.0, 3.0, 6.0), env_sharpness=1e30):
     """pixels: list of dicts p, n, albedo, ks, material (shininess, roughness, lobe), id."""
     ctx, queue = cl_pair
     n = len(pixels)
@@ -67,20 +71,23 @@ def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=
     lb = np.zeros((len(lobes), 8), np.float32)
     lb[:, :4], lb[:, 4:7] = np.asarray(lobes)[:, :4], np.asarray(lobes)[:, 4:7]
     cube = np.zeros((6, 4), np.float32)
+    cube[:, :3] = FACES
     out = np.empty((n, 4), np.float32)
     obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
     k = cl.Kernel(build_test_kernel(SOURCE), "shade_isg")
     k(queue, (n,), None, ro(pos), ro(nrm), ro(alb), ro(mat), ro(ids), np.int32(n), ro(cube), np.int32(1),
       np.int32(0), ro(lb), np.int32(len(lobes)), ro(sp), ro(ow), np.int32(len(spheres)), np.int32(grid),
-      np.int32(self_occlusion), np.int32(specular_shadows), np.array([*camera, 0.0], np.float32), ro(table32()),
+      np.int32(self_occlusion), np.int32(specular_shadows), np.float32(env_sharpness),
+      np.array([*camera, 0.0], np.float32), ro(table32()),
       obuf)
     cl.enqueue_copy(queue, out, obuf)
     return out
 
 
-def twin(pixels, lobes, spheres, owners, grid=16, self_occlusion=1, specular_shadows=1, camera=(0.0, 3.0, 6.0)):
+def twin(pixels, lobes, spheres, owners, grid=16, self_occlusion=1, specular_shadows=1, camera=(0.0, 3.0, 6.0),
+         env_sharpness=1e30):
     return np.array([shade(q["p"], q["n"], q["albedo"], q["ks"], q["material"], camera, q["id"], lobes, spheres,
-                           owners, grid, self_occlusion, specular_shadows) for q in pixels])
+                           owners, grid, self_occlusion, specular_shadows, env_sharpness, FACES) for q in pixels])
 
 
 def floor_pixels(ks=0.0, material=(0.0, 0.3, 0.0), xs=np.linspace(-1.6, 1.6, 9), zs=(-0.4, 0.0, 0.7)):
@@ -127,6 +134,19 @@ def test_phong_specular_matches_twin(cl_pair, build_test_kernel, shininess, ks):
     cam = (1.0, 2.5, 4.0)
     got = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES, OWNERS, camera=cam)
     check(got, twin(px, LOBES, SPHERES, OWNERS, camera=cam))
+
+
+@pytest.mark.parametrize("shininess,ks,shadows", [(1000.0, 0.5, 1), (1000.0, 0.5, 0), (200.0, 0.3, 1)])
+def test_env_specular_path_matches_twin(cl_pair, build_test_kernel, shininess, ks, shadows):
+    """Sharp lobes integrate the env cube on their own visible patches."""
+    px = floor_pixels(ks=ks, material=(shininess, 0.3, 0.0))
+    cam = (1.0, 2.5, 4.0)
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES, OWNERS, camera=cam, env_sharpness=100.0,
+                     specular_shadows=shadows)
+    want = twin(px, LOBES, SPHERES, OWNERS, camera=cam, env_sharpness=100.0, specular_shadows=shadows)
+    check(got, want)
+    lobes_only = twin(px, LOBES, SPHERES, OWNERS, camera=cam, specular_shadows=shadows)
+    assert np.abs(want - lobes_only).max() > 0.01 * want.max()  # the env path is not the lobe path
 
 
 @pytest.mark.parametrize("lobe_kind,param", [(1, 200.0), (2, 0.2)])
