@@ -68,9 +68,12 @@ inline void pn_isg_grid_init(pn_sg g, int grid, pn_isg_grid *pg)
     pg->lo = 0.5f * PN_PI - w;
     pg->step = 2.0f * w / (float)grid;
     pg->grid = grid;
+    /* Angle addition from the first centre: two sincos per lobe, not 2M. */
+    float cs, sn = sincos(pg->lo + 0.5f * pg->step, &cs), cd, sd = sincos(pg->step, &cd);
     for (int i = 0; i < grid; ++i) {
-        const float a = pg->lo + ((float)i + 0.5f) * pg->step;
-        pg->sin_c[i] = sin(a), pg->cos_c[i] = cos(a);
+        pg->sin_c[i] = sn, pg->cos_c[i] = cs;
+        const float s2 = sn * cd + cs * sd;
+        cs = cs * cd - sn * sd, sn = s2;
     }
 }
 
@@ -147,14 +150,16 @@ inline bool pn_isg_masked(const uint *mask, int b)
 /* The window lies in the front half (phi <= pi), where the table's ISG is
  * A(theta) B(phi): a patch is (A(t1) - A(t0)) (B(p1) - B(p0)), the four
  * corners of the seed's formula in 2 (M + 1) evaluations. a_edge, b_edge:
- * pn_isg(lambda, edge, pi) and pn_isg(lambda, pi, edge) (the constant factors
- * B(pi), A(pi) ~ 1). */
+ * A and B at the window's patch edges. */
 inline void pn_isg_edges(const pn_isg_grid *pg, float lambda, global const float *table, float *a_edge, float *b_edge)
 {
+    /* pn_isg's marginals with its per-lambda terms hoisted: A = front theta
+     * (block 0), B = front phi (block 1) of the table (common/sg.cl). */
+    const float u = pn_isg_row(lambda), k = sqrt(0.5f * lambda), inv = 1.0f / erf(k * 0.5f * PN_PI);
     for (int j = 0; j <= pg->grid; ++j) {
         const float e = pg->lo + (float)j * pg->step;
-        a_edge[j] = pn_isg(lambda, e, PN_PI, table);
-        b_edge[j] = pn_isg(lambda, PN_PI, e, table);
+        a_edge[j] = pn_isg_cdf(table, 0, u, e, k, inv);
+        b_edge[j] = pn_isg_cdf(table, 1, u, e, k, inv);
     }
 }
 
