@@ -438,3 +438,97 @@ def isg_eval(theta, phi, lam, table: IsgTable | None = None) -> np.ndarray:
         bb = _cdf(tb.back_phi, ll, lam, np.clip(phi - math.pi, 0.0, math.pi), back)
         out = out + np.where(behind, np.exp(-np.minimum(lam, BACK_LAMBDA_MAX)) * ab * bb, 0.0)
     return out
+
+
+# --------------------------------------------------------------------------- SG lighting (the env fit)
+
+
+def sg_lobes_radiance(axes, sharpness, amplitudes, dirs) -> np.ndarray:
+    """sum_k amplitude_k exp(lam_k (d.axis_k - 1)) at unit directions dirs (n, 3): (n, 3) RGB."""
+    axes, lam, amp = (np.asarray(a, np.float64) for a in (axes, sharpness, amplitudes))
+    g = np.exp(lam[None, :] * (np.asarray(dirs, np.float64) @ axes.T - 1.0))
+    return g @ amp
+
+
+def sg_lobes_irradiance(axes, sharpness, amplitudes, normals) -> np.ndarray:
+    """sum_k amplitude_k E(axis_k . n; lam_k) at unit normals (n, 3) by the closed form of 3.3: (n, 3) RGB."""
+    axes, lam, amp = (np.asarray(a, np.float64) for a in (axes, sharpness, amplitudes))
+    t = np.clip(np.asarray(normals, np.float64) @ axes.T, -1.0, 1.0)
+    return sg_cosine_closed(t, np.broadcast_to(lam[None, :], t.shape)) @ amp
+
+
+def relative_rms(approx, exact, weights=None) -> float:
+    """sqrt(sum w |approx - exact|^2 / sum w |exact|^2) over rows of RGB (weights: per row, default 1)."""
+    approx, exact = np.asarray(approx, np.float64), np.asarray(exact, np.float64)
+    w = np.ones(len(exact)) if weights is None else np.asarray(weights, np.float64)
+    den = np.sum(w[:, None] * exact**2)
+    return float(np.sqrt(np.sum(w[:, None] * (approx - exact) ** 2) / den)) if den > 0 else float(np.abs(approx).max())
+
+
+# --------------------------------------------------------------------------- BRDF lobes as SGs (docs/isg.md 6)
+#
+# Each specular lobe of docs/brdf.md as one SG in the light direction l, G_f(l) = mu exp(lam (l.axis - 1)),
+# so that f_lobe(v, l) ~ G_f(l) (the clamped cosine kept apart, exactly, by sg_cosine_closed):
+#   phong:        axis R = 2 (n.v) n - v, lam = n_s, mu = (n_s + 2) / 2 pi (cos^n ~ e^(n (cos - 1)));
+#   blinn_phong:  the half-vector lobe (n_s + 8)/8 pi exp(n_s (h.n - 1)) warped to l [WRG*09]:
+#                 axis R, lam = n_s / (4 max(n.v, eps)) (dw_l = 4 (h.v) dw_h at h = n), mu unchanged;
+#   ggx:          D(h) ~ 1/(pi a^2) exp(2/a^2 (h.n - 1)) (equal curvature at h = n) warped likewise,
+#                 mu times the masking and 1 / (4 (n.l)(n.v)) at the warped axis, with
+#                 G1(c) / c = 2 / (c + sqrt(a^2 + (1 - a^2) c^2)) finite as c -> 0.
+MIN_COS_VIEW = 1e-4
+
+
+def brdf_sg(n, v, lobe: str, shininess: float = 100.0, roughness: float = 0.3):
+    """The SG (axis, lam, mu) of f_lobe(v, .) for unit n, v (3,)."""
+    n, v = np.asarray(n, np.float64), np.asarray(v, np.float64)
+    nv = float(n @ v)
+    r = 2.0 * nv * n - v
+    r = r / np.linalg.norm(r)
+    cv = max(nv, MIN_COS_VIEW)
+    if lobe == "phong":
+        return r, float(shininess), (shininess + 2.0) / TWO_PI
+    if lobe == "blinn_phong":
+        return r, shininess / (4.0 * cv), (shininess + 8.0) / (8.0 * math.pi)
+    if lobe == "ggx":
+        a2 = min(max(roughness, 1e-3), 1.0) ** 2
+        nl = max(float(n @ r), 0.0)
+
+        def g1_over_c(c):
+            return 2.0 / (c + math.sqrt(a2 + (1.0 - a2) * c * c))
+
+        mu = 1.0 / (math.pi * a2) * g1_over_c(cv) * g1_over_c(nl) / 4.0
+        return r, 2.0 / a2 / (4.0 * cv), mu
+    raise ValueError(f"unknown lobe '{lobe}'")
+
+
+def sg_reflected(light_axis, light_lam, n, brdf_lobe) -> float:
+    """int G_light(l) G_f(l) max(n.l, 0) dl for a unit-amplitude light lobe: the product lobe's
+    clamped-cosine integral by the closed form (what the shading does per light lobe)."""
+    axis, lam, mu = brdf_lobe
+    pa, pl, pm = sg_product(np.asarray(light_axis, np.float64), light_lam, 1.0, axis, lam, mu)
+    return float(pm * sg_cosine_closed(float(np.asarray(n) @ pa), float(pl)))
+
+
+def reflected_exact(light_axis, light_lam, n, v, lobe: str, shininess=100.0, roughness=0.3, nodes=24,
+                    n_beta=512) -> float:
+    """int G_light(l) f_lobe(v, l) max(n.l, 0) dl by quadrature (f_lobe: penumbra.brdf, docs/brdf.md),
+    on a rule graded around the axis of the light x SG-lobe product (where the integrand lives)."""
+    from penumbra import brdf as b
+
+    axis, lam, _ = brdf_sg(n, v, lobe, shininess, roughness)
+    pa, pl, _ = sg_product(np.asarray(light_axis, np.float64), light_lam, 1.0, axis, lam, 1.0)
+    pa = pa / np.linalg.norm(pa)
+    width = 1.0 / max(float(pl), 1e-3)
+    u, wu = panel_rule(graded_breaks(-1.0, 1.0, 1.0, width), nodes)
+    beta = TWO_PI * (np.arange(n_beta) + 0.5) / n_beta
+    helper = np.array([1.0, 0.0, 0.0]) if abs(pa[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(pa, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(pa, e1)
+    s = np.sqrt(np.maximum(0.0, 1.0 - u * u))
+    d = (u[:, None, None] * pa + (s[:, None] * np.cos(beta))[..., None] * e1
+         + (s[:, None] * np.sin(beta))[..., None] * e2).reshape(-1, 3)
+    w = (wu[:, None] * np.full(n_beta, TWO_PI / n_beta)).ravel()
+    f = b.lobe(np.asarray(n, np.float64), np.asarray(v, np.float64), d, lobe, shininess, roughness)
+    g = sg(d, light_axis, light_lam)
+    return float(np.sum(w * g * f * np.maximum(d @ np.asarray(n, np.float64), 0.0)))

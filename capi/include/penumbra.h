@@ -199,6 +199,25 @@ typedef struct pn_sg_lobe {
  * marginals by float64 quadrature (docs/isg.md 3). No context needed. */
 PN_API pn_status pn_isg_table(float *out, size_t count);
 
+/* Options of the env map -> SG lobe fit (docs/isg.md 5). */
+typedef struct pn_sg_fit_options {
+    int32_t face_size;     /* cube face the map is resampled to for the fit, 4..256 (default 32) */
+    int32_t iterations;    /* least-squares refinement sweeps after the power clustering, 0..100 (default 0) */
+    float max_sharpness;   /* cap on lambda; 0 = 4 face_size^2 (no lobe narrower than half a texel) (default 0) */
+} pn_sg_fit_options;
+
+#define PN_SG_FIT_MAX_LOBES 128
+
+PN_API pn_sg_fit_options pn_sg_fit_options_default(void);
+
+/* Fits `count` (1..PN_SG_FIT_MAX_LOBES) SG lobes to the committed env map
+ * (rotation and intensity applied) by solid-angle-weighted least squares with
+ * non-negative RGB amplitudes, and writes them to out[0 .. count) (`capacity`
+ * lobes available). Deterministic. A lobe may have zero amplitude (a black
+ * map gives only such lobes). `options` may be NULL (the defaults). */
+PN_API pn_status pn_envmap_fit_sgs(pn_envmap env, uint32_t count, const pn_sg_fit_options *options, pn_sg_lobe *out,
+                                   size_t capacity);
+
 /* ------------------------------------------------------------------ mesh */
 
 PN_API pn_status pn_mesh_create(pn_context ctx, pn_mesh *out);

@@ -240,6 +240,14 @@ pn_status pn_isg_table(float *out, size_t count)
     return PN_SUCCESS;
 }
 
+pn_status pn_envmap_fit_sgs(pn_envmap env, uint32_t count, const pn_sg_fit_options *options, pn_sg_lobe *out,
+                            size_t capacity)
+{
+    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    CHECK_PTR(env->obj.ctx, out);
+    return pn_envmap_do_fit_sgs(env, count, options, out, capacity);
+}
+
 /* ------------------------------------------------------------------ mesh */
 
 pn_status pn_mesh_create(pn_context ctx, pn_mesh *out)

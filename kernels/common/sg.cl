@@ -41,10 +41,18 @@
  *   float pn_isg_seed(float lambda, float theta, float phi)       the seed's sigmoid fit (eq. 14),
  *         defined on [0, pi]^2 (phi clamped to pi): error up to 0.59 at lambda = 1
  *   float pn_isg_patch_seed(float lambda, float theta0, float theta1, float phi0, float phi1)
+ *
+ *   BRDF lobes as SGs (docs/isg.md 6; twin isg64.brdf_sg):
+ *   pn_sg  pn_brdf_sg(pn_material m, float3 n, float3 v)   the specular lobe f_lobe(v, l) ~ G(l), without
+ *          k_s, white amplitude (Phong: axis R, lambda = n; Blinn-Phong and GGX: the half-vector lobe warped
+ *          to l as in Wang et al. 2009, GGX with its masking and 1 / (4 n.l n.v) at the warped axis)
+ *   float3 pn_sg_reflected(pn_sg light, pn_sg lobe, float3 n)  int light(l) lobe(l) max(n.l, 0) dl
+ *          (the product lobe's clamped-cosine integral); the diffuse term is pn_sg_irradiance * albedo / pi
  */
 #ifndef PN_COMMON_SG_CL
 #define PN_COMMON_SG_CL
 
+#include "common/brdf.cl"
 #include "common/math.cl"
 
 typedef struct {
@@ -195,6 +203,41 @@ inline float pn_sg_cosine_seed(float t, float lambda)
     c.sharpness = 2.133f;
     c.amplitude = (float3)(1.170f);
     return pn_sg_inner_product(a, c).x;
+}
+
+/* ------------------------------------------------------------------ BRDF lobes as SGs */
+
+/* G1(c) / c for the GGX masking, finite as c -> 0. */
+inline float pn_ggx_g1_over_c(float c, float a2)
+{
+    return 2.0f / (c + sqrt(a2 + (1.0f - a2) * c * c));
+}
+
+inline pn_sg pn_brdf_sg(pn_material m, float3 n, float3 v)
+{
+    const float nv = dot(n, v), cv = fmax(nv, PN_MIN_COS_VIEW);
+    pn_sg g;
+    g.axis = normalize(2.0f * nv * n - v);
+    if (m.lobe == PN_LOBE_PHONG) {
+        g.sharpness = m.shininess;
+        g.amplitude = (float3)((m.shininess + 2.0f) * PN_INV_TWO_PI);
+    } else if (m.lobe == PN_LOBE_BLINN_PHONG) {
+        /* dw_l = 4 (h.v) dw_h at h = n */
+        g.sharpness = m.shininess / (4.0f * cv);
+        g.amplitude = (float3)((m.shininess + 8.0f) * (0.125f * PN_INV_PI));
+    } else {
+        /* D(h) ~ exp(2/a^2 (h.n - 1)) / (pi a^2): the same curvature at h = n */
+        const float a2 = m.roughness * m.roughness, nl = fmax(dot(n, g.axis), 0.0f);
+        g.sharpness = 2.0f / a2 / (4.0f * cv);
+        g.amplitude = (float3)(PN_INV_PI / a2 * pn_ggx_g1_over_c(cv, a2) * pn_ggx_g1_over_c(nl, a2) * 0.25f);
+    }
+    return g;
+}
+
+inline float3 pn_sg_reflected(pn_sg light, pn_sg lobe, float3 n)
+{
+    const pn_sg m = pn_sg_product(light, lobe);
+    return m.amplitude * pn_sg_cosine(dot(n, m.axis), m.sharpness);
 }
 
 /* ------------------------------------------------------------------ the ISG frame */

@@ -70,6 +70,10 @@ class FivOptions(ctypes.Structure):
                 ("precision", ctypes.c_uint32)]
 
 
+class SgFitOptions(ctypes.Structure):
+    _fields_ = [("face_size", ctypes.c_int32), ("iterations", ctypes.c_int32), ("max_sharpness", ctypes.c_float)]
+
+
 class FivInfo(ctypes.Structure):
     _fields_ = [("options", FivOptions), ("centre", ctypes.c_float * 3), ("radius", ctypes.c_float),
                 ("inner", ctypes.c_float), ("outer", ctypes.c_float), ("mesh_hash", ctypes.c_uint64),
@@ -172,6 +176,7 @@ _SIGNATURES = {
     "pn_mesh_get_hash": [_H, ctypes.POINTER(ctypes.c_uint64)],
     "pn_envmap_get_hash": [_H, ctypes.POINTER(ctypes.c_uint64)],
     "pn_isg_table": [_P, _size],
+    "pn_envmap_fit_sgs": [_H, _u32, ctypes.POINTER(SgFitOptions), _P, _size],
     "pn_fiv_bake": [_H, _H, ctypes.POINTER(FivOptions), _str, PROGRESS, _P, _OUT],
     "pn_fiv_load": [_H, _str, _OUT],
     "pn_fiv_save": [_H, _str],
@@ -234,6 +239,8 @@ def _load():
     lib.pn_lobe_name.argtypes = [ctypes.c_uint32]
     lib.pn_fiv_options_default.restype = FivOptions
     lib.pn_fiv_options_default.argtypes = []
+    lib.pn_sg_fit_options_default.restype = SgFitOptions
+    lib.pn_sg_fit_options_default.argtypes = []
     return lib
 
 

@@ -186,6 +186,25 @@ class EnvMap(_Handle):
         """(6, M, M, 3) irradiance at the vertex-grid directions of each face."""
         return self._read(2, self.get("irradiance_face_size"))[..., :3]
 
+    def fit_sgs(self, count: int, **options) -> np.ndarray:
+        """`count` (1..128) spherical-Gaussian lobes fitted to the committed map by the library
+        (pn_envmap_fit_sgs; docs/isg.md 5): a structured array of penumbra.sg.SG_LOBE
+        (axis, sharpness, amplitude, pad). Options (pn_sg_fit_options): face_size, iterations,
+        max_sharpness; unset ones take the library's defaults."""
+        from .sg import SG_LOBE
+
+        opts = lib.pn_sg_fit_options_default()
+        names = [f[0] for f in opts._fields_]
+        for name, value in options.items():
+            if name not in names:
+                raise InputError(f"the SG fit has no option '{name}' ({', '.join(names)})")
+            setattr(opts, name, value)
+        if int(count) != count or count < 0:
+            raise InputError(f"the lobe count must be a whole number >= 1, got {count!r}")
+        out = np.zeros(max(int(count), 1), SG_LOBE)
+        self._call("pn_envmap_fit_sgs", self._h, int(count), ctypes.byref(opts), out.ctypes.data, len(out))
+        return out
+
 
 class Mesh(_Handle):
     """A triangle mesh with its BVH (built at construction)."""

@@ -21,4 +21,8 @@ void pn_isg_table_fill(float *out);
  * context, owned by it: do not release). */
 pn_status pn_isg_table_buffer(pn_context ctx, cl_mem *out);
 
+/* pn_envmap_fit_sgs after the handle and pointer checks (sg_fit.c). */
+pn_status pn_envmap_do_fit_sgs(pn_envmap env, uint32_t count, const pn_sg_fit_options *options, pn_sg_lobe *out,
+                               size_t capacity);
+
 #endif
