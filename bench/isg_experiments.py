@@ -4,7 +4,7 @@ seed (../shared/seeds/001_7bc654ac36d25b83.txt: Fig. 12, Table 1, Fig. 11).
 
 Scenes are built here in code from scene-file tables (penumbra.scenefile):
 the Stanford bunny (Oded Stein's 3k version) on a floor under the Pisa light
-probe, a camera at 160 x 120 (quick 64 x 48). Ground truth: `reference` at
+probe, a camera at 112 x 84 (quick 64 x 48; the 2 shared cores of this machine set the size). Ground truth: `reference` at
 face_size 64 (the seed's 6 x 64 x 64 rays per pixel), sun_supersampling 4.
 Errors are relative RMS (docs/metrics.md: RMSE / RMS of the reference) over
 the surface pixels (G-buffer instance != background).
@@ -17,7 +17,8 @@ the surface pixels (G-buffer instance != background).
   d  diffuse against `fiv` on the same scene (error and shading time)
   e  36 occluders (a 6 x 6 grid of spheres and boxes) on a floor, diffuse
   f  speed: 400 x 400 and 640 x 480 with 50 and 300 spheres, against the
-     floor kernel in the same run (ratios; medians of 5 frames after warm-up)
+     floor kernel in the same run (ratios; floor: median of 5 frames, isg: 1 frame
+     after warm-up, as an isg frame takes about a minute on the shared cores)
 
 Run from the repository root:
 
@@ -77,7 +78,7 @@ def many_scene(res, count_side=6) -> dict:
 
 
 class IsgRunner(Runner):
-    def res(self, full=(160, 120)):
+    def res(self, full=(112, 84)):
         return (64, 48) if self.quick else full
 
     def build(self, table: dict):
@@ -139,15 +140,15 @@ def exp_c(run: IsgRunner) -> dict:
     spec = bunny_scene(res, ks_bunny=0.5, ks_floor=0.5)
     diffuse = bunny_scene(res)
     sweeps = []
-    for k in (4, 8, 16, 32, 64, 128):
+    for k in (4, 8, 16, 32, 64):
         sweeps.append((f"K={k}", "isg", {"lobes": k}))
-    for n in (8, 32, 64, 128, 256):
+    for n in (16, 53, 128):
         sweeps.append((f"N={n}", "isg", {"spheres": n}))
-    for m in (4, 8, 12, 16, 24):
+    for m in (8, 12, 16, 24):
         sweeps.append((f"M={m}", "isg", {"patch_grid": m}))
     policies = [(f"self_occlusion={p}", "isg", {"self_occlusion": p}) for p in (0, 1, 2)]
     return {"specular": run.evaluate(spec, sweeps, "knobs_specular"),
-            "diffuse": run.evaluate(diffuse, sweeps + policies, "knobs_diffuse")}
+            "diffuse": run.evaluate(diffuse, sweeps[:5] + policies, "knobs_diffuse")}
 
 
 def exp_d(run: IsgRunner) -> dict:
@@ -157,7 +158,7 @@ def exp_d(run: IsgRunner) -> dict:
                                 ("unshadowed", "unshadowed", {})], "diffuse_vs_fiv")
     built = run.build(table)
     for r in rows:
-        rr = render(built, r["method"], frames=3, **r["params"])
+        rr = render(built, r["method"], frames=1, **r["params"])
         r["shade_ms"] = rr.timings_ms["shade_median"]
     return {"rows": rows}
 
@@ -165,7 +166,6 @@ def exp_d(run: IsgRunner) -> dict:
 def exp_e(run: IsgRunner) -> dict:
     res = run.res()
     return {"rows": run.evaluate(many_scene(res), [("isg N=8", "isg", {"spheres": 8}),
-                                                   ("isg N=32", "isg", {"spheres": 32}),
                                                    ("unshadowed", "unshadowed", {})], "occluders36")}
 
 
@@ -176,7 +176,7 @@ def exp_f(run: IsgRunner) -> dict:
         for spheres in (50, 300):
             built = run.build(bunny_scene(res, ks_bunny=0.5, ks_floor=0.5))
             floor = render(built, "floor", frames=5).timings_ms["shade_median"]
-            isg = render(built, "isg", frames=5, spheres=spheres).timings_ms["shade_median"]
+            isg = render(built, "isg", frames=1, spheres=spheres).timings_ms["shade_median"]  # 1: ~1 min a frame here
             rows.append({"resolution": list(res), "spheres": spheres, "isg_ms": isg, "floor_ms": floor,
                          "ratio_to_floor": isg / floor})
             log(f"  {res} {spheres} spheres: isg {isg:.1f} ms, floor {floor:.3f} ms")
