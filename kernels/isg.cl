@@ -10,7 +10,7 @@
  * integrated over the BRDF lobe's visible patches (pn_isg_env_specular),
  * where G_cos = G(n, 2.133, 1.170) (the seed's cosine lobe: it only locates
  * the visibility, the unshadowed value is the accurate closed form) and G_brdf
- * is the BRDF lobe as an SG around the mirror direction. V(G) is the visible
+ * is the BRDF lobe as an SG around the mirror direction (pn_brdf_sg, common/sg.cl). V(G) is the visible
  * share of the product lobe: its front hemisphere in the ISG frame, cut to a
  * window of +-PN_ISG_WINDOW_SIGMAS / sqrt(lambda) around the axis (all of it
  * for broad lobes), divided into M x M patches; a patch whose centre direction
@@ -223,30 +223,6 @@ inline float3 pn_isg_env_specular(pn_sg b, float3 p, float3 n, uint self_id, int
     return b.amplitude * pn_sg_hemisphere_integral(b.sharpness) * sum;
 }
 
-/* The specular lobe f_lobe (without k_s) as one SG in the light direction:
- * Phong (n + 2)/2pi max(0, R.L)^n ~ (n + 2)/2pi exp(n (R.L - 1)); Blinn-Phong
- * and GGX by the spherical warp of their half-vector lobe to R (Wang et al.
- * 2009): sharpness / (4 N.V), the GGX factor G / (4 N.L N.V) taken at R. */
-inline pn_sg pn_isg_brdf_sg(pn_material m, float3 n, float3 view)
-{
-    const float nv = fmax(dot(n, view), PN_MIN_COS_VIEW);
-    pn_sg b;
-    b.axis = 2.0f * dot(n, view) * n - view;
-    if (m.lobe == PN_LOBE_PHONG) {
-        b.sharpness = m.shininess;
-        b.amplitude = (float3)((m.shininess + 2.0f) * PN_INV_TWO_PI);
-    } else if (m.lobe == PN_LOBE_BLINN_PHONG) {
-        b.sharpness = m.shininess / (4.0f * nv);
-        b.amplitude = (float3)((m.shininess + 8.0f) * (0.125f * PN_INV_PI));
-    } else {
-        const float a2 = m.roughness * m.roughness;
-        const float nl = fmax(dot(n, b.axis), PN_MIN_COS_VIEW);
-        b.sharpness = 2.0f / (a2 * 4.0f * nv);
-        b.amplitude = (float3)(PN_INV_PI / a2 * pn_ggx_g1(nv, a2) * pn_ggx_g1(nl, a2) / (4.0f * nl * nv));
-    }
-    return b;
-}
-
 kernel void shade_isg(global const float4 *position, global const float4 *normal, global const float4 *albedo,
                       global const float4 *material, global const uint *instance_id, int count,
                       global const float4 *cube, int n_cube, int show_background, global const float4 *lobes,
@@ -274,7 +250,7 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
     pn_sg brdf;
     brdf.sharpness = 0.0f;
     if (m.ks > 0.0f)
-        brdf = pn_isg_brdf_sg(m, n, normalize(camera.xyz - p));
+        brdf = pn_brdf_sg(m, n, normalize(camera.xyz - p));
     /* A sharp BRDF lobe integrates the env cube on its own patches; a broad one
      * (whose patches would alias the cube) the SG lobe products. */
     const bool env_specular = m.ks > 0.0f && brdf.sharpness >= env_sharpness;
@@ -290,7 +266,7 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
                                              sphere_count, grid, table);
         if (m.ks > 0.0f && !env_specular) {
             const pn_sg gb = pn_sg_product(g, brdf);
-            const float3 s = pn_sg_irradiance(gb, n);
+            const float3 s = pn_sg_reflected(g, brdf, n);
             if (s.x > 0.0f || s.y > 0.0f || s.z > 0.0f)
                 specular += s * (specular_shadows ? pn_isg_visibility(gb, p, n, id, self_occlusion, spheres, owners,
                                                                       sphere_count, grid, table)

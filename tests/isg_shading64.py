@@ -90,12 +90,8 @@ def irradiance(axis, lam, mu, n) -> np.ndarray:
     return np.asarray(mu, np.float64) * float(sg_cosine_exact(np.array([t]), lam)[0])
 
 
-def _g1(c, a2):
-    return 2.0 * c / (c + math.sqrt(a2 + (1.0 - a2) * c * c))
-
-
 def brdf_sg(n, view, shininess, roughness, lobe):
-    """The kernel's BRDF lobe as an SG: (axis, sharpness, amplitude)."""
+    """pn_brdf_sg (common/sg.cl): the BRDF lobe as an SG (axis, sharpness, amplitude)."""
     nv_raw = float(np.dot(n, view))
     nv = max(nv_raw, MIN_COS_VIEW)
     r = 2.0 * nv_raw * n - view
@@ -105,8 +101,9 @@ def brdf_sg(n, view, shininess, roughness, lobe):
         return r, shininess / (4.0 * nv), (shininess + 8.0) / (8.0 * math.pi)
     a = min(max(roughness, 1e-3), 1.0)
     a2 = a * a
-    nl = max(float(np.dot(n, r)), MIN_COS_VIEW)
-    return r, 2.0 / (a2 * 4.0 * nv), _g1(nv, a2) * _g1(nl, a2) / (math.pi * a2 * 4.0 * nl * nv)
+    nl = max(float(np.dot(n, r)), 0.0)
+    g1c = lambda c: 2.0 / (c + math.sqrt(a2 + (1.0 - a2) * c * c))  # noqa: E731  G1(c) / c, finite at c = 0
+    return r, 2.0 / (a2 * 4.0 * nv), g1c(nv) * g1c(nl) * 0.25 / (math.pi * a2)
 
 
 def cube_face(d) -> int:
