@@ -246,7 +246,8 @@ def test_demo_writes_every_image_and_a_table(capsys, tmp_path, monkeypatch):
     assert len(list((tmp_path / "cache" / "fiv").glob("*.pnfiv"))) == 4
     rows = [line for line in out.splitlines() if line.startswith("fiv ")]
     assert len(rows) == 1 and all(float(x) > 0 for x in rows[0].split()[1:])
-    names = ["unshadowed", "fiv", "heightfield"] + [f"gbuffer_{v}" for v in ("normals", "albedo", "depth")]
+    assert "isg sphere sets: " in out and "64 spheres" in out  # one set per occluder shape
+    names = ["unshadowed", "fiv", "heightfield", "isg"] + [f"gbuffer_{v}" for v in ("normals", "albedo", "depth")]
     for name in names:
         img = read_exr(out_dir / f"{name}.exr")
         assert img.shape == (48, 64, 3), name

@@ -37,7 +37,7 @@ def test_every_method_has_its_module():
     for name in methods.catalog():
         t = methods.technique(name)
         assert t.name == name and type(t).__module__ == f"penumbra.methods.{name}"
-    assert set(methods.interactive()) == {"unshadowed", "fiv", "heightfield", "depthmap"}
+    assert set(methods.interactive()) == {"unshadowed", "fiv", "heightfield", "depthmap", "isg"}
 
 
 def test_methods_json_lists_everything_from_the_library(capsys):

@@ -67,3 +67,20 @@ DEPTHMAP_DEPTH_ATOL = 1e-5
 # cap points of float32 BRDF terms (pow(x, n) turns x's rounding into
 # n * 1e-7, shininess 50 here), as BRDF_RTOL.
 DEPTHMAP_SHADE_RTOL = 3e-4
+
+# isg shading kernel (float32, table ISG and closed-form SG x cosine) against its
+# float64 twin (exact ISG by quadrature, exact SG x cosine): the table's ISG
+# error is <= 0.004 of the lobe's hemisphere integral and the closed-form cosine
+# <= 0.4 % of E(1) (docs/isg.md 3), and a patch whose centre lies within float32
+# rounding of a sphere's cap edge may be marked on one side only.
+ISG_SHADE_RTOL = 1e-2
+ISG_SHADE_ATOL = 1e-2  # times the largest pixel value of the case
+
+# The patch visibility of the lobe x cosine product against the exact visible
+# share (dense quadrature, exact ray-sphere tests) at 24 x 24 patches: the
+# product-lobe stand-in for lobe x cosine and the patch-centre test.
+ISG_VISIBILITY_PATCH_ATOL = 0.05
+# The visible share of one lobe by 24 x 24 patches against dense quadrature:
+# patch-centre membership along the cap edges (not monotone in M: measured 0.011
+# at M = 24 and 0.0045 at M = 16 for lambda = 40) and the window cut at 3 sigma.
+ISG_VISIBILITY_GRID_ATOL = 0.02

@@ -83,6 +83,7 @@ typedef struct pn_image_impl *pn_image;
 typedef struct pn_renderer_impl *pn_renderer;
 typedef struct pn_fiv_impl *pn_fiv;
 typedef struct pn_heightfield_impl *pn_heightfield;
+typedef struct pn_sphere_set_impl *pn_sphere_set;
 
 /* ---------------------------------------------------------------- errors */
 
@@ -581,6 +582,45 @@ PN_API pn_status pn_heightfield_commit(pn_heightfield hf);
  * the G-buffer ray caster and the reference renderer. */
 PN_API pn_status pn_heightfield_build_mesh(pn_heightfield hf, pn_mesh *out);
 
+/* ------------------------------------------------------------ sphere sets */
+
+/* Occluder proxies of the isg method (docs/isg.md section 7): spheres
+ * (centre xyz, radius; object space of the instance they attach to).
+ * pn_sphere_set_build approximates the solid of a committed mesh by `count`
+ * spheres (1..4096) with a voxel form of Wang et al.'s variational sphere
+ * sets; results are cached in the context by (mesh hash, count). A mesh that
+ * encloses no volume (flat, open without inside, degenerate) is
+ * PN_ERROR_EMPTY_INPUT. A built set attaches to instances of its mesh only.
+ * pn_sphere_set_create copies the caller's spheres (4 floats each; a
+ * non-finite value or a radius <= 0 is PN_ERROR_INVALID_VALUE naming the
+ * first); such a set attaches to any instance. */
+PN_API pn_status pn_sphere_set_build(pn_mesh mesh, uint32_t count, pn_sphere_set *out);
+PN_API pn_status pn_sphere_set_create(pn_context ctx, const float *spheres, uint32_t count, pn_sphere_set *out);
+PN_API pn_status pn_sphere_set_retain(pn_sphere_set set);
+PN_API pn_status pn_sphere_set_release(pn_sphere_set set);
+
+typedef struct pn_sphere_set_info {
+    uint32_t count;
+    uint32_t grid;             /* voxels along the longest side of the build grid (0: the caller's spheres) */
+    uint64_t mesh_hash;        /* 0 for the caller's spheres */
+    float mesh_volume;         /* the solid's volume on the build grid, object units^3 */
+    float outside_share;       /* volume of the union outside the solid / mesh_volume (NaN: caller's) */
+    float missed_share;        /* volume of the solid outside the union / mesh_volume (NaN: caller's) */
+    double build_seconds;      /* CPU time of the build (of the first build when cached) */
+} pn_sphere_set_info;
+
+PN_API pn_status pn_sphere_set_get_info(pn_sphere_set set, pn_sphere_set_info *info);
+/* The spheres, count x 4 floats; bytes must be exactly count * 16. */
+PN_API pn_status pn_sphere_set_read(pn_sphere_set set, float *spheres, size_t bytes);
+/* Deforming objects: moves a built set's spheres with `mesh` (committed,
+ * the same vertex count as the mesh it was built on, new positions): each
+ * centre is a fixed affine combination of its 8 nearest vertices at build
+ * (exact at rest), each radius scales with their mean distance from it. No
+ * rebuild; the set then belongs to the mesh's new content hash. A set of the
+ * caller's spheres is PN_ERROR_INVALID_ARGUMENT, another vertex count
+ * PN_ERROR_INVALID_SIZE. */
+PN_API pn_status pn_sphere_set_deform(pn_sphere_set set, pn_mesh mesh);
+
 /* -------------------------------------------------------------- renderer */
 
 /* Shading methods ("unshadowed", "reference", "floor", "fiv", "heightfield",
@@ -615,7 +655,8 @@ enum {
     PN_INPUT_LIGHTS = 4,      /* spherical lights */
     PN_INPUT_CAMERA = 8,      /* the camera position (view-dependent BRDFs) */
     PN_INPUT_FIV = 16,        /* occlusion fields attached to instances */
-    PN_INPUT_HEIGHTFIELD = 32 /* height fields attached to instances */
+    PN_INPUT_HEIGHTFIELD = 32,/* height fields attached to instances */
+    PN_INPUT_SPHERES = 64     /* sphere sets attached to instances */
 };
 
 typedef struct pn_method_info {

@@ -401,7 +401,7 @@ static bool is_object(const void *h)
     const uint32_t magic = ((const pn_object *)h)->magic;
     return magic == PN_MAGIC_CONTEXT || magic == PN_MAGIC_ENVMAP || magic == PN_MAGIC_MESH || magic == PN_MAGIC_SCENE ||
            magic == PN_MAGIC_GBUFFER || magic == PN_MAGIC_IMAGE || magic == PN_MAGIC_RENDERER ||
-           magic == PN_MAGIC_FIV || magic == PN_MAGIC_HEIGHTFIELD;
+           magic == PN_MAGIC_FIV || magic == PN_MAGIC_HEIGHTFIELD || magic == PN_MAGIC_SPHERES;
 }
 
 pn_status pn_scene_attach(pn_scene scene, uint32_t instance, void *asset)
@@ -904,4 +904,58 @@ pn_status pn_heightfield_build_mesh(pn_heightfield hf, pn_mesh *out)
     CHECK_PTR(hf->obj.ctx, out);
     *out = NULL;
     return pn_heightfield_do_build_mesh(hf, out);
+}
+
+/* ------------------------------------------------------------ sphere sets */
+
+pn_status pn_sphere_set_build(pn_mesh mesh, uint32_t count, pn_sphere_set *out)
+{
+    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    CHECK_PTR(mesh->obj.ctx, out);
+    *out = NULL;
+    return pn_sphere_set_do_build(mesh, count, out);
+}
+
+pn_status pn_sphere_set_create(pn_context ctx, const float *spheres, uint32_t count, pn_sphere_set *out)
+{
+    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    CHECK_PTR(ctx, out);
+    *out = NULL;
+    if (count)
+        CHECK_PTR(ctx, spheres);
+    return pn_sphere_set_do_create(ctx, spheres, count, out);
+}
+
+pn_status pn_sphere_set_retain(pn_sphere_set set)
+{
+    CHECK_HANDLE(set, PN_MAGIC_SPHERES, "sphere set");
+    return retain(&set->obj);
+}
+
+pn_status pn_sphere_set_release(pn_sphere_set set)
+{
+    CHECK_HANDLE(set, PN_MAGIC_SPHERES, "sphere set");
+    RELEASE(set);
+}
+
+pn_status pn_sphere_set_get_info(pn_sphere_set set, pn_sphere_set_info *info)
+{
+    CHECK_HANDLE(set, PN_MAGIC_SPHERES, "sphere set");
+    CHECK_PTR(set->obj.ctx, info);
+    pn_sphere_set_fill_info(set, info);
+    return PN_SUCCESS;
+}
+
+pn_status pn_sphere_set_read(pn_sphere_set set, float *spheres, size_t bytes)
+{
+    CHECK_HANDLE(set, PN_MAGIC_SPHERES, "sphere set");
+    CHECK_PTR(set->obj.ctx, spheres);
+    return pn_sphere_set_do_read(set, spheres, bytes);
+}
+
+pn_status pn_sphere_set_deform(pn_sphere_set set, pn_mesh mesh)
+{
+    CHECK_HANDLE(set, PN_MAGIC_SPHERES, "sphere set");
+    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    return pn_sphere_set_do_deform(set, mesh);
 }

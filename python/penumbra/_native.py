@@ -43,7 +43,7 @@ GBUFFER_PLANES = ("position", "normal", "albedo", "material", "instance")
 # pn_param_type, pn_param_stage and the PN_INPUT_* bits of pn_method_info.inputs, by name.
 PARAM_TYPES = ("int", "float")
 PARAM_STAGES = ("frame", "plan", "bake")
-INPUTS = {"envmap": 1, "geometry": 2, "lights": 4, "camera": 8, "fiv": 16, "heightfield": 32}
+INPUTS = {"envmap": 1, "geometry": 2, "lights": 4, "camera": 8, "fiv": 16, "heightfield": 32, "spheres": 64}
 
 
 class Material(ctypes.Structure):
@@ -96,6 +96,12 @@ class MethodInfo(ctypes.Structure):
 
 class OutputInfo(ctypes.Structure):
     _fields_ = [("name", ctypes.c_char_p), ("doc", ctypes.c_char_p)]
+
+
+class SphereSetInfo(ctypes.Structure):
+    _fields_ = [("count", ctypes.c_uint32), ("grid", ctypes.c_uint32), ("mesh_hash", ctypes.c_uint64),
+                ("mesh_volume", ctypes.c_float), ("outside_share", ctypes.c_float), ("missed_share", ctypes.c_float),
+                ("build_seconds", ctypes.c_double)]
 
 
 class HeightfieldPlacement(ctypes.Structure):
@@ -201,6 +207,9 @@ _SIGNATURES = {
     "pn_heightfield_set_albedo": [_H, _P, _size],
     "pn_heightfield_commit": [_H],
     "pn_heightfield_build_mesh": [_H, _OUT],
+    "pn_sphere_set_build": [_H, _u32, _OUT], "pn_sphere_set_create": [_H, _P, _u32, _OUT],
+    "pn_sphere_set_release": [_H], "pn_sphere_set_get_info": [_H, ctypes.POINTER(SphereSetInfo)],
+    "pn_sphere_set_read": [_H, _P, _size], "pn_sphere_set_deform": [_H, _H],
 }
 
 

@@ -2804,6 +2804,94 @@ static void test_sg(pn_context ctx)
     }
     free(rgb);
     pn_envmap_release(env);
+/* Sphere sets (the isg method's asset) and the isg renderer: handle and
+ * argument checks, bad caller spheres, degenerate meshes, attach rules, a
+ * set of a mesh's old geometry refused at execute, enqueue-only. */
+static void test_isg(pn_context ctx)
+{
+    pn_sphere_set set = (pn_sphere_set)(uintptr_t)1;
+    pn_sphere_set_info info;
+    float xyzr[8] = {0, 0, 0, 0.5f, 1, 0, 0, 0.25f};
+    expect_error("NULL mesh: pn_sphere_set_build", pn_sphere_set_build(NULL, 8, &set), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_sphere_set_build", "mesh", NULL);
+    expect_error("NULL context: pn_sphere_set_create", pn_sphere_set_create(NULL, xyzr, 2, &set),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_sphere_set_create", NULL);
+    expect_error("NULL set: pn_sphere_set_get_info", pn_sphere_set_get_info(NULL, &info), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_sphere_set_get_info", NULL);
+    expect_error("NULL set: pn_sphere_set_release", pn_sphere_set_release(NULL), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_sphere_set_release", NULL);
+    expect_error("pn_sphere_set_create(spheres = NULL)", pn_sphere_set_create(ctx, NULL, 2, &set),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "spheres", NULL);
+    expect_error("pn_sphere_set_create(out = NULL)", pn_sphere_set_create(ctx, xyzr, 2, NULL),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "out", NULL);
+    expect_error("pn_sphere_set_create of 0 spheres", pn_sphere_set_create(ctx, xyzr, 0, &set), PN_ERROR_EMPTY_INPUT,
+                 ctx, "0 spheres", NULL);
+    CHECK("a refused pn_sphere_set_create sets *out to NULL", set == NULL);
+    const float bad_values[4] = {-0.5f, 0.0f, NAN, INFINITY};
+    for (int i = 0; i < 4; ++i) {
+        float b[8];
+        memcpy(b, xyzr, sizeof b);
+        b[i < 2 ? 7 : 5] = bad_values[i];
+        expect_error("a bad caller sphere", pn_sphere_set_create(ctx, b, 2, &set), PN_ERROR_INVALID_VALUE, ctx,
+                     "sphere 1", NULL);
+    }
+    rig r;
+    if (!rig_create(ctx, &r, 16, 12, 8))
+        return;
+    expect_error("pn_sphere_set_build of 0 spheres", pn_sphere_set_build(r.mesh, 0, &set), PN_ERROR_INVALID_ARGUMENT,
+                 ctx, "1 to 4096", NULL);
+    pn_mesh flat = NULL;
+    const float quad[12] = {-1, 0, -1, 1, 0, -1, 1, 0, 1, -1, 0, 1};
+    const uint32_t quad_idx[6] = {0, 1, 2, 0, 2, 3};
+    if (expect_ok("a flat mesh", pn_mesh_create(ctx, &flat), ctx) &&
+        expect_ok("its geometry", pn_mesh_set_geometry(flat, quad, 4, quad_idx, 2, NULL), ctx) &&
+        expect_ok("its commit", pn_mesh_commit(flat), ctx))
+        expect_error("pn_sphere_set_build of a flat mesh", pn_sphere_set_build(flat, 4, &set), PN_ERROR_EMPTY_INPUT,
+                     ctx, "encloses no volume", NULL);
+    if (flat)
+        pn_mesh_release(flat);
+    pn_sphere_set built = NULL, mine = NULL;
+    pn_renderer isg = NULL;
+    if (expect_ok("pn_sphere_set_build", pn_sphere_set_build(r.mesh, 8, &built), ctx) &&
+        expect_ok("pn_sphere_set_get_info", pn_sphere_set_get_info(built, &info), ctx)) {
+        CHECK("a built box set reports its count and a small error",
+              info.count == 8 && info.mesh_hash != 0 && info.missed_share < 0.2f && info.outside_share < 0.5f);
+        float got[32];
+        expect_error("pn_sphere_set_read with the wrong size", pn_sphere_set_read(built, got, 16), PN_ERROR_INVALID_SIZE,
+                     ctx, "exactly 128 bytes", NULL);
+        expect_error("a set attached to the whole scene", pn_scene_attach(r.scene, PN_WHOLE_SCENE, built),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, "whole scene", NULL);
+        if (expect_ok("attach", pn_scene_attach(r.scene, r.instance, built), ctx) &&
+            expect_ok("commit", pn_scene_commit(r.scene), ctx) &&
+            expect_ok("isg renderer", pn_renderer_create(ctx, "isg", &isg), ctx)) {
+            pn_renderer_set_int(isg, "lobes", 4);
+            pn_renderer_set_int(isg, "patch_grid", 6);
+            pn_renderer_commit(isg);
+            check_enqueue_only(ctx, &r, isg, "isg");
+            float pos[24];
+            uint32_t idx[36];
+            const float moved[3] = {0.1f, 0, 0};
+            make_box(0.4f, moved, pos, idx);
+            if (expect_ok("new geometry", pn_mesh_set_geometry(r.mesh, pos, 8, idx, 12, NULL), ctx) &&
+                expect_ok("its commit", pn_mesh_commit(r.mesh), ctx) &&
+                expect_ok("scene", pn_scene_commit(r.scene), ctx))
+                expect_error("a sphere set of the mesh's old geometry", rig_render_with(&r, isg),
+                             PN_ERROR_INVALID_ARGUMENT, ctx, "build the set again", NULL);
+            /* The caller's spheres attach to any instance and replace the built set. */
+            if (expect_ok("pn_sphere_set_create", pn_sphere_set_create(ctx, xyzr, 2, &mine), ctx) &&
+                expect_ok("attach the caller's set", pn_scene_attach(r.scene, r.instance, mine), ctx) &&
+                expect_ok("commit", pn_scene_commit(r.scene), ctx))
+                expect_ok("render with the caller's set", rig_render_with(&r, isg), ctx);
+        }
+    }
+    if (isg)
+        pn_renderer_release(isg);
+    pn_scene_detach(r.scene, r.instance, NULL);
+    if (built)
+        pn_sphere_set_release(built);
+    if (mine)
+        pn_sphere_set_release(mine);
+    rig_release(&r);
 }
 
 int main(void)
@@ -2834,6 +2922,7 @@ int main(void)
     test_heightfield(ctx);
     test_method_metadata(ctx);
     test_enqueue_only(ctx);
+    test_isg(ctx);
     test_gbuffer(ctx);
     test_error_routing(ctx, ctx2);
     test_many_pending_errors();

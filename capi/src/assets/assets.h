@@ -70,4 +70,31 @@ pn_status pn_heightfield_do_build_mesh(pn_heightfield hf, pn_mesh *out);
 /* Grid spacing of the committed field along x and z. */
 void pn_heightfield_spacing(pn_heightfield hf, float *sx, float *sz);
 
+/* ------------------------------------------------------------ sphere sets */
+
+struct pn_sphere_set_impl {
+    pn_object obj;
+    float *spheres;           /* count x (centre xyz, radius), object space */
+    uint32_t count;
+    uint64_t mesh_hash;       /* the mesh it was built for; 0: given by the caller, attaches anywhere */
+    uint32_t grid;            /* voxels along the longest side of the build grid (0: caller's) */
+    float mesh_volume;        /* of the solid, on the build grid */
+    float outside_share, missed_share; /* union outside / solid missed, shares of mesh_volume (NaN: caller's) */
+    double build_seconds;
+    /* Deformation (built sets): each centre is the fixed combination
+     * sum w_j v[id_j] of PN_SPHERE_ANCHORS mesh vertices; its radius scales
+     * with their mean distance from the centre (rest_spread at build). */
+    uint32_t vertex_count;
+    uint32_t *anchor_ids;     /* count x PN_SPHERE_ANCHORS, or NULL */
+    float *anchor_weights;    /* count x PN_SPHERE_ANCHORS */
+    float *rest_spread, *rest_radius; /* count each */
+};
+#define PN_SPHERE_ANCHORS 8
+
+pn_status pn_sphere_set_do_build(pn_mesh mesh, uint32_t count, pn_sphere_set *out);
+pn_status pn_sphere_set_do_create(pn_context ctx, const float *spheres, uint32_t count, pn_sphere_set *out);
+void pn_sphere_set_fill_info(pn_sphere_set set, pn_sphere_set_info *info);
+pn_status pn_sphere_set_do_read(pn_sphere_set set, float *host, size_t bytes);
+pn_status pn_sphere_set_do_deform(pn_sphere_set set, pn_mesh mesh);
+
 #endif

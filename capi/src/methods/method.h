@@ -58,7 +58,7 @@ struct pn_renderer_impl {
 
 /* The descriptors, one per method file. */
 extern const pn_method_desc pn_method_unshadowed, pn_method_reference, pn_method_floor, pn_method_fiv,
-    pn_method_heightfield, pn_method_depthmap;
+    pn_method_heightfield, pn_method_depthmap, pn_method_isg;
 
 /* The descriptor named `name`, or NULL with an error listing the methods. */
 const pn_method_desc *pn_method_find(const char *name);

@@ -11,6 +11,7 @@
 static const pn_method_desc *const methods[] = {
     &pn_method_unshadowed, &pn_method_reference, &pn_method_floor, &pn_method_fiv, &pn_method_heightfield,
     &pn_method_depthmap,
+    &pn_method_isg,
 };
 #define METHOD_COUNT (sizeof methods / sizeof methods[0])
 

@@ -1,0 +1,231 @@
+#!/usr/bin/env python3
+"""Accuracy and speed experiments of the `isg` method (docs/isg.md) after the
+seed (../shared/seeds/001_7bc654ac36d25b83.txt: Fig. 12, Table 1, Fig. 11).
+
+Scenes are built here in code from scene-file tables (penumbra.scenefile):
+the Stanford bunny (Oded Stein's 3k version) on a floor under the Pisa light
+probe, a camera at 112 x 84 (quick 64 x 48; the 2 shared cores of this machine set the size). Ground truth: `reference` at
+face_size 64 (the seed's 6 x 64 x 64 rays per pixel), sun_supersampling 4.
+Errors are relative RMS (docs/metrics.md: RMSE / RMS of the reference) over
+the surface pixels (G-buffer instance != background).
+
+  a  sphere sets of the bunny by N: outside / missed volume shares, build time
+  b  the seed's Fig. 12: bunny and floor Phong (glossiness 1000), k_s = 0.5 on
+     both, then k_s = 0.01 on the bunny (seed: 3.2 % and 4.6 %)
+  c  error by K (lobes), N (spheres) and M (patch grid) on Fig. 12 (k_s = 0.5)
+     and on the diffuse bunny; self-occlusion policy 0 / 1 / 2 on the bunny
+  d  diffuse against `fiv` on the same scene (error and shading time)
+  e  36 occluders (a 6 x 6 grid of spheres and boxes) on a floor, diffuse
+  f  speed: 400 x 400 and 640 x 480 with 50 and 300 spheres, against the
+     floor kernel in the same run (ratios; floor: median of 5 frames, isg: 1 frame
+     after warm-up, as an isg frame takes about a minute on the shared cores)
+
+Run from the repository root:
+
+  PENUMBRA_LIBRARY=build/libpenumbra.so PYTHONPATH=python \\
+      python bench/isg_experiments.py [--quick] [--only a,b] [--out bench/results/isg]
+"""
+
+from __future__ import annotations
+
+import copy
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import harness  # noqa: E402
+from harness import Experiment, Runner, Suite, f4, generated_by, log  # noqa: E402
+
+from penumbra.render import build_scene, render  # noqa: E402
+from penumbra.scenefile import parse_scene  # noqa: E402
+
+DATA = harness.REPO.parent / "shared" / "data"
+BUNNY = str(DATA / "meshes" / "bunny_odedstein_3k.obj")
+PISA = str(DATA / "envmaps" / "pisa_probulator_256x128.hdr")
+SEED_FIG12 = {"ks=0.5": 0.032, "ks=0.01": 0.046}
+
+
+def bunny_scene(res, ks_bunny=0.0, ks_floor=0.0, shininess=1000.0) -> dict:
+    albedo = lambda ks: [round(0.8 * (1.0 - ks), 4)] * 3  # noqa: E731  albedo + k_s <= 1
+    return {"environment": {"map": PISA, "face_size": 64, "irradiance_face_size": 32},
+            "camera": {"position": [0.0, 0.6, 3.2], "look_at": [0.0, -0.15, 0.0], "fov_deg": 40,
+                       "resolution": list(res)},
+            "object": [{"name": "bunny", "mesh": BUNNY, "albedo": albedo(ks_bunny), "specular": ks_bunny,
+                        "shininess": shininess, "lobe": "phong"},
+                       {"name": "floor", "primitive": "plane", "params": {"size": [8.0, 8.0]},
+                        "translate": [0.0, -0.769, 0.0], "albedo": albedo(ks_floor), "specular": ks_floor,
+                        "shininess": shininess, "lobe": "phong", "occluder": False}]}
+
+
+def many_scene(res, count_side=6) -> dict:
+    objs = [{"name": "floor", "primitive": "plane", "params": {"size": [12.0, 12.0]}, "albedo": [0.6] * 3,
+             "occluder": False}]
+    for i in range(count_side):
+        for j in range(count_side):
+            kind = "sphere" if (i + j) % 2 == 0 else "box"
+            x, z = -2.5 + i, -2.5 + j
+            o = {"name": f"o{i}{j}", "primitive": kind, "translate": [x, 0.45, z], "albedo": [0.7, 0.6, 0.5],
+                 "occluder": True}
+            o["params"] = {"radius": 0.35} if kind == "sphere" else {"size": [0.6, 0.9, 0.6]}
+            objs.append(o)
+    return {"environment": {"map": PISA, "face_size": 64, "irradiance_face_size": 32},
+            "camera": {"position": [0.0, 5.5, 6.5], "look_at": [0.0, 0.0, 0.0], "fov_deg": 50,
+                       "resolution": list(res)},
+            "object": objs}
+
+
+class IsgRunner(Runner):
+    def res(self, full=(112, 84)):
+        return (64, 48) if self.quick else full
+
+    def build(self, table: dict):
+        return build_scene(parse_scene(copy.deepcopy(table), "."), self.ctx)
+
+    def reference(self, table: dict, built) -> tuple[np.ndarray, np.ndarray]:
+        face = 16 if self.quick else 64
+        key = ("isg", table, face, harness.kernel_hash(lambda n: n.startswith(("reference", "raycast", "common"))))
+        ref, _ = self.references.get(key, lambda: render(built, "reference", frames=1, warmup=False, face_size=face,
+                                                         sun_supersampling=4).image[..., :3])
+        return ref, None
+
+    def evaluate(self, table: dict, variants: list[tuple[str, str, dict]], stem: str) -> list[dict]:
+        """(label, method, params) rows: rel RMS over surface pixels against the reference."""
+        built = self.build(table)
+        ref, _ = self.reference(table, built)
+        rows, images = [], {}
+        for label, method, params in variants:
+            t0 = time.perf_counter()
+            r = render(built, method, frames=1, warmup=False, **params)
+            mask = r.gbuffer["instance"] != 0xFFFFFFFF
+            m = harness.metrics(ref, r.image[..., :3], mask, ("rel_rms", "nrmse", "max_abs", "bias"))
+            rows.append({"label": label, "method": method, "params": params, **m,
+                         "first_frame_s": time.perf_counter() - t0})
+            images[label] = r.image[..., :3]
+            log(f"  {stem} {label}: rel RMS {m['rel_rms']:.4f}")
+        self.pictures.set(stem, ref, images, mask)
+        return rows
+
+
+def exp_a(run: IsgRunner) -> dict:
+    from penumbra.core import Mesh
+    from penumbra.meshio import load_mesh
+    from penumbra.methods.isg import SphereSet
+
+    d = load_mesh(BUNNY)
+    rows = []
+    for n in (8, 16, 32, 53, 64, 128, 256, 512):
+        mesh = Mesh(run.ctx, d.vertices, d.faces)  # a fresh mesh each time; the library's cache still hits
+        s = SphereSet.build(mesh, n)
+        i = s.info()
+        rows.append({"spheres": n, "outside_share": i["outside_share"], "missed_share": i["missed_share"],
+                     "grid": i["grid"], "build_s": i["build_seconds"]})
+    return {"rows": rows}
+
+
+def exp_b(run: IsgRunner) -> dict:
+    res = run.res()
+    out = {}
+    for label, ks_bunny in (("ks=0.5", 0.5), ("ks=0.01", 0.01)):
+        table = bunny_scene(res, ks_bunny=ks_bunny, ks_floor=0.5)
+        out[label] = run.evaluate(table, [("isg", "isg", {"spheres": 53}), ("isg N=128", "isg", {"spheres": 128}),
+                                          ("unshadowed", "unshadowed", {})], f"fig12_{label}")
+    return {"scenes": out}
+
+
+def exp_c(run: IsgRunner) -> dict:
+    res = run.res()
+    spec = bunny_scene(res, ks_bunny=0.5, ks_floor=0.5)
+    diffuse = bunny_scene(res)
+    sweeps = []
+    for k in (4, 8, 16, 32, 64):
+        sweeps.append((f"K={k}", "isg", {"lobes": k}))
+    for n in (16, 53, 128):
+        sweeps.append((f"N={n}", "isg", {"spheres": n}))
+    for m in (8, 12, 16, 24):
+        sweeps.append((f"M={m}", "isg", {"patch_grid": m}))
+    policies = [(f"self_occlusion={p}", "isg", {"self_occlusion": p}) for p in (0, 1, 2)]
+    return {"specular": run.evaluate(spec, sweeps, "knobs_specular"),
+            "diffuse": run.evaluate(diffuse, sweeps[:5] + policies, "knobs_diffuse")}
+
+
+def exp_d(run: IsgRunner) -> dict:
+    res = run.res()
+    table = bunny_scene(res)
+    rows = run.evaluate(table, [("isg", "isg", {}), ("fiv", "fiv", {}), ("fiv 64x33x30", "fiv", {"samples": [64, 33, 30]}),
+                                ("unshadowed", "unshadowed", {})], "diffuse_vs_fiv")
+    built = run.build(table)
+    for r in rows:
+        rr = render(built, r["method"], frames=1, **r["params"])
+        r["shade_ms"] = rr.timings_ms["shade_median"]
+    return {"rows": rows}
+
+
+def exp_e(run: IsgRunner) -> dict:
+    res = run.res()
+    return {"rows": run.evaluate(many_scene(res), [("isg N=8", "isg", {"spheres": 8}),
+                                                   ("unshadowed", "unshadowed", {})], "occluders36")}
+
+
+def exp_f(run: IsgRunner) -> dict:
+    rows = []
+    sizes = ((100, 100), (160, 120)) if run.quick else ((400, 400), (640, 480))
+    for res in sizes:
+        for spheres in (50, 300):
+            built = run.build(bunny_scene(res, ks_bunny=0.5, ks_floor=0.5))
+            floor = render(built, "floor", frames=5).timings_ms["shade_median"]
+            isg = render(built, "isg", frames=1, spheres=spheres).timings_ms["shade_median"]  # 1: ~1 min a frame here
+            rows.append({"resolution": list(res), "spheres": spheres, "isg_ms": isg, "floor_ms": floor,
+                         "ratio_to_floor": isg / floor})
+            log(f"  {res} {spheres} spheres: isg {isg:.1f} ms, floor {floor:.3f} ms")
+    return {"rows": rows}
+
+
+def _table(rows: list[dict], cols: list[tuple[str, str]]) -> list[str]:
+    out = ["| " + " | ".join(c[1] for c in cols) + " |", "|" + "---|" * len(cols)]
+    for r in rows:
+        out.append("| " + " | ".join(f4(r[c[0]]) if isinstance(r[c[0]], float) else str(r[c[0]]) for c in cols) + " |")
+    return out
+
+
+def report(results: dict) -> str:
+    meta = results["meta"]
+    lines = ["# isg experiments", "", generated_by(meta, "bench/isg_experiments.py", "2 shared cores") + ".", ""]
+    ex = results["experiments"]
+    err_cols = [("label", "setting"), ("rel_rms", "rel RMS"), ("nrmse", "NRMSE"), ("bias", "bias")]
+    if "a" in ex:
+        lines += ["## a. Sphere sets of the bunny by N", ""] + _table(
+            ex["a"]["rows"], [("spheres", "N"), ("outside_share", "outside / solid"), ("missed_share", "missed / solid"),
+                              ("grid", "grid"), ("build_s", "build s")]) + [""]
+    if "b" in ex:
+        lines += ["## b. Fig. 12 (Phong 1000; seed: 3.2 % and 4.6 %)", ""]
+        for k, rows in ex["b"]["scenes"].items():
+            lines += [f"{k} (seed {100 * SEED_FIG12[k]:.1f} %):", ""] + _table(rows, err_cols) + [""]
+    if "c" in ex:
+        lines += ["## c. Error by K, N, M (defaults otherwise) and self-occlusion", ""]
+        for k in ("specular", "diffuse"):
+            lines += [f"{k}:", ""] + _table(ex["c"][k], err_cols) + [""]
+    if "d" in ex:
+        lines += ["## d. Diffuse: isg against fiv", ""] + _table(ex["d"]["rows"], err_cols + [("shade_ms", "shade ms")]) + [""]
+    if "e" in ex:
+        lines += ["## e. 36 occluders", ""] + _table(ex["e"]["rows"], err_cols) + [""]
+    if "f" in ex:
+        lines += ["## f. Speed against the floor kernel (same run)", ""] + _table(
+            [{**r, "res": "x".join(map(str, r["resolution"]))} for r in ex["f"]["rows"]],
+            [("res", "resolution"), ("spheres", "N"), ("isg_ms", "isg ms"), ("floor_ms", "floor ms"),
+             ("ratio_to_floor", "x floor")]) + [""]
+    return "\n".join(lines) + "\n"
+
+
+SUITE = Suite(
+    script="bench/isg_experiments.py", description=__doc__,
+    experiments=(Experiment("a", "sphere sets by N", exp_a), Experiment("b", "Fig. 12", exp_b),
+                 Experiment("c", "error by knob", exp_c), Experiment("d", "diffuse vs fiv", exp_d),
+                 Experiment("e", "36 occluders", exp_e), Experiment("f", "speed", exp_f)),
+    runner=IsgRunner, report=report, default_out="bench/results/isg",
+    meta=lambda run: {"quick": run.quick})
+
+if __name__ == "__main__":
+    sys.exit(harness.main(SUITE))

@@ -1,0 +1,730 @@
+/* Sphere sets (docs/isg.md section 7): the occluder proxies of the isg
+ * method. A set is built from a committed mesh or given by the caller
+ * (xyz centre, radius, object space), and attaches to instances.
+ *
+ * Builder: a voxel form of the variational sphere-set approximation of
+ * Wang et al. 2006 ("Variational sphere set approximation for solid
+ * objects"), which minimises the volume the spheres cover outside the solid
+ * plus the volume of the solid they miss:
+ *   1. the solid as interior voxels (ray parity along x, y and z, majority
+ *      vote, so a small hole in an open scan flips one vote, not the cell);
+ *   2. N clusters of interior voxels by Lloyd iterations (farthest-point
+ *      seeding, deterministic): the partition step of the variational method;
+ *   3. per cluster, the sphere at its centroid whose radius minimises
+ *      (outside voxels covered) + (cluster voxels missed): the fitting step,
+ *      solved exactly over the sorted voxel distances.
+ * The approximation error (outside and missed volume of the union, as shares
+ * of the solid's volume) is measured on the same grid and reported.
+ * Results are cached per context by (mesh hash, N). */
+#include "assets/assets.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#define PN_SPHERES_MAX 65536u
+#define LLOYD_ITERATIONS 16
+#define CACHE_SLOTS 32
+
+/* ------------------------------------------------------------------ object */
+
+static pn_status check_attach(const pn_object *asset, pn_scene scene, uint32_t instance)
+{
+    const struct pn_sphere_set_impl *s = (const struct pn_sphere_set_impl *)asset;
+    pn_context ctx = scene->obj.ctx;
+    if (instance == PN_WHOLE_SCENE)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                       "pn_scene_attach: a sphere set attaches to an instance, not to the whole scene");
+    const pn_mesh mesh = pn_scene_instance(scene, instance)->mesh;
+    if (s->mesh_hash && mesh->content_hash != s->mesh_hash)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                       "pn_scene_attach: the sphere set was built for mesh %016llx but instance %u's mesh is %016llx: "
+                       "build a set for that mesh (sets given by the caller attach anywhere)",
+                       (unsigned long long)s->mesh_hash, instance, (unsigned long long)mesh->content_hash);
+    return PN_SUCCESS;
+}
+
+static void destroy_set(pn_object *o)
+{
+    pn_sphere_set s = (pn_sphere_set)o;
+    free(s->spheres), free(s->anchor_ids), free(s->anchor_weights), free(s->rest_spread), free(s->rest_radius);
+}
+
+static const pn_object_type sphere_set_type = {PN_MAGIC_SPHERES, "sphere set", destroy_set, check_attach};
+
+static pn_status new_set(pn_context ctx, const float *spheres, uint32_t count, pn_sphere_set *out)
+{
+    float *copy = pn_malloc(ctx, pn_mul_size(count, 4, sizeof(float)), "a sphere set");
+    if (!copy)
+        return PN_ERROR_OUT_OF_MEMORY;
+    pn_sphere_set s = pn_object_new(ctx, sizeof *s, &sphere_set_type, "a sphere set");
+    if (!s) {
+        free(copy);
+        return PN_ERROR_OUT_OF_MEMORY;
+    }
+    memcpy(copy, spheres, (size_t)count * 4 * sizeof(float));
+    s->spheres = copy;
+    s->count = count;
+    s->outside_share = s->missed_share = NAN;
+    *out = s;
+    return PN_SUCCESS;
+}
+
+pn_status pn_sphere_set_do_create(pn_context ctx, const float *spheres, uint32_t count, pn_sphere_set *out)
+{
+    if (count == 0 || count > PN_SPHERES_MAX)
+        return pn_fail(ctx, count ? PN_ERROR_INVALID_SIZE : PN_ERROR_EMPTY_INPUT,
+                       "pn_sphere_set_create: %u spheres (1 to %u are allowed)", count, PN_SPHERES_MAX);
+    uint32_t bad = 0, first = 0;
+    for (uint32_t i = 0; i < count; ++i) {
+        const float *p = spheres + 4 * i;
+        const bool ok = isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2]) && isfinite(p[3]) && p[3] > 0.0f;
+        if (!ok && bad++ == 0)
+            first = i;
+    }
+    if (bad) {
+        const float *p = spheres + 4 * first;
+        return pn_fail(ctx, PN_ERROR_INVALID_VALUE,
+                       "pn_sphere_set_create: %u of %u spheres have a non-finite centre or a radius that is not a "
+                       "finite positive number; the first is sphere %u (%g, %g, %g, radius %g)",
+                       bad, count, first, (double)p[0], (double)p[1], (double)p[2], (double)p[3]);
+    }
+    return new_set(ctx, spheres, count, out);
+}
+
+void pn_sphere_set_fill_info(pn_sphere_set s, pn_sphere_set_info *info)
+{
+    memset(info, 0, sizeof *info);
+    info->count = s->count;
+    info->grid = s->grid;
+    info->mesh_hash = s->mesh_hash;
+    info->mesh_volume = s->mesh_volume;
+    info->outside_share = s->outside_share;
+    info->missed_share = s->missed_share;
+    info->build_seconds = s->build_seconds;
+}
+
+pn_status pn_sphere_set_do_read(pn_sphere_set s, float *host, size_t bytes)
+{
+    const size_t need = (size_t)s->count * 4 * sizeof(float);
+    if (bytes != need)
+        return pn_fail(s->obj.ctx, PN_ERROR_INVALID_SIZE, "reading a sphere set of %u spheres needs exactly %zu bytes, "
+                       "got %zu", s->count, need, bytes);
+    memcpy(host, s->spheres, need);
+    return PN_SUCCESS;
+}
+
+/* ------------------------------------------------------------ voxelisation */
+
+typedef struct grid {
+    int n[3];        /* cells per axis */
+    float lo[3], h;  /* corner of cell (0,0,0), cell size */
+    uint8_t *inside; /* n0 n1 n2 cells, x fastest */
+} grid;
+
+static size_t cell_index(const grid *g, int i, int j, int k)
+{
+    return ((size_t)k * (size_t)g->n[1] + (size_t)j) * (size_t)g->n[0] + (size_t)i;
+}
+
+static int cmp_float(const void *a, const void *b)
+{
+    const float x = *(const float *)a, y = *(const float *)b;
+    return (x > y) - (x < y);
+}
+
+/* Adds one vote to every cell whose centre has an odd number of surface
+ * crossings before it along axis `a` (rows over the other two axes). */
+static pn_status vote_axis(pn_context ctx, const grid *g, pn_mesh mesh, int a, uint8_t *votes)
+{
+    const int b = (a + 1) % 3, c = (a + 2) % 3, nb = g->n[b], nc = g->n[c];
+    const size_t rows = (size_t)nb * (size_t)nc;
+    uint32_t *start = calloc(rows + 1, sizeof *start);
+    if (!start)
+        return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory voxelising a mesh for a sphere set");
+    /* Row centres are shifted by an irrational share of a cell, so a row
+     * passing exactly through a mesh edge or vertex is not a practical case. */
+    const float shift = 0.5f + 0.0137f * (float)(a + 1);
+    float *xs = NULL;
+    for (int pass = 0; pass < 2; ++pass) {
+        uint32_t *fill = NULL;
+        if (pass == 1) {
+            for (size_t r = 0; r < rows; ++r)
+                start[r + 1] += start[r];
+            xs = malloc((size_t)(start[rows] ? start[rows] : 1) * sizeof *xs);
+            fill = calloc(rows, sizeof *fill);
+            if (!xs || !fill) {
+                free(xs);
+                free(fill);
+                free(start);
+                return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory voxelising a mesh for a sphere set");
+            }
+        }
+        for (uint32_t t = 0; t < mesh->triangle_count; ++t) {
+            const uint32_t *idx = mesh->indices + 3 * t;
+            const float *v[3] = {mesh->positions + 3 * idx[0], mesh->positions + 3 * idx[1],
+                                 mesh->positions + 3 * idx[2]};
+            float bmin = INFINITY, bmax = -INFINITY, cmin = INFINITY, cmax = -INFINITY;
+            for (int q = 0; q < 3; ++q) {
+                bmin = fminf(bmin, v[q][b]), bmax = fmaxf(bmax, v[q][b]);
+                cmin = fminf(cmin, v[q][c]), cmax = fmaxf(cmax, v[q][c]);
+            }
+            const int j0 = (int)ceilf((bmin - g->lo[b]) / g->h - shift), j1 = (int)floorf((bmax - g->lo[b]) / g->h - shift);
+            const int k0 = (int)ceilf((cmin - g->lo[c]) / g->h - shift), k1 = (int)floorf((cmax - g->lo[c]) / g->h - shift);
+            const double e1b = v[1][b] - v[0][b], e1c = v[1][c] - v[0][c], e2b = v[2][b] - v[0][b],
+                         e2c = v[2][c] - v[0][c];
+            const double det = e1b * e2c - e1c * e2b;
+            if (det == 0.0)
+                continue; /* seen edge-on along this axis: no crossing */
+            for (int k = k0 > 0 ? k0 : 0; k <= k1 && k < nc; ++k)
+                for (int j = j0 > 0 ? j0 : 0; j <= j1 && j < nb; ++j) {
+                    const double pb = g->lo[b] + ((double)j + shift) * g->h - v[0][b];
+                    const double pc = g->lo[c] + ((double)k + shift) * g->h - v[0][c];
+                    const double u = (pb * e2c - pc * e2b) / det, w = (e1b * pc - e1c * pb) / det;
+                    if (u < 0.0 || w < 0.0 || u + w > 1.0)
+                        continue;
+                    const size_t row = (size_t)k * (size_t)nb + (size_t)j;
+                    if (pass == 0)
+                        start[row + 1]++;
+                    else
+                        xs[start[row] + fill[row]++] =
+                            (float)(v[0][a] + u * (v[1][a] - v[0][a]) + w * (v[2][a] - v[0][a]));
+                }
+        }
+        free(fill);
+    }
+    for (int k = 0; k < nc; ++k)
+        for (int j = 0; j < nb; ++j) {
+            const size_t row = (size_t)k * (size_t)nb + (size_t)j;
+            float *x = xs + start[row];
+            const uint32_t m = start[row + 1] - start[row];
+            if (m < 2)
+                continue;
+            qsort(x, m, sizeof *x, cmp_float);
+            uint32_t seen = 0;
+            for (int i = 0; i < g->n[a]; ++i) {
+                const float centre = g->lo[a] + ((float)i + 0.5f) * g->h;
+                while (seen < m && x[seen] < centre)
+                    ++seen;
+                if (seen & 1u) {
+                    int ijk[3];
+                    ijk[a] = i, ijk[b] = j, ijk[c] = k;
+                    votes[cell_index(g, ijk[0], ijk[1], ijk[2])]++;
+                }
+            }
+        }
+    free(xs);
+    free(start);
+    return PN_SUCCESS;
+}
+
+/* The mesh's interior on a grid of `res` cells along its longest side. */
+static pn_status voxelise(pn_context ctx, pn_mesh mesh, int res, grid *g)
+{
+    float ext = 0.0f;
+    for (int a = 0; a < 3; ++a)
+        ext = fmaxf(ext, mesh->bounds_hi[a] - mesh->bounds_lo[a]);
+    g->h = ext / (float)res;
+    /* A margin of a quarter of the longest side: a sphere that pokes out of
+     * the bounds must still pay for the outside volume it covers. */
+    const int pad = 2 + res / 4;
+    for (int a = 0; a < 3; ++a) {
+        g->n[a] = (int)ceilf((mesh->bounds_hi[a] - mesh->bounds_lo[a]) / g->h) + 2 * pad;
+        g->lo[a] = mesh->bounds_lo[a] - (float)pad * g->h;
+    }
+    const size_t cells = (size_t)g->n[0] * (size_t)g->n[1] * (size_t)g->n[2];
+    g->inside = calloc(cells, 1);
+    if (!g->inside)
+        return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory voxelising a mesh for a sphere set");
+    pn_status st = PN_SUCCESS;
+    for (int a = 0; a < 3 && !st; ++a)
+        st = vote_axis(ctx, g, mesh, a, g->inside);
+    for (size_t i = 0; i < cells; ++i)
+        g->inside[i] = g->inside[i] >= 2;
+    return st;
+}
+
+/* ------------------------------------------------------------- clustering */
+
+static float dist2(const float *p, const float *q)
+{
+    const float dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
+    return dx * dx + dy * dy + dz * dz;
+}
+
+/* Lloyd iterations over the interior cell centres `pts` (3 floats each):
+ * farthest-point seeding from the point nearest the centroid, then
+ * assignment and centroid steps; an emptied cluster is reseeded at the
+ * point farthest from its centre. Writes centres (3 per cluster) and each
+ * point's cluster. */
+static void cluster(const float *pts, size_t np, uint32_t nc, float *centres, uint32_t *label, float *d2)
+{
+    double mean[3] = {0, 0, 0};
+    for (size_t i = 0; i < np; ++i)
+        for (int a = 0; a < 3; ++a)
+            mean[a] += pts[3 * i + a];
+    const float m[3] = {(float)(mean[0] / (double)np), (float)(mean[1] / (double)np), (float)(mean[2] / (double)np)};
+    size_t best = 0;
+    for (size_t i = 1; i < np; ++i)
+        if (dist2(pts + 3 * i, m) < dist2(pts + 3 * best, m))
+            best = i;
+    memcpy(centres, pts + 3 * best, 3 * sizeof(float));
+    for (size_t i = 0; i < np; ++i)
+        d2[i] = dist2(pts + 3 * i, centres), label[i] = 0;
+    for (uint32_t c = 1; c < nc; ++c) {
+        size_t far = 0;
+        for (size_t i = 1; i < np; ++i)
+            if (d2[i] > d2[far])
+                far = i;
+        memcpy(centres + 3 * c, pts + 3 * far, 3 * sizeof(float));
+        for (size_t i = 0; i < np; ++i) {
+            const float d = dist2(pts + 3 * i, centres + 3 * c);
+            if (d < d2[i])
+                d2[i] = d, label[i] = c;
+        }
+    }
+    double *sum = malloc((size_t)nc * 4 * sizeof *sum);
+    if (!sum)
+        return; /* the seeding alone is still a valid partition */
+    for (int it = 0; it < LLOYD_ITERATIONS; ++it) {
+        memset(sum, 0, (size_t)nc * 4 * sizeof *sum);
+        for (size_t i = 0; i < np; ++i) {
+            double *s = sum + 4 * label[i];
+            s[0] += pts[3 * i], s[1] += pts[3 * i + 1], s[2] += pts[3 * i + 2], s[3] += 1.0;
+        }
+        for (uint32_t c = 0; c < nc; ++c)
+            if (sum[4 * c + 3] > 0.0)
+                for (int a = 0; a < 3; ++a)
+                    centres[3 * c + a] = (float)(sum[4 * c + a] / sum[4 * c + 3]);
+        for (uint32_t c = 0; c < nc; ++c)
+            if (sum[4 * c + 3] == 0.0) {
+                size_t far = 0;
+                for (size_t i = 1; i < np; ++i)
+                    if (d2[i] > d2[far])
+                        far = i;
+                memcpy(centres + 3 * c, pts + 3 * far, 3 * sizeof(float));
+                d2[far] = 0.0f;
+            }
+        for (size_t i = 0; i < np; ++i) {
+            uint32_t lb = label[i];
+            float db = dist2(pts + 3 * i, centres + 3 * lb);
+            for (uint32_t c = 0; c < nc; ++c) {
+                const float d = dist2(pts + 3 * i, centres + 3 * c);
+                if (d < db)
+                    db = d, lb = c;
+            }
+            label[i] = lb, d2[i] = db;
+        }
+    }
+    free(sum);
+}
+
+typedef struct scored {
+    float d;
+    int delta; /* +1: an outside cell (covered once r reaches d), -1: a member of the cluster */
+} scored;
+
+static int cmp_scored(const void *a, const void *b)
+{
+    const scored *x = a, *y = b;
+    if (x->d != y->d)
+        return (x->d > y->d) - (x->d < y->d);
+    return (x->delta > y->delta) - (x->delta < y->delta); /* members first at equal distance */
+}
+
+/* The radius minimising (outside cells covered) + (members missed) for the
+ * sphere at `centre` over cluster `c`, whose farthest member is at reach. */
+static float best_radius(const grid *g, const int *cell_of_point, const uint32_t *label, const float *centre,
+                         uint32_t c, float reach, scored *buf, size_t buf_cap)
+{
+    int lo[3], hi[3];
+    for (int a = 0; a < 3; ++a) {
+        lo[a] = (int)floorf((centre[a] - reach - g->lo[a]) / g->h) - 1;
+        hi[a] = (int)ceilf((centre[a] + reach - g->lo[a]) / g->h) + 1;
+        lo[a] = lo[a] < 0 ? 0 : lo[a];
+        hi[a] = hi[a] >= g->n[a] ? g->n[a] - 1 : hi[a];
+    }
+    size_t m = 0;
+    int members = 0;
+    for (int k = lo[2]; k <= hi[2]; ++k)
+        for (int j = lo[1]; j <= hi[1]; ++j)
+            for (int i = lo[0]; i <= hi[0]; ++i) {
+                const size_t ci = cell_index(g, i, j, k);
+                const float p[3] = {g->lo[0] + ((float)i + 0.5f) * g->h, g->lo[1] + ((float)j + 0.5f) * g->h,
+                                    g->lo[2] + ((float)k + 0.5f) * g->h};
+                const float d = sqrtf(dist2(p, centre));
+                if (d > reach + g->h || m == buf_cap)
+                    continue;
+                int delta = 0;
+                if (!g->inside[ci])
+                    delta = 1;
+                else if (label[cell_of_point[ci]] == c)
+                    delta = -1, ++members;
+                if (delta)
+                    buf[m++] = (scored){d, delta};
+            }
+    qsort(buf, m, sizeof *buf, cmp_scored);
+    int cost = members, best = members;
+    float r = reach;
+    for (size_t q = 0; q < m; ++q) {
+        cost += buf[q].delta;
+        if (cost < best && (q + 1 == m || buf[q + 1].d > buf[q].d))
+            best = cost, r = buf[q].d;
+    }
+    /* Cells are points at their centres: half a cell more keeps the
+     * covered volume centred on the cells counted. */
+    return fmaxf(r + 0.5f * g->h, 0.5f * g->h);
+}
+
+/* Outside and missed shares of the union of `spheres` on the grid. */
+static void union_error(const grid *g, const float *spheres, uint32_t count, uint8_t *covered, float *outside,
+                        float *missed, size_t *interior)
+{
+    const size_t cells = (size_t)g->n[0] * (size_t)g->n[1] * (size_t)g->n[2];
+    memset(covered, 0, cells);
+    for (uint32_t s = 0; s < count; ++s) {
+        const float *c = spheres + 4 * s;
+        int lo[3], hi[3];
+        for (int a = 0; a < 3; ++a) {
+            lo[a] = (int)floorf((c[a] - c[3] - g->lo[a]) / g->h);
+            hi[a] = (int)ceilf((c[a] + c[3] - g->lo[a]) / g->h);
+            lo[a] = lo[a] < 0 ? 0 : lo[a];
+            hi[a] = hi[a] >= g->n[a] ? g->n[a] - 1 : hi[a];
+        }
+        for (int k = lo[2]; k <= hi[2]; ++k)
+            for (int j = lo[1]; j <= hi[1]; ++j)
+                for (int i = lo[0]; i <= hi[0]; ++i) {
+                    const float p[3] = {g->lo[0] + ((float)i + 0.5f) * g->h, g->lo[1] + ((float)j + 0.5f) * g->h,
+                                        g->lo[2] + ((float)k + 0.5f) * g->h};
+                    if (dist2(p, c) <= c[3] * c[3])
+                        covered[cell_index(g, i, j, k)] = 1;
+                }
+    }
+    size_t out = 0, miss = 0, in = 0;
+    for (size_t i = 0; i < cells; ++i) {
+        in += g->inside[i];
+        out += covered[i] && !g->inside[i];
+        miss += g->inside[i] && !covered[i];
+    }
+    *interior = in;
+    *outside = (float)((double)out / (double)in);
+    *missed = (float)((double)miss / (double)in);
+}
+
+/* ------------------------------------------------------------------ cache */
+
+typedef struct cached_set {
+    uint64_t mesh_hash, serial;
+    uint32_t count, grid;
+    float *spheres;
+    float mesh_volume, outside_share, missed_share;
+    double build_seconds;
+} cached_set;
+
+typedef struct set_cache {
+    cached_set slot[CACHE_SLOTS];
+    uint64_t serial;
+} set_cache;
+
+static const char cache_key = 0;
+
+static void free_cache(void *data)
+{
+    set_cache *c = data;
+    for (int i = 0; i < CACHE_SLOTS; ++i)
+        free(c->slot[i].spheres);
+    free(c);
+}
+
+static set_cache *the_cache(pn_context ctx)
+{
+    set_cache *c = pn_context_cache(ctx, &cache_key);
+    if (c)
+        return c;
+    if (!(c = calloc(1, sizeof *c)))
+        return NULL;
+    if (pn_context_set_cache(ctx, &cache_key, c, free_cache)) {
+        free(c);
+        pn_error_clear(ctx); /* a full cache table only costs the caching */
+        return NULL;
+    }
+    return c;
+}
+
+static void remember(pn_context ctx, pn_sphere_set s)
+{
+    set_cache *c = the_cache(ctx);
+    if (!c)
+        return;
+    int victim = 0;
+    for (int i = 1; i < CACHE_SLOTS; ++i)
+        if (c->slot[i].serial < c->slot[victim].serial)
+            victim = i;
+    float *copy = malloc((size_t)s->count * 4 * sizeof *copy);
+    if (!copy)
+        return;
+    memcpy(copy, s->spheres, (size_t)s->count * 4 * sizeof *copy);
+    cached_set *e = &c->slot[victim];
+    free(e->spheres);
+    *e = (cached_set){s->mesh_hash, ++c->serial, s->count, s->grid, copy, s->mesh_volume, s->outside_share,
+                      s->missed_share, s->build_seconds};
+}
+
+static bool recall(pn_context ctx, uint64_t mesh_hash, uint32_t count, pn_sphere_set *out, pn_status *st)
+{
+    set_cache *c = pn_context_cache(ctx, &cache_key);
+    for (int i = 0; c && i < CACHE_SLOTS; ++i) {
+        cached_set *e = &c->slot[i];
+        if (!e->spheres || e->mesh_hash != mesh_hash || e->count != count)
+            continue;
+        if ((*st = new_set(ctx, e->spheres, count, out)))
+            return true;
+        pn_sphere_set s = *out;
+        s->mesh_hash = mesh_hash, s->grid = e->grid, s->mesh_volume = e->mesh_volume;
+        s->outside_share = e->outside_share, s->missed_share = e->missed_share;
+        s->build_seconds = e->build_seconds;
+        e->serial = ++c->serial;
+        return true;
+    }
+    return false;
+}
+
+/* ------------------------------------------------------------- deformation */
+
+/* Solves the 4 x 4 system m x = b in place (partial pivoting); false when singular. */
+static bool solve4(double m[4][4], double b[4])
+{
+    for (int c = 0; c < 4; ++c) {
+        int piv = c;
+        for (int r = c + 1; r < 4; ++r)
+            if (fabs(m[r][c]) > fabs(m[piv][c]))
+                piv = r;
+        if (fabs(m[piv][c]) < 1e-12)
+            return false;
+        for (int k = 0; k < 4; ++k) {
+            const double t = m[c][k];
+            m[c][k] = m[piv][k], m[piv][k] = t;
+        }
+        const double tb = b[c];
+        b[c] = b[piv], b[piv] = tb;
+        for (int r = 0; r < 4; ++r) {
+            if (r == c)
+                continue;
+            const double f = m[r][c] / m[c][c];
+            for (int k = c; k < 4; ++k)
+                m[r][k] -= f * m[c][k];
+            b[r] -= f * b[c];
+        }
+    }
+    for (int c = 0; c < 4; ++c)
+        b[c] /= m[c][c];
+    return true;
+}
+
+/* Anchors of every sphere: its PN_SPHERE_ANCHORS nearest vertices and the
+ * least-norm affine weights (sum w = 1, sum w v = centre, exactly); when
+ * those vertices are coplanar, inverse-distance weights (the centre then
+ * follows approximately). */
+static pn_status make_anchors(pn_context ctx, pn_sphere_set s, pn_mesh mesh)
+{
+    const uint32_t k = PN_SPHERE_ANCHORS, nv = mesh->vertex_count;
+    if (nv < k)
+        return PN_SUCCESS; /* too few vertices to anchor: the set cannot deform */
+    s->anchor_ids = malloc((size_t)s->count * k * sizeof *s->anchor_ids);
+    s->anchor_weights = malloc((size_t)s->count * k * sizeof *s->anchor_weights);
+    s->rest_spread = malloc((size_t)s->count * sizeof *s->rest_spread);
+    s->rest_radius = malloc((size_t)s->count * sizeof *s->rest_radius);
+    if (!s->anchor_ids || !s->anchor_weights || !s->rest_spread || !s->rest_radius)
+        return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory anchoring a sphere set");
+    for (uint32_t i = 0; i < s->count; ++i) {
+        const float *c = s->spheres + 4 * i;
+        uint32_t *ids = s->anchor_ids + (size_t)i * k;
+        float best[PN_SPHERE_ANCHORS];
+        for (uint32_t j = 0; j < k; ++j)
+            best[j] = INFINITY, ids[j] = 0;
+        for (uint32_t v = 0; v < nv; ++v) { /* insertion into the k nearest */
+            float d = dist2(mesh->positions + 3 * v, c);
+            if (d >= best[k - 1])
+                continue;
+            uint32_t j = k - 1;
+            while (j > 0 && best[j - 1] > d) {
+                best[j] = best[j - 1], ids[j] = ids[j - 1];
+                --j;
+            }
+            best[j] = d, ids[j] = v;
+        }
+        /* w = A^T (A A^T)^-1 b with A = [v_j; 1] (4 x k), b = [c; 1]. */
+        double a[4][PN_SPHERE_ANCHORS], aat[4][4], b[4] = {c[0], c[1], c[2], 1.0};
+        for (uint32_t j = 0; j < k; ++j) {
+            const float *v = mesh->positions + 3 * ids[j];
+            a[0][j] = v[0] - c[0], a[1][j] = v[1] - c[1], a[2][j] = v[2] - c[2], a[3][j] = 1.0;
+        }
+        b[0] = b[1] = b[2] = 0.0; /* centred on c: better conditioned */
+        for (int r = 0; r < 4; ++r)
+            for (int q = 0; q < 4; ++q) {
+                aat[r][q] = 0.0;
+                for (uint32_t j = 0; j < k; ++j)
+                    aat[r][q] += a[r][j] * a[q][j];
+            }
+        float *w = s->anchor_weights + (size_t)i * k;
+        if (solve4(aat, b)) {
+            for (uint32_t j = 0; j < k; ++j)
+                w[j] = (float)(a[0][j] * b[0] + a[1][j] * b[1] + a[2][j] * b[2] + a[3][j] * b[3]);
+        } else {
+            double sum = 0.0;
+            for (uint32_t j = 0; j < k; ++j)
+                sum += 1.0 / (sqrt((double)best[j]) + 1e-12);
+            for (uint32_t j = 0; j < k; ++j)
+                w[j] = (float)(1.0 / (sqrt((double)best[j]) + 1e-12) / sum);
+        }
+        double spread = 0.0;
+        for (uint32_t j = 0; j < k; ++j)
+            spread += sqrt((double)best[j]);
+        s->rest_spread[i] = (float)(spread / k);
+        s->rest_radius[i] = c[3];
+    }
+    s->vertex_count = nv;
+    return PN_SUCCESS;
+}
+
+pn_status pn_sphere_set_do_deform(pn_sphere_set s, pn_mesh mesh)
+{
+    pn_context ctx = s->obj.ctx;
+    if (!s->anchor_ids)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                       "pn_sphere_set_deform: the set was not built from a mesh (or its mesh has fewer than %d "
+                       "vertices): it has no vertex anchors to follow",
+                       PN_SPHERE_ANCHORS);
+    if (!mesh->committed)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "pn_sphere_set_deform: the mesh is not committed");
+    if (mesh->vertex_count != s->vertex_count)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE,
+                       "pn_sphere_set_deform: the mesh has %u vertices but the set was built on %u: a deformed "
+                       "mesh keeps its vertices (new positions only)",
+                       mesh->vertex_count, s->vertex_count);
+    const uint32_t k = PN_SPHERE_ANCHORS;
+    for (uint32_t i = 0; i < s->count; ++i) {
+        const uint32_t *ids = s->anchor_ids + (size_t)i * k;
+        const float *w = s->anchor_weights + (size_t)i * k;
+        double c[3] = {0, 0, 0};
+        for (uint32_t j = 0; j < k; ++j)
+            for (int a = 0; a < 3; ++a)
+                c[a] += (double)w[j] * mesh->positions[3 * ids[j] + a];
+        float *o = s->spheres + 4 * i;
+        o[0] = (float)c[0], o[1] = (float)c[1], o[2] = (float)c[2];
+        double spread = 0.0;
+        for (uint32_t j = 0; j < k; ++j)
+            spread += sqrt(dist2(mesh->positions + 3 * ids[j], o));
+        const float scale = s->rest_spread[i] > 0.0f ? (float)(spread / k) / s->rest_spread[i] : 1.0f;
+        o[3] = s->rest_radius[i] * scale;
+    }
+    s->mesh_hash = mesh->content_hash; /* it now describes the deformed mesh */
+    return PN_SUCCESS;
+}
+
+/* ------------------------------------------------------------------ build */
+
+pn_status pn_sphere_set_do_build(pn_mesh mesh, uint32_t count, pn_sphere_set *out)
+{
+    pn_context ctx = mesh->obj.ctx;
+    if (!mesh->committed)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "pn_sphere_set_build: the mesh is not committed");
+    if (count < 1 || count > 4096)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "pn_sphere_set_build: %u spheres asked for (1 to 4096)", count);
+    pn_status st = PN_SUCCESS;
+    if (recall(ctx, mesh->content_hash, count, out, &st))
+    {
+        if (!st && (st = make_anchors(ctx, *out, mesh))) {
+            PN_RELEASE(*out);
+            *out = NULL;
+        }
+        return st;
+    }
+    const clock_t t0 = clock();
+    float ext_min = INFINITY;
+    for (int a = 0; a < 3; ++a)
+        ext_min = fminf(ext_min, mesh->bounds_hi[a] - mesh->bounds_lo[a]);
+    if (!(ext_min > 0.0f))
+        return pn_fail(ctx, PN_ERROR_EMPTY_INPUT,
+                       "pn_sphere_set_build: the mesh is flat (zero extent along an axis) and encloses no volume");
+    /* The grid grows until every sphere gets >= 16 interior cells. */
+    grid g = {{0, 0, 0}, {0, 0, 0}, 0, NULL};
+    size_t np = 0;
+    for (int res = 64;; res = res * 3 / 2) {
+        free(g.inside);
+        if ((st = voxelise(ctx, mesh, res, &g))) {
+            free(g.inside);
+            return st;
+        }
+        np = 0;
+        const size_t cells = (size_t)g.n[0] * (size_t)g.n[1] * (size_t)g.n[2];
+        for (size_t i = 0; i < cells; ++i)
+            np += g.inside[i];
+        if (np >= 16u * (size_t)count || res >= 216)
+            break;
+    }
+    if (np < count) {
+        free(g.inside);
+        return pn_fail(ctx, PN_ERROR_EMPTY_INPUT,
+                       "pn_sphere_set_build: the mesh encloses %zu interior voxels, fewer than the %u spheres asked "
+                       "for: it is open, flat or degenerate (a sphere set needs a solid)",
+                       np, count);
+    }
+    const size_t cells = (size_t)g.n[0] * (size_t)g.n[1] * (size_t)g.n[2];
+    float *pts = malloc(np * 3 * sizeof *pts), *d2 = malloc(np * sizeof *d2);
+    float *centres = malloc((size_t)count * 3 * sizeof *centres), *spheres = malloc((size_t)count * 4 * sizeof *spheres);
+    float *reach = calloc(count, sizeof *reach);
+    uint32_t *label = malloc(np * sizeof *label);
+    int *cell_of_point = malloc(cells * sizeof *cell_of_point);
+    uint8_t *covered = malloc(cells);
+    scored *buf = malloc(cells * sizeof *buf);
+    if (!pts || !d2 || !centres || !spheres || !reach || !label || !cell_of_point || !covered || !buf) {
+        st = pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building a sphere set");
+        goto done;
+    }
+    size_t q = 0;
+    for (int k = 0; k < g.n[2]; ++k)
+        for (int j = 0; j < g.n[1]; ++j)
+            for (int i = 0; i < g.n[0]; ++i) {
+                const size_t ci = cell_index(&g, i, j, k);
+                cell_of_point[ci] = -1;
+                if (!g.inside[ci])
+                    continue;
+                cell_of_point[ci] = (int)q;
+                pts[3 * q] = g.lo[0] + ((float)i + 0.5f) * g.h;
+                pts[3 * q + 1] = g.lo[1] + ((float)j + 0.5f) * g.h;
+                pts[3 * q + 2] = g.lo[2] + ((float)k + 0.5f) * g.h;
+                ++q;
+            }
+    cluster(pts, np, count, centres, label, d2);
+    for (size_t i = 0; i < np; ++i) {
+        const float d = sqrtf(dist2(pts + 3 * i, centres + 3 * label[i]));
+        reach[label[i]] = fmaxf(reach[label[i]], d);
+    }
+    for (uint32_t c = 0; c < count; ++c) {
+        memcpy(spheres + 4 * c, centres + 3 * c, 3 * sizeof(float));
+        spheres[4 * c + 3] = best_radius(&g, cell_of_point, label, centres + 3 * c, c, reach[c], buf, cells);
+    }
+    float outside = 0.0f, missed = 0.0f;
+    size_t interior = 0;
+    union_error(&g, spheres, count, covered, &outside, &missed, &interior);
+    if ((st = new_set(ctx, spheres, count, out)))
+        goto done;
+    pn_sphere_set s = *out;
+    s->mesh_hash = mesh->content_hash;
+    s->grid = (uint32_t)(g.n[0] > g.n[1] ? (g.n[0] > g.n[2] ? g.n[0] : g.n[2]) : (g.n[1] > g.n[2] ? g.n[1] : g.n[2]));
+    s->mesh_volume = (float)((double)interior * (double)g.h * (double)g.h * (double)g.h);
+    s->outside_share = outside;
+    s->missed_share = missed;
+    s->build_seconds = (double)(clock() - t0) / CLOCKS_PER_SEC;
+    remember(ctx, s);
+    if ((st = make_anchors(ctx, s, mesh))) {
+        PN_RELEASE(s);
+        *out = NULL;
+    }
+done:
+    free(pts), free(d2), free(centres), free(spheres), free(reach), free(label), free(cell_of_point), free(covered),
+        free(buf), free(g.inside);
+    return st;
+}

@@ -1,0 +1,278 @@
+/* `isg` method: env lighting as K spherical-Gaussian lobes, occluders as sphere
+ * sets, per-pixel diffuse and specular soft shadows by the Integral Spherical
+ * Gaussian (Iwasaki et al.; docs/isg.md section 8; float64 twin:
+ * tests/isg_shading64.py).
+ *
+ * For every light lobe G_k and every pixel (p, n):
+ *   diffuse  E_k = pn_sg_irradiance(G_k, n) * V(G_k x G_cos)
+ *   specular S_k = k_s * pn_sg_irradiance(G_k x G_brdf, n) * V(G_k x G_brdf)
+ * or, for a BRDF lobe at least `env_sharpness` sharp, the env cube itself
+ * integrated over the BRDF lobe's visible patches (pn_isg_env_specular),
+ * where G_cos = G(n, 2.133, 1.170) (the seed's cosine lobe: it only locates
+ * the visibility, the unshadowed value is the accurate closed form) and G_brdf
+ * is the BRDF lobe as an SG around the mirror direction (pn_brdf_sg, common/sg.cl). V(G) is the visible
+ * share of the product lobe: its front hemisphere in the ISG frame, cut to a
+ * window of +-PN_ISG_WINDOW_SIGMAS / sqrt(lambda) around the axis (all of it
+ * for broad lobes), divided into M x M patches; a patch whose centre direction
+ * meets a sphere is occluded (once, however many spheres cover it: a bit
+ * mask), and
+ *   V = 1 - sum over occluded patches of ISG(patch) / ISG(window)
+ * with the ISG from the table of common/sg.cl (the seed's eqs. 5-9), separable
+ * in the window: 2 (M + 1) table evaluations per lobe, not 4 per patch.
+ * Spheres outside the window's cone (axis angle > window + sphere angle) and
+ * behind the receiver plane are culled before any patch work.
+ *
+ * Self-occlusion (the receiver's own instance's spheres; `self_occlusion`):
+ *   0  ignored;
+ *   1  used, except spheres that contain the receiver point or touch it
+ *      (distance < radius * (1 + PN_ISG_TOUCH)): a receiver on the surface of
+ *      its own proxy would otherwise see half its sky cut by the sphere it
+ *      sits in (the "dark disc");
+ *   2  all used.
+ * A sphere of another instance that contains the receiver occludes every
+ * patch (the receiver is inside that occluder).
+ *
+ * Spheres: float4 (world centre, world radius) and the owning instance id. */
+#include "common/brdf.cl"
+#include "common/sg.cl"
+#include "common/sphere_maps.cl"
+
+#define PN_ISG_MAX_GRID 24
+#define PN_ISG_MASK_WORDS ((PN_ISG_MAX_GRID * PN_ISG_MAX_GRID + 31) / 32)
+#define PN_ISG_WINDOW_SIGMAS 3.0f
+#define PN_ISG_TOUCH 1e-3f
+/* The seed's cosine lobe (after [WRG*09]). */
+#define PN_ISG_COS_SHARPNESS 2.133f
+#define PN_ISG_COS_AMPLITUDE 1.170f
+
+/* Half-width of the patch window of a lobe of sharpness lambda. */
+inline float pn_isg_window(float lambda)
+{
+    return fmin(0.5f * PN_PI, PN_ISG_WINDOW_SIGMAS * rsqrt(fmax(lambda, 1e-30f)));
+}
+
+/* A lobe's patch grid: its ISG frame, window [lo, lo + grid step]^2 and the
+ * sines and cosines of the patch centres' angles (theta and phi alike). */
+typedef struct {
+    float3 x, y, z;
+    float lo, step;
+    int grid;
+    float sin_c[PN_ISG_MAX_GRID], cos_c[PN_ISG_MAX_GRID];
+} pn_isg_grid;
+
+inline void pn_isg_grid_init(pn_sg g, int grid, pn_isg_grid *pg)
+{
+    pn_sg_frame(g.axis, &pg->x, &pg->y);
+    pg->z = g.axis;
+    const float w = pn_isg_window(g.sharpness);
+    pg->lo = 0.5f * PN_PI - w;
+    pg->step = 2.0f * w / (float)grid;
+    pg->grid = grid;
+    /* Angle addition from the first centre: two sincos per lobe, not 2M. */
+    float cs, sn = sincos(pg->lo + 0.5f * pg->step, &cs), cd, sd = sincos(pg->step, &cd);
+    for (int i = 0; i < grid; ++i) {
+        pg->sin_c[i] = sn, pg->cos_c[i] = cs;
+        const float s2 = sn * cd + cs * sd;
+        cs = cs * cd - sn * sd, sn = s2;
+    }
+}
+
+/* Marks in `mask` the patches whose centre direction meets a sphere seen from
+ * (p, n). Returns -1 when the receiver is inside an occluder, else the
+ * number of spheres that marked something (0: the lobe is unoccluded). */
+inline int pn_isg_mark(const pn_isg_grid *pg, float3 p, float3 n, uint self_id, int self_occlusion,
+                       global const float4 *spheres, global const uint *owners, int sphere_count, uint *mask)
+{
+    const int grid = pg->grid;
+    const float lo = pg->lo, step = pg->step;
+    /* The window's cone: its corners lie within w * sqrt(2) of the axis. */
+    const float cone = fmin((0.5f * PN_PI - lo) * 1.41421356f, PN_PI), cos_cone = cos(cone), sin_cone = sin(cone);
+    for (int i = 0; i < PN_ISG_MASK_WORDS; ++i)
+        mask[i] = 0u;
+    int any = 0;
+    for (int s = 0; s < sphere_count; ++s) {
+        const float4 sp = spheres[s];
+        const float3 v = sp.xyz - p;
+        const float r = sp.w, d2 = dot(v, v);
+        if (dot(v, n) <= -r) /* wholly behind the receiver plane */
+            continue;
+        const bool own = owners[s] == self_id;
+        if (own && self_occlusion == 0)
+            continue;
+        if (d2 <= r * r * (1.0f + PN_ISG_TOUCH) * (1.0f + PN_ISG_TOUCH)) {
+            if (own && self_occlusion == 1)
+                continue;
+            return -1; /* inside an occluder */
+        }
+        const float d = sqrt(d2);
+        const float3 u = v / d;
+        const float sa = fmin(r / d, 1.0f), ca = sqrt(fmax(1.0f - sa * sa, 0.0f));
+        /* Outside the window's cone: axis angle > cone + alpha (possible only when cone + alpha < pi). */
+        if (cos_cone > -ca && dot(u, pg->z) < cos_cone * ca - sin_cone * sa)
+            continue;
+        const float alpha = asin(sa);
+        const float2 tp = pn_isg_angles(u, pg->x, pg->y, pg->z);
+        /* Patch rows and columns the cap can reach (lat-long bounds of a cap). */
+        int i0 = (int)floor((tp.x - alpha - lo) / step), i1 = (int)floor((tp.x + alpha - lo) / step);
+        int j0, j1;
+        const float st = sin(tp.x);
+        if (tp.x - alpha <= 0.0f || tp.x + alpha >= PN_PI || sa >= st) {
+            j0 = 0, j1 = grid - 1;
+        } else {
+            const float dphi = asin(fmin(sa / st, 1.0f));
+            float ph = tp.y;
+            if (ph > 1.5f * PN_PI) /* behind the lobe, on the phi seam side */
+                ph -= PN_TWO_PI;
+            j0 = (int)floor((ph - dphi - lo) / step), j1 = (int)floor((ph + dphi - lo) / step);
+        }
+        i0 = max(i0, 0), j0 = max(j0, 0), i1 = min(i1, grid - 1), j1 = min(j1, grid - 1);
+        const float3 ul = (float3)(dot(u, pg->x), dot(u, pg->y), dot(u, pg->z));
+        int marked = 0;
+        for (int i = i0; i <= i1; ++i)
+            for (int j = j0; j <= j1; ++j) {
+                const float dotc = pg->sin_c[i] * (pg->cos_c[j] * ul.x + pg->sin_c[j] * ul.z) + pg->cos_c[i] * ul.y;
+                if (dotc >= ca) {
+                    const int b = i * grid + j;
+                    mask[b >> 5] |= 1u << (b & 31);
+                    marked = 1;
+                }
+            }
+        any += marked;
+    }
+    return any;
+}
+
+inline bool pn_isg_masked(const uint *mask, int b)
+{
+    return (mask[b >> 5] & (1u << (b & 31))) != 0u;
+}
+
+/* The window lies in the front half (phi <= pi), where the table's ISG is
+ * A(theta) B(phi): a patch is (A(t1) - A(t0)) (B(p1) - B(p0)), the four
+ * corners of the seed's formula in 2 (M + 1) evaluations. a_edge, b_edge:
+ * A and B at the window's patch edges. */
+inline void pn_isg_edges(const pn_isg_grid *pg, float lambda, global const float *table, float *a_edge, float *b_edge)
+{
+    /* pn_isg's marginals with its per-lambda terms hoisted: A = front theta
+     * (block 0), B = front phi (block 1) of the table (common/sg.cl). */
+    const float u = pn_isg_row(lambda), k = sqrt(0.5f * lambda), inv = 1.0f / erf(k * 0.5f * PN_PI);
+    for (int j = 0; j <= pg->grid; ++j) {
+        const float e = pg->lo + (float)j * pg->step;
+        a_edge[j] = pn_isg_cdf(table, 0, u, e, k, inv);
+        b_edge[j] = pn_isg_cdf(table, 1, u, e, k, inv);
+    }
+}
+
+/* The visible share of lobe g (its amplitude unused) seen from p with normal n:
+ * 1 - sum over occluded patches of ISG(patch) / ISG(window). */
+inline float pn_isg_visibility(pn_sg g, float3 p, float3 n, uint self_id, int self_occlusion,
+                               global const float4 *spheres, global const uint *owners, int sphere_count, int grid,
+                               global const float *table)
+{
+    pn_isg_grid pg;
+    pn_isg_grid_init(g, grid, &pg);
+    uint mask[PN_ISG_MASK_WORDS];
+    const int any = pn_isg_mark(&pg, p, n, self_id, self_occlusion, spheres, owners, sphere_count, mask);
+    if (any <= 0)
+        return any < 0 ? 0.0f : 1.0f;
+    float a_edge[PN_ISG_MAX_GRID + 1], b_edge[PN_ISG_MAX_GRID + 1];
+    pn_isg_edges(&pg, g.sharpness, table, a_edge, b_edge);
+    float occluded = 0.0f;
+    for (int i = 0; i < grid; ++i) {
+        float row = 0.0f;
+        for (int j = 0; j < grid; ++j)
+            if (pn_isg_masked(mask, i * grid + j))
+                row += b_edge[j + 1] - b_edge[j];
+        occluded += (a_edge[i + 1] - a_edge[i]) * row;
+    }
+    const float total = (a_edge[grid] - a_edge[0]) * (b_edge[grid] - b_edge[0]);
+    if (!(total > 0.0f))
+        return 1.0f;
+    return clamp(1.0f - occluded / total, 0.0f, 1.0f);
+}
+
+/* The specular integral of a sharp BRDF lobe b against the env itself:
+ *   amplitude H(lambda) sum over visible patches of ISG_hat(patch) L(d) max(n.d, 0)
+ * with L(d) the env cube at the patch centre d: the lobe-weighted env (the
+ * seed's Gamma_L) evaluated on the lobe's own patches, occluded patches left
+ * out (the seed's visibility ratio, patch by patch). */
+inline float3 pn_isg_env_specular(pn_sg b, float3 p, float3 n, uint self_id, int self_occlusion,
+                                  global const float4 *spheres, global const uint *owners, int sphere_count, int grid,
+                                  global const float *table, global const float4 *cube, int n_cube)
+{
+    pn_isg_grid pg;
+    pn_isg_grid_init(b, grid, &pg);
+    uint mask[PN_ISG_MASK_WORDS];
+    if (pn_isg_mark(&pg, p, n, self_id, self_occlusion, spheres, owners, sphere_count, mask) < 0)
+        return (float3)(0.0f);
+    float a_edge[PN_ISG_MAX_GRID + 1], b_edge[PN_ISG_MAX_GRID + 1];
+    pn_isg_edges(&pg, b.sharpness, table, a_edge, b_edge);
+    float3 sum = (float3)(0.0f);
+    for (int i = 0; i < grid; ++i) {
+        float3 row = (float3)(0.0f);
+        for (int j = 0; j < grid; ++j) {
+            if (pn_isg_masked(mask, i * grid + j))
+                continue;
+            const float3 d = pg.sin_c[i] * (pg.cos_c[j] * pg.x + pg.sin_c[j] * pg.z) + pg.cos_c[i] * pg.y;
+            const float c = dot(n, d);
+            if (c > 0.0f)
+                row += (b_edge[j + 1] - b_edge[j]) * c * pn_cube_texel_lookup(cube, n_cube, d);
+        }
+        sum += (a_edge[i + 1] - a_edge[i]) * row;
+    }
+    return b.amplitude * pn_sg_hemisphere_integral(b.sharpness) * sum;
+}
+
+kernel void shade_isg(global const float4 *position, global const float4 *normal, global const float4 *albedo,
+                      global const float4 *material, global const uint *instance_id, int count,
+                      global const float4 *cube, int n_cube, int show_background, global const float4 *lobes,
+                      int lobe_count, global const float4 *spheres, global const uint *owners, int sphere_count,
+                      int grid, int self_occlusion, int specular_shadows, float env_sharpness, float4 camera,
+                      global const float *table, global float4 *image)
+{
+    const int gid = get_global_id(0);
+    if (gid >= count)
+        return;
+    const uint id = instance_id[gid];
+    if (id == PN_BACKGROUND) {
+        const float3 env = show_background ? pn_cube_texel_lookup(cube, n_cube, normalize(position[gid].xyz))
+                                           : (float3)(0.0f);
+        image[gid] = (float4)(env, 0.0f);
+        return;
+    }
+    const float3 p = position[gid].xyz;
+    const float3 n = normalize(normal[gid].xyz);
+    const pn_material m = pn_material_from_gbuffer(albedo[gid], material[gid]);
+    pn_sg cosine;
+    cosine.axis = n;
+    cosine.sharpness = PN_ISG_COS_SHARPNESS;
+    cosine.amplitude = (float3)(PN_ISG_COS_AMPLITUDE);
+    pn_sg brdf;
+    brdf.sharpness = 0.0f;
+    if (m.ks > 0.0f)
+        brdf = pn_brdf_sg(m, n, normalize(camera.xyz - p));
+    /* A sharp BRDF lobe integrates the env cube on its own patches; a broad one
+     * (whose patches would alias the cube) the SG lobe products. */
+    const bool env_specular = m.ks > 0.0f && brdf.sharpness >= env_sharpness;
+    float3 diffuse = (float3)(0.0f), specular = (float3)(0.0f);
+    if (env_specular)
+        specular = pn_isg_env_specular(brdf, p, n, id, specular_shadows ? self_occlusion : 0, spheres, owners,
+                                       specular_shadows ? sphere_count : 0, grid, table, cube, n_cube);
+    for (int k = 0; k < lobe_count; ++k) {
+        const pn_sg g = pn_sg_load(lobes, k);
+        const float3 e = pn_sg_irradiance(g, n);
+        if (e.x > 0.0f || e.y > 0.0f || e.z > 0.0f)
+            diffuse += e * pn_isg_visibility(pn_sg_product(g, cosine), p, n, id, self_occlusion, spheres, owners,
+                                             sphere_count, grid, table);
+        if (m.ks > 0.0f && !env_specular) {
+            const pn_sg gb = pn_sg_product(g, brdf);
+            const float3 s = pn_sg_reflected(g, brdf, n);
+            if (s.x > 0.0f || s.y > 0.0f || s.z > 0.0f)
+                specular += s * (specular_shadows ? pn_isg_visibility(gb, p, n, id, self_occlusion, spheres, owners,
+                                                                      sphere_count, grid, table)
+                                                  : 1.0f);
+        }
+    }
+    const float3 c = m.albedo * PN_INV_PI * diffuse + m.ks * specular;
+    image[gid] = (float4)(fmax(c, 0.0f), 1.0f);
+}

@@ -1,0 +1,196 @@
+"""The ``isg`` method's Python side (docs/isg.md): everything Python knows about
+the Integral Spherical Gaussian technique.
+
+* Sphere sets: a :class:`SphereSet` holds the occluder proxy of one mesh,
+  built by libpenumbra (``pn_sphere_set_build``, cached per context by mesh
+  hash and count) or given by the caller (``pn_sphere_set_create``).
+* The scene file's ``[isg]`` table (``spheres``: N per occluder mesh, the
+  method's bake parameter), attaching a set to each occluder instance before
+  rendering, the benchmark sweep and the summary line of ``penumbra render``.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .. import _native
+from .._native import call
+from ..core import Context, Mesh
+from ..errors import InputError
+from .base import SceneTable, Technique
+
+NAME = "isg"
+
+
+class SphereSet:
+    """Spheres (centre xyz, radius; object space) standing in for an occluder."""
+
+    def __init__(self, ctx: Context, handle: ctypes.c_void_p):
+        self._ctx = ctx
+        self._h = handle
+
+    @classmethod
+    def build(cls, mesh: Mesh, count: int) -> "SphereSet":
+        """``count`` spheres approximating the solid of ``mesh`` (committed)."""
+        if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
+            raise InputError(f"sphere count must be a positive integer, got {count!r}")
+        out = ctypes.c_void_p()
+        call("pn_sphere_set_build", mesh._ctx._h, mesh._h, int(count), ctypes.byref(out))
+        return cls(mesh._ctx, out)
+
+    @classmethod
+    def from_spheres(cls, ctx: Context, spheres) -> "SphereSet":
+        """The caller's spheres: an (n, 4) array of centre xyz and radius."""
+        a = np.ascontiguousarray(np.asarray(spheres, np.float32))
+        if a.ndim != 2 or a.shape[1] != 4:
+            raise InputError(f"spheres must be an (n, 4) array of centre xyz and radius, got shape {a.shape}")
+        out = ctypes.c_void_p()
+        call("pn_sphere_set_create", ctx._h, ctx._h, a.ctypes.data if len(a) else None, len(a), ctypes.byref(out))
+        return cls(ctx, out)
+
+    def info(self) -> dict:
+        i = _native.SphereSetInfo()
+        call("pn_sphere_set_get_info", self._ctx._h, self._h, ctypes.byref(i))
+        return {"count": i.count, "grid": i.grid, "mesh_hash": f"{i.mesh_hash:016x}" if i.mesh_hash else None,
+                "mesh_volume": i.mesh_volume, "outside_share": i.outside_share, "missed_share": i.missed_share,
+                "build_seconds": i.build_seconds}
+
+    def spheres(self) -> np.ndarray:
+        """(count, 4) float32: centre xyz, radius."""
+        out = np.empty((self.info()["count"], 4), np.float32)
+        call("pn_sphere_set_read", self._ctx._h, self._h, out.ctypes.data, out.nbytes)
+        return out
+
+    def deform(self, mesh: Mesh) -> None:
+        """Follows ``mesh`` (the set's mesh with new vertex positions, committed)
+        without a rebuild (pn_sphere_set_deform)."""
+        call("pn_sphere_set_deform", self._ctx._h, self._h, mesh._h)
+
+    def close(self) -> None:
+        if self._h:
+            _native.lib.pn_sphere_set_release(self._h)
+            self._h = ctypes.c_void_p()
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:
+            pass
+
+
+# ---------------------------------------------------------------- the technique
+
+
+def _sphere_count_param():
+    from . import spec
+
+    return spec(NAME).param("spheres")
+
+
+@dataclass
+class IsgTable:
+    """``[isg]``: how the method builds sphere sets (docs/scene-format.md):
+    ``spheres``, N per occluder mesh."""
+
+    spheres: int | None = None
+
+    @property
+    def sphere_count(self) -> int:
+        return int(self.spheres if self.spheres is not None else _sphere_count_param().default)
+
+
+def _parse_table(d, base: Path, data: dict) -> IsgTable:
+    from ..scenefile import _check_keys
+
+    d = {} if d is None else d
+    if not isinstance(d, dict):
+        raise InputError("[isg] must be a table")
+    _check_keys("isg", d, {"spheres"})
+    if "spheres" not in d:
+        return IsgTable()
+    return IsgTable(int(_sphere_count_param().check(d["spheres"], "[isg] spheres")))
+
+
+@dataclass
+class IsgState:
+    """What the method keeps on a built scene (``built.assets["isg"]``)."""
+
+    count: int | None = None                       # N of the attached sets
+    sets: dict[str, SphereSet] = field(default_factory=dict)   # by object name
+    records: list[dict] = field(default_factory=list)
+
+
+def state(built) -> IsgState:
+    return built.assets.setdefault(NAME, IsgState())
+
+
+def attach_sphere_sets(built, overrides: dict | None = None) -> list[dict]:
+    """Builds (the library caches by mesh hash and N) one sphere set per
+    occluder mesh of the scene (objects with ``occluder``) and attaches it to
+    each occluder's instance. Returns one record per mesh: objects, spheres,
+    outside_share, missed_share, build_s."""
+    desc = built.desc
+    if desc is None:
+        raise InputError("the isg method needs a scene built by build_scene from a description (its occluders)")
+    count = desc.isg.sphere_count if desc.isg is not None else int(_sphere_count_param().default)
+    if overrides and "spheres" in overrides:
+        count = int(_sphere_count_param().check(overrides["spheres"], "isg spheres"))
+    s = state(built)
+    if s.count == count:
+        return s.records
+    groups: dict[int, tuple[Mesh, list[str]]] = {}
+    for obj in desc.objects:
+        if obj.is_occluder:
+            mesh = built.object_meshes[obj.name]
+            groups.setdefault(id(mesh), (mesh, []))[1].append(obj.name)
+    records = []
+    for mesh, names in groups.values():
+        t0 = time.perf_counter()
+        sset = SphereSet.build(mesh, count)
+        info = sset.info()
+        for name in names:
+            built.scene.attach(built.instance_ids[name], sset)
+            s.sets[name] = sset
+        records.append({"objects": names, "spheres": info["count"], "outside_share": info["outside_share"],
+                        "missed_share": info["missed_share"], "build_s": time.perf_counter() - t0})
+    built.scene.commit()
+    s.count, s.records = count, records
+    return records
+
+
+class Isg(Technique):
+    bake_table = NAME
+    scene_tables = (SceneTable(NAME, NAME, False, _parse_table),)
+    readme_setting = {}
+    readme_label = "defaults"
+
+    def applies_to(self, desc) -> bool:
+        # Without occluders it would shade like unshadowed SG lighting.
+        return any(obj.is_occluder for obj in desc.objects)
+
+    def prepare(self, built, bake, bake_progress=None) -> None:
+        attach_sphere_sets(built, bake)
+
+    def sweep(self) -> list[dict]:
+        return [{"spheres": 32, "lobes": 16, "patch_grid": 8}, {"spheres": 64, "lobes": 32, "patch_grid": 16},
+                {"spheres": 128, "lobes": 64, "patch_grid": 20}]
+
+    def summary_lines(self, built) -> list[str]:
+        recs = state(built).records
+        if not recs:
+            return []
+        parts = [f"{len(r['objects'])} x {r['spheres']} spheres (outside {100 * r['outside_share']:.1f} %, missed "
+                 f"{100 * r['missed_share']:.1f} % of the solid)" for r in recs]
+        return ["isg sphere sets: " + "; ".join(parts)]
+
+    def bench_extras(self, built) -> dict:
+        recs = state(built).records
+        return {"isg_spheres": sum(r["spheres"] * len(r["objects"]) for r in recs)}
+
+
+TECHNIQUE = Isg(NAME)

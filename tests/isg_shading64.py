@@ -1,0 +1,202 @@
+"""float64 twin of the isg shading kernel (kernels/isg.cl, docs/isg.md section 8)
+and the exact visible integrals it approximates.
+
+The twin follows the kernel step by step (the same frame, window, patch grid,
+culling, self-occlusion policy and patch marking by centre direction) with the
+float64 pieces of tests/isg64.py in place of the float32 ones: the exact ISG
+by quadrature for the patch integrals and the exact SG x clamped cosine.
+``visible_exact`` integrates lobe x cosine x visibility by dense quadrature
+with exact ray-sphere tests: the ground truth of the patch discretisation.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from isg64 import HALF_PI, isg_exact_grid, sg_cosine_exact, sg_hemisphere_integral, sg_product
+
+WINDOW_SIGMAS = 3.0
+TOUCH = 1e-3
+COS_SHARPNESS, COS_AMPLITUDE = 2.133, 1.170
+LOBE_PHONG, LOBE_BLINN_PHONG, LOBE_GGX = 0, 1, 2
+MIN_COS_VIEW = 1e-4
+
+
+def frame(z):
+    """Duff et al. 2017, as pn_sg_frame: (x, y) completing the right-handed (x, y, z)."""
+    z = np.asarray(z, np.float64)
+    s = math.copysign(1.0, z[2])
+    a = -1.0 / (s + z[2])
+    b = z[0] * z[1] * a
+    x = np.array([1.0 + s * z[0] * z[0] * a, s * b, -s * z[0]])
+    y = np.array([b, s + z[1] * z[1] * a, -z[1]])
+    return x, y
+
+
+def window(lam: float) -> float:
+    return min(HALF_PI, WINDOW_SIGMAS / math.sqrt(max(lam, 1e-30)))
+
+
+def patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid):
+    """(mask (grid, grid) bool, inside): the patches whose centre direction
+    meets a sphere, as the kernel marks them (inside: the receiver is inside
+    another instance's sphere, or its own with self_occlusion 2)."""
+    x, y = frame(axis)
+    w = window(lam)
+    lo, step = HALF_PI - w, 2.0 * w / grid
+    centres = lo + (np.arange(grid) + 0.5) * step
+    th, ph = np.meshgrid(centres, centres, indexing="ij")
+    dirs = (np.sin(th) * np.cos(ph))[..., None] * x + np.cos(th)[..., None] * y + (np.sin(th) * np.sin(ph))[..., None] * axis
+    mask = np.zeros((grid, grid), bool)
+    for s, own_id in zip(np.asarray(spheres, np.float64), owners):
+        v = s[:3] - p
+        r = s[3]
+        d2 = v @ v
+        if v @ n <= -r:
+            continue
+        own = own_id == self_id
+        if own and self_occlusion == 0:
+            continue
+        if d2 <= (r * (1.0 + TOUCH)) ** 2:
+            if own and self_occlusion == 1:
+                continue
+            return mask, True
+        d = math.sqrt(d2)
+        u = v / d
+        ca = math.cos(math.asin(min(r / d, 1.0)))
+        mask |= dirs @ u >= ca
+    return mask, False
+
+
+def visibility(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid):
+    """V = 1 - sum of occluded patches / window, by the exact ISG."""
+    mask, inside = patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid)
+    if inside:
+        return 0.0
+    if not mask.any():
+        return 1.0
+    w = window(lam)
+    edges = HALF_PI - w + np.arange(grid + 1) * (2.0 * w / grid)
+    s = isg_exact_grid(lam, edges, edges)
+    patches = s[1:, 1:] - s[:-1, 1:] - s[1:, :-1] + s[:-1, :-1]
+    total = s[-1, -1] - s[0, -1] - s[-1, 0] + s[0, 0]
+    return float(np.clip(1.0 - patches[mask].sum() / total, 0.0, 1.0))
+
+
+def irradiance(axis, lam, mu, n) -> np.ndarray:
+    """mu * int exp(lam (v.axis - 1)) max(v.n, 0) dv, exact."""
+    t = float(np.clip(np.dot(axis, n), -1.0, 1.0))
+    return np.asarray(mu, np.float64) * float(sg_cosine_exact(np.array([t]), lam)[0])
+
+
+def brdf_sg(n, view, shininess, roughness, lobe):
+    """pn_brdf_sg (common/sg.cl): the BRDF lobe as an SG (axis, sharpness, amplitude)."""
+    nv_raw = float(np.dot(n, view))
+    nv = max(nv_raw, MIN_COS_VIEW)
+    r = 2.0 * nv_raw * n - view
+    if lobe == LOBE_PHONG:
+        return r, shininess, (shininess + 2.0) / (2.0 * math.pi)
+    if lobe == LOBE_BLINN_PHONG:
+        return r, shininess / (4.0 * nv), (shininess + 8.0) / (8.0 * math.pi)
+    a = min(max(roughness, 1e-3), 1.0)
+    a2 = a * a
+    nl = max(float(np.dot(n, r)), 0.0)
+    g1c = lambda c: 2.0 / (c + math.sqrt(a2 + (1.0 - a2) * c * c))  # noqa: E731  G1(c) / c, finite at c = 0
+    return r, 2.0 / (a2 * 4.0 * nv), g1c(nv) * g1c(nl) * 0.25 / (math.pi * a2)
+
+
+def cube_face(d) -> int:
+    """The face pn_dir_to_cube picks for direction d (+x, -x, +y, -y, +z, -z)."""
+    ax, ay, az = abs(d[0]), abs(d[1]), abs(d[2])
+    if ax >= ay and ax >= az:
+        return 0 if d[0] > 0 else 1
+    if ay >= az:
+        return 2 if d[1] > 0 else 3
+    return 4 if d[2] > 0 else 5
+
+
+def env_specular(axis, lam, mu, p, n, self_id, self_occlusion, spheres, owners, grid, face_rgb) -> np.ndarray:
+    """pn_isg_env_specular with a cube of one texel per face (face_rgb (6, 3)):
+    mu H(lam) sum over visible patches of ISG(patch) L(centre) max(n.centre, 0)."""
+    mask, inside = patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid)
+    if inside:
+        return np.zeros(3)
+    x, y = frame(axis)
+    w = window(lam)
+    edges = HALF_PI - w + np.arange(grid + 1) * (2.0 * w / grid)
+    s = isg_exact_grid(lam, edges, edges)
+    patches = s[1:, 1:] - s[:-1, 1:] - s[1:, :-1] + s[:-1, :-1]
+    centres = HALF_PI - w + (np.arange(grid) + 0.5) * (2.0 * w / grid)
+    out = np.zeros(3)
+    for i, th in enumerate(centres):
+        for j, ph in enumerate(centres):
+            if mask[i, j]:
+                continue
+            d = math.sin(th) * math.cos(ph) * x + math.cos(th) * y + math.sin(th) * math.sin(ph) * axis
+            c = float(d @ n)
+            if c > 0:
+                out += patches[i, j] * c * np.asarray(face_rgb[cube_face(d)], np.float64)
+    return np.asarray(mu, np.float64) * float(sg_hemisphere_integral(lam)) * out
+
+
+def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, grid, self_occlusion=1,
+          specular_shadows=1, env_sharpness=math.inf, face_rgb=None) -> np.ndarray:
+    """One pixel of shade_isg. lobes: (K, 7) axis xyz, sharpness, amplitude rgb;
+    face_rgb: the env cube as one RGB per face (used by the env specular path,
+    for BRDF lobes at least env_sharpness sharp)."""
+    p, n = np.asarray(p, np.float64), np.asarray(n, np.float64)
+    n = n / np.linalg.norm(n)
+    diffuse, specular = np.zeros(3), np.zeros(3)
+    env_path = False
+    if ks > 0:
+        view = np.asarray(camera, np.float64) - p
+        b_axis, b_lam, b_mu = brdf_sg(n, view / np.linalg.norm(view), *material)
+        env_path = b_lam >= env_sharpness
+        if env_path:
+            specular = env_specular(b_axis, b_lam, b_mu, p, n, self_id, self_occlusion if specular_shadows else 0,
+                                    spheres if specular_shadows else [], owners, grid, face_rgb)
+    for lobe in np.asarray(lobes, np.float64):
+        axis, lam, mu = lobe[:3], lobe[3], lobe[4:7]
+        e = irradiance(axis, lam, mu, n)
+        if (e > 0).any():
+            m_axis, m_lam, _ = sg_product(axis, lam, 1.0, n, COS_SHARPNESS, COS_AMPLITUDE)
+            diffuse += e * visibility(m_axis, float(m_lam), p, n, self_id, self_occlusion, spheres, owners, grid)
+        if ks > 0 and not env_path:
+            g_axis, g_lam, g_mu = sg_product(axis, lam, 1.0, b_axis, b_lam, b_mu)
+            s = irradiance(g_axis, float(g_lam), mu * g_mu, n)
+            if (s > 0).any():
+                v = visibility(g_axis, float(g_lam), p, n, self_id, self_occlusion, spheres, owners, grid) \
+                    if specular_shadows else 1.0
+                specular += s * v
+    return np.maximum(np.asarray(albedo, np.float64) / math.pi * diffuse + ks * specular, 0.0)
+
+
+def sphere_directions(count: int) -> tuple[np.ndarray, float]:
+    """A Fibonacci set of unit directions and the solid angle of each."""
+    i = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * i / count
+    r = np.sqrt(1.0 - z * z)
+    ang = math.pi * (3.0 - math.sqrt(5.0)) * i
+    return np.stack([r * np.cos(ang), r * np.sin(ang), z], -1), 4.0 * math.pi / count
+
+
+def visible_exact(axis, lam, mu, p, n, spheres, count: int = 400_000) -> np.ndarray:
+    """int G(v) max(v.n, 0) V(v) dv with V by exact ray-sphere tests (every
+    sphere counts), by a Fibonacci quadrature of ``count`` directions. With
+    n = None: int over the lobe's front hemisphere of G V (what the patches
+    discretise)."""
+    d, dw = sphere_directions(count)
+    p = np.asarray(p, np.float64)
+    cos = np.maximum(d @ n, 0.0) if n is not None else (d @ np.asarray(axis, np.float64) >= 0.0).astype(float)
+    g = np.exp(lam * (d @ np.asarray(axis, np.float64) - 1.0)) * cos
+    visible = np.ones(len(d), bool)
+    for s in np.asarray(spheres, np.float64):
+        oc = p - s[:3]
+        b = d @ oc
+        c = oc @ oc - s[3] ** 2
+        disc = b * b - c
+        hit = disc >= 0
+        t_far = -b + np.sqrt(np.maximum(disc, 0.0))
+        visible &= ~(hit & (t_far > 0))
+    return np.asarray(mu, np.float64) * float((g * visible).sum() * dw)

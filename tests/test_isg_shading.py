@@ -1,0 +1,231 @@
+"""The isg shading kernel (kernels/isg.cl) against its float64 twin
+(tests/isg_shading64.py), and the twin against the exact visible integral
+(dense quadrature with exact ray-sphere tests).
+
+Hard cases: a receiver inside a sphere, a sphere straddling the receiver
+plane, grazing normals, overlapping spheres (a patch occluded once), the
+self-occlusion policies, a lobe below the horizon, K = 1, no spheres, a
+black env, k_s = 0 and a sharp Phong lobe (glossiness 1000). Small pixel
+counts: the kernel is called directly with pyopencl.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pyopencl as cl
+import pytest
+from isg64 import isg_table, sg_cosine_exact
+from isg_shading64 import COS_AMPLITUDE, COS_SHARPNESS, sg_product, shade, visibility, visible_exact
+from tolerances import ISG_SHADE_ATOL, ISG_SHADE_RTOL, ISG_VISIBILITY_GRID_ATOL, ISG_VISIBILITY_PATCH_ATOL
+
+from penumbra._native import call
+
+BACKGROUND = 0xFFFFFFFF
+SOURCE = '#include "isg.cl"\n'
+
+
+def table32() -> np.ndarray:
+    """The library's ISG table (pn_isg_table), as the method uploads it."""
+    t = isg_table()
+    out = np.empty(4 * t.front_theta.size, np.float32)
+    call("pn_isg_table", None, out.ctypes.data, out.size)
+    return out
+
+
+def unit(v):
+    v = np.asarray(v, np.float64)
+    return v / np.linalg.norm(v)
+
+
+def lobe(axis, lam, rgb):
+    return [*unit(axis), lam, *rgb]
+
+
+LOBES = np.array([lobe([0.3, 1.0, 0.2], 300.0, [20.0, 18.0, 15.0]),   # a sun
+                  lobe([0.0, 1.0, 0.0], 1.5, [0.8, 0.9, 1.2]),        # the sky
+                  lobe([-1.0, 0.4, 0.5], 12.0, [1.0, 0.6, 0.3]),      # a bright region low on the horizon
+                  lobe([0.5, -0.6, 0.1], 5.0, [0.5, 0.5, 0.5])])      # a lobe below the horizon
+
+
+FACES = np.array([[1.0, 0.9, 0.8], [0.2, 0.3, 0.4], [3.0, 2.8, 2.5], [0.1, 0.1, 0.1], [0.6, 0.7, 0.9],
+                  [0.5, 0.4, 0.3]])  # the env cube of the env-specular path: one RGB per face
+
+
+def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=16, self_occlusion=1,
+               specular_shadows=1, camera=(0.0, 3.0, 6.0), env_sharpness=1e30):
+    """pixels: list of dicts p, n, albedo, ks, material (shininess, roughness, lobe), id."""
+    ctx, queue = cl_pair
+    n = len(pixels)
+    f4 = lambda rows: np.ascontiguousarray(np.array(rows, np.float32).reshape(n, 4))  # noqa: E731
+    pos = f4([[*q["p"], 1.0] for q in pixels])
+    nrm = f4([[*unit(q["n"]), 0.0] for q in pixels])
+    alb = f4([[*q["albedo"], q["ks"]] for q in pixels])
+    mat = f4([[*q["material"], 0.0] for q in pixels])
+    ids = np.array([q["id"] for q in pixels], np.uint32)
+    mf = cl.mem_flags
+    ro = lambda a: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a)  # noqa: E731
+    sp = np.ascontiguousarray(np.array(spheres, np.float32).reshape(-1, 4)) if len(spheres) else np.zeros((1, 4), np.float32)
+    ow = np.array(owners, np.uint32) if len(owners) else np.zeros(1, np.uint32)
+    lb = np.zeros((len(lobes), 8), np.float32)
+    lb[:, :4], lb[:, 4:7] = np.asarray(lobes)[:, :4], np.asarray(lobes)[:, 4:7]
+    cube = np.zeros((6, 4), np.float32)
+    cube[:, :3] = FACES
+    out = np.empty((n, 4), np.float32)
+    obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
+    k = cl.Kernel(build_test_kernel(SOURCE), "shade_isg")
+    k(queue, (n,), None, ro(pos), ro(nrm), ro(alb), ro(mat), ro(ids), np.int32(n), ro(cube), np.int32(1),
+      np.int32(0), ro(lb), np.int32(len(lobes)), ro(sp), ro(ow), np.int32(len(spheres)), np.int32(grid),
+      np.int32(self_occlusion), np.int32(specular_shadows), np.float32(env_sharpness),
+      np.array([*camera, 0.0], np.float32), ro(table32()),
+      obuf)
+    cl.enqueue_copy(queue, out, obuf)
+    return out
+
+
+def twin(pixels, lobes, spheres, owners, grid=16, self_occlusion=1, specular_shadows=1, camera=(0.0, 3.0, 6.0),
+         env_sharpness=1e30):
+    return np.array([shade(q["p"], q["n"], q["albedo"], q["ks"], q["material"], camera, q["id"], lobes, spheres,
+                           owners, grid, self_occlusion, specular_shadows, env_sharpness, FACES) for q in pixels])
+
+
+def floor_pixels(ks=0.0, material=(0.0, 0.3, 0.0), xs=np.linspace(-1.6, 1.6, 9), zs=(-0.4, 0.0, 0.7)):
+    return [{"p": (x, 0.0, z), "n": (0, 1, 0), "albedo": (0.7, 0.6, 0.5), "ks": ks, "material": material, "id": 0}
+            for x in xs for z in zs]
+
+
+SPHERES = [[0.0, 0.8, 0.0, 0.5], [0.6, 0.5, 0.3, 0.3], [-0.7, 0.3, -0.2, 0.25]]
+OWNERS = [1, 1, 2]
+
+
+def check(got, want):
+    np.testing.assert_allclose(got[:, :3], want, rtol=ISG_SHADE_RTOL, atol=ISG_SHADE_ATOL * float(np.max(want)))
+
+
+def test_diffuse_floor_matches_twin(cl_pair, build_test_kernel):
+    px = floor_pixels()
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES, OWNERS)
+    want = twin(px, LOBES, SPHERES, OWNERS)
+    check(got, want)
+    free = twin(px, LOBES, [], [])
+    assert (want <= free + 1e-12).all() and (want < 0.9 * free).any()  # the spheres do cast shadows
+
+
+def test_no_spheres_is_the_unshadowed_closed_form(cl_pair, build_test_kernel):
+    px = floor_pixels(xs=(0.0,), zs=(0.0,))
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES[:1], [], [])
+    t = float(unit([0.3, 1.0, 0.2])[1])
+    e = np.array(LOBES[0][4:7]) * float(sg_cosine_exact(np.array([t]), 300.0)[0])
+    np.testing.assert_allclose(got[0, :3], np.array([0.7, 0.6, 0.5]) / math.pi * e, rtol=5e-3)
+
+
+def test_black_env_and_k1(cl_pair, build_test_kernel):
+    px = floor_pixels(xs=(0.0, 0.5), zs=(0.0,), ks=0.5, material=(100.0, 0.3, 0.0))
+    black = np.array([lobe([0, 1, 0], 3.0, [0.0, 0.0, 0.0])])
+    assert not run_kernel(cl_pair, build_test_kernel, px, black, SPHERES, OWNERS)[:, :3].any()
+    one = np.array([lobe([0.1, 1, 0], 3.0, [1.0, 1.0, 1.0])])
+    check(run_kernel(cl_pair, build_test_kernel, px, one, SPHERES, OWNERS), twin(px, one, SPHERES, OWNERS))
+
+
+@pytest.mark.parametrize("shininess,ks", [(1000.0, 0.5), (1000.0, 0.01), (50.0, 0.3)])
+def test_phong_specular_matches_twin(cl_pair, build_test_kernel, shininess, ks):
+    px = floor_pixels(ks=ks, material=(shininess, 0.3, 0.0))
+    cam = (1.0, 2.5, 4.0)
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES, OWNERS, camera=cam)
+    check(got, twin(px, LOBES, SPHERES, OWNERS, camera=cam))
+
+
+@pytest.mark.parametrize("shininess,ks,shadows", [(1000.0, 0.5, 1), (1000.0, 0.5, 0), (200.0, 0.3, 1)])
+def test_env_specular_path_matches_twin(cl_pair, build_test_kernel, shininess, ks, shadows):
+    """Sharp lobes integrate the env cube on their own visible patches."""
+    px = floor_pixels(ks=ks, material=(shininess, 0.3, 0.0))
+    cam = (1.0, 2.5, 4.0)
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES, OWNERS, camera=cam, env_sharpness=100.0,
+                     specular_shadows=shadows)
+    want = twin(px, LOBES, SPHERES, OWNERS, camera=cam, env_sharpness=100.0, specular_shadows=shadows)
+    check(got, want)
+    lobes_only = twin(px, LOBES, SPHERES, OWNERS, camera=cam, specular_shadows=shadows)
+    assert np.abs(want - lobes_only).max() > 0.01 * want.max()  # the env path is not the lobe path
+
+
+@pytest.mark.parametrize("lobe_kind,param", [(1, 200.0), (2, 0.2)])
+def test_blinn_phong_and_ggx_specular_match_twin(cl_pair, build_test_kernel, lobe_kind, param):
+    px = floor_pixels(ks=0.4, material=(param, param, float(lobe_kind)), xs=(-1.0, 0.2, 1.2))
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES, OWNERS)
+    check(got, twin(px, LOBES, SPHERES, OWNERS))
+
+
+def test_overlapping_spheres_occlude_a_patch_once(cl_pair, build_test_kernel):
+    px = floor_pixels()
+    one = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES[:1], OWNERS[:1])
+    doubled = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES[:1] * 3, OWNERS[:1] * 3)
+    np.testing.assert_array_equal(one, doubled)
+
+
+def test_receiver_inside_another_sphere_is_dark_and_straddling_sphere_matches(cl_pair, build_test_kernel):
+    inside = [{"p": (0.0, 0.0, 0.0), "n": (0, 1, 0), "albedo": (1, 1, 1), "ks": 0.0, "material": (0, 0.3, 0), "id": 0}]
+    got = run_kernel(cl_pair, build_test_kernel, inside, LOBES, [[0.0, 0.1, 0.0, 0.5]], [1])
+    assert not got[0, :3].any()
+    straddle = [[0.0, -0.2, 0.0, 0.6]]  # centre below the floor, cap above it
+    px = floor_pixels(xs=np.linspace(0.7, 2.0, 6))
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, straddle, [1])
+    want = twin(px, LOBES, straddle, [1])
+    check(got, want)
+    assert (want < twin(px, LOBES, [], [])).any()
+
+
+def test_grazing_normals_match_twin(cl_pair, build_test_kernel):
+    px = [{"p": (1.0, 0.0, 0.0), "n": (math.cos(a), math.sin(a), 0.0), "albedo": (0.8, 0.8, 0.8), "ks": 0.2,
+           "material": (300.0, 0.3, 0.0), "id": 0} for a in (1e-4, 0.01, 0.05, math.pi - 0.02)]
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES, OWNERS)
+    assert np.isfinite(got).all() and (got >= 0).all()
+    check(got, twin(px, LOBES, SPHERES, OWNERS))
+
+
+@pytest.mark.parametrize("policy", [0, 1, 2])
+def test_self_occlusion_policies(cl_pair, build_test_kernel, policy):
+    """A receiver on its own object's surface, inside a neighbouring sphere of
+    its own set (as on a sphere-set bunny): policy 1 drops that sphere (no
+    dark disc) but keeps the object's other spheres; policy 2 makes it dark."""
+    own = [[0.0, 1.0, 0.0, 1.0], [0.9, 1.0, 0.0, 0.5], [2.2, 1.6, 0.0, 0.5]]
+    px = [{"p": (1.0, 1.0, 0.0), "n": (1, 0, 0), "albedo": (1, 1, 1), "ks": 0.0, "material": (0, 0.3, 0), "id": 1}]
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, own, [1, 1, 1], self_occlusion=policy)
+    want = twin(px, LOBES, own, [1, 1, 1], self_occlusion=policy)
+    check(got, want)
+    free = twin(px, LOBES, [], [])
+    if policy == 0:
+        np.testing.assert_allclose(want, free)
+    elif policy == 1:
+        assert (want < 0.97 * free).all() and (want > 0.5 * free).all()  # shadowed by the third sphere only
+    else:
+        assert not want.any() and not got[:, :3].any()
+
+
+def test_background_pixels(cl_pair, build_test_kernel):
+    px = [{"p": (0.0, 0.0, -1.0), "n": (0, 1, 0), "albedo": (1, 1, 1), "ks": 0, "material": (0, 0, 0),
+           "id": BACKGROUND}]
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES, OWNERS)
+    assert not got.any()  # show_background 0: black, alpha 0
+
+
+@pytest.mark.parametrize("lam", [2.5, 40.0, 1000.0])
+def test_patch_visibility_converges_to_the_exact_visible_integral(lam):
+    """The twin's patch visibility of a lobe against dense quadrature with
+    exact ray-sphere tests over the lobe's front hemisphere: the patch
+    discretisation error shrinks with M. Then the product-lobe stand-in for
+    lobe x clamped cosine against the exact share of lobe x cosine."""
+    p, n = np.zeros(3), np.array([0.0, 1.0, 0.0])
+    axis = unit([0.1, 1.0, 0.05])
+    # one sphere whose cap edge crosses the lobe near its axis (at any lambda), one broad one aside
+    width = min(1.0 / math.sqrt(lam), 0.5)
+    c = unit(axis + width * unit(np.cross(axis, [0.0, 0.0, 1.0])))
+    spheres = [[*(2.0 * c), 2.0 * math.sin(1.2 * width)], [-0.4, 0.7, 0.3, 0.2]]
+    dense = 3_000_000 if lam > 100 else 400_000  # enough directions inside a sharp lobe
+    exact = visible_exact(axis, lam, 1.0, p, None, spheres, dense) / visible_exact(axis, lam, 1.0, p, None, [], dense)
+    errs = [abs(visibility(axis, lam, p, n, 0, 1, spheres, [1, 1], g) - exact) for g in (4, 8, 16, 24)]
+    assert errs[-1] < ISG_VISIBILITY_GRID_ATOL and errs[-1] < errs[0], errs
+    m_axis, m_lam, _ = sg_product(axis, lam, 1.0, n, COS_SHARPNESS, COS_AMPLITUDE)
+    exact_cos = visible_exact(axis, lam, 1.0, p, n, spheres) / visible_exact(axis, lam, 1.0, p, n, [])
+    assert abs(visibility(m_axis, float(m_lam), p, n, 0, 1, spheres, [1, 1], 24) - exact_cos) < \
+        ISG_VISIBILITY_PATCH_ATOL
