@@ -2804,6 +2804,8 @@ static void test_sg(pn_context ctx)
     }
     free(rgb);
     pn_envmap_release(env);
+}
+
 /* Sphere sets (the isg method's asset) and the isg renderer: handle and
  * argument checks, bad caller spheres, degenerate meshes, attach rules, a
  * set of a mesh's old geometry refused at execute, enqueue-only. */
