@@ -66,7 +66,6 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
 {
     pn_context ctx = r->obj.ctx;
     state *s = r->state;
-    pn_envmap env = scene->env;
     cl_kernel k;
     pn_status st;
     if ((st = pn_context_kernel(ctx, "reference", "shade_reference", &k)) ||
@@ -76,17 +75,15 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const cl_int lights = (cl_int)scene->committed_light_count, side = (cl_int)r->params[P_LIGHT_SAMPLES];
     const cl_float4 camera = pn_scene_camera_position(scene);
     const cl_float offset = (cl_float)r->params[P_RAY_OFFSET], scale = pn_scene_scale(scene);
-    const cl_int visibility = (cl_int)r->params[P_VISIBILITY], n = env->face_size;
-    const cl_int bg = (cl_int)r->params[P_BACKGROUND];
+    const cl_int visibility = (cl_int)r->params[P_VISIBILITY];
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count,
                       sizeof(cl_mem), sizeof records, sizeof(cl_mem), sizeof lights, sizeof side, sizeof camera,
-                      sizeof offset, sizeof scale, sizeof visibility, sizeof(cl_mem), sizeof n, sizeof bg,
-                      sizeof(cl_mem)};
+                      sizeof offset, sizeof scale, sizeof visibility, sizeof(cl_mem)};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &s->records, &records,
-                          &scene->light_buffer, &lights, &side, &camera, &offset, &scale, &visibility, &env->cube, &n,
-                          &bg, &image->buffer};
+                          &scene->light_buffer, &lights, &side, &camera, &offset, &scale, &visibility,
+                          &image->buffer};
     /* The six scene arguments come first (pn_scene_set_kernel_args). */
     for (cl_uint i = 0; i < sizeof sizes / sizeof sizes[0]; ++i) {
         cl_int err = clSetKernelArg(k, 6 + i, sizes[i], vals[i]);
