@@ -178,6 +178,7 @@ def render(built: BuiltScene, method: str = "unshadowed", frames: int = 5, progr
         stimes.append(_timed(lambda: renderer.execute(built.scene, gbuffer, image), ctx))
         if progress is not None:
             progress.update(1)
+    technique.after_render(built, renderer)
     planes = {p: gbuffer.read(p) for p in ("position", "normal", "albedo", "material", "instance")}
     totals = [a + b for a, b in zip(gtimes, stimes)]
     timings = {"frame_median": statistics.median(totals), "frame_min": min(totals),
