@@ -3,8 +3,8 @@ Mitsuba 3 on every env map of the shared data (docs/reference.md, "Choosing
 the directions").
 
 For each map in <data>/envmaps: the standard bunny scene (bench/scenes/
-bunny_sunny.toml: the bunny on a ground plane) lit by that map at 64x48
-pixels, rendered by
+bunny_sunny.toml: the bunny on a ground plane) lit by that map at 32x24
+pixels (as tests/test_crossval.py), rendered by
 
 * Mitsuba 3 at the pixel centres, 1024 samples per pixel x 8 emitter samples
   (penumbra.mitsuba.render; its own noise is measured on one map with a second
@@ -22,7 +22,7 @@ them black), which is not what this measures.
 
 Run: python bench/reference_auto.py [--out bench/results/reference_auto] [--maps a.hdr b.exr]
 Data: $PENUMBRA_DATA, else ../shared/data beside the checkout. Takes about a
-minute per map on two CPU cores (Mitsuba's llvm variant most of it).
+minute per map on two busy CPU cores (Mitsuba's llvm variant most of it).
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from penumbra.scenefile import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "bench" / "scenes" / "bunny_sunny.toml"
-RESOLUTION = "[64,48]"
+RESOLUTION = "[32,24]"  # the cross-validation tests' size; Mitsuba at 1024 spp takes ~15 s per map
 SPP, EMITTER_SAMPLES = 1024, 8
 OLD_DEFAULTS = {"face_size": 32, "sun_supersampling": 1}
 BAR = 0.01  # the agreement the defaults must reach
