@@ -19,11 +19,13 @@ def directions(renderer, scene) -> dict:
 
 class Reference(Technique):
     interactive = False
-    readme_setting = {"face_size": 32}
+    # Sweep points fix both grid parameters: left at 0, sun_supersampling would
+    # be picked from the env map and the points would not be the face sizes they name.
+    readme_setting = {"face_size": 32, "sun_supersampling": 1}
     readme_label = "face 32"
 
     def sweep(self) -> list[dict]:
-        return [{"face_size": f} for f in (4, 8, 16, 32)]
+        return [{"face_size": f, "sun_supersampling": 1} for f in (4, 8, 16, 32)]
 
     def output_shape(self, renderer, scene, output: str, instance: int) -> tuple[int, ...]:
         return (3,)
