@@ -3,7 +3,7 @@
 SHELL := /bin/bash
 VENV ?= .venv
 PY := $(VENV)/bin/python
-DEBS := pocl-opencl-icd ocl-icd-opencl-dev opencl-headers cmake ninja-build g++ pkg-config python3-venv libllvm19
+DEBS := pocl-opencl-icd ocl-icd-opencl-dev opencl-headers cmake ninja-build g++ pkg-config python3-venv libllvm19 libstb-dev
 STAMP_DEPS := $(VENV)/.deps-installed
 STAMP_PKG := $(VENV)/.penumbra-installed
 # The documentation site (make docs): Sphinx with Markdown pages through myst-parser.
@@ -30,7 +30,7 @@ $(STAMP_DEPS): pyproject.toml | deps
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q "scikit-build-core>=0.10" "numpy>=1.24" "pyopencl>=2023.1" "OpenEXR>=3.2" \
 	  "libigl>=2.5" "pillow>=10" "tqdm>=4.60" "pytest>=7" "mitsuba>=3.5" "embreex>=2.17" "matplotlib>=3.7" \
-	  $(DOCS_PIP)
+	  $(DOCS_PIP) "dask[distributed]>=2024.1"
 	touch $@
 
 venv: $(STAMP_DEPS)

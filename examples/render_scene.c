@@ -1,22 +1,27 @@
 /* render_scene: a standalone consumer of libpenumbra.
  *
- *   render_scene ENV.pfm OUT.pfm [WIDTH HEIGHT [METHOD]]
+ *   render_scene ENV.hdr OUT.pfm [WIDTH HEIGHT [METHOD]]
  *
- * Reads a lat-long environment map from a PFM file, builds a small scene in
+ * Reads a lat-long environment map from a Radiance .hdr file (through
+ * stb_image, Debian's libstb-dev: `pkg-config stb`), builds a small scene in
  * C (a unit box standing on a ground quad), renders it with the "unshadowed"
  * method (or METHOD; the library's method metadata says what the method
  * reads: for one that reads occlusion fields, such as "fiv", the box's field
  * is baked on a small 16x9x8 grid and attached to the box, so it casts soft
- * shadows) and writes the RGB result as a PFM file (written to a temporary
- * file beside OUT.pfm, then renamed over it).
+ * shadows) and writes the RGB result as a PFM file (float32, exact; written
+ * to a temporary file beside OUT.pfm, then renamed over it).
  *
- * PFM: a text header "PF\n<width> <height>\n<scale>\n" ("Pf" for one channel)
- * followed by 32-bit floats, little-endian when scale < 0, with the rows
- * stored bottom-to-top. penumbra's images and env maps are top row first, so
- * rows are flipped on the way in and out. */
+ * .hdr: stb_image decodes RGBE (flat or run-length encoded scanlines, the
+ * "-Y H +X W" orientation every Radiance map uses) to linear floats, top row
+ * first, as penumbra takes them. It does not apply the header's EXPOSURE or
+ * COLORCORR (penumbra.imageio.read_envmap divides them out).
+ * PFM output: a text header "PF\n<width> <height>\n-1.0\n" followed by
+ * little-endian 32-bit floats with the rows stored bottom-to-top, so rows
+ * are flipped on the way out. */
 #define _POSIX_C_SOURCE 200809L
 
 #include <penumbra.h>
+#include <stb_image.h>
 
 #include <errno.h>
 #include <fcntl.h>
@@ -26,7 +31,38 @@
 #include <string.h>
 #include <unistd.h>
 
-/* ------------------------------------------------------------------ PFM */
+/* ------------------------------------------------------------ env map in */
+
+/* Returns width*height RGB triples, top row first (free with stbi_image_free),
+ * or NULL with a message on stderr. Only HDR files are taken: stb_image would
+ * also decode an 8-bit PNG or JPEG, but guessing its radiance (an inverse
+ * gamma of 2.2, up to 1) would light the scene with made-up values. */
+static float *read_envmap(const char *path, uint32_t *width, uint32_t *height)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f) {
+        fprintf(stderr, "render_scene: cannot open %s: %s\n", path, strerror(errno));
+        return NULL;
+    }
+    const int hdr = stbi_is_hdr_from_file(f);
+    fclose(f);
+    if (!hdr) {
+        fprintf(stderr, "render_scene: %s is not a Radiance .hdr file (no \"#?RADIANCE\" or \"#?RGBE\" header)\n",
+                path);
+        return NULL;
+    }
+    int w = 0, h = 0, channels = 0;
+    float *rgb = stbi_loadf(path, &w, &h, &channels, 3);
+    if (!rgb) {
+        fprintf(stderr, "render_scene: cannot read %s: %s\n", path, stbi_failure_reason());
+        return NULL;
+    }
+    *width = (uint32_t)w;
+    *height = (uint32_t)h;
+    return rgb;
+}
+
+/* --------------------------------------------------------------- image out */
 
 static int host_is_little_endian(void)
 {
@@ -45,84 +81,6 @@ static void swap_floats(float *v, size_t n)
         t = b[1], b[1] = b[2], b[2] = t;
         memcpy(&v[i], b, 4);
     }
-}
-
-/* Reads one whitespace-delimited header token. */
-static int read_token(FILE *f, char *buf, size_t size)
-{
-    int c;
-    size_t n = 0;
-    do
-        c = fgetc(f);
-    while (c == ' ' || c == '\t' || c == '\n' || c == '\r');
-    while (c != EOF && c != ' ' && c != '\t' && c != '\n' && c != '\r') {
-        if (n + 1 >= size)
-            return 0;
-        buf[n++] = (char)c;
-        c = fgetc(f);
-    }
-    buf[n] = '\0';
-    /* `c` is the single whitespace character that ends the token (the last one precedes the data). */
-    return n > 0 && c != EOF;
-}
-
-/* Returns width*height RGB triples, top row first, or NULL (with a message on stderr). */
-static float *read_pfm(const char *path, uint32_t *width, uint32_t *height)
-{
-    FILE *f = fopen(path, "rb");
-    if (!f) {
-        fprintf(stderr, "render_scene: cannot open %s: %s\n", path, strerror(errno));
-        return NULL;
-    }
-    char magic[8], ws[32], hs[32], ss[64];
-    float *rgb = NULL, *raw = NULL;
-    if (!read_token(f, magic, sizeof magic) || !read_token(f, ws, sizeof ws) || !read_token(f, hs, sizeof hs) ||
-        !read_token(f, ss, sizeof ss) || (strcmp(magic, "PF") && strcmp(magic, "Pf"))) {
-        fprintf(stderr, "render_scene: %s is not a PFM file (expected a \"PF\" or \"Pf\" header)\n", path);
-        goto fail;
-    }
-    char *end;
-    unsigned long w = strtoul(ws, &end, 10);
-    int bad = *end != '\0';
-    unsigned long h = strtoul(hs, &end, 10);
-    bad = bad || *end != '\0';
-    double scale = strtod(ss, &end);
-    bad = bad || *end != '\0' || scale == 0.0;
-    if (bad || w == 0 || h == 0 || w > 65536 || h > 65536) {
-        fprintf(stderr, "render_scene: %s has an invalid PFM header (%s x %s, scale %s)\n", path, ws, hs, ss);
-        goto fail;
-    }
-    const size_t channels = magic[1] == 'F' ? 3 : 1;
-    const size_t count = (size_t)w * h * channels;
-    raw = malloc(count * sizeof *raw);
-    rgb = malloc((size_t)w * h * 3 * sizeof *rgb);
-    if (!raw || !rgb) {
-        fprintf(stderr, "render_scene: out of memory reading %s\n", path);
-        goto fail;
-    }
-    if (fread(raw, sizeof *raw, count, f) != count) {
-        fprintf(stderr, "render_scene: %s is truncated (expected %lu x %lu x %zu floats)\n", path, w, h, channels);
-        goto fail;
-    }
-    if ((scale < 0) != host_is_little_endian())
-        swap_floats(raw, count);
-    for (size_t y = 0; y < h; ++y) {
-        const float *src = raw + (h - 1 - y) * w * channels; /* PFM rows are bottom-to-top */
-        float *dst = rgb + y * w * 3;
-        for (size_t x = 0; x < w; ++x)
-            for (size_t c = 0; c < 3; ++c)
-                dst[3 * x + c] = src[channels * x + (channels == 3 ? c : 0)];
-    }
-    free(raw);
-    fclose(f);
-    *width = (uint32_t)w;
-    *height = (uint32_t)h;
-    return rgb;
-fail:
-    free(raw);
-    free(rgb);
-    fclose(f);
-    return NULL;
 }
 
 /* Writes RGBA pixels (top row first) as an RGB PFM, atomically: a temporary
@@ -233,7 +191,7 @@ int main(int argc, char **argv)
     uint32_t width = 160, height = 120;
     const char *method = argc == 6 ? argv[5] : "unshadowed";
     if (argc != 3 && argc != 5 && argc != 6) {
-        fprintf(stderr, "usage: %s ENV.pfm OUT.pfm [WIDTH HEIGHT [METHOD]]\n", argv[0]);
+        fprintf(stderr, "usage: %s ENV.hdr OUT.pfm [WIDTH HEIGHT [METHOD]]\n", argv[0]);
         return 2;
     }
     if (argc >= 5 && (!parse_size(argv[3], &width) || !parse_size(argv[4], &height))) {
@@ -241,7 +199,7 @@ int main(int argc, char **argv)
         return 2;
     }
     uint32_t env_w = 0, env_h = 0;
-    float *env_rgb = read_pfm(argv[1], &env_w, &env_h);
+    float *env_rgb = read_envmap(argv[1], &env_w, &env_h);
     if (!env_rgb)
         return 1;
 
@@ -338,7 +296,7 @@ cleanup:
             ok = 0;
     }
     free(pixels);
-    free(env_rgb);
+    stbi_image_free(env_rgb);
     if (ok)
         printf("wrote %s (%ux%u)\n", argv[2], width, height);
     return ok ? 0 : 1;

@@ -43,6 +43,23 @@ kernel void envmap_latlong_to_cube(global const float *latlong, int width, int h
     cube[gid] = (float4)(intensity * sum / weight, 0.0f);
 }
 
+/* The background of a rendered image: every background pixel (position.xyz
+ * holds its view direction) gets the env map's radiance in that direction,
+ * looked up bilinearly in the full-resolution lat-long map (not the cube,
+ * whose face size is chosen for lighting and would show as blocks), with the
+ * map's rotation and intensity, alpha 0. Other pixels are left alone. Run by
+ * the renderer after every method that has the `background` parameter. */
+kernel void envmap_background(global const float4 *position, global const uint *instance_id, int count,
+                              global const float *latlong, int width, int height, float2 rot, float intensity,
+                              global float4 *image)
+{
+    int gid = get_global_id(0);
+    if (gid >= count || instance_id[gid] != PN_BACKGROUND)
+        return;
+    float3 d = pn_rotate_y(normalize(position[gid].xyz), rot.x, -rot.y);
+    image[gid] = (float4)(intensity * pn_latlong_bilinear(latlong, width, height, d), 0.0f);
+}
+
 /* Unit direction of each cube texel centre, w = its exact solid angle. */
 kernel void envmap_cube_directions(int n, global float4 *dirs)
 {

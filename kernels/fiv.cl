@@ -152,7 +152,7 @@ inline float pn_lens_area(float a, float b, float dist)
 
 kernel void shade_fiv(global const float4 *position, global const float4 *normal, global const float4 *albedo,
                       global const uint *instance_id, int count, global const float4 *irradiance, int m,
-                      global const float4 *cube, int n_cube, int show_background, global const float4 *occluders,
+                      global const float4 *occluders,
                       int occluder_count, global const uchar *fields, float4 env_x, float4 env_y, float4 env_z,
                       int overlap, int partial, int self_shadow, int trilinear, global float4 *image)
 {
@@ -160,10 +160,8 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     if (gid >= count)
         return;
     uint id = instance_id[gid];
-    if (id == PN_BACKGROUND) {
-        float3 env = show_background ? pn_cube_texel_lookup(cube, n_cube, normalize(position[gid].xyz))
-                                     : (float3)(0.0f);
-        image[gid] = (float4)(env, 0.0f);
+    if (id == PN_BACKGROUND) { /* black; the renderer draws the env map there (envmap_background) */
+        image[gid] = (float4)(0.0f);
         return;
     }
     float3 p = position[gid].xyz;

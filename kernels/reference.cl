@@ -69,15 +69,13 @@ kernel void shade_reference(PN_SCENE_ARGS, global const float4 *position, global
                             global const uint *instance_id, int count, global const float4 *records,
                             int record_count, global const float4 *lights, int light_count, int light_side,
                             float4 camera, float offset, float scene_scale, int visibility,
-                            global const float4 *cube, int n_cube, int show_background, global float4 *image)
+                            global float4 *image)
 {
     int gid = get_global_id(0);
     if (gid >= count)
         return;
-    if (instance_id[gid] == PN_BACKGROUND) {
-        float3 env = show_background ? pn_cube_texel_lookup(cube, n_cube, normalize(position[gid].xyz))
-                                     : (float3)(0.0f);
-        image[gid] = (float4)(env, 0.0f);
+    if (instance_id[gid] == PN_BACKGROUND) { /* black; the renderer draws the env map there (envmap_background) */
+        image[gid] = (float4)(0.0f);
         return;
     }
     pn_scene_view scene = pn_make_scene_view(tlas, instances, blas, tris, instance_count);

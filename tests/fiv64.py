@@ -300,7 +300,7 @@ def lens_area(a, b, dist):
     return out
 
 
-def shade(position, normal, albedo, instance, e_unshadowed, occluders, env_fiv, overlap=1, partial=0, self_shadow=1,
+def shade(position, normal, albedo, instance, e_unshadowed, occluders, env_fiv, overlap=1, partial=0, self_shadow=0,
           trilinear=1, max_overlap=32):
     """The shade_fiv formula per foreground pixel (arrays of n pixels: position
     (n, 3+), normal (n, 3+), albedo (n, 3+), instance (n,), the DifMap

@@ -3,6 +3,8 @@ model and a Möller–Trumbore ray caster against world-space triangles."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from penumbra import Camera
@@ -80,3 +82,39 @@ def cast(origin, dirs, v0, v1, v2, chunk=256):
         u_out[s:s + chunk], v_out[s:s + chunk] = u[rows, k], v[rows, k]
         near[s:s + chunk] = (plane & (np.abs(bmin) < EDGE_EPS)).any(axis=1)
     return t_out, tri_out, u_out, v_out, near
+
+
+def corner_normals64(vertices, faces, crease_angle_deg) -> np.ndarray:
+    """float64 twin of penumbra.meshio.smooth_normals, written as plain loops:
+    (m, 3, 3) unit normal of every triangle corner, the angle-weighted sum of
+    the face normals around its vertex position within the crease angle of its
+    own face (a zero-area face: of every face around it)."""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    face_n, angles = [], []
+    for t in f:
+        p = v[t]
+        c = np.cross(p[1] - p[0], p[2] - p[0])
+        ln = np.linalg.norm(c)
+        face_n.append(c / ln if ln > 0 else np.zeros(3))
+        a = []
+        for k in range(3):
+            e1, e2 = p[(k + 1) % 3] - p[k], p[(k + 2) % 3] - p[k]
+            a.append(math.atan2(np.linalg.norm(np.cross(e1, e2)), float(e1 @ e2)))
+        angles.append(a)
+    around: dict[tuple, list] = {}
+    for ti, t in enumerate(f):
+        for k in range(3):
+            around.setdefault(tuple(v[t[k]]), []).append((ti, k))
+    cos_limit = math.cos(math.radians(crease_angle_deg))
+    out = np.zeros((len(f), 3, 3))
+    for ti, t in enumerate(f):
+        own = face_n[ti]
+        for k in range(3):
+            s = np.zeros(3)
+            for tj, kj in around[tuple(v[t[k]])]:
+                if not own.any() or own @ face_n[tj] >= cos_limit - 1e-12:
+                    s += angles[tj][kj] * face_n[tj]
+            ln = np.linalg.norm(s)
+            out[ti, k] = s / ln if ln > 0 else (0.0, 1.0, 0.0)
+    return out

@@ -34,7 +34,8 @@ def tiny_bench(tmp_path_factory, shared_data):
     pytest.importorskip("mitsuba")
     out = tmp_path_factory.mktemp("bench")
     opts = BenchOptions(frames=5, reference_face_size=8, reference_sun_supersampling=1, spp=(1, 4),
-                        sweeps={"unshadowed": [{}], "reference": [{"face_size": 4}, {"face_size": 8}],
+                        sweeps={"unshadowed": [{}], "reference": [{"face_size": 4, "sun_supersampling": 1},
+                                              {"face_size": 8, "sun_supersampling": 1}],
                                 "fiv": [{"samples": [8, 5, 4], "face_size": 8},
                                         {"samples": [8, 5, 4], "face_size": 8, "overlap": 0}],
                                 "depthmap": [{"directions": 8, "resolution": 32}]})
@@ -66,9 +67,9 @@ def test_results_json_schema(tiny_bench):
             assert set(RESULT_KEYS) <= set(r)
             assert r["floor_ratio"] > 0
     # The reference at the ground truth's own face size is the ground truth.
-    ref8 = next(r for r in rows if r["method"] == "reference" and r["params"] == {"face_size": 8})
+    ref8 = next(r for r in rows if r["method"] == "reference" and r["params"] == {"face_size": 8, "sun_supersampling": 1})
     assert ref8["nrmse"] < 1e-6
-    ref4 = next(r for r in rows if r["method"] == "reference" and r["params"] == {"face_size": 4})
+    ref4 = next(r for r in rows if r["method"] == "reference" and r["params"] == {"face_size": 4, "sun_supersampling": 1})
     assert ref4["nrmse"] > ref8["nrmse"]
     s = data["summary"]
     assert s["rays"]["primary"]["mismatch_fraction"] < 1e-3 and s["mitsuba"]["variant"]

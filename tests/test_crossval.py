@@ -86,3 +86,21 @@ def test_spherical_light_agrees_with_mitsuba(pn_ctx, shared_data):
     assert lit.sum() > 100 and np.isfinite(mi_img).all()
     err = compare(ref, mi_img, fg)
     assert err["nrmse"] <= AGREEMENT_NRMSE, err
+
+
+def test_reference_defaults_are_ground_truth_under_small_softboxes(pn_ctx, shared_data):
+    """With its defaults (face_size and sun_supersampling picked from the env
+    map) the reference agrees with converged Mitsuba on the studio map whose
+    small softboxes the old fixed default (face 32, no supersampling) got
+    wrong: it picks face 64 with 4 x 4 sub-texels there. The full sweep over
+    every map is bench/reference_auto.py (docs/reference.md)."""
+    from penumbra.methods.reference import directions
+
+    studio = shared_data / "envmaps" / "studio_small_03_1k_polyhaven.hdr"
+    over = [f"environment.map={studio}", "object.bunny.crease_angle_deg=0"]
+    built, ref, mi_img, fg = reference_and_mitsuba(pn_ctx, "bunny_sunny", over, {})
+    err = compare(ref, mi_img, fg)
+    assert err["nrmse"] <= AGREEMENT_NRMSE, err
+    from penumbra.core import Renderer
+    picked = directions(Renderer(pn_ctx, "reference"), built.scene)
+    assert (picked["face_size"], picked["sun_supersampling"]) == (64, 4), picked

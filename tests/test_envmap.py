@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import penumbra
+import penumbra.methods
 from penumbra import procedural
 from tolerances import CUBE_RTOL, IRRADIANCE_RTOL, SOLID_ANGLE_SUM_RTOL
 from test_sphere_maps import cube_to_dir64, latlong_to_dir64
@@ -160,3 +161,93 @@ def test_parameters_are_checked(ctx):
         penumbra.EnvMap(ctx, np.ones((4, 8), np.float32))
     e = penumbra.EnvMap(ctx, env, face_size=5)
     assert e.get("face_size") == 5
+
+
+# ---------------------------------------------------------------- background: the full-resolution lookup
+
+BILINEAR_SOURCE = """
+#include "common/sphere_maps.cl"
+kernel void latlong_bilinear(global const float *map, int w, int h, global const float4 *d, global float4 *out)
+{ int i = get_global_id(0); out[i] = (float4)(pn_latlong_bilinear(map, w, h, d[i].xyz), 0.0f); }
+"""
+
+
+def special_directions():
+    """The u = 0 seam from both sides, the poles, texel centres and edges of a 16 x 8 map."""
+    uv = [(0.0, 0.5), (1e-6, 0.5), (1 - 1e-6, 0.5), (0.5, 0.0), (0.5, 1.0), (0.3, 1e-4), (0.7, 1 - 1e-4),
+          (0.5 / 16, 0.5 / 8), (1 / 16, 1 / 8), (15.5 / 16, 7.5 / 8), (0.25, 0.5), (0.5, 0.25)]
+    u, v = np.array(uv).T
+    return latlong_to_dir64(u, v)
+
+
+def test_latlong_bilinear_matches_float64(cl_pair, build_test_kernel):
+    """pn_latlong_bilinear against the float64 twin on a map of random texels
+    (so any addressing error shows), at random directions, the seam and the poles."""
+    import pyopencl as cl
+    from envmap64 import latlong_bilinear64
+    from tolerances import BACKGROUND_ATOL
+
+    cl_ctx, queue = cl_pair
+    rng = np.random.default_rng(5)
+    w, h = 16, 8
+    latlong = rng.uniform(0.0, 1.0, (h, w, 3)).astype(np.float32)
+    d = rng.normal(size=(4096, 3))
+    d = np.concatenate([special_directions(), d / np.linalg.norm(d, axis=1, keepdims=True)])
+    d4 = np.zeros((len(d), 4), np.float32)
+    d4[:, :3] = d
+    mf = cl.mem_flags
+    bmap = cl.Buffer(cl_ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=latlong)
+    bd = cl.Buffer(cl_ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=d4)
+    out = np.empty((len(d), 4), np.float32)
+    bout = cl.Buffer(cl_ctx, mf.WRITE_ONLY, out.nbytes)
+    cl.Kernel(build_test_kernel(BILINEAR_SOURCE), "latlong_bilinear")(queue, (len(d),), None, bmap, np.int32(w),
+                                                                     np.int32(h), bd, bout)
+    cl.enqueue_copy(queue, out, bout)
+    expect = latlong_bilinear64(latlong, d4[:, :3].astype(np.float64))
+    err = np.abs(out[:, :3] - expect).max()
+    assert err < BACKGROUND_ATOL, f"max error {err:.3g}"
+    # The documented points: the seam blends the last and first columns
+    # equally; a texel centre is that texel; the poles take the edge rows.
+    lat = latlong.astype(np.float64)
+    np.testing.assert_allclose(out[0, :3], 0.5 * (lat[3, 15] + lat[3, 0] + lat[4, 15] + lat[4, 0]) / 2, atol=1e-5)
+    np.testing.assert_allclose(out[7, :3], lat[0, 0], atol=1e-5)
+    np.testing.assert_allclose(out[9, :3], lat[7, 15], atol=1e-5)
+    np.testing.assert_allclose(out[3, :3], 0.5 * (lat[0, 7] + lat[0, 8]), atol=1e-4)
+    np.testing.assert_allclose(out[4, :3], 0.5 * (lat[7, 7] + lat[7, 8]), atol=1e-4)
+
+
+@pytest.mark.parametrize("method", [m for m in penumbra.methods.names() if penumbra.methods.spec(m).param("background")])
+def test_background_is_the_bilinear_latlong_lookup(ctx, method):
+    """Every method with the `background` parameter shows, on background
+    pixels, the lat-long map at full resolution in the view direction (with the
+    env map's rotation and intensity), not the cube map at its face size: the
+    renderer draws it after the method (methods/renderer.c). background = 0
+    leaves them black; alpha is 0 there either way."""
+    from envmap64 import background64
+    from penumbra.methods.heightfield import HeightFieldHandle
+    from tolerances import BACKGROUND_ATOL
+
+    rng = np.random.default_rng(11)
+    latlong = rng.uniform(0.0, 1.0, (32, 64, 3)).astype(np.float32)
+    env = penumbra.EnvMap(ctx, latlong, face_size=8, irradiance_face_size=4, rotation_deg=30.0, intensity=2.5)
+    scene = penumbra.Scene(ctx)
+    scene.set_envmap(env)
+    # A small height field behind the camera, out of view (heightfield needs one).
+    field = HeightFieldHandle(ctx, np.zeros((2, 2)), origin=(0.0, 0.0, 100.0), size=(1.0, 1.0))
+    scene.attach(scene.add(field.mesh(), None, penumbra.Material()), field)
+    scene.set_camera(penumbra.Camera(position=(0, 0, 0), look_at=(0.3, 0.4, -1), up=(0, 1, 0), fov_deg=100.0,
+                                     resolution=(48, 32)))
+    scene.commit()
+    gbuffer, image = penumbra.GBuffer(ctx, 48, 32), penumbra.Image(ctx, 48, 32)
+    scene.render_gbuffer(gbuffer)
+    assert (gbuffer.read("instance") == penumbra.BACKGROUND).all()
+    penumbra.Renderer(ctx, method, background=1).execute(scene, gbuffer, image)
+    got = image.read()
+    expect = background64(latlong, gbuffer.read("position")[..., :3].astype(np.float64), 30.0, 2.5)
+    err = np.abs(got[..., :3] - expect).max() / (2.5 * latlong.max())
+    assert err < BACKGROUND_ATOL, f"{method}: background differs from the bilinear lookup by {err:.3g} of the max"
+    assert (got[..., 3] == 0).all()
+    # The cube at face size 8 would be blocky: neighbouring pixels differ.
+    assert len(np.unique(got[..., 0])) > 0.9 * got[..., 0].size
+    penumbra.Renderer(ctx, method, background=0).execute(scene, gbuffer, image)
+    assert (image.read() == 0).all()

@@ -114,6 +114,10 @@ def gbuffer_of(ctx, scene, camera):
 
 
 def shade(ctx, scene, gb, method="reference", **params):
+    """The image of `method`; for the reference, no sun supersampling unless
+    asked (the float64 twin and the face-size tests use plain cube texels)."""
+    if method == "reference":
+        params.setdefault("sun_supersampling", 1)
     img = Image(ctx, gb.width, gb.height)
     Renderer(ctx, method, **params).execute(scene, gb, img)
     return img.read()
@@ -420,7 +424,8 @@ def test_reference_converges_with_face_size(ctx, shared_data):
 
 
 @pytest.mark.parametrize("params,match", [
-    ({"face_size": 0}, "face_size"),
+    ({"face_size": -1}, "face_size"),
+    ({"sun_supersampling": 17}, "sun_supersampling"),
     ({"face_size": 257}, "face_size"),
     ({"face_size": 2.5}, "integer parameter"),
     ({"sun_threshold": 0.0}, "sun_threshold"),
@@ -442,3 +447,47 @@ def test_too_many_sub_texels_is_refused(ctx, box_scene):
 def test_int_values_are_accepted_for_float_parameters(ctx):
     r = Renderer(ctx, "reference", sun_threshold=1, ray_offset=0)
     assert r.get("sun_threshold") == 1.0 and r.get("ray_offset") == 0.0
+
+
+# --------------------------------------------------------------------------- the automatic direction grid
+
+
+def picks(ctx, scene, gb, **params):
+    from penumbra.methods.reference import directions
+
+    return directions(Renderer(ctx, "reference", **params), scene)  # runs the plan only
+
+
+@pytest.mark.parametrize("name,latlong,expect", [
+    ("constant", lambda: procedural.constant(1.0), (32, 1, 6144)),
+    ("sky without sun", lambda: procedural.sky(128, 64, sun_radiance=0.0), (32, 1, None)),
+    ("sky with a 1e4 sun", lambda: procedural.sky(256, 128), (64, 4, None)),
+    ("a directional sun", lambda: procedural.directional((0.4, 1.0, 0.3), 3.0, width=256, height=128), (64, 4, None)),
+])
+def test_default_grid_is_chosen_from_the_env_map(ctx, box_scene, name, latlong, expect):
+    """face_size = sun_supersampling = 0 (the defaults): a broad map keeps
+    face 32 unsplit; a map whose brightest texel carries >= 100x the mean
+    power gets face 64 with its few bright texels split 4 x 4. The picks and
+    the direction count are readable (output 'directions'), and rendering with
+    them set explicitly gives the same image."""
+    s = box_scene
+    s["scene"].set_envmap(EnvMap(ctx, latlong(), face_size=16))
+    try:
+        got = picks(ctx, s["scene"], s["gb"])
+        face, sun, count = expect
+        assert (got["face_size"], got["sun_supersampling"]) == (face, sun), got
+        if count is not None:
+            assert got["directions"] == count
+        if name == "sky with a 1e4 sun":  # no black texel; each split one adds 15 directions
+            assert got["directions"] > 6 * 64 * 64
+        auto = Image(ctx, s["gb"].width, s["gb"].height)
+        Renderer(ctx, "reference").execute(s["scene"], s["gb"], auto)
+        explicit = shade(ctx, s["scene"], s["gb"], face_size=face, sun_supersampling=sun)
+        np.testing.assert_array_equal(auto.read(), explicit)
+        # A set value is kept; the other is still picked.
+        one = picks(ctx, s["scene"], s["gb"], face_size=16)
+        assert (one["face_size"], one["sun_supersampling"]) == (16, sun)
+        other = picks(ctx, s["scene"], s["gb"], sun_supersampling=2)
+        assert (other["face_size"], other["sun_supersampling"]) == (face, 2)
+    finally:
+        s["scene"].set_envmap(s["env"])

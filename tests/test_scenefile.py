@@ -66,6 +66,7 @@ shininess = 64.0
 roughness = 0.5
 lobe = "ggx"
 occluder = false
+crease_angle_deg = 30.0
 
 [[object]]
 name = "ball"
@@ -133,6 +134,7 @@ def test_every_documented_key_parses(tmp_path):
     assert b.scale == (1.0, 2.0, 3.0)
     assert b.albedo == (0.1, 0.2, 0.3)
     assert (b.specular, b.shininess, b.roughness, b.lobe) == (0.25, 64.0, 0.5, "ggx")
+    assert b.crease_angle_deg == 30.0 and ball.crease_angle_deg == 60.0  # the default
 
     assert ball.mesh is None and ball.primitive == "sphere"
     assert ball.params == {"radius": 0.5, "subdivisions": 3}

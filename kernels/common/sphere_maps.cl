@@ -32,6 +32,28 @@ inline float2 pn_dir_to_latlong(float3 d)
     return (float2)(u, v);
 }
 
+/* Bilinear lookup of a lat-long RGB map (width x height, 3 floats a texel)
+ * in direction d: texel (x, y) holds the radiance at its centre
+ * ((x + 0.5) / width, (y + 0.5) / height); u wraps around the seam, v is
+ * clamped at the poles (the first and last rows' values extend to them). */
+inline float3 pn_latlong_bilinear(global const float *latlong, int width, int height, float3 d)
+{
+    float2 uv = pn_dir_to_latlong(d);
+    float x = uv.x * (float)width - 0.5f, y = uv.y * (float)height - 0.5f;
+    float x_floor = floor(x), y_floor = floor(y);
+    float fx = x - x_floor, fy = y - y_floor;
+    int x0 = (int)x_floor, y0 = (int)y_floor; /* x0 in [-1, width - 1], y0 in [-1, height - 1] */
+    int x1 = x0 + 1 >= width ? x0 + 1 - width : x0 + 1;
+    x0 = x0 < 0 ? x0 + width : x0;
+    int y1 = min(y0 + 1, height - 1);
+    y0 = max(y0, 0);
+    global const float *p00 = latlong + 3 * (y0 * width + x0), *p10 = latlong + 3 * (y0 * width + x1);
+    global const float *p01 = latlong + 3 * (y1 * width + x0), *p11 = latlong + 3 * (y1 * width + x1);
+    float3 top = mix((float3)(p00[0], p00[1], p00[2]), (float3)(p10[0], p10[1], p10[2]), fx);
+    float3 bottom = mix((float3)(p01[0], p01[1], p01[2]), (float3)(p11[0], p11[1], p11[2]), fx);
+    return mix(top, bottom, fy);
+}
+
 /* Unnormalised direction of face coordinates (a, b) in [-1, 1]. */
 inline float3 pn_cube_to_dir(int face, float a, float b)
 {

@@ -40,7 +40,7 @@ import numpy as np
 from .errors import InputError
 from .fileutil import atomic_write, captured_native_output
 
-__all__ = ["Mesh", "load_mesh", "save_obj"]
+__all__ = ["DEFAULT_CREASE_ANGLE_DEG", "Mesh", "load_mesh", "save_obj", "smooth_normals"]
 
 
 @dataclass
@@ -117,6 +117,81 @@ def save_obj(path: str | os.PathLike, mesh: Mesh) -> None:
                 np.savetxt(f, one_based, fmt="f %d %d %d")
 
     atomic_write(path, write)
+
+
+# --------------------------------------------------------------------------- #
+# Smooth vertex normals for meshes that come without them
+# --------------------------------------------------------------------------- #
+
+# Scanned meshes (the bunny, the dragon) carry no normals; shaded with the
+# geometric normal they look faceted. 60 degrees keeps a box's or a
+# cylinder's edges sharp (90 degrees) while smoothing every fold a scan or a
+# tessellated curved surface has (docs/scene-format.md).
+DEFAULT_CREASE_ANGLE_DEG = 60.0
+
+
+def smooth_normals(mesh: Mesh, crease_angle_deg: float = DEFAULT_CREASE_ANGLE_DEG) -> Mesh:
+    """The mesh with angle-weighted smooth vertex normals, sharp across creases.
+
+    Each triangle corner gets the sum, over the triangles around its vertex
+    whose face normal is within ``crease_angle_deg`` of the corner's own
+    triangle's, of their unit face normals weighted by their angle at the
+    vertex (Thürmer and Wüthrich 1998), normalised. Vertices are matched by
+    position (so meshes stored as separate triangles, as STL files are, are
+    smoothed too), and a vertex whose corners get different normals (at a
+    crease) is split into one vertex per distinct normal. 0 degrees gives
+    every triangle its face normal; 180 smooths across every edge.
+    Zero-area triangles contribute nothing (rays never hit them; their own
+    corners get the smooth normal of their vertex without the crease test).
+    The positions and the triangles' shapes are unchanged; vertex order is by
+    first use.
+    """
+    angle = float(crease_angle_deg)
+    if not (0.0 <= angle <= 180.0):
+        raise InputError(f"crease_angle_deg must be in [0, 180], got {crease_angle_deg!r}")
+    faces = mesh.faces.astype(np.int64)
+    p = mesh.vertices.astype(np.float64)[faces]  # (m, 3 corners, 3)
+    cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.linalg.norm(cross, axis=1)
+    face_n = np.divide(cross, length[:, None], out=np.zeros_like(cross), where=length[:, None] > 0)
+    # Interior angle of every corner.
+    e1 = np.roll(p, -1, axis=1) - p
+    e2 = np.roll(p, -2, axis=1) - p
+    corner_angle = np.arctan2(np.linalg.norm(np.cross(e1, e2), axis=2), np.einsum("ijk,ijk->ij", e1, e2)).ravel()
+    # Corners grouped by vertex position; every pair of corners in a group.
+    _, position_id = np.unique(mesh.vertices, axis=0, return_inverse=True)
+    corner_vertex = position_id.reshape(-1)[faces.ravel()]
+    corner_face = np.repeat(np.arange(len(faces)), 3)
+    order = np.argsort(corner_vertex, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(corner_vertex[order]) != 0])
+    sizes = np.diff(np.r_[starts, len(order)])
+    group_size = np.repeat(sizes, sizes)
+    group_start = np.repeat(starts, sizes)
+    total = int(group_size.sum())
+    first_pair = np.repeat(np.cumsum(group_size) - group_size, group_size)
+    me = np.repeat(order, group_size)
+    other = order[np.repeat(group_start, group_size) + (np.arange(total) - first_pair)]
+    fa, fb = face_n[corner_face[me]], face_n[corner_face[other]]
+    cos_limit = np.cos(np.radians(angle))
+    own_degenerate = length[corner_face[me]] == 0
+    keep = (np.einsum("ij,ij->i", fa, fb) >= cos_limit - 1e-12) | own_degenerate
+    weighted = fb[keep] * corner_angle[other[keep]][:, None]
+    normal = np.zeros((len(corner_vertex), 3))
+    for c in range(3):
+        normal[:, c] = np.bincount(me[keep], weights=weighted[:, c], minlength=len(corner_vertex))
+    norm = np.linalg.norm(normal, axis=1)
+    # Only corners of zero-area triangles at an isolated vertex stay zero; any unit vector will do.
+    normal = np.where(norm[:, None] > 0, normal / np.where(norm > 0, norm, 1.0)[:, None], [0.0, 1.0, 0.0])
+    n32 = normal.astype(np.float32)
+    # One output vertex per (position, normal), in order of first use.
+    key = np.concatenate([corner_vertex[:, None].astype(np.float64), n32.astype(np.float64)], axis=1)
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    rank = np.empty(len(first), np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(len(first))
+    new_index = rank[inverse.reshape(-1)]
+    by_rank = first[np.argsort(first, kind="stable")]
+    vertices = mesh.vertices[faces.ravel()[by_rank]]
+    return Mesh(vertices, new_index.reshape(-1, 3).astype(np.uint32), n32[by_rank])
 
 
 # --------------------------------------------------------------------------- #

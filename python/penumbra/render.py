@@ -17,7 +17,7 @@ from . import methods, procedural
 from .core import _PLANE_DTYPE, Camera, Context, EnvMap, GBuffer, Image, Material, Mesh, Renderer, Scene
 from .errors import InputError
 from .imageio import read_envmap
-from .meshio import load_mesh
+from .meshio import load_mesh, smooth_normals
 from .scenefile import EnvironmentDesc, ObjectDesc, SceneDescription
 
 METHODS = methods.names()
@@ -47,7 +47,8 @@ def environment_latlong(env: EnvironmentDesc) -> np.ndarray:
 
 
 def object_geometry(obj: ObjectDesc):
-    """(vertices, faces, normals) of an object description."""
+    """(vertices, faces, normals) of an object description; geometry without
+    normals (most scanned meshes) gets smooth ones unless crease_angle_deg = 0."""
     if obj.mesh is not None:
         m = load_mesh(obj.mesh)
     else:
@@ -55,6 +56,8 @@ def object_geometry(obj: ObjectDesc):
             m = getattr(procedural, obj.primitive)(**obj.params)
         except TypeError as exc:
             raise InputError(f"[object '{obj.name}'] params do not fit primitive '{obj.primitive}': {exc}") from None
+    if m.normals is None and obj.crease_angle_deg > 0:
+        m = smooth_normals(m, obj.crease_angle_deg)
     return m.vertices, m.faces, m.normals
 
 
@@ -229,6 +232,7 @@ def render(built: BuiltScene, method: str = "unshadowed", frames: int = 5, progr
             stimes.append(_timed(lambda: renderer.execute(built.scene, gbuffer, image), ctx))
         if progress is not None:
             progress.update(1)
+    technique.after_render(built, renderer)
     planes = {p: gbuffer.read(p) for p in ("position", "normal", "albedo", "material", "instance")}
     totals = [a + b for a, b in zip(gtimes, stimes)]
     timings = {"frame_median": statistics.median(totals), "frame_min": min(totals),

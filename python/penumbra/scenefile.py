@@ -21,6 +21,7 @@ import numpy as np
 from .core import LOBES
 from .data import resolve as resolve_path
 from .errors import InputError
+from .meshio import DEFAULT_CREASE_ANGLE_DEG
 
 PROCEDURAL_ENVS = ("sky", "constant", "directional", "area_lights")
 PRIMITIVES = ("sphere", "box", "plane", "torus", "cylinder", "cone", "torus_knot")
@@ -61,6 +62,7 @@ class ObjectDesc:
     roughness: float = 0.3
     lobe: str = "phong"
     occluder: bool | None = None     # casts shadows in the methods that need occluders; None: True for a mesh file
+    crease_angle_deg: float = DEFAULT_CREASE_ANGLE_DEG  # smooth normals of geometry that has none; 0: faceted
 
     @property
     def is_occluder(self) -> bool:
@@ -69,7 +71,7 @@ class ObjectDesc:
 
     def geometry_key(self) -> tuple:
         """Objects with equal keys have the same geometry (one mesh and BVH serve them)."""
-        return (self.mesh, self.primitive, repr(sorted(self.params.items())))
+        return (self.mesh, self.primitive, repr(sorted(self.params.items())), self.crease_angle_deg)
 
     def transform(self) -> np.ndarray:
         """4x4 object-to-world matrix: scale, then rotate about x, y, z (in that order), then translate."""
@@ -214,7 +216,7 @@ def _camera(d: dict) -> CameraDesc:
 
 
 _OBJECT_KEYS = {"name", "mesh", "primitive", "params", "translate", "rotate_deg", "scale", "albedo", "specular",
-                "shininess", "roughness", "lobe", "occluder"}
+                "shininess", "roughness", "lobe", "occluder", "crease_angle_deg"}
 
 
 def _named_entry(d: Any, index: int, array: str, keys: set[str]) -> tuple[str, str]:
@@ -265,6 +267,7 @@ def _object(d: dict, index: int, base: Path) -> ObjectDesc:
     o.roughness = _number(t, "roughness", d.get("roughness", o.roughness), lo=0.0, hi=1.0, lo_open=True)
     o.lobe = _string(t, "lobe", d.get("lobe", o.lobe), LOBES)
     o.occluder = _boolean(t, "occluder", d.get("occluder", o.mesh is not None))
+    o.crease_angle_deg = _number(t, "crease_angle_deg", d.get("crease_angle_deg", o.crease_angle_deg), lo=0.0, hi=180.0)
     return o
 
 

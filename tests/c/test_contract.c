@@ -1081,12 +1081,12 @@ static void test_reference_renderer(pn_context ctx)
     int32_t v = 0;
     float f = 0;
     expect_ok("get face_size", pn_renderer_get_int(rend, "face_size", &v), ctx);
-    CHECK("face_size defaults to 32", v == 32);
+    CHECK("face_size defaults to 0 (chosen from the env map)", v == 0);
     expect_ok("int value for a float parameter", pn_renderer_set_int(rend, "ray_offset", 0), ctx);
     expect_ok("get ray_offset", pn_renderer_get_float(rend, "ray_offset", &f), ctx);
     CHECK("ray_offset set to 0", f == 0.0f);
-    expect_error("face_size 0", pn_renderer_set_int(rend, "face_size", 0), PN_ERROR_INVALID_ARGUMENT, ctx, "face_size",
-                 NULL);
+    expect_error("face_size -1", pn_renderer_set_int(rend, "face_size", -1), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "face_size", NULL);
     expect_error("float value for an int parameter", pn_renderer_set_float(rend, "face_size", 8.0f), PN_ERROR_BAD_CONFIG,
                  ctx, "integer parameter", NULL);
     expect_error("NaN sun_threshold", pn_renderer_set_float(rend, "sun_threshold", NAN), PN_ERROR_INVALID_ARGUMENT, ctx,

@@ -198,6 +198,11 @@ pn_status pn_envmap_do_read(pn_envmap env, pn_envmap_data what, void *host, size
  * area-averaging filter) and reads back 6*face*face float4 radiance and
  * float4 direction + solid angle; either output may be NULL. */
 pn_status pn_envmap_sample_cube(pn_envmap env, int face, float *radiance, float *directions);
+/* Enqueues the background of an image of `count` pixels: each pixel whose
+ * instance is PN_BACKGROUND gets the committed env map's radiance in its view
+ * direction (the position plane), bilinear in the lat-long map, alpha 0
+ * (kernels/envmap.cl, envmap_background). Other pixels are untouched. */
+pn_status pn_envmap_enqueue_background(pn_envmap env, cl_mem position, cl_mem instance, uint32_t count, cl_mem image);
 /* Env directions as records of 2 float4 (direction, solid angle | radiance, 0):
  * cube face f, black texels dropped, texels of power >= threshold x the
  * brightest split into s x s sub-texels. *records is malloc'ed. */

@@ -126,6 +126,14 @@ static int auto_supersampling(uint32_t face, uint32_t height)
     return s < 1 ? 1 : (s > 64 ? 64 : s);
 }
 
+/* (cos, sin) of the map's rotation about +y, as the kernels take it. */
+static cl_float2 rotation(pn_envmap env)
+{
+    const double angle = (double)env->rotation_deg * 3.14159265358979323846 / 180.0;
+    const cl_float2 rot = {{(float)cos(angle), (float)sin(angle)}};
+    return rot;
+}
+
 /* Enqueues the lat-long -> cube resampling at face size `face` into `cube`
  * and the texel directions + solid angles into `dirs`. */
 static pn_status fill_cube(pn_envmap env, int face, cl_mem cube, cl_mem dirs)
@@ -134,8 +142,7 @@ static pn_status fill_cube(pn_envmap env, int face, cl_mem cube, cl_mem dirs)
     const size_t texels = 6u * (size_t)face * face;
     const cl_int w = (cl_int)env->width, h = (cl_int)env->height, cn = face;
     const cl_int cs = env->supersampling ? env->supersampling : auto_supersampling((uint32_t)face, env->height);
-    const double angle = (double)env->rotation_deg * 3.14159265358979323846 / 180.0;
-    const cl_float2 rot = {{(float)cos(angle), (float)sin(angle)}};
+    const cl_float2 rot = rotation(env);
     cl_kernel to_cube, to_dirs;
     pn_status st;
     if ((st = pn_context_kernel(ctx, "envmap", "envmap_latlong_to_cube", &to_cube)) ||
@@ -238,6 +245,25 @@ pn_status pn_envmap_sample_cube(pn_envmap env, int face, float *radiance, float 
     pn_mem_release(&cube);
     pn_mem_release(&dirs);
     return st;
+}
+
+pn_status pn_envmap_enqueue_background(pn_envmap env, cl_mem position, cl_mem instance, uint32_t count, cl_mem image)
+{
+    pn_context ctx = env->obj.ctx;
+    if (!env->committed)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "env map changed since its last commit; call pn_envmap_commit");
+    cl_kernel k;
+    pn_status st = pn_context_kernel(ctx, "envmap", "envmap_background", &k);
+    if (st)
+        return st;
+    const cl_int n = (cl_int)count, w = (cl_int)env->width, h = (cl_int)env->height;
+    const cl_float2 rot = rotation(env);
+    size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof n, sizeof(cl_mem), sizeof w, sizeof h, sizeof rot,
+                      sizeof(float), sizeof(cl_mem)};
+    const void *vals[] = {&position, &instance, &n, &env->latlong, &w, &h, &rot, &env->intensity, &image};
+    if ((st = pn_set_args(ctx, k, "envmap_background", 9, sizes, vals)))
+        return st;
+    return pn_enqueue_1d(ctx, k, "envmap_background", count, 64);
 }
 
 static float luminance(const float *rgb)

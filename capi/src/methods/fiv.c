@@ -18,8 +18,8 @@ static const pn_param_desc params[] = {
      "Several occluders: 0 sum, 1 unit-bounding-disc correction, 2 multiplied visibility."},
     {"partial", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
      "1: occluders straddling the receiver plane scaled by (d + R) / 2R (the paper's factor; docs/fiv.md)."},
-    {"self_shadow", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
-     "1: pixels on an occluder use its own field (fullsphere equality)."},
+    {"self_shadow", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
+     "1: pixels on an occluder use its own field (fullsphere equality; biased dark, off by default: docs/fiv.md)."},
     {"trilinear", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
      "1: trilinear interpolation of the 8 nearest samples, 0: the nearest sample."},
     {"cull_threshold", PN_PARAM_FLOAT, PN_PARAM_FRAME, 1e-3, 0, 1, "",
@@ -262,8 +262,8 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     if (occluder_count &&
         (st = pn_upload_async(ctx, s->device_records, s->records, (size_t)occluder_count * 64, "uploading occluder records")))
         return st;
-    const cl_int count = (cl_int)(gb->width * gb->height), m = env->irradiance_face_size, n = env->face_size;
-    const cl_int bg = (cl_int)r->params[P_BACKGROUND], occluders = (cl_int)occluder_count;
+    const cl_int count = (cl_int)(gb->width * gb->height), m = env->irradiance_face_size;
+    const cl_int occluders = (cl_int)occluder_count;
     const cl_int overlap = (cl_int)r->params[P_OVERLAP], partial = (cl_int)r->params[P_PARTIAL];
     const cl_int self_shadow = (cl_int)r->params[P_SELF_SHADOW], trilinear = (cl_int)r->params[P_TRILINEAR];
     cl_float4 env_fiv[3];
@@ -271,14 +271,14 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
         for (int c = 0; c < 4; ++c)
             env_fiv[a].s[c] = c < 3 ? s->env_fiv[3 * a + c] : 0.0f;
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count, sizeof(cl_mem),
-                      sizeof m, sizeof(cl_mem), sizeof n, sizeof bg, sizeof(cl_mem), sizeof occluders, sizeof(cl_mem),
+                      sizeof m, sizeof(cl_mem), sizeof occluders, sizeof(cl_mem),
                       sizeof env_fiv[0], sizeof env_fiv[1], sizeof env_fiv[2], sizeof overlap, sizeof partial,
                       sizeof self_shadow, sizeof trilinear, sizeof(cl_mem)};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->irradiance,
-                          &m, &env->cube, &n, &bg, &s->device_records, &occluders, &s->data, &env_fiv[0],
+                          &m, &s->device_records, &occluders, &s->data, &env_fiv[0],
                           &env_fiv[1], &env_fiv[2], &overlap, &partial, &self_shadow, &trilinear, &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_fiv", 21, sizes, vals)))
+    if ((st = pn_set_args(ctx, k, "shade_fiv", 18, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_fiv", (size_t)count, 64);
 }

@@ -172,7 +172,15 @@ pn_status pn_renderer_do_execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, p
         return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "G-buffer is %ux%u but the image is %ux%u", gb->width, gb->height,
                        image->width, image->height);
     pn_status st = ready(r, scene);
-    return st ? st : r->method->execute(r, scene, gb, image);
+    if (!st)
+        st = r->method->execute(r, scene, gb, image);
+    /* The background is drawn here, once for every method that has the
+     * `background` parameter, from the full-resolution env map. */
+    const int bg = pn_param_find(r->method->params, r->method->param_count, "background");
+    if (!st && bg >= 0 && r->params[bg] != 0.0)
+        st = pn_envmap_enqueue_background(scene->env, gb->planes[PN_GBUFFER_POSITION],
+                                          gb->planes[PN_GBUFFER_INSTANCE], gb->width * gb->height, image->buffer);
+    return st;
 }
 
 pn_status pn_renderer_do_read_output(pn_renderer r, pn_scene scene, const char *output, uint32_t instance,

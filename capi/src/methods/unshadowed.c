@@ -8,6 +8,7 @@ static const pn_param_desc params[] = {
 
 pn_status pn_unshadowed_enqueue(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image, int background)
 {
+    (void)background; /* the renderer draws the background after execute (methods/renderer.c) */
     pn_context ctx = r->obj.ctx;
     pn_envmap env = scene->env;
     cl_kernel k;
@@ -15,13 +16,13 @@ pn_status pn_unshadowed_enqueue(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn
     if (st)
         return st;
     const cl_int count = (cl_int)(gb->width * gb->height);
-    const cl_int m = env->irradiance_face_size, n = env->face_size, bg = background;
+    const cl_int m = env->irradiance_face_size;
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count, sizeof(cl_mem),
-                      sizeof m, sizeof(cl_mem), sizeof n, sizeof bg, sizeof(cl_mem)};
+                      sizeof m, sizeof(cl_mem)};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->irradiance,
-                          &m, &env->cube, &n, &bg, &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_unshadowed", 11, sizes, vals)))
+                          &m, &image->buffer};
+    if ((st = pn_set_args(ctx, k, "shade_unshadowed", 8, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_unshadowed", (size_t)count, 64);
 }

@@ -136,6 +136,10 @@ class Technique:
         """The quality settings `penumbra bench` sweeps by default, cheapest first."""
         return [{}]
 
+    def after_render(self, built, renderer) -> None:
+        """Called once after render() has rendered ``built`` with ``renderer``
+        (e.g. to note what the method chose, for summary_lines and bench_extras)."""
+
     def summary_lines(self, built) -> list[str]:
         """Lines `penumbra render` / `demo` print after rendering with this method."""
         return []

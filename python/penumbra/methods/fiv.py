@@ -298,13 +298,54 @@ def cached_field(env: EnvMap, mesh: Mesh, options: FivOptions | None = None,
                  directory: str | os.PathLike | None = None) -> FivField:
     """The field of (mesh, env, options) from the cache, baked (and cached) on a miss."""
     options = options or FivOptions()
+    # a cache hit is the point of a cache: no reuse warning
+    return FivField.bake(env, mesh, options, cache_path(env, mesh, options, directory), progress, quiet=True)
+
+
+def cache_path(env: EnvMap, mesh: Mesh, options: FivOptions, directory: str | os.PathLike | None = None) -> Path:
+    """The cache file of (mesh, env, options) in ``directory`` (default
+    cache_dir()), created if needed: named by the mesh and env map hashes and
+    the options, so every process that bakes or renders them finds one file."""
     folder = Path(directory) if directory is not None else cache_dir()
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise PenumbraError(f"cannot create the FIV cache folder {folder}: {exc}") from exc
-    path = folder / f"{mesh_hash(mesh)}-{envmap_hash(env)}-{options.key()}.pnfiv"
-    return FivField.bake(env, mesh, options, path, progress, quiet=True)   # a cache hit is the point of a cache
+    return folder / f"{mesh_hash(mesh)}-{envmap_hash(env)}-{options.key()}.pnfiv"
+
+
+def bake_to_cache(job: dict) -> dict:
+    """One bake of ``penumbra bake-fiv`` (serial or on a Dask worker, where
+    it runs with the worker's own context): ``job`` = {"mesh": file,
+    "env": {"map", "rotation_deg", "intensity"}, "options": bake options
+    (FivOptions.checked), "cache": folder, "device": None or a device}.
+    The field goes to its cache file (cache_path), checkpointed every few
+    seconds and renamed into place atomically; an unfinished file there (a
+    worker that died) is resumed, a finished one is loaded. Returns what
+    happened: file, whether it baked now, the spheres it resumed from, the
+    seconds and the worker."""
+    from ..farm import worker_context, worker_name
+    from ..meshio import load_mesh
+    from ..render import environment_latlong
+    from ..scenefile import EnvironmentDesc
+
+    ctx = worker_context(job.get("device"))
+    e = EnvironmentDesc(map=job["env"]["map"], rotation_deg=job["env"].get("rotation_deg", 0.0),
+                        intensity=job["env"].get("intensity", 1.0))
+    env = EnvMap(ctx, environment_latlong(e), rotation_deg=e.rotation_deg, intensity=e.intensity)
+    m = load_mesh(job["mesh"])
+    mesh = Mesh(ctx, m.vertices, m.faces, m.normals)
+    options = FivOptions.checked(job["options"], lambda k: k)
+    path = cache_path(env, mesh, options, job["cache"])
+    try:
+        head = read_header(path) if path.exists() else None
+    except PenumbraError:
+        head = None
+    resumed_from = head["radii_done"] if head and head["radii_done"] < head["samples"][2] else 0
+    start = time.perf_counter()
+    f = FivField.bake(env, mesh, options, path, quiet=True)   # a cache hit is the point of a cache
+    return {"mesh": job["mesh"], "env": e.map, "path": str(path), "baked_now": f.baked_now,
+            "resumed_from": resumed_from, "seconds": time.perf_counter() - start, "worker": worker_name()}
 
 
 # ---------------------------------------------------------------- the scene file's [fiv] table
@@ -559,13 +600,24 @@ class Fiv(Technique):
         from ..cli import _samples_arg
 
         default = ",".join(map(str, FivOptions().paper_samples))
-        f = sub.add_parser("bake-fiv", help="bake the FIV occlusion field of a mesh under an env map (docs/fiv.md)")
-        f.add_argument("mesh", help="occluder mesh file (.obj, .ply, .off, .stl)")
-        f.add_argument("--env", required=True, help="env map file, or a procedural map name (sky, constant, ...)")
+        f = sub.add_parser("bake-fiv", help="bake the FIV occlusion fields of meshes under env maps (docs/fiv.md), "
+                                            "here or on a Dask cluster (docs/farm.md)")
+        f.add_argument("mesh", nargs="+", help="occluder mesh files (.obj, .ply, .off, .stl)")
+        f.add_argument("--env", required=True, action="append",
+                       help="env map file, or a procedural map name (sky, constant, ...); repeat for several: "
+                            "every mesh is baked under every env map")
         f.add_argument("--samples", type=_samples_arg, default=None, metavar="PHI,THETA,RADII",
                        help=f"grid in the paper's notation (default {default})")
-        f.add_argument("-o", "--output", required=True, metavar="FILE",
-                       help="bake file (.pnfiv); an unfinished bake there is resumed")
+        f.add_argument("-o", "--output", metavar="FILE",
+                       help="bake file (.pnfiv) of one mesh under one env map; an unfinished bake there is resumed")
+        f.add_argument("--cache", metavar="DIR",
+                       help="without -o: the cache folder the fields go to, named as renders look them up "
+                            "(default $PENUMBRA_CACHE/fiv or ~/.cache/penumbra/fiv); finished files are kept, "
+                            "unfinished ones resumed")
+        f.add_argument("--workers", type=int, metavar="N",
+                       help="bake on a local Dask cluster of N worker processes (needs dask[distributed])")
+        f.add_argument("--scheduler", metavar="ADDRESS",
+                       help="bake on the Dask cluster of this scheduler (tcp://host:8786; docs/farm.md)")
         for p in _bake_params().values():  # the other bake options, as the library declares them
             if p.name in PAPER_ORDER:
                 continue
@@ -640,9 +692,17 @@ def cmd_bake_fiv(args) -> int:
     if args.env_intensity < 0:
         raise InputError(f"--env-intensity {args.env_intensity} must be >= 0")
     # Files as in scene files: data:REL in the test data folder, else relative to the working directory.
-    env_file = args.env if args.env in PROCEDURAL_ENVS else resolve_path(args.env, Path.cwd(), "--env")
-    mesh_file = resolve_path(args.mesh, Path.cwd(), "MESH")
-    env_desc = EnvironmentDesc(map=env_file, rotation_deg=args.env_rotation, intensity=args.env_intensity)
+    envs = [e if e in PROCEDURAL_ENVS else str(resolve_path(e, Path.cwd(), "--env")) for e in args.env]
+    args.mesh = [str(resolve_path(m, Path.cwd(), "MESH")) for m in args.mesh]
+    farm = args.workers is not None or args.scheduler is not None
+    if args.output is None or farm or len(args.mesh) > 1 or len(envs) > 1:
+        if args.output is not None:
+            raise InputError("-o FILE takes one mesh and one env map, baked here; for several, or with --workers / "
+                             "--scheduler, give --cache DIR")
+        return _bake_many(args, given, envs)
+    args.mesh, args.env = args.mesh[0], args.env[0]
+    mesh_file = args.mesh
+    env_desc = EnvironmentDesc(map=envs[0], rotation_deg=args.env_rotation, intensity=args.env_intensity)
     ctx = Context(args.device)
     env = EnvMap(ctx, environment_latlong(env_desc), rotation_deg=env_desc.rotation_deg,
                  intensity=env_desc.intensity)
@@ -689,6 +749,50 @@ def cmd_bake_fiv(args) -> int:
               f"({info['rays'] / max(info['bake_seconds'], 1e-9) / 1e6:.1f} M rays/s)")
     print(f"memory: {info['stored_bytes']} bytes of samples ({_kib(info['stored_bytes'])}, {info['precision']}); "
           f"{'wrote' if fld.baked_now else 'file'} {out} ({os.path.getsize(out)} bytes)")
+    return 0
+
+
+def _bake_many(args, given: dict, envs: list[str]) -> int:
+    """bake-fiv over every mesh x env map into the cache folder: serially here,
+    or on a Dask cluster (--workers N: a LocalCluster; --scheduler ADDRESS)."""
+    from .. import farm
+    from ..scenefile import PROCEDURAL_ENVS
+
+    if args.workers is not None and args.scheduler is not None:
+        raise InputError("give --workers N (a local cluster) or --scheduler ADDRESS, not both")
+    if args.workers is not None and args.workers < 1:
+        raise InputError(f"--workers {args.workers} must be >= 1")
+    if args.workers is not None or args.scheduler is not None:
+        farm.require_dask()  # before any work: the pip command when it is missing
+    missing = [m for m in args.mesh if not Path(m).is_file()]
+    missing += [e for e in envs if e not in PROCEDURAL_ENVS and not Path(e).is_file()]
+    if missing:
+        raise InputError(f"file not found: {', '.join(missing)}")
+    cache = str(Path(args.cache).expanduser().resolve()) if args.cache else str(cache_dir())
+    jobs = [{"mesh": str(Path(m).expanduser().resolve()), "options": given, "cache": cache, "device": args.device,
+             "env": {"map": e, "rotation_deg": args.env_rotation, "intensity": args.env_intensity}}
+            for m in dict.fromkeys(args.mesh) for e in dict.fromkeys(envs)]
+
+    def describe(r):
+        what = ("resumed from sphere %d and baked" % r["resumed_from"] if r["resumed_from"] else "baked") \
+            if r["baked_now"] else "already cached"
+        return f"{Path(r['mesh']).name} under {Path(r['env']).name}: {what} in {r['seconds']:.1f} s on " \
+               f"{r['worker']} -> {r['path']}"
+
+    start = time.perf_counter()
+    if args.workers is None and args.scheduler is None:
+        results = []
+        for i, job in enumerate(jobs, 1):
+            results.append(bake_to_cache(job))
+            print(f"[{i}/{len(jobs)}, {time.perf_counter() - start:.1f} s] {describe(results[-1])}")
+    else:
+        where = args.scheduler or f"a local cluster of {args.workers} workers"
+        print(f"bake-fiv: {len(jobs)} bakes on {where}, into {cache}")
+        with farm.client(args.scheduler, args.workers) as c:
+            results = farm.run(c, bake_to_cache, jobs, log=print, describe=describe)
+    baked = sum(r["baked_now"] for r in results)
+    print(f"bake-fiv: {len(results)} fields in {cache} ({baked} baked now, {len(results) - baked} already there) "
+          f"in {time.perf_counter() - start:.1f} s")
     return 0
 
 
