@@ -259,16 +259,13 @@ kernel void shade_depthmap(global const float4 *position, global const float4 *n
                            global const float4 *material, global const uint *instance_id, int count, float4 camera,
                            global const float4 *domains, int domain_count, global const float4 *frames,
                            global const uint *depth, int res, int use_maps, float bias_constant, float bias_slope,
-                           int pcf, int specular, int cap_samples, global const float4 *cube, int n_cube,
-                           int show_background, global float4 *image)
+                           int pcf, int specular, int cap_samples, global float4 *image)
 {
     int gid = get_global_id(0);
     if (gid >= count)
         return;
-    if (instance_id[gid] == PN_BACKGROUND) {
-        float3 env = show_background ? pn_cube_texel_lookup(cube, n_cube, normalize(position[gid].xyz))
-                                     : (float3)(0.0f);
-        image[gid] = (float4)(env, 0.0f);
+    if (instance_id[gid] == PN_BACKGROUND) { /* drawn by the renderer's background pass */
+        image[gid] = (float4)(0.0f);
         return;
     }
     float3 p = position[gid].xyz;

@@ -225,7 +225,7 @@ inline float3 pn_isg_env_specular(pn_sg b, float3 p, float3 n, uint self_id, int
 
 kernel void shade_isg(global const float4 *position, global const float4 *normal, global const float4 *albedo,
                       global const float4 *material, global const uint *instance_id, int count,
-                      global const float4 *cube, int n_cube, int show_background, global const float4 *lobes,
+                      global const float4 *cube, int n_cube, global const float4 *lobes,
                       int lobe_count, global const float4 *spheres, global const uint *owners, int sphere_count,
                       int grid, int self_occlusion, int specular_shadows, float env_sharpness, float4 camera,
                       global const float *table, global float4 *image)
@@ -234,10 +234,8 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
     if (gid >= count)
         return;
     const uint id = instance_id[gid];
-    if (id == PN_BACKGROUND) {
-        const float3 env = show_background ? pn_cube_texel_lookup(cube, n_cube, normalize(position[gid].xyz))
-                                           : (float3)(0.0f);
-        image[gid] = (float4)(env, 0.0f);
+    if (id == PN_BACKGROUND) { /* drawn by the renderer's background pass */
+        image[gid] = (float4)(0.0f);
         return;
     }
     const float3 p = position[gid].xyz;

@@ -424,7 +424,6 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
 {
     pn_context ctx = r->obj.ctx;
     state *s = r->state;
-    pn_envmap env = scene->env;
     bool maps = false;
     pn_status st = prepare_maps(r, scene, &maps);
     cl_kernel k;
@@ -434,18 +433,17 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const cl_int res = (cl_int)s->res, use_maps = maps ? 1 : 0, pcf = (cl_int)r->params[P_PCF];
     const cl_float bias = (cl_float)r->params[P_BIAS], slope = (cl_float)r->params[P_SLOPE_BIAS];
     const cl_int specular = (cl_int)r->params[P_SPECULAR], samples = (cl_int)r->params[P_CAP_SAMPLES];
-    const cl_int n = env->face_size, bg = (cl_int)r->params[P_BACKGROUND];
     const cl_float4 camera = pn_scene_camera_position(scene);
     const size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem),
                             sizeof count, sizeof camera, sizeof(cl_mem), sizeof domains, sizeof(cl_mem),
                             sizeof(cl_mem), sizeof res, sizeof use_maps, sizeof bias, sizeof slope, sizeof pcf,
-                            sizeof specular, sizeof samples, sizeof(cl_mem), sizeof n, sizeof bg, sizeof(cl_mem)};
+                            sizeof specular, sizeof samples, sizeof(cl_mem)};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &camera, &s->device_domains, &domains,
                           &s->frames, &s->depth, &res, &use_maps, &bias, &slope, &pcf, &specular, &samples,
-                          &env->cube, &n, &bg, &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_depthmap", 22, sizes, vals)))
+                          &image->buffer};
+    if ((st = pn_set_args(ctx, k, "shade_depthmap", 19, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_depthmap", (size_t)count, 64);
 }

@@ -155,21 +155,21 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
         ((st = pn_upload_async(ctx, s->device_spheres, s->spheres, (size_t)sphere_count * 16, "uploading spheres")) ||
          (st = pn_upload_async(ctx, s->device_owners, s->owners, (size_t)sphere_count * 4, "uploading sphere owners"))))
         return st;
-    const cl_int count = (cl_int)(gb->width * gb->height), n = env->face_size, bg = (cl_int)r->params[P_BACKGROUND];
+    const cl_int count = (cl_int)(gb->width * gb->height), n = env->face_size;
     const cl_int lobes = s->lobe_count, spheres = (cl_int)sphere_count, grid = (cl_int)r->params[P_PATCH_GRID];
     const cl_int self = (cl_int)r->params[P_SELF_OCCLUSION], spec = (cl_int)r->params[P_SPECULAR_SHADOWS];
     const cl_float env_sharpness = (cl_float)r->params[P_ENV_SHARPNESS];
     const cl_float4 camera = pn_scene_camera_position(scene);
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count,
-                      sizeof(cl_mem), sizeof n, sizeof bg, sizeof(cl_mem), sizeof lobes, sizeof(cl_mem),
+                      sizeof(cl_mem), sizeof n, sizeof(cl_mem), sizeof lobes, sizeof(cl_mem),
                       sizeof(cl_mem), sizeof spheres, sizeof grid, sizeof self, sizeof spec, sizeof env_sharpness, sizeof camera,
                       sizeof(cl_mem), sizeof(cl_mem)};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
-                          &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->cube, &n, &bg, &s->lobes, &lobes,
+                          &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->cube, &n, &s->lobes, &lobes,
                           &s->device_spheres, &s->device_owners, &spheres, &grid, &self, &spec, &env_sharpness, &camera, &table,
                           &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_isg", 21, sizes, vals)))
+    if ((st = pn_set_args(ctx, k, "shade_isg", 20, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_isg", (size_t)count, 64);
 }
