@@ -38,7 +38,8 @@ def tiny_bench(tmp_path_factory, shared_data):
                                               {"face_size": 8, "sun_supersampling": 1}],
                                 "fiv": [{"samples": [8, 5, 4], "face_size": 8},
                                         {"samples": [8, 5, 4], "face_size": 8, "overlap": 0}],
-                                "depthmap": [{"directions": 8, "resolution": 32}]})
+                                "depthmap": [{"directions": 8, "resolution": 32}],
+                                "isg": [{"spheres": 8, "lobes": 4, "patch_grid": 4}]})
     res = run(SCENE, out, opts, overrides=TINY, log=lambda m: None)
     return out, res
 

@@ -76,7 +76,7 @@ def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=
     obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
     k = cl.Kernel(build_test_kernel(SOURCE), "shade_isg")
     k(queue, (n,), None, ro(pos), ro(nrm), ro(alb), ro(mat), ro(ids), np.int32(n), ro(cube), np.int32(1),
-      np.int32(0), ro(lb), np.int32(len(lobes)), ro(sp), ro(ow), np.int32(len(spheres)), np.int32(grid),
+      ro(lb), np.int32(len(lobes)), ro(sp), ro(ow), np.int32(len(spheres)), np.int32(grid),
       np.int32(self_occlusion), np.int32(specular_shadows), np.float32(env_sharpness),
       np.array([*camera, 0.0], np.float32), ro(table32()),
       obuf)
@@ -206,7 +206,7 @@ def test_background_pixels(cl_pair, build_test_kernel):
     px = [{"p": (0.0, 0.0, -1.0), "n": (0, 1, 0), "albedo": (1, 1, 1), "ks": 0, "material": (0, 0, 0),
            "id": BACKGROUND}]
     got = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES, OWNERS)
-    assert not got.any()  # show_background 0: black, alpha 0
+    assert not got.any()  # black, alpha 0: the renderer's background pass draws these pixels
 
 
 @pytest.mark.parametrize("lam", [2.5, 40.0, 1000.0])
