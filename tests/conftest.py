@@ -19,6 +19,10 @@ from penumbra.kernels import expand
 # ``needs_data()``): absent, they skip with one reason; with
 # PENUMBRA_REQUIRE_DATA=1 (CI) they fail instead.
 SHARED_DATA = data.data_dir()
+if data.available():
+    # Pinned for the whole session: an installed package (make test) finds the
+    # default folder beside the working directory, which tests change.
+    os.environ.setdefault(data.ENV_VAR, str(SHARED_DATA))
 
 
 def needs_data() -> Path:

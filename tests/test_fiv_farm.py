@@ -63,14 +63,17 @@ def test_killed_worker_resumes_and_files_match_a_serial_bake(tmp_path, ctx):
 
         runner = threading.Thread(target=bake_all, daemon=True)
         runner.start()
-        # Wait until both workers have checkpointed an unfinished bake, then kill one.
+        # Wait until a bake has checkpointed unfinished, then kill every worker
+        # (the nannies restart them): the checkpointed bake must resume. Not
+        # one worker of two: which one holds the checkpoint is not known, and
+        # on an idle machine the two bakes rarely overlap past a checkpoint.
         deadline = time.monotonic() + 300
-        while len(unfinished(farm_dir)) < 2 and runner.is_alive() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert len(unfinished(farm_dir)) >= 2, "the bakes finished before a worker could be killed mid-bake"
-        pids = client.run(os.getpid)
-        victim = sorted(pids.values())[0]
-        os.kill(victim, signal.SIGKILL)
+        while not unfinished(farm_dir) and runner.is_alive() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert unfinished(farm_dir), "the bakes finished before a worker could be killed mid-bake"
+        victims = set(client.run(os.getpid).values())
+        for pid in victims:
+            os.kill(pid, signal.SIGKILL)
         runner.join(timeout=900)
         assert not runner.is_alive(), "the farm did not finish after a worker was killed"
         assert not errors, errors
@@ -79,7 +82,6 @@ def test_killed_worker_resumes_and_files_match_a_serial_bake(tmp_path, ctx):
         cluster.close()
     assert len(results) == len(work)
     assert any(r["resumed_from"] > 0 for r in results), results  # the killed bake went on from its checkpoint
-    assert all(not r["worker"].endswith(f":{victim}") or r["resumed_from"] == 0 for r in results)
     # Serial bakes of the same jobs, in this process.
     serial = [bake_to_cache({**j, "cache": str(serial_dir)}) for j in work]
     for f, s in zip(results, serial):
