@@ -20,18 +20,20 @@ import numpy as np
 
 from .. import _native
 from .._native import call
-from ..core import Context, Mesh
+from ..core import Context, Mesh, _Handle
 from ..errors import InputError
 from .base import SceneTable, Technique
 
 NAME = "isg"
 
 
-class SphereSet:
+class SphereSet(_Handle):
     """Spheres (centre xyz, radius; object space) standing in for an occluder."""
 
+    _release = "pn_sphere_set_release"
+
     def __init__(self, ctx: Context, handle: ctypes.c_void_p):
-        self._ctx = ctx
+        super().__init__(ctx)
         self._h = handle
 
     @classmethod
@@ -70,17 +72,6 @@ class SphereSet:
         """Follows ``mesh`` (the set's mesh with new vertex positions, committed)
         without a rebuild (pn_sphere_set_deform)."""
         call("pn_sphere_set_deform", self._ctx._h, self._h, mesh._h)
-
-    def close(self) -> None:
-        if self._h:
-            _native.lib.pn_sphere_set_release(self._h)
-            self._h = ctypes.c_void_p()
-
-    def __del__(self):
-        try:
-            self.close()
-        except Exception:
-            pass
 
 
 # ---------------------------------------------------------------- the technique
