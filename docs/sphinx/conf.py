@@ -13,10 +13,14 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-if str(ROOT / "python") not in sys.path:   # a checkout without `pip install .` (PENUMBRA_LIBRARY set)
+try:
+    # The installed package first (`make docs` runs after `pip install .`): the
+    # source folder has no built library beside it.
+    import penumbra
+except ImportError:
+    # A checkout without `pip install .`, the library named by PENUMBRA_LIBRARY.
     sys.path.insert(0, str(ROOT / "python"))
-
-import penumbra  # noqa: E402
+    import penumbra
 
 project = "penumbra"
 author = "the penumbra authors"
