@@ -314,7 +314,7 @@ def cache_path(env: EnvMap, mesh: Mesh, options: FivOptions, directory: str | os
     return folder / f"{mesh_hash(mesh)}-{envmap_hash(env)}-{options.key()}.pnfiv"
 
 
-def bake_to_cache(job: dict) -> dict:
+def bake_to_cache(job: dict, progress: Callable[[int, int], bool | None] | None = None) -> dict:
     """One bake of ``penumbra bake-fiv`` (serial or on a Dask worker, where
     it runs with the worker's own context): ``job`` = {"mesh": file,
     "env": {"map", "rotation_deg", "intensity"}, "options": bake options
@@ -323,7 +323,8 @@ def bake_to_cache(job: dict) -> dict:
     seconds and renamed into place atomically; an unfinished file there (a
     worker that died) is resumed, a finished one is loaded. Returns what
     happened: file, whether it baked now, the spheres it resumed from, the
-    seconds and the worker."""
+    seconds and the worker. ``progress`` is FivField.bake's (True stops the
+    bake after a checkpoint, PenumbraError ERROR_CANCELLED)."""
     from ..farm import worker_context, worker_name
     from ..meshio import load_mesh
     from ..render import environment_latlong
@@ -343,7 +344,7 @@ def bake_to_cache(job: dict) -> dict:
         head = None
     resumed_from = head["radii_done"] if head and head["radii_done"] < head["samples"][2] else 0
     start = time.perf_counter()
-    f = FivField.bake(env, mesh, options, path, quiet=True)   # a cache hit is the point of a cache
+    f = FivField.bake(env, mesh, options, path, progress, quiet=True)   # a cache hit is the point of a cache
     return {"mesh": job["mesh"], "env": e.map, "path": str(path), "baked_now": f.baked_now,
             "resumed_from": resumed_from, "seconds": time.perf_counter() - start, "worker": worker_name()}
 
