@@ -307,6 +307,22 @@ def cmd_bench(args) -> int:
             return code
     if not args.scene:
         raise InputError("bench needs a scene file (or a technique's experiment option, e.g. --fiv-scaling)")
+    on_cluster = args.workers is not None or args.scheduler is not None
+    if on_cluster:
+        from .farm import require_dask
+
+        if args.workers is not None and args.scheduler is not None:
+            raise InputError("--workers N starts a local cluster, --scheduler ADDRESS uses a running one: not both")
+        if args.workers is not None and args.workers < 1:
+            raise InputError(f"--workers {args.workers} must be >= 1")
+        require_dask()
+    # One scene: --out is its folder; several: one folder per scene under --out, named by the file.
+    outs = [Path(args.out)] if len(args.scene) == 1 else [Path(args.out) / Path(s).stem for s in args.scene]
+    if len(set(outs)) < len(outs):
+        raise InputError("two scene files have the same name: their results would share one folder under --out")
+    for scene in args.scene:
+        if not Path(scene).is_file():
+            raise InputError(f"scene file not found: {scene}")
 
     opts = BenchOptions(frames=args.frames, reference_face_size=args.reference_face_size,
                         reference_sun_supersampling=args.reference_sun_supersampling,
@@ -317,13 +333,27 @@ def cmd_bench(args) -> int:
         opts.spp = args.spp
     if args.face_sizes:
         opts.sweeps["reference"] = [{"face_size": f} for f in args.face_sizes]
-    out = Path(args.out)
-    res = run(args.scene, out, opts, overrides=args.set, log=lambda msg: print(msg, file=sys.stderr))
-    print(f"penumbra bench: wrote {out}/results.json, results.csv, pareto.png, report.md")
+    if on_cluster:
+        from . import farm
+        from .bench import bench_job
+
+        jobs = [{"scene": str(Path(s).resolve()), "out": str(o.resolve()), "options": opts, "overrides": args.set}
+                for s, o in zip(args.scene, outs)]
+        with farm.client(args.scheduler, args.workers) as c:
+            done = farm.run(c, bench_job, jobs, log=lambda msg: print(msg, file=sys.stderr),
+                            describe=lambda r: f"{r['scene']} on {r['worker']}")
+    else:
+        done = []
+        for scene, out in zip(args.scene, outs):
+            res = run(scene, out, opts, overrides=args.set, log=lambda msg: print(msg, file=sys.stderr))
+            done.append({"summary": res["summary"], "results": res["results"], "out": str(out)})
+    for d in done:
+        print(f"penumbra bench: wrote {d['out']}/results.json, results.csv, pareto.png, report.md")
     if args.readme:
         from .bench import readme_row, update_readme
 
-        update_readme(args.readme, readme_row(res["summary"], res["results"]))
+        for d in done:
+            update_readme(args.readme, readme_row(d["summary"], d["results"]))
         print(f"penumbra bench: updated the benchmark table in {args.readme}")
     return 0
 
@@ -387,10 +417,15 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict]:
     m.add_argument("--force", action="store_true",
                    help="replace files in DIR even if no earlier export wrote them")
 
-    b = sub.add_parser("bench", help="speed against error of methods and Mitsuba 3 on one scene (docs/benchmarks.md)")
-    b.add_argument("scene", nargs="?", help="scene file (docs/scene-format.md)")
+    b = sub.add_parser("bench", help="speed against error of methods and Mitsuba 3 on scenes (docs/benchmarks.md)")
+    b.add_argument("scene", nargs="*", help="scene files (docs/scene-format.md)")
     b.add_argument("--out", required=True, metavar="DIR", help="output directory for results.json/csv, pareto.png, "
-                   "report.md and images")
+                   "report.md and images; with several scenes, one folder per scene in it, named by the file")
+    b.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="run the scenes on a local Dask cluster of N worker processes, one scene per job "
+                        "(docs/farm.md; needs dask[distributed])")
+    b.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run the scenes on the Dask cluster of this scheduler (a shared file system)")
     b.add_argument("--methods", default=None, help="comma-separated methods (default: those of "
                    f"{', '.join(t.name for t in techniques() if t.benchmarked)} "
                    "that apply to the scene)")
