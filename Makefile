@@ -3,7 +3,7 @@
 SHELL := /bin/bash
 VENV ?= .venv
 PY := $(VENV)/bin/python
-DEBS := pocl-opencl-icd ocl-icd-opencl-dev opencl-headers cmake ninja-build g++ pkg-config python3-venv libllvm19 libstb-dev
+DEBS := pocl-opencl-icd ocl-icd-opencl-dev opencl-headers cmake ninja-build g++ pkg-config python3-venv libllvm19 libstb-dev libopenexr-dev
 STAMP_DEPS := $(VENV)/.deps-installed
 STAMP_PKG := $(VENV)/.penumbra-installed
 # The documentation site (make docs): Sphinx with Markdown pages through myst-parser.
