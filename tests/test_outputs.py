@@ -249,3 +249,42 @@ def test_a_killed_writers_temporary_file_is_removed_by_the_next_write(tmp_path):
     atomic_write_text(target, "{}\n")
     assert sorted(q.name for q in tmp_path.iterdir()) == ["out.json"]
 
+
+def test_bake_removes_a_dead_checkpoints_temporary_file(tmp_path, env, sphere):
+    from penumbra.fileutil import STALE_GRACE_SECONDS
+
+    path = tmp_path / "b.pnfiv"
+    left = tmp_path / f"b.pnfiv.tmp-{_dead_pid()}-0"          # the library's checkpoint temporary, writer killed
+    left.write_bytes(b"PNFIV partial")
+    _age(left, STALE_GRACE_SECONDS + 5)
+    FivField.bake(env, sphere, OPTS, path=path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.pnfiv"]
+
+
+def test_bake_follows_links_and_refuses_other_nodes(tmp_path, env, sphere):
+    link = tmp_path / "link.pnfiv"
+    link.symlink_to("real.pnfiv")                            # dangling: the bake creates the file it names
+    assert FivField.bake(env, sphere, OPTS, path=link).baked_now
+    assert link.is_symlink() and read_header(tmp_path / "real.pnfiv")["radii_done"] == OPTS.samples[2]
+    fifo = tmp_path / "f.pnfiv"
+    os.mkfifo(fifo)
+    with pytest.raises(InputError, match="is a FIFO"):
+        FivField.bake(env, sphere, OPTS, path=fifo)
+    dev = tmp_path / "null.pnfiv"
+    dev.symlink_to(os.devnull)
+    with pytest.raises(InputError, match="is a device"):
+        FivField.bake(env, sphere, OPTS, path=dev)
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode) and dev.is_symlink()
+
+
+def test_a_fresh_bake_under_a_black_env_map_is_baked_now(tmp_path, ctx, sphere):
+    black = EnvMap(ctx, np.zeros((32, 64, 3), np.float32), face_size=8, irradiance_face_size=8)
+    path = tmp_path / "black.pnfiv"
+    fresh = FivField.bake(black, sphere, OPTS, path=path)
+    assert fresh.baked_now and not fresh.reused
+    with pytest.warns(FivReuseWarning):
+        again = FivField.bake(black, sphere, OPTS, path=path)
+    assert again.reused and not again.baked_now
+    assert FivField.bake(black, sphere, OPTS, path=path, reuse=False).baked_now
+    assert FivField.bake(black, sphere, OPTS).baked_now                      # no file at all
+

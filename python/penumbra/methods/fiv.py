@@ -172,16 +172,6 @@ def read_header(path: str | os.PathLike) -> dict:
     return _info_dict(i)
 
 
-def _finished_header(path) -> dict | None:
-    if path is None or not Path(path).is_file():
-        return None
-    try:
-        head = read_header(path)
-    except PenumbraError:
-        return None
-    return head if head["radii_done"] >= head["samples"][2] else None
-
-
 class FivReuseWarning(UserWarning):
     """:meth:`FivField.bake` found a finished bake of the same inputs at its ``path`` and loaded it."""
 
@@ -211,25 +201,42 @@ class FivField:
         :class:`FivReuseWarning` says so (not with ``quiet``, for caches). A
         file of other inputs is an :class:`~penumbra.errors.InputError` naming
         what differs, and is left alone. ``reuse=False`` replaces whatever is
-        at ``path`` with a new bake."""
+        at ``path`` with a new bake.
+
+        ``path`` follows the output policy (fileutil.output_target): a
+        symbolic link is followed (the file it names is written), a target
+        that is not a regular file is an InputError. Temporary files of
+        earlier checkpoints of that file whose writer died are removed first
+        (the library writes them; fileutil.remove_stale_temporaries)."""
+        from ..fileutil import output_target, remove_stale_temporaries
+
         opts = (options or FivOptions()).native()
         out = ctypes.c_void_p()
+        if path is not None:
+            path = output_target(path, "FIV bake file")
+            remove_stale_temporaries(path)
         if path is not None and not reuse:
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(path)
-        before = _finished_header(path)
+        spheres = [0]   # spheres baked by this call: the library reports after each one it bakes
 
         def trampoline(_user, done, total):
+            spheres[0] += 1
+            if progress is None:
+                return 0
             try:
                 return 1 if progress(int(done), int(total)) else 0
             except BaseException:  # nothing (not even Ctrl-C) may cross the C boundary: stop the bake instead
                 return 1
 
-        cb = _native.PROGRESS(trampoline) if progress else _native.PROGRESS()
+        cb = _native.PROGRESS(trampoline)
         call("pn_fiv_bake", env._ctx._h, env._h, mesh._h, ctypes.byref(opts),
              None if path is None else os.fsencode(path), cb, None, ctypes.byref(out))
         f = cls(env._ctx, out)
-        f.baked_now = before is None or before != _finished_header(path)
+        # Baked now when the library baked a sphere here; a finished file of the same inputs is
+        # loaded without any. (Comparing the file's header before and after could not tell a
+        # fresh bake from a loaded one when the two headers were equal.)
+        f.baked_now = spheres[0] > 0
         f.reused = not f.baked_now
         if f.reused and not quiet:
             warnings.warn(f"{path} holds a finished bake of this mesh, env map and options: loaded it instead of "
@@ -680,6 +687,7 @@ TECHNIQUE = Fiv(NAME)
 
 def cmd_bake_fiv(args) -> int:
     from .. import cli
+    from ..fileutil import output_target
     from ..data import resolve as resolve_path
     from ..meshio import load_mesh
     from ..render import environment_latlong
@@ -702,6 +710,7 @@ def cmd_bake_fiv(args) -> int:
                              "--scheduler, give --cache DIR")
         return _bake_many(args, given, envs)
     args.mesh, args.env = args.mesh[0], args.env[0]
+    output_target(args.output, "-o", create_dirs=False)   # before any work: not a folder, device or FIFO
     mesh_file = args.mesh
     env_desc = EnvironmentDesc(map=envs[0], rotation_deg=args.env_rotation, intensity=args.env_intensity)
     ctx = Context(args.device)
@@ -709,7 +718,7 @@ def cmd_bake_fiv(args) -> int:
                  intensity=env_desc.intensity)
     m = load_mesh(mesh_file)
     mesh = Mesh(ctx, m.vertices, m.faces, m.normals)
-    out = Path(args.output)
+    out = Path(args.output)   # checked above; FivField.bake follows a symbolic link
     try:
         head = read_header(out) if out.exists() else None
     except PenumbraError:
