@@ -288,3 +288,21 @@ def test_a_fresh_bake_under_a_black_env_map_is_baked_now(tmp_path, ctx, sphere):
     assert FivField.bake(black, sphere, OPTS, path=path, reuse=False).baked_now
     assert FivField.bake(black, sphere, OPTS).baked_now                      # no file at all
 
+
+def test_a_released_context_is_freed_without_the_cycle_collector():
+    import gc
+    import weakref
+
+    from penumbra.core import Context
+
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        c = Context()
+        assert c._ctx is c
+        ref = weakref.ref(c)
+        del c
+        assert ref() is None          # reference counting alone frees it (no cycle through itself)
+    finally:
+        if enabled:
+            gc.enable()
