@@ -213,7 +213,7 @@ class FivField:
         opts = (options or FivOptions()).native()
         out = ctypes.c_void_p()
         if path is not None:
-            path = output_target(path, "FIV bake file")
+            path = output_target(path, "FIV bake file", create_dirs=False)   # a missing folder: the library says so
             remove_stale_temporaries(path)
         if path is not None and not reuse:
             with contextlib.suppress(FileNotFoundError):
