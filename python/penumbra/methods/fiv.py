@@ -172,6 +172,17 @@ def read_header(path: str | os.PathLike) -> dict:
     return _info_dict(i)
 
 
+def _holds_finished_bake(path) -> bool:
+    """Whether ``path`` is a finished bake file (of any inputs)."""
+    if path is None or not Path(path).is_file():
+        return False
+    try:
+        head = read_header(path)
+    except PenumbraError:
+        return False
+    return head["radii_done"] >= head["samples"][2]
+
+
 class FivReuseWarning(UserWarning):
     """:meth:`FivField.bake` found a finished bake of the same inputs at its ``path`` and loaded it."""
 
@@ -218,6 +229,7 @@ class FivField:
         if path is not None and not reuse:
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(path)
+        finished_before = _holds_finished_bake(path)
         spheres = [0]   # spheres baked by this call: the library reports after each one it bakes
 
         def trampoline(_user, done, total):
@@ -233,11 +245,12 @@ class FivField:
         call("pn_fiv_bake", env._ctx._h, env._h, mesh._h, ctypes.byref(opts),
              None if path is None else os.fsencode(path), cb, None, ctypes.byref(out))
         f = cls(env._ctx, out)
-        # Baked now when the library baked a sphere here; a finished file of the same inputs is
-        # loaded without any. (Comparing the file's header before and after could not tell a
-        # fresh bake from a loaded one when the two headers were equal.)
-        f.baked_now = spheres[0] > 0
-        f.reused = not f.baked_now
+        # Reused: a finished file was there and the library baked no sphere in this call (it
+        # loads a finished file of the same inputs; one of other inputs is an error). Comparing
+        # the file's header before and after could not tell a fresh bake from a loaded one when
+        # the two headers were equal.
+        f.reused = finished_before and spheres[0] == 0
+        f.baked_now = not f.reused
         if f.reused and not quiet:
             warnings.warn(f"{path} holds a finished bake of this mesh, env map and options: loaded it instead of "
                           "baking (reuse=False bakes anew)", FivReuseWarning, stacklevel=2)
