@@ -836,3 +836,10 @@ def test_bake_fiv_follows_a_dangling_link_and_refuses_a_fifo(capsys, shared_data
     code, out, err = run_cli(capsys, "bake-fiv", shared_data / BUNNY, "--env", "sky", *TINY_FIV, "-o", fifo)
     assert code == 2 and "is a FIFO" in err and stat.S_ISFIFO(os.lstat(fifo).st_mode)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b.pnfiv", "baked.pnfiv", "f.pnfiv"]
+
+
+def test_fiv_info_refuses_a_fifo(capsys, tmp_path):
+    fifo = tmp_path / "f.pnfiv"
+    os.mkfifo(fifo)                  # the library's read would block for ever
+    code, out, err = run_cli(capsys, "fiv-info", fifo)
+    assert code == 2 and "is not a regular file" in err

@@ -697,3 +697,18 @@ def test_set_values_that_cannot_be_read_are_input_errors():
         apply_overrides({}, ["camera.fov_deg=" + "[" * 3000 + "]" * 3000])
     with pytest.raises(InputError, match="--set camera.fov_deg"):
         apply_overrides({}, ["camera.fov_deg=" + "9" * 5000])
+
+
+@pytest.mark.parametrize("kind", ["fifo", "folder", "device"])
+def test_a_scene_path_that_is_not_a_file_is_refused_without_reading(tmp_path, kind):
+    import os
+
+    path = tmp_path / "scene.toml"
+    if kind == "fifo":
+        os.mkfifo(path)          # reading it would block for ever
+    elif kind == "folder":
+        path.mkdir()
+    else:
+        path = Path("/dev/zero")  # reading it would never end
+    with pytest.raises(InputError, match=f"scene file {path} is (a folder|not a regular file)"):
+        read_toml(path)

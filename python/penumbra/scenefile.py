@@ -397,6 +397,8 @@ def _parse_toml(text: str, what: str) -> dict:
 def read_toml(path: str | Path) -> dict:
     p = Path(path)
     try:
+        if p.exists() and not p.is_file():   # a FIFO would block the read, a device never end
+            raise InputError(f"scene file {p} is {'a folder' if p.is_dir() else 'not a regular file'}")
         if p.is_file() and p.stat().st_size > MAX_SCENE_BYTES:
             raise InputError(f"scene file {p} is larger than {MAX_SCENE_BYTES >> 20} MiB")
         data = p.read_bytes()

@@ -820,6 +820,8 @@ def _bake_many(args, given: dict, envs: list[str]) -> int:
 
 
 def cmd_fiv_info(args) -> int:
+    if Path(args.file).exists() and not Path(args.file).is_file():   # a FIFO would block the library's read
+        raise InputError(f"{args.file} is not a regular file")
     info = read_header(args.file)
     theta, phi, radii = info["samples"]
     if info["radii_done"] < radii:
