@@ -137,8 +137,9 @@ def output_target(path: str | os.PathLike, what: str = "output", create_dirs: bo
 
 
 def _pid_alive(pid: int) -> bool:
-    if pid <= 0:
-        return True   # not a process id we wrote: leave the decision to its age
+    """Whether process ``pid`` runs on this host (True when that cannot be told: its age decides then)."""
+    if pid <= 0 or os.name != "posix":   # on Windows os.kill(pid, 0) would terminate the process
+        return True
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
