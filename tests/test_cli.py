@@ -696,7 +696,7 @@ def test_bench_reports_a_missing_dependency_before_any_work(capsys, sky_scene, t
         assert "--no-rays" in err
 
 
-# ---------------------------------------------------------------- hostile input, misuse and faults (docs/reliability-outputs.md)
+# ------------------------------------------------------------- hostile input and faults (docs/reliability-outputs.md)
 
 
 def _no_temporaries(folder: Path) -> bool:
@@ -735,7 +735,8 @@ def test_outputs_appear_together_or_not_at_all(capsys, sky_scene, tmp_path, monk
     code, out, err = run_cli(capsys, "render", sky_scene, "-o", keep_exr, "--png", tmp_path / "k.png",
                              "--json", tmp_path / "k.json")
     assert code == 2 and err.startswith("penumbra: error: ") and str(fault.args[-1]) in err
-    assert keep_exr.read_bytes() == b"old exr" and sorted(p.name for p in tmp_path.iterdir()) == ["keep.exr", "sky.toml"]
+    assert keep_exr.read_bytes() == b"old exr"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.exr", "sky.toml"]
 
 
 @pytest.mark.parametrize("kind", ["fifo", "folder", "link to /dev/null", "under a file"])
@@ -776,7 +777,8 @@ DEEP = "a = " + "[" * 3000 + "]" * 3000 + "\n"
     (b"\xff\xfe[camera]\n", [], "is not UTF-8 text"),
     (DEEP.encode(), [], "nests arrays or tables too deeply"),
     (("[camera]\nfov_deg = " + "9" * 5000 + "\n").encode(), [], "cannot be read"),
-    (None, ["--set", 'environment.params={width="abc"}'], "[environment] params of map 'sky': width must be an integer"),
+    (None, ["--set", 'environment.params={width="abc"}'],
+     "[environment] params of map 'sky': width must be an integer"),
     (None, ["--set", "environment.params={sun_radiance=[1,2]}"], "sun_radiance must be one number or 3 numbers"),
     (None, ["--set", "environment.params={width=inf}"], "width must be an integer, got inf"),
     (None, ["--set", "object.ball.params={subdivisions=12}"], "subdivisions = 12 is above 8, the limit"),
