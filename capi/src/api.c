@@ -76,7 +76,7 @@ pn_status pn_get_error(pn_context ctx, const char **message)
         return pn_error_take(NULL, message);
     pn_call call_ __attribute__((cleanup(leave_call))) = {NULL};
     void *h = (void *)ctx;
-    pn_status st = pn_call_enter(&call_, &h, PN_MAGIC_CONTEXT, "context", "pn_get_error", "ctx");
+    pn_status st = pn_call_enter_released(&call_, &h, PN_MAGIC_CONTEXT, "context", "pn_get_error", "ctx");
     if (st) {
         /* Recorded in the global slot too, like every other bad handle. */
         if (message)

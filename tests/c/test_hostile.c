@@ -202,6 +202,9 @@ static void lifetime_scene_holds_mesh(void)
     r.ctx = NULL;
     expect_status("scene commit after the context handle is gone", pn_scene_commit(r.scene), PN_SUCCESS, NULL, NULL);
     expect_status("a mesh from a released context handle", pn_mesh_create(ctx, &r.mesh), INVALID_HANDLE, NULL, NULL);
+    /* ... but the errors of its live objects stay readable through it. */
+    expect_status("an error of the scene after the context handle is gone", pn_scene_remove_instance(r.scene, 999),
+                  PN_ERROR_OUT_OF_RANGE, ctx, "999");
     r.mesh = NULL;
     rig_release(&r);
 }

@@ -51,8 +51,8 @@ typedef struct pn_object_type {
 struct pn_object {
     uint32_t magic;
     atomic_int refs;     /* every reference: the caller's, other objects', calls' pins */
-    int32_t public_refs; /* the caller's (create, retain, release); the handle is valid while > 0 */
-    void *handle;        /* what the caller holds (index and generation of a slot); NULL once released */
+    atomic_int public_refs; /* the caller's (create, retain, release); the handle is valid while > 0 */
+    void *handle;           /* what the caller holds (index and generation of a slot, freed at destruction) */
     pn_context ctx;
     const pn_object_type *type;
 };
@@ -89,6 +89,10 @@ typedef struct pn_call {
  * kept alive until pn_call_leave. */
 pn_status pn_call_enter(pn_call *call, void **handle, uint32_t magic, const char *kind, const char *func,
                         const char *arg);
+/* pn_call_enter for pn_get_error: also accepts a context whose handle the
+ * caller released while objects of it still live (its errors stay readable). */
+pn_status pn_call_enter_released(pn_call *call, void **handle, uint32_t magic, const char *kind, const char *func,
+                                 const char *arg);
 /* Resolves another handle of the same call; it must belong to the call's context. */
 pn_status pn_call_resolve(pn_call *call, void **handle, uint32_t magic, const char *kind, const char *func,
                           const char *arg);

@@ -7,8 +7,9 @@
  * with PN_ERROR_INVALID_HANDLE; the library never reads memory through it.
  *
  * Two counts: `public_refs` are the caller's references (create, retain,
- * release); the handle is valid while it is positive and its slot is freed
- * (its generation advanced) when it reaches 0. `refs` counts every reference:
+ * release); the handle is valid while it is positive (pn_get_error alone
+ * still reads a context's errors after that, while the context lives). The
+ * slot is freed (its generation advanced) when the object is destroyed. `refs` counts every reference:
  * the caller's, those other objects hold (a scene's meshes, every object's
  * context) and the short pins of calls in progress. The last one destroys the
  * object through its type and then releases the context. Both saturate:
@@ -99,15 +100,18 @@ static void unregister_object(pn_object *o)
     pthread_mutex_unlock(&table_lock);
 }
 
-/* The live object of a handle, or NULL; call with table_lock held. */
-static pn_object *lookup_locked(const void *handle)
+/* The object of a handle the caller still holds (with `released`: or has
+ * released while the object lives), or NULL; call with table_lock held. */
+static pn_object *lookup_locked(const void *handle, bool released)
 {
     const uintptr_t v = (uintptr_t)handle;
     const uintptr_t index = (v & INDEX_MASK);
     if (index == 0 || index > table_size)
         return NULL;
     const handle_slot *s = &table[index - 1u];
-    return s->object && s->generation == (v >> HALF_BITS) ? s->object : NULL;
+    if (!s->object || s->generation != (v >> HALF_BITS))
+        return NULL;
+    return released || atomic_load(&s->object->public_refs) > 0 ? s->object : NULL;
 }
 
 void *pn_object_handle(const pn_object *o)
@@ -131,7 +135,7 @@ pn_status pn_object_setup(pn_object *o, pn_context ctx, const pn_object_type *ty
 {
     o->magic = type->magic;
     atomic_init(&o->refs, 1);
-    o->public_refs = 1;
+    atomic_init(&o->public_refs, 1);
     o->ctx = ctx;
     o->type = type;
     if (!register_object(o))
@@ -172,8 +176,7 @@ static void destroy(pn_object *o)
 {
     pn_context owner = o->ctx;
     const bool is_context = o->magic == PN_MAGIC_CONTEXT;
-    if (o->handle) /* a creation that failed half way: the caller never saw the handle */
-        unregister_object(o);
+    unregister_object(o); /* from here on its handle is unknown */
     o->type->destroy(o); /* what the object owns */
     o->magic = PN_MAGIC_DEAD;
     free(o);
@@ -189,20 +192,19 @@ void pn_object_release(pn_object *o)
 
 pn_status pn_object_public_retain(pn_object *o)
 {
-    if (o->public_refs >= PN_REFCOUNT_MAX)
+    if (atomic_load(&o->public_refs) >= PN_REFCOUNT_MAX)
         return pn_fail(o->ctx, PN_ERROR_OUT_OF_RANGE,
                        "the %s already holds %d references (PN_REFCOUNT_MAX); the retain is refused", o->type->name,
                        PN_REFCOUNT_MAX);
     pn_status st = pn_object_retain(o);
     if (!st)
-        o->public_refs++;
+        atomic_fetch_add(&o->public_refs, 1);
     return st;
 }
 
 void pn_object_public_release(pn_object *o)
 {
-    if (--o->public_refs == 0)
-        unregister_object(o);
+    atomic_fetch_sub(&o->public_refs, 1); /* at 0 the handle is invalid: lookups refuse it */
     pn_object_release(o);
 }
 
@@ -226,8 +228,8 @@ static pn_status bad_handle(const void *handle, bool live, const char *type_name
                    arg, kind, type_name);
 }
 
-pn_status pn_call_enter(pn_call *call, void **handle, uint32_t magic, const char *kind, const char *func,
-                        const char *arg)
+static pn_status enter(pn_call *call, void **handle, uint32_t magic, const char *kind, const char *func,
+                       const char *arg, bool released)
 {
     /* Under the table's lock: the object is live (its head readable); its
      * context gets a reference (a pin) so neither it nor its lock can go
@@ -236,7 +238,7 @@ pn_status pn_call_enter(pn_call *call, void **handle, uint32_t magic, const char
     const char *type_name = NULL;
     bool right_kind = false;
     pthread_mutex_lock(&table_lock);
-    pn_object *o = *handle ? lookup_locked(*handle) : NULL;
+    pn_object *o = *handle ? lookup_locked(*handle, released) : NULL;
     if (o) {
         type_name = o->type->name;
         right_kind = kind_ok(o->magic, magic);
@@ -253,7 +255,7 @@ pn_status pn_call_enter(pn_call *call, void **handle, uint32_t magic, const char
      * release of this context's objects holds the lock, so from here on the
      * object stays.) */
     pthread_mutex_lock(&table_lock);
-    const bool live = lookup_locked(*handle) == o;
+    const bool live = lookup_locked(*handle, released) == o;
     pthread_mutex_unlock(&table_lock);
     if (!live) {
         pthread_mutex_unlock(&ctx->lock);
@@ -265,11 +267,23 @@ pn_status pn_call_enter(pn_call *call, void **handle, uint32_t magic, const char
     return PN_SUCCESS;
 }
 
+pn_status pn_call_enter(pn_call *call, void **handle, uint32_t magic, const char *kind, const char *func,
+                        const char *arg)
+{
+    return enter(call, handle, magic, kind, func, arg, false);
+}
+
+pn_status pn_call_enter_released(pn_call *call, void **handle, uint32_t magic, const char *kind, const char *func,
+                                 const char *arg)
+{
+    return enter(call, handle, magic, kind, func, arg, true);
+}
+
 pn_status pn_call_resolve(pn_call *call, void **handle, uint32_t magic, const char *kind, const char *func,
                           const char *arg)
 {
     pthread_mutex_lock(&table_lock);
-    pn_object *o = *handle ? lookup_locked(*handle) : NULL;
+    pn_object *o = *handle ? lookup_locked(*handle, false) : NULL;
     const bool ok = o && kind_ok(o->magic, magic);
     const char *type_name = o ? o->type->name : NULL;
     pn_context owner = ok ? (o->magic == PN_MAGIC_CONTEXT ? (pn_context)o : o->ctx) : NULL;
