@@ -231,10 +231,10 @@ static pn_status read_header(pn_context ctx, const char *path, FILE *file, bool 
         return pn_fail(ctx, PN_ERROR_FILE, "%s is not a regular file", path);
     if ((uint64_t)sb.st_size != promised)
         return pn_fail(ctx, PN_ERROR_FILE,
-                       "%s is corrupt: its header promises %llu bytes (a %ux%ux%u grid, %u spheres stored) but the file "
-                       "has %llu bytes",
-                       path, (unsigned long long)promised, o.theta, o.phi, o.radii, done,
-                       (unsigned long long)sb.st_size);
+                       "%s %s: its header promises %llu bytes (a %ux%ux%u grid, %u spheres stored) but the file has "
+                       "%llu bytes",
+                       path, (uint64_t)sb.st_size < promised ? "is truncated" : "is corrupt: it has bytes past its samples",
+                       (unsigned long long)promised, o.theta, o.phi, o.radii, done, (unsigned long long)sb.st_size);
     *options = o;
     *spheres_done = done;
     return st;
