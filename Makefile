@@ -67,7 +67,7 @@ fuzz-c: deps
 	cmake --build build/fuzz --target $(FUZZ_TARGETS)
 	@for t in $(FUZZ_TARGETS); do \
 	  mkdir -p build/fuzz/corpus/$$t; \
-	  LSAN_OPTIONS=suppressions=$(CURDIR)/tests/c/lsan.supp:print_suppressions=0 \
+	  LSAN_OPTIONS=suppressions=$(CURDIR)/tests/c/lsan.supp:print_suppressions=0 FUZZ_ARTIFACT_PREFIX=build/fuzz/crash-$$t- \
 	    build/fuzz/tests/fuzz/$$t -max_total_time=$(FUZZ_SECONDS) -max_len=4096 -rss_limit_mb=4096 -print_final_stats=1 \
 	    -artifact_prefix=build/fuzz/crash-$$t- build/fuzz/corpus/$$t tests/fuzz/corpus/$$t > build/fuzz/$$t.log 2>&1 \
 	    || { tail -40 build/fuzz/$$t.log; echo "fuzz-c: $$t failed (input in build/fuzz/crash-$$t-*)"; exit 1; }; \

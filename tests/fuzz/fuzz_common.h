@@ -16,11 +16,36 @@
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 int LLVMFuzzerInitialize(int *argc, char ***argv);
 
-/* A property every input must keep: abort (libFuzzer saves the input). */
+/* The input being run (FUZZ_BEGIN), saved by a failed FUZZ_CHECK itself:
+ * with an OpenCL context in the process, SIGABRT no longer reaches
+ * libFuzzer's handler (the OpenCL runtime's signal set-up), so libFuzzer
+ * would not write the crash file. */
+static const uint8_t *fuzz_data;
+static size_t fuzz_size;
+#define FUZZ_BEGIN(data, size) (fuzz_data = (data), fuzz_size = (size))
+
+/* Writes the current input to $FUZZ_ARTIFACT_PREFIX (default "./crash-")
+ * followed by "property-<pid>", and names it. */
+static inline void fuzz_save_input(void)
+{
+    const char *prefix = getenv("FUZZ_ARTIFACT_PREFIX");
+    char path[1024];
+    snprintf(path, sizeof path, "%sproperty-%ld", prefix ? prefix : "./crash-", (long)getpid());
+    FILE *f = fopen(path, "wb");
+    if (f) {
+        if (fuzz_size)
+            fwrite(fuzz_data, 1, fuzz_size, f);
+        fclose(f);
+        fprintf(stderr, "input written to %s\n", path);
+    }
+}
+
+/* A property every input must keep: the input is saved, then abort. */
 #define FUZZ_CHECK(cond)                                                                                     \
     do {                                                                                                     \
         if (!(cond)) {                                                                                       \
             fprintf(stderr, "%s:%d: property failed: %s\n", __FILE__, __LINE__, #cond);                      \
+            fuzz_save_input();                                                                               \
             abort();                                                                                         \
         }                                                                                                    \
     } while (0)

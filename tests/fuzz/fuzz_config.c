@@ -5,6 +5,7 @@
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
+    FUZZ_BEGIN(data, size);
     char *config = fuzz_string(data, size);
     if (!config)
         return 0;

@@ -5,6 +5,7 @@
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
+    FUZZ_BEGIN(data, size);
     const char *path = fuzz_write_input(data, size);
     if (!path)
         return 0;

@@ -18,6 +18,7 @@ int LLVMFuzzerInitialize(int *argc, char ***argv)
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
+    FUZZ_BEGIN(data, size);
     const char *path = fuzz_write_input(data, size);
     if (!path)
         return 0;
