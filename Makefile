@@ -3,7 +3,7 @@
 SHELL := /bin/bash
 VENV ?= .venv
 PY := $(VENV)/bin/python
-DEBS := pocl-opencl-icd ocl-icd-opencl-dev opencl-headers cmake ninja-build g++ pkg-config python3-venv libllvm19 libstb-dev libopenexr-dev
+DEBS := pocl-opencl-icd ocl-icd-opencl-dev opencl-headers cmake ninja-build g++ pkg-config python3-venv libllvm19 libstb-dev libopenexr-dev clang-15
 STAMP_DEPS := $(VENV)/.deps-installed
 STAMP_PKG := $(VENV)/.penumbra-installed
 # The documentation site (make docs): Sphinx with Markdown pages through myst-parser.
@@ -12,7 +12,7 @@ DOCS_PIP := "sphinx>=7" "myst-parser>=2"
 export DRJIT_LIBLLVM_PATH ?= /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
 SOURCES := $(shell find capi kernels python cmake -type f) CMakeLists.txt pyproject.toml
 
-.PHONY: all deps venv install demo test test-c test-python docs bench bench-fiv-scaling clean
+.PHONY: all deps venv install demo test test-c test-python fuzz-c docs bench bench-fiv-scaling clean
 
 all: install
 
@@ -53,7 +53,31 @@ test-c: deps
 test-python: install
 	PYOPENCL_CTX=0 $(PY) -m pytest -q tests
 
-test: test-c test-python
+# libFuzzer targets of the C entry points that parse bytes or strings
+# (tests/fuzz, docs/reliability-c.md "Fuzzing (C)"): built with clang-15 under
+# ASan + UBSan, each run for FUZZ_SECONDS from its committed seed corpus
+# (tests/fuzz/corpus/<target>); new inputs go to build/fuzz/corpus/<target>,
+# crashes to build/fuzz/crash-<target>-*. Prints executions and coverage.
+FUZZ_SECONDS ?= 10
+FUZZ_TARGETS := fuzz_fiv_header fuzz_fiv_load fuzz_config fuzz_params
+FUZZ_CC ?= clang-15
+fuzz-c: deps
+	CC=$(FUZZ_CC) cmake -S . -B build/fuzz -G Ninja -DPENUMBRA_FUZZ=ON -DBUILD_SHARED_LIBS=OFF -DPENUMBRA_TESTS=OFF \
+	  -DPENUMBRA_WERROR=ON -DCMAKE_BUILD_TYPE=Debug > /dev/null
+	cmake --build build/fuzz --target $(FUZZ_TARGETS)
+	@for t in $(FUZZ_TARGETS); do \
+	  mkdir -p build/fuzz/corpus/$$t; \
+	  LSAN_OPTIONS=suppressions=$(CURDIR)/tests/c/lsan.supp:print_suppressions=0 FUZZ_ARTIFACT_PREFIX=build/fuzz/crash-$$t- \
+	    build/fuzz/tests/fuzz/$$t -max_total_time=$(FUZZ_SECONDS) -max_len=4096 -rss_limit_mb=4096 -print_final_stats=1 \
+	    -artifact_prefix=build/fuzz/crash-$$t- build/fuzz/corpus/$$t tests/fuzz/corpus/$$t > build/fuzz/$$t.log 2>&1 \
+	    || { tail -40 build/fuzz/$$t.log; echo "fuzz-c: $$t failed (input in build/fuzz/crash-$$t-*)"; exit 1; }; \
+	  echo "$$t: $$(grep -E '^#[0-9]+.*DONE' build/fuzz/$$t.log | tail -1)"; \
+	done
+
+# The whole of `make test` must stay under 15 minutes on 2 cores: the fuzz
+# step adds one clang build of the library (~2 min) and FUZZ_SECONDS (10 s)
+# per target (4 targets).
+test: test-c fuzz-c test-python
 
 # The documentation site, warnings as errors: docs/*.md, the Python API from the
 # docstrings, the gallery (docs/sphinx/; images made by docs/sphinx/make_gallery.py).

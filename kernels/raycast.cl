@@ -89,20 +89,38 @@ kernel void occluded_rays(PN_SCENE_ARGS, global const float4 *rays, int count, g
     occluded[gid] = pn_trace(scene, o.xyz, d.xyz, o.w, d.w, &hit, true) ? 1 : 0;
 }
 
-/* Counts foreground pixels whose position or normal is not finite, or whose
- * normal is zero; first_bad receives the smallest such pixel index. */
+/* Checks every foreground pixel of a G-buffer in three classes: [0] a
+ * position or normal that is not finite, or a zero normal; [1] an albedo that
+ * is NaN, Inf or negative, or k_s outside [0, 1]; [2] a material whose
+ * shininess is not finite and >= 0, roughness not in [0, 1], or lobe not one
+ * of 0, 1, 2. bad_count[c] counts the pixels of class c, first_bad[c] gets
+ * the smallest such pixel index (the host names the field from it). */
 kernel void gbuffer_validate(global const float4 *position, global const float4 *normal,
+                             global const float4 *albedo, global const float4 *material,
                              global const uint *instance_id, int count, volatile global int *bad_count,
                              volatile global int *first_bad)
 {
     int gid = get_global_id(0);
     if (gid >= count || instance_id[gid] == PN_BACKGROUND)
         return;
-    float4 p = position[gid], n = normal[gid];
+    float4 p = position[gid], n = normal[gid], a = albedo[gid], m = material[gid];
     bool finite = isfinite(p.x) && isfinite(p.y) && isfinite(p.z) && isfinite(n.x) && isfinite(n.y) &&
                   isfinite(n.z);
     if (!finite || dot(n.xyz, n.xyz) == 0.0f) {
-        atomic_inc(bad_count);
-        atomic_min(first_bad, gid);
+        atomic_inc(&bad_count[0]);
+        atomic_min(&first_bad[0], gid);
+    }
+    /* Written so that NaN fails every test. */
+    bool albedo_ok = a.x >= 0.0f && a.y >= 0.0f && a.z >= 0.0f && isfinite(a.x) && isfinite(a.y) && isfinite(a.z) &&
+                     a.w >= 0.0f && a.w <= 1.0f;
+    if (!albedo_ok) {
+        atomic_inc(&bad_count[1]);
+        atomic_min(&first_bad[1], gid);
+    }
+    bool material_ok = m.x >= 0.0f && isfinite(m.x) && m.y >= 0.0f && m.y <= 1.0f &&
+                       (m.z == 0.0f || m.z == 1.0f || m.z == 2.0f);
+    if (!material_ok) {
+        atomic_inc(&bad_count[2]);
+        atomic_min(&first_bad[2], gid);
     }
 }

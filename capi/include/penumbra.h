@@ -68,11 +68,27 @@ enum {
     PN_ERROR_UNSUPPORTED = -1012,      /* valid request the chosen method or device cannot do */
     PN_ERROR_CANCELLED = -1013,        /* a progress callback asked to stop (a checkpoint was kept) */
     PN_ERROR_FILE = -1014,             /* a file cannot be read or written, or is corrupt or foreign */
+    PN_ERROR_INVALID_HANDLE = -1015,   /* a handle was released already (or never created): see docs/reliability-c.md */
     PN_ERROR_INTERNAL = -1099
 };
 
 /* Marks background pixels in PN_GBUFFER_INSTANCE and misses in pn_scene_intersect. */
 #define PN_BACKGROUND 0xFFFFFFFFu
+
+/* Handles (docs/reliability-c.md). A handle is an opaque value naming a slot
+ * of a process-wide table and its generation, never an address: a handle that
+ * was released (its last pn_*_release) or never created is answered with
+ * PN_ERROR_INVALID_HANDLE, never by reading freed memory. Objects the library
+ * holds (a scene's meshes) stay alive after the caller's last release, but the
+ * caller's handle is invalid from then on. Each object accepts at most
+ * PN_REFCOUNT_MAX references from the caller; a retain beyond it fails with
+ * PN_ERROR_OUT_OF_RANGE and changes nothing.
+ *
+ * Threads: every call is safe from any thread. Calls on the objects of one
+ * context are serialised by a mutex of that context (the error callback and
+ * progress callbacks run under it and may call back into the library);
+ * objects of different contexts run in parallel. */
+#define PN_REFCOUNT_MAX 16777215
 
 typedef struct pn_context_impl *pn_context;
 typedef struct pn_envmap_impl *pn_envmap;

@@ -7,11 +7,35 @@
 #include <stdio.h>
 #include <string.h>
 
-#define CHECK_HANDLE(h, MAGIC, kind)                                                                         \
+/* Every call that takes handles starts with ENTER on its first handle: the
+ * handle is looked up in the handle table (a released or unknown one is
+ * PN_ERROR_INVALID_HANDLE, never a read of freed memory), replaced by the
+ * object, and the object's context is locked until the function returns
+ * (the cleanup attribute runs pn_call_leave on every return path). Further
+ * handles of the call go through RESOLVE: live, of the right kind, and of the
+ * same context. */
+static void leave_call(pn_call *call)
+{
+    pn_call_leave(call);
+}
+
+#define ENTER(h, MAGIC, kind)                                                                                \
+    pn_call call_ __attribute__((cleanup(leave_call))) = {NULL};                                             \
     do {                                                                                                     \
-        if (!(h) || ((const pn_object *)(h))->magic != (MAGIC))                                              \
-            return pn_fail(NULL, PN_ERROR_NULL_HANDLE, "%s: the " kind " handle '%s' is NULL or not a " kind,  \
-                           __func__, #h);                                                                    \
+        void *h_ = (void *)(h);                                                                              \
+        pn_status st_ = pn_call_enter(&call_, &h_, (MAGIC), kind, __func__, #h);                             \
+        if (st_)                                                                                             \
+            return st_;                                                                                      \
+        (h) = h_;                                                                                            \
+    } while (0)
+
+#define RESOLVE(h, MAGIC, kind)                                                                              \
+    do {                                                                                                     \
+        void *h_ = (void *)(h);                                                                              \
+        pn_status st_ = pn_call_resolve(&call_, &h_, (MAGIC), kind, __func__, #h);                           \
+        if (st_)                                                                                             \
+            return st_;                                                                                      \
+        (h) = h_;                                                                                            \
     } while (0)
 
 #define CHECK_PTR(ctx, p)                                                                                    \
@@ -22,17 +46,25 @@
 
 #define CHECK_NAME(ctx, name) CHECK_PTR(ctx, name)
 
+/* A created object's handle into *out (what the caller holds). */
+#define RETURN_HANDLE(expr, out)                                                                             \
+    do {                                                                                                     \
+        pn_status st_ = (expr);                                                                              \
+        if (!st_ && *(out))                                                                                  \
+            *(out) = pn_object_handle(&(*(out))->obj);                                                       \
+        return st_;                                                                                          \
+    } while (0)
+
 static pn_status retain(pn_object *o)
 {
-    pn_object_retain(o);
-    return PN_SUCCESS;
+    return pn_object_public_retain(o);
 }
 
-/* Drops a reference (pn_object_release: the last one destroys the object and
- * then releases the context it held). */
+/* Drops the caller's reference (the last one invalidates the handle; the
+ * object lives on while the library holds it). */
 #define RELEASE(h)                                                                                           \
     do {                                                                                                     \
-        pn_object_release(&(h)->obj);                                                                        \
+        pn_object_public_release(&(h)->obj);                                                                 \
         return PN_SUCCESS;                                                                                   \
     } while (0)
 
@@ -40,13 +72,19 @@ static pn_status retain(pn_object *o)
 
 pn_status pn_get_error(pn_context ctx, const char **message)
 {
-    if (ctx && ctx->obj.magic != PN_MAGIC_CONTEXT) {
+    if (!ctx)
+        return pn_error_take(NULL, message);
+    pn_call call_ __attribute__((cleanup(leave_call))) = {NULL};
+    void *h = (void *)ctx;
+    pn_status st = pn_call_enter_released(&call_, &h, PN_MAGIC_CONTEXT, "context", "pn_get_error", "ctx");
+    if (st) {
         /* Recorded in the global slot too, like every other bad handle. */
         if (message)
-            *message = "pn_get_error: 'ctx' is not a context";
-        return pn_fail(NULL, PN_ERROR_NULL_HANDLE, "pn_get_error: 'ctx' is not a context");
+            *message = st == PN_ERROR_INVALID_HANDLE ? "pn_get_error: 'ctx' is not a live context (released?)"
+                                                     : "pn_get_error: 'ctx' is not a context";
+        return st;
     }
-    return pn_error_take(ctx, message);
+    return pn_error_take(h, message);
 }
 
 const char *pn_status_name(pn_status status)
@@ -84,7 +122,7 @@ pn_status pn_context_create(const char *config, pn_context *out)
 {
     CHECK_PTR(NULL, out);
     *out = NULL;
-    return pn_context_new(config, NULL, NULL, out);
+    RETURN_HANDLE(pn_context_new(config, NULL, NULL, out), out);
 }
 
 pn_status pn_context_create_from_cl(cl_context cl_ctx, cl_command_queue queue, const char *config, pn_context *out)
@@ -93,24 +131,24 @@ pn_status pn_context_create_from_cl(cl_context cl_ctx, cl_command_queue queue, c
     *out = NULL;
     CHECK_PTR(NULL, cl_ctx);
     CHECK_PTR(NULL, queue);
-    return pn_context_new(config, cl_ctx, queue, out);
+    RETURN_HANDLE(pn_context_new(config, cl_ctx, queue, out), out);
 }
 
 pn_status pn_context_retain(pn_context ctx)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     return retain(&ctx->obj);
 }
 
 pn_status pn_context_release(pn_context ctx)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     RELEASE(ctx);
 }
 
 pn_status pn_context_set_error_callback(pn_context ctx, pn_error_callback callback, void *user)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     ctx->callback = callback;
     ctx->callback_user = user;
     return PN_SUCCESS;
@@ -118,7 +156,7 @@ pn_status pn_context_set_error_callback(pn_context ctx, pn_error_callback callba
 
 pn_status pn_context_get_cl(pn_context ctx, cl_context *cl_ctx, cl_command_queue *queue, cl_device_id *device)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     if (cl_ctx)
         *cl_ctx = ctx->cl_ctx;
     if (queue)
@@ -130,7 +168,7 @@ pn_status pn_context_get_cl(pn_context ctx, cl_context *cl_ctx, cl_command_queue
 
 pn_status pn_context_get_device_name(pn_context ctx, char *name, size_t size)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, name);
     if (size == 0)
         return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "pn_context_get_device_name: size is 0");
@@ -144,14 +182,14 @@ pn_status pn_context_get_device_name(pn_context ctx, char *name, size_t size)
 
 pn_status pn_context_finish(pn_context ctx)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     cl_int err = clFinish(ctx->queue);
     return err == CL_SUCCESS ? PN_SUCCESS : pn_fail_cl(ctx, err, "waiting for queued work");
 }
 
 pn_status pn_context_build_program(pn_context ctx, const char *stage)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_NAME(ctx, stage);
     cl_program program;
     return pn_context_program(ctx, stage, &program);
@@ -161,47 +199,47 @@ pn_status pn_context_build_program(pn_context ctx, const char *stage)
 
 pn_status pn_envmap_create(pn_context ctx, pn_envmap *out)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, out);
-    return pn_envmap_new(ctx, out);
+    RETURN_HANDLE(pn_envmap_new(ctx, out), out);
 }
 
 pn_status pn_envmap_retain(pn_envmap env)
 {
-    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    ENTER(env, PN_MAGIC_ENVMAP, "env map");
     return retain(&env->obj);
 }
 
 pn_status pn_envmap_release(pn_envmap env)
 {
-    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    ENTER(env, PN_MAGIC_ENVMAP, "env map");
     RELEASE(env);
 }
 
 pn_status pn_envmap_set_latlong(pn_envmap env, const float *rgb, uint32_t width, uint32_t height)
 {
-    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    ENTER(env, PN_MAGIC_ENVMAP, "env map");
     CHECK_PTR(env->obj.ctx, rgb);
     return pn_envmap_do_set_latlong(env, rgb, width, height);
 }
 
 pn_status pn_envmap_set_int(pn_envmap env, const char *name, int32_t value)
 {
-    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    ENTER(env, PN_MAGIC_ENVMAP, "env map");
     CHECK_NAME(env->obj.ctx, name);
     return pn_envmap_param_int(env, name, &value, true);
 }
 
 pn_status pn_envmap_set_float(pn_envmap env, const char *name, float value)
 {
-    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    ENTER(env, PN_MAGIC_ENVMAP, "env map");
     CHECK_NAME(env->obj.ctx, name);
     return pn_envmap_param_float(env, name, &value, true);
 }
 
 pn_status pn_envmap_get_int(pn_envmap env, const char *name, int32_t *value)
 {
-    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    ENTER(env, PN_MAGIC_ENVMAP, "env map");
     CHECK_NAME(env->obj.ctx, name);
     CHECK_PTR(env->obj.ctx, value);
     return pn_envmap_param_int(env, name, value, false);
@@ -209,7 +247,7 @@ pn_status pn_envmap_get_int(pn_envmap env, const char *name, int32_t *value)
 
 pn_status pn_envmap_get_float(pn_envmap env, const char *name, float *value)
 {
-    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    ENTER(env, PN_MAGIC_ENVMAP, "env map");
     CHECK_NAME(env->obj.ctx, name);
     CHECK_PTR(env->obj.ctx, value);
     return pn_envmap_param_float(env, name, value, false);
@@ -217,13 +255,13 @@ pn_status pn_envmap_get_float(pn_envmap env, const char *name, float *value)
 
 pn_status pn_envmap_commit(pn_envmap env)
 {
-    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    ENTER(env, PN_MAGIC_ENVMAP, "env map");
     return pn_envmap_do_commit(env);
 }
 
 pn_status pn_envmap_read(pn_envmap env, pn_envmap_data what, void *host, size_t bytes)
 {
-    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    ENTER(env, PN_MAGIC_ENVMAP, "env map");
     CHECK_PTR(env->obj.ctx, host);
     return pn_envmap_do_read(env, what, host, bytes);
 }
@@ -243,7 +281,7 @@ pn_status pn_isg_table(float *out, size_t count)
 pn_status pn_envmap_fit_sgs(pn_envmap env, uint32_t count, const pn_sg_fit_options *options, pn_sg_lobe *out,
                             size_t capacity)
 {
-    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    ENTER(env, PN_MAGIC_ENVMAP, "env map");
     CHECK_PTR(env->obj.ctx, out);
     return pn_envmap_do_fit_sgs(env, count, options, out, capacity);
 }
@@ -252,27 +290,27 @@ pn_status pn_envmap_fit_sgs(pn_envmap env, uint32_t count, const pn_sg_fit_optio
 
 pn_status pn_mesh_create(pn_context ctx, pn_mesh *out)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, out);
-    return pn_mesh_new(ctx, out);
+    RETURN_HANDLE(pn_mesh_new(ctx, out), out);
 }
 
 pn_status pn_mesh_retain(pn_mesh mesh)
 {
-    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    ENTER(mesh, PN_MAGIC_MESH, "mesh");
     return retain(&mesh->obj);
 }
 
 pn_status pn_mesh_release(pn_mesh mesh)
 {
-    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    ENTER(mesh, PN_MAGIC_MESH, "mesh");
     RELEASE(mesh);
 }
 
 pn_status pn_mesh_set_geometry(pn_mesh mesh, const float *positions, uint32_t vertex_count, const uint32_t *indices,
                                uint32_t triangle_count, const float *normals)
 {
-    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    ENTER(mesh, PN_MAGIC_MESH, "mesh");
     if (vertex_count)
         CHECK_PTR(mesh->obj.ctx, positions);
     if (triangle_count)
@@ -282,13 +320,13 @@ pn_status pn_mesh_set_geometry(pn_mesh mesh, const float *positions, uint32_t ve
 
 pn_status pn_mesh_commit(pn_mesh mesh)
 {
-    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    ENTER(mesh, PN_MAGIC_MESH, "mesh");
     return pn_mesh_do_commit(mesh);
 }
 
 pn_status pn_mesh_get_hash(pn_mesh mesh, uint64_t *hash)
 {
-    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    ENTER(mesh, PN_MAGIC_MESH, "mesh");
     CHECK_PTR(mesh->obj.ctx, hash);
     if (!mesh->committed)
         return pn_fail(mesh->obj.ctx, PN_ERROR_NOT_COMMITTED, "mesh changed since its last commit; call pn_mesh_commit");
@@ -298,7 +336,7 @@ pn_status pn_mesh_get_hash(pn_mesh mesh, uint64_t *hash)
 
 pn_status pn_mesh_get_info(pn_mesh mesh, pn_mesh_info *info)
 {
-    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    ENTER(mesh, PN_MAGIC_MESH, "mesh");
     CHECK_PTR(mesh->obj.ctx, info);
     if (!mesh->committed)
         return pn_fail(mesh->obj.ctx, PN_ERROR_NOT_COMMITTED, "mesh changed since its last commit; call pn_mesh_commit");
@@ -314,7 +352,7 @@ pn_status pn_mesh_get_info(pn_mesh mesh, pn_mesh_info *info)
 
 pn_status pn_mesh_read_geometry(pn_mesh mesh, float *positions, uint32_t *indices, float *normals)
 {
-    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    ENTER(mesh, PN_MAGIC_MESH, "mesh");
     CHECK_PTR(mesh->obj.ctx, positions);
     CHECK_PTR(mesh->obj.ctx, indices);
     return pn_mesh_do_read_geometry(mesh, positions, indices, normals);
@@ -324,35 +362,35 @@ pn_status pn_mesh_read_geometry(pn_mesh mesh, float *positions, uint32_t *indice
 
 pn_status pn_scene_create(pn_context ctx, pn_scene *out)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, out);
-    return pn_scene_new(ctx, out);
+    RETURN_HANDLE(pn_scene_new(ctx, out), out);
 }
 
 pn_status pn_scene_retain(pn_scene scene)
 {
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    ENTER(scene, PN_MAGIC_SCENE, "scene");
     return retain(&scene->obj);
 }
 
 pn_status pn_scene_release(pn_scene scene)
 {
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    ENTER(scene, PN_MAGIC_SCENE, "scene");
     RELEASE(scene);
 }
 
 pn_status pn_scene_set_envmap(pn_scene scene, pn_envmap env)
 {
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
-    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    ENTER(scene, PN_MAGIC_SCENE, "scene");
+    RESOLVE(env, PN_MAGIC_ENVMAP, "env map");
     return pn_scene_do_set_envmap(scene, env);
 }
 
 pn_status pn_scene_add_instance(pn_scene scene, pn_mesh mesh, const float transform[12], const pn_material *material,
                                 uint32_t *id)
 {
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
-    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    ENTER(scene, PN_MAGIC_SCENE, "scene");
+    RESOLVE(mesh, PN_MAGIC_MESH, "mesh");
     CHECK_PTR(scene->obj.ctx, id);
     if (mesh->obj.ctx != scene->obj.ctx)
         return pn_fail(scene->obj.ctx, PN_ERROR_INVALID_ARGUMENT, "the mesh belongs to a different context");
@@ -361,75 +399,63 @@ pn_status pn_scene_add_instance(pn_scene scene, pn_mesh mesh, const float transf
 
 pn_status pn_scene_set_instance_transform(pn_scene scene, uint32_t id, const float transform[12])
 {
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    ENTER(scene, PN_MAGIC_SCENE, "scene");
     return pn_scene_do_set_transform(scene, id, transform);
 }
 
 pn_status pn_scene_set_instance_material(pn_scene scene, uint32_t id, const pn_material *material)
 {
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    ENTER(scene, PN_MAGIC_SCENE, "scene");
     CHECK_PTR(scene->obj.ctx, material);
     return pn_scene_do_set_material(scene, id, material);
 }
 
 pn_status pn_scene_remove_instance(pn_scene scene, uint32_t id)
 {
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    ENTER(scene, PN_MAGIC_SCENE, "scene");
     return pn_scene_do_remove(scene, id);
 }
 
 pn_status pn_scene_set_camera(pn_scene scene, const pn_camera *camera)
 {
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    ENTER(scene, PN_MAGIC_SCENE, "scene");
     CHECK_PTR(scene->obj.ctx, camera);
     return pn_scene_do_set_camera(scene, camera);
 }
 
 pn_status pn_scene_set_lights(pn_scene scene, const pn_sphere_light *lights, uint32_t count)
 {
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    ENTER(scene, PN_MAGIC_SCENE, "scene");
     if (count)
         CHECK_PTR(scene->obj.ctx, lights);
     return pn_scene_do_set_lights(scene, lights, count);
 }
 
-/* A handle that is some live object (its head readable); assets are told apart by their type. */
-static bool is_object(const void *h)
-{
-    if (!h)
-        return false;
-    const uint32_t magic = ((const pn_object *)h)->magic;
-    return magic == PN_MAGIC_CONTEXT || magic == PN_MAGIC_ENVMAP || magic == PN_MAGIC_MESH || magic == PN_MAGIC_SCENE ||
-           magic == PN_MAGIC_GBUFFER || magic == PN_MAGIC_IMAGE || magic == PN_MAGIC_RENDERER ||
-           magic == PN_MAGIC_FIV || magic == PN_MAGIC_HEIGHTFIELD || magic == PN_MAGIC_SPHERES;
-}
-
 pn_status pn_scene_attach(pn_scene scene, uint32_t instance, void *asset)
 {
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
-    if (!is_object(asset))
-        return pn_fail(NULL, PN_ERROR_NULL_HANDLE, "pn_scene_attach: the asset handle is NULL or not a penumbra object");
+    ENTER(scene, PN_MAGIC_SCENE, "scene");
+    RESOLVE(asset, PN_MAGIC_ANY, "penumbra object");
     return pn_scene_do_attach(scene, instance, (pn_object *)asset);
 }
 
 pn_status pn_scene_detach(pn_scene scene, uint32_t instance, void *asset)
 {
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
-    if (asset && !is_object(asset))
-        return pn_fail(NULL, PN_ERROR_NULL_HANDLE, "pn_scene_detach: the asset handle is not a penumbra object");
+    ENTER(scene, PN_MAGIC_SCENE, "scene");
+    if (asset)
+        RESOLVE(asset, PN_MAGIC_ANY, "penumbra object");
     return pn_scene_do_detach(scene, instance, (pn_object *)asset);
 }
 
 pn_status pn_scene_commit(pn_scene scene)
 {
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    ENTER(scene, PN_MAGIC_SCENE, "scene");
     return pn_scene_do_commit(scene);
 }
 
 pn_status pn_scene_intersect(pn_scene scene, const float *rays, uint32_t count, float *t, uint32_t *instance,
                              uint32_t *triangle)
 {
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    ENTER(scene, PN_MAGIC_SCENE, "scene");
     if (count)
         CHECK_PTR(scene->obj.ctx, rays);
     return pn_scene_do_query(scene, rays, count, t, instance, triangle, NULL);
@@ -437,7 +463,7 @@ pn_status pn_scene_intersect(pn_scene scene, const float *rays, uint32_t count, 
 
 pn_status pn_scene_occluded(pn_scene scene, const float *rays, uint32_t count, uint8_t *occluded)
 {
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    ENTER(scene, PN_MAGIC_SCENE, "scene");
     if (count) {
         CHECK_PTR(scene->obj.ctx, rays);
         CHECK_PTR(scene->obj.ctx, occluded);
@@ -447,8 +473,8 @@ pn_status pn_scene_occluded(pn_scene scene, const float *rays, uint32_t count, u
 
 pn_status pn_scene_render_gbuffer(pn_scene scene, pn_gbuffer gbuffer)
 {
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
-    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    ENTER(scene, PN_MAGIC_SCENE, "scene");
+    RESOLVE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
     if (gbuffer->obj.ctx != scene->obj.ctx)
         return pn_fail(scene->obj.ctx, PN_ERROR_INVALID_ARGUMENT, "the G-buffer belongs to a different context");
     return pn_scene_do_render_gbuffer(scene, gbuffer);
@@ -458,35 +484,35 @@ pn_status pn_scene_render_gbuffer(pn_scene scene, pn_gbuffer gbuffer)
 
 pn_status pn_gbuffer_create(pn_context ctx, uint32_t width, uint32_t height, pn_gbuffer *out)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, out);
-    return pn_gbuffer_new(ctx, width, height, NULL, out);
+    RETURN_HANDLE(pn_gbuffer_new(ctx, width, height, NULL, out), out);
 }
 
 pn_status pn_gbuffer_create_from_cl(pn_context ctx, uint32_t width, uint32_t height,
                                     const cl_mem planes[PN_GBUFFER_PLANE_COUNT], pn_gbuffer *out)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, planes);
     CHECK_PTR(ctx, out);
-    return pn_gbuffer_new(ctx, width, height, planes, out);
+    RETURN_HANDLE(pn_gbuffer_new(ctx, width, height, planes, out), out);
 }
 
 pn_status pn_gbuffer_retain(pn_gbuffer gbuffer)
 {
-    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    ENTER(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
     return retain(&gbuffer->obj);
 }
 
 pn_status pn_gbuffer_release(pn_gbuffer gbuffer)
 {
-    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    ENTER(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
     RELEASE(gbuffer);
 }
 
 pn_status pn_gbuffer_get_size(pn_gbuffer gbuffer, uint32_t *width, uint32_t *height)
 {
-    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    ENTER(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
     if (width)
         *width = gbuffer->width;
     if (height)
@@ -504,7 +530,7 @@ static pn_status check_plane(pn_gbuffer gbuffer, pn_gbuffer_plane plane)
 
 pn_status pn_gbuffer_get_cl(pn_gbuffer gbuffer, pn_gbuffer_plane plane, cl_mem *buffer)
 {
-    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    ENTER(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
     CHECK_PTR(gbuffer->obj.ctx, buffer);
     pn_status st = check_plane(gbuffer, plane);
     if (!st)
@@ -514,7 +540,7 @@ pn_status pn_gbuffer_get_cl(pn_gbuffer gbuffer, pn_gbuffer_plane plane, cl_mem *
 
 pn_status pn_gbuffer_write(pn_gbuffer gbuffer, pn_gbuffer_plane plane, const void *host, size_t bytes)
 {
-    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    ENTER(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
     CHECK_PTR(gbuffer->obj.ctx, host);
     pn_status st = check_plane(gbuffer, plane);
     return st ? st : pn_gbuffer_transfer(gbuffer, plane, (void *)host, bytes, true);
@@ -522,7 +548,7 @@ pn_status pn_gbuffer_write(pn_gbuffer gbuffer, pn_gbuffer_plane plane, const voi
 
 pn_status pn_gbuffer_read(pn_gbuffer gbuffer, pn_gbuffer_plane plane, void *host, size_t bytes)
 {
-    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    ENTER(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
     CHECK_PTR(gbuffer->obj.ctx, host);
     pn_status st = check_plane(gbuffer, plane);
     return st ? st : pn_gbuffer_transfer(gbuffer, plane, host, bytes, false);
@@ -530,7 +556,7 @@ pn_status pn_gbuffer_read(pn_gbuffer gbuffer, pn_gbuffer_plane plane, void *host
 
 pn_status pn_gbuffer_validate(pn_gbuffer gbuffer)
 {
-    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    ENTER(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
     return pn_gbuffer_do_validate(gbuffer);
 }
 
@@ -538,34 +564,34 @@ pn_status pn_gbuffer_validate(pn_gbuffer gbuffer)
 
 pn_status pn_image_create(pn_context ctx, uint32_t width, uint32_t height, pn_image *out)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, out);
-    return pn_image_new(ctx, width, height, NULL, out);
+    RETURN_HANDLE(pn_image_new(ctx, width, height, NULL, out), out);
 }
 
 pn_status pn_image_create_from_cl(pn_context ctx, uint32_t width, uint32_t height, cl_mem buffer, pn_image *out)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, buffer);
     CHECK_PTR(ctx, out);
-    return pn_image_new(ctx, width, height, buffer, out);
+    RETURN_HANDLE(pn_image_new(ctx, width, height, buffer, out), out);
 }
 
 pn_status pn_image_retain(pn_image image)
 {
-    CHECK_HANDLE(image, PN_MAGIC_IMAGE, "image");
+    ENTER(image, PN_MAGIC_IMAGE, "image");
     return retain(&image->obj);
 }
 
 pn_status pn_image_release(pn_image image)
 {
-    CHECK_HANDLE(image, PN_MAGIC_IMAGE, "image");
+    ENTER(image, PN_MAGIC_IMAGE, "image");
     RELEASE(image);
 }
 
 pn_status pn_image_get_cl(pn_image image, cl_mem *buffer)
 {
-    CHECK_HANDLE(image, PN_MAGIC_IMAGE, "image");
+    ENTER(image, PN_MAGIC_IMAGE, "image");
     CHECK_PTR(image->obj.ctx, buffer);
     *buffer = image->buffer;
     return PN_SUCCESS;
@@ -573,7 +599,7 @@ pn_status pn_image_get_cl(pn_image image, cl_mem *buffer)
 
 pn_status pn_image_read(pn_image image, float *host, size_t bytes)
 {
-    CHECK_HANDLE(image, PN_MAGIC_IMAGE, "image");
+    ENTER(image, PN_MAGIC_IMAGE, "image");
     CHECK_PTR(image->obj.ctx, host);
     return pn_image_do_read(image, host, bytes);
 }
@@ -656,41 +682,41 @@ pn_status pn_method_get_output(const char *method, uint32_t index, pn_output_inf
 
 pn_status pn_renderer_create(pn_context ctx, const char *method, pn_renderer *out)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_NAME(ctx, method);
     CHECK_PTR(ctx, out);
-    return pn_renderer_new(ctx, method, out);
+    RETURN_HANDLE(pn_renderer_new(ctx, method, out), out);
 }
 
 pn_status pn_renderer_retain(pn_renderer renderer)
 {
-    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    ENTER(renderer, PN_MAGIC_RENDERER, "renderer");
     return retain(&renderer->obj);
 }
 
 pn_status pn_renderer_release(pn_renderer renderer)
 {
-    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    ENTER(renderer, PN_MAGIC_RENDERER, "renderer");
     RELEASE(renderer);
 }
 
 pn_status pn_renderer_set_int(pn_renderer renderer, const char *name, int32_t value)
 {
-    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    ENTER(renderer, PN_MAGIC_RENDERER, "renderer");
     CHECK_NAME(renderer->obj.ctx, name);
     return pn_renderer_param_int(renderer, name, &value, true);
 }
 
 pn_status pn_renderer_set_float(pn_renderer renderer, const char *name, float value)
 {
-    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    ENTER(renderer, PN_MAGIC_RENDERER, "renderer");
     CHECK_NAME(renderer->obj.ctx, name);
     return pn_renderer_param_float(renderer, name, &value, true);
 }
 
 pn_status pn_renderer_get_int(pn_renderer renderer, const char *name, int32_t *value)
 {
-    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    ENTER(renderer, PN_MAGIC_RENDERER, "renderer");
     CHECK_NAME(renderer->obj.ctx, name);
     CHECK_PTR(renderer->obj.ctx, value);
     return pn_renderer_param_int(renderer, name, value, false);
@@ -698,7 +724,7 @@ pn_status pn_renderer_get_int(pn_renderer renderer, const char *name, int32_t *v
 
 pn_status pn_renderer_get_float(pn_renderer renderer, const char *name, float *value)
 {
-    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    ENTER(renderer, PN_MAGIC_RENDERER, "renderer");
     CHECK_NAME(renderer->obj.ctx, name);
     CHECK_PTR(renderer->obj.ctx, value);
     return pn_renderer_param_float(renderer, name, value, false);
@@ -706,24 +732,24 @@ pn_status pn_renderer_get_float(pn_renderer renderer, const char *name, float *v
 
 pn_status pn_renderer_commit(pn_renderer renderer)
 {
-    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    ENTER(renderer, PN_MAGIC_RENDERER, "renderer");
     return pn_renderer_do_commit(renderer);
 }
 
 pn_status pn_renderer_execute(pn_renderer renderer, pn_scene scene, pn_gbuffer gbuffer, pn_image image)
 {
-    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
-    CHECK_HANDLE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
-    CHECK_HANDLE(image, PN_MAGIC_IMAGE, "image");
+    ENTER(renderer, PN_MAGIC_RENDERER, "renderer");
+    RESOLVE(scene, PN_MAGIC_SCENE, "scene");
+    RESOLVE(gbuffer, PN_MAGIC_GBUFFER, "G-buffer");
+    RESOLVE(image, PN_MAGIC_IMAGE, "image");
     return pn_renderer_do_execute(renderer, scene, gbuffer, image);
 }
 
 pn_status pn_renderer_read_output(pn_renderer renderer, pn_scene scene, const char *output, uint32_t instance,
                                   uint32_t index, void *host, size_t bytes)
 {
-    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
-    CHECK_HANDLE(scene, PN_MAGIC_SCENE, "scene");
+    ENTER(renderer, PN_MAGIC_RENDERER, "renderer");
+    RESOLVE(scene, PN_MAGIC_SCENE, "scene");
     CHECK_NAME(renderer->obj.ctx, output);
     CHECK_PTR(renderer->obj.ctx, host);
     return pn_renderer_do_read_output(renderer, scene, output, instance, index, host, bytes);
@@ -731,7 +757,7 @@ pn_status pn_renderer_read_output(pn_renderer renderer, pn_scene scene, const ch
 
 pn_status pn_renderer_set_env_domains(pn_renderer renderer, const pn_env_domain *domains, uint32_t count)
 {
-    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    ENTER(renderer, PN_MAGIC_RENDERER, "renderer");
     return pn_renderer_do_set_env_domains(renderer, domains, count);
 }
 
@@ -739,7 +765,7 @@ pn_status pn_renderer_set_env_domains(pn_renderer renderer, const pn_env_domain 
 
 pn_status pn_envmap_get_hash(pn_envmap env, uint64_t *hash)
 {
-    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    ENTER(env, PN_MAGIC_ENVMAP, "env map");
     CHECK_PTR(env->obj.ctx, hash);
     if (!env->committed)
         return pn_fail(env->obj.ctx, PN_ERROR_NOT_COMMITTED, "env map changed since its last commit; call pn_envmap_commit");
@@ -756,7 +782,7 @@ pn_env_decompose_options pn_env_decompose_options_default(void)
 pn_status pn_envmap_decompose(pn_envmap env, const pn_env_decompose_options *options, pn_env_domain *domains,
                               uint32_t capacity)
 {
-    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    ENTER(env, PN_MAGIC_ENVMAP, "env map");
     CHECK_PTR(env->obj.ctx, options);
     CHECK_PTR(env->obj.ctx, domains);
     return pn_envmap_do_decompose(env, options, domains, capacity);
@@ -771,7 +797,7 @@ pn_env_sharp_options pn_env_sharp_options_default(void)
 pn_status pn_envmap_extract_sharp(pn_envmap env, const pn_env_sharp_options *options, pn_env_domain *domains,
                                   uint32_t capacity, uint32_t *count, float *residual, size_t residual_floats)
 {
-    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
+    ENTER(env, PN_MAGIC_ENVMAP, "env map");
     CHECK_PTR(env->obj.ctx, options);
     CHECK_PTR(env->obj.ctx, domains);
     CHECK_PTR(env->obj.ctx, count);
@@ -782,45 +808,45 @@ pn_status pn_envmap_extract_sharp(pn_envmap env, const pn_env_sharp_options *opt
 pn_status pn_fiv_bake(pn_envmap env, pn_mesh mesh, const pn_fiv_options *options, const char *checkpoint_path,
                       pn_progress_callback progress, void *user, pn_fiv *out)
 {
-    CHECK_HANDLE(env, PN_MAGIC_ENVMAP, "env map");
-    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    ENTER(env, PN_MAGIC_ENVMAP, "env map");
+    RESOLVE(mesh, PN_MAGIC_MESH, "mesh");
     CHECK_PTR(env->obj.ctx, options);
     CHECK_PTR(env->obj.ctx, out);
     *out = NULL;
-    return pn_fiv_do_bake(env, mesh, options, checkpoint_path, progress, user, out);
+    RETURN_HANDLE(pn_fiv_do_bake(env, mesh, options, checkpoint_path, progress, user, out), out);
 }
 
 pn_status pn_fiv_load(pn_context ctx, const char *path, pn_fiv *out)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_NAME(ctx, path);
     CHECK_PTR(ctx, out);
     *out = NULL;
-    return pn_fiv_read_file(ctx, path, false, out);
+    RETURN_HANDLE(pn_fiv_read_file(ctx, path, false, out), out);
 }
 
 pn_status pn_fiv_save(pn_fiv fiv, const char *path)
 {
-    CHECK_HANDLE(fiv, PN_MAGIC_FIV, "occlusion field");
+    ENTER(fiv, PN_MAGIC_FIV, "occlusion field");
     CHECK_NAME(fiv->obj.ctx, path);
     return pn_fiv_write_file(fiv, path);
 }
 
 pn_status pn_fiv_retain(pn_fiv fiv)
 {
-    CHECK_HANDLE(fiv, PN_MAGIC_FIV, "occlusion field");
+    ENTER(fiv, PN_MAGIC_FIV, "occlusion field");
     return retain(&fiv->obj);
 }
 
 pn_status pn_fiv_release(pn_fiv fiv)
 {
-    CHECK_HANDLE(fiv, PN_MAGIC_FIV, "occlusion field");
+    ENTER(fiv, PN_MAGIC_FIV, "occlusion field");
     RELEASE(fiv);
 }
 
 pn_status pn_fiv_get_info(pn_fiv fiv, pn_fiv_info *info)
 {
-    CHECK_HANDLE(fiv, PN_MAGIC_FIV, "occlusion field");
+    ENTER(fiv, PN_MAGIC_FIV, "occlusion field");
     CHECK_PTR(fiv->obj.ctx, info);
     pn_fiv_fill_info(fiv, info);
     return PN_SUCCESS;
@@ -840,7 +866,7 @@ pn_fiv_options pn_fiv_options_default(void)
 
 pn_status pn_fiv_read(pn_fiv fiv, float *host, size_t bytes)
 {
-    CHECK_HANDLE(fiv, PN_MAGIC_FIV, "occlusion field");
+    ENTER(fiv, PN_MAGIC_FIV, "occlusion field");
     CHECK_PTR(fiv->obj.ctx, host);
     return pn_fiv_do_read(fiv, host, bytes);
 }
@@ -849,26 +875,26 @@ pn_status pn_fiv_read(pn_fiv fiv, float *host, size_t bytes)
 
 pn_status pn_heightfield_create(pn_context ctx, pn_heightfield *out)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, out);
-    return pn_heightfield_new(ctx, out);
+    RETURN_HANDLE(pn_heightfield_new(ctx, out), out);
 }
 
 pn_status pn_heightfield_retain(pn_heightfield hf)
 {
-    CHECK_HANDLE(hf, PN_MAGIC_HEIGHTFIELD, "height field");
+    ENTER(hf, PN_MAGIC_HEIGHTFIELD, "height field");
     return retain(&hf->obj);
 }
 
 pn_status pn_heightfield_release(pn_heightfield hf)
 {
-    CHECK_HANDLE(hf, PN_MAGIC_HEIGHTFIELD, "height field");
+    ENTER(hf, PN_MAGIC_HEIGHTFIELD, "height field");
     RELEASE(hf);
 }
 
 pn_status pn_heightfield_set_heights(pn_heightfield hf, const float *heights, uint32_t width, uint32_t depth)
 {
-    CHECK_HANDLE(hf, PN_MAGIC_HEIGHTFIELD, "height field");
+    ENTER(hf, PN_MAGIC_HEIGHTFIELD, "height field");
     CHECK_PTR(hf->obj.ctx, heights);
     const bool sized = hf->placement.size[0] > 0.0f;
     pn_status st = pn_heightfield_do_set_heights(hf, heights, width, depth);
@@ -881,66 +907,66 @@ pn_status pn_heightfield_set_heights(pn_heightfield hf, const float *heights, ui
 
 pn_status pn_heightfield_set_placement(pn_heightfield hf, const pn_heightfield_placement *placement)
 {
-    CHECK_HANDLE(hf, PN_MAGIC_HEIGHTFIELD, "height field");
+    ENTER(hf, PN_MAGIC_HEIGHTFIELD, "height field");
     CHECK_PTR(hf->obj.ctx, placement);
     return pn_heightfield_do_set_placement(hf, placement);
 }
 
 pn_status pn_heightfield_set_albedo(pn_heightfield hf, const float *rgb, size_t count)
 {
-    CHECK_HANDLE(hf, PN_MAGIC_HEIGHTFIELD, "height field");
+    ENTER(hf, PN_MAGIC_HEIGHTFIELD, "height field");
     return pn_heightfield_do_set_albedo(hf, rgb, count);
 }
 
 pn_status pn_heightfield_commit(pn_heightfield hf)
 {
-    CHECK_HANDLE(hf, PN_MAGIC_HEIGHTFIELD, "height field");
+    ENTER(hf, PN_MAGIC_HEIGHTFIELD, "height field");
     return pn_heightfield_do_commit(hf);
 }
 
 pn_status pn_heightfield_build_mesh(pn_heightfield hf, pn_mesh *out)
 {
-    CHECK_HANDLE(hf, PN_MAGIC_HEIGHTFIELD, "height field");
+    ENTER(hf, PN_MAGIC_HEIGHTFIELD, "height field");
     CHECK_PTR(hf->obj.ctx, out);
     *out = NULL;
-    return pn_heightfield_do_build_mesh(hf, out);
+    RETURN_HANDLE(pn_heightfield_do_build_mesh(hf, out), out);
 }
 
 /* ------------------------------------------------------------ sphere sets */
 
 pn_status pn_sphere_set_build(pn_mesh mesh, uint32_t count, pn_sphere_set *out)
 {
-    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    ENTER(mesh, PN_MAGIC_MESH, "mesh");
     CHECK_PTR(mesh->obj.ctx, out);
     *out = NULL;
-    return pn_sphere_set_do_build(mesh, count, out);
+    RETURN_HANDLE(pn_sphere_set_do_build(mesh, count, out), out);
 }
 
 pn_status pn_sphere_set_create(pn_context ctx, const float *spheres, uint32_t count, pn_sphere_set *out)
 {
-    CHECK_HANDLE(ctx, PN_MAGIC_CONTEXT, "context");
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
     CHECK_PTR(ctx, out);
     *out = NULL;
     if (count)
         CHECK_PTR(ctx, spheres);
-    return pn_sphere_set_do_create(ctx, spheres, count, out);
+    RETURN_HANDLE(pn_sphere_set_do_create(ctx, spheres, count, out), out);
 }
 
 pn_status pn_sphere_set_retain(pn_sphere_set set)
 {
-    CHECK_HANDLE(set, PN_MAGIC_SPHERES, "sphere set");
+    ENTER(set, PN_MAGIC_SPHERES, "sphere set");
     return retain(&set->obj);
 }
 
 pn_status pn_sphere_set_release(pn_sphere_set set)
 {
-    CHECK_HANDLE(set, PN_MAGIC_SPHERES, "sphere set");
+    ENTER(set, PN_MAGIC_SPHERES, "sphere set");
     RELEASE(set);
 }
 
 pn_status pn_sphere_set_get_info(pn_sphere_set set, pn_sphere_set_info *info)
 {
-    CHECK_HANDLE(set, PN_MAGIC_SPHERES, "sphere set");
+    ENTER(set, PN_MAGIC_SPHERES, "sphere set");
     CHECK_PTR(set->obj.ctx, info);
     pn_sphere_set_fill_info(set, info);
     return PN_SUCCESS;
@@ -948,14 +974,14 @@ pn_status pn_sphere_set_get_info(pn_sphere_set set, pn_sphere_set_info *info)
 
 pn_status pn_sphere_set_read(pn_sphere_set set, float *spheres, size_t bytes)
 {
-    CHECK_HANDLE(set, PN_MAGIC_SPHERES, "sphere set");
+    ENTER(set, PN_MAGIC_SPHERES, "sphere set");
     CHECK_PTR(set->obj.ctx, spheres);
     return pn_sphere_set_do_read(set, spheres, bytes);
 }
 
 pn_status pn_sphere_set_deform(pn_sphere_set set, pn_mesh mesh)
 {
-    CHECK_HANDLE(set, PN_MAGIC_SPHERES, "sphere set");
-    CHECK_HANDLE(mesh, PN_MAGIC_MESH, "mesh");
+    ENTER(set, PN_MAGIC_SPHERES, "sphere set");
+    RESOLVE(mesh, PN_MAGIC_MESH, "mesh");
     return pn_sphere_set_do_deform(set, mesh);
 }

@@ -263,6 +263,7 @@ static void test_status_names(void)
         {PN_ERROR_UNSUPPORTED, "PN_ERROR_UNSUPPORTED"},
         {PN_ERROR_CANCELLED, "PN_ERROR_CANCELLED"},
         {PN_ERROR_FILE, "PN_ERROR_FILE"},
+        {PN_ERROR_INVALID_HANDLE, "PN_ERROR_INVALID_HANDLE"},
         {PN_ERROR_INTERNAL, "PN_ERROR_INTERNAL"},
     };
     for (size_t i = 0; i < sizeof names / sizeof names[0]; ++i) {
@@ -2066,8 +2067,9 @@ static void test_fiv(pn_context ctx)
     expect_error("a NULL asset", pn_scene_attach(r.scene, r.instance, NULL), PN_ERROR_NULL_HANDLE, NULL,
                  "pn_scene_attach", NULL);
     int not_an_object = 0;
+    /* Handles are table entries, not addresses: any other value is no live object. */
     expect_error("a pointer that is no object", pn_scene_attach(r.scene, r.instance, &not_an_object),
-                 PN_ERROR_NULL_HANDLE, NULL, "not a penumbra object", NULL);
+                 PN_ERROR_INVALID_HANDLE, NULL, "not a live penumbra object", NULL);
 
     /* NULL pointers: the context's slot. */
     expect_error("pn_fiv_bake(options = NULL)", pn_fiv_bake(r.env, r.mesh, NULL, NULL, NULL, NULL, &fiv),

@@ -30,6 +30,13 @@ struct pn_fiv_impl {
 extern const pn_param_desc pn_fiv_bake_params[PN_FIV_BAKE_PARAM_COUNT];
 pn_fiv_options pn_fiv_default_options(void);
 pn_status pn_fiv_check_options(pn_context ctx, const pn_fiv_options *options);
+/* NULL when the field's geometry and scales are usable numbers (centre
+ * finite, 0 < inner < outer, radius and outer finite, the outermost sphere's
+ * points representable, value_scale > 0, outer_max >= 0, all finite), else a
+ * static phrase naming the first problem. The bake checks it before baking,
+ * and the file reader and writer with every header, so the library never
+ * writes a file its reader refuses. */
+const char *pn_fiv_geometry_problem(const struct pn_fiv_impl *fiv);
 pn_status pn_fiv_new(pn_context ctx, const pn_fiv_options *options, pn_fiv *out);
 uint64_t pn_fiv_sample_count(const pn_fiv_options *options);
 /* Radius of sphere k (geometric from inner to outer). */

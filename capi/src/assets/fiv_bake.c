@@ -277,6 +277,15 @@ pn_status pn_fiv_do_bake(pn_envmap env, pn_mesh mesh, const pn_fiv_options *opti
     bounding_sphere(mesh, f->centre, &f->radius);
     f->inner = options->inner_radius * f->radius;
     f->outer = f->radius / sqrtf(options->error_target);
+    const char *problem = pn_fiv_geometry_problem(f);
+    if (problem) {
+        st = pn_fail(ctx, PN_ERROR_INVALID_VALUE,
+                     "pn_fiv_bake: the mesh cannot be baked: %s (bounding radius %g, outermost sphere %g; float "
+                     "overflow)",
+                     problem, (double)f->radius, (double)f->outer);
+        pn_object_release(&f->obj);
+        return st;
+    }
     f->mesh_hash = mesh->content_hash;
     f->env_hash = env->content_hash;
     f->mesh_vertices = mesh->vertex_count;

@@ -4,6 +4,8 @@
  * file format in io/fiv_file.c, the shading in methods/fiv.c. */
 #include "assets/assets.h"
 
+#include <float.h>
+
 #include <math.h>
 #include <stddef.h>
 #include <stdlib.h>
@@ -115,7 +117,10 @@ static const pn_object_type fiv_type = {PN_MAGIC_FIV, "occlusion field", destroy
 pn_status pn_fiv_new(pn_context ctx, const pn_fiv_options *options, pn_fiv *out)
 {
     size_t n = pn_mul_size((size_t)options->theta * options->phi, options->radii, 9 * sizeof(float));
-    float *samples = n == SIZE_MAX ? NULL : malloc(n);
+    pn_status st = pn_check_bytes(ctx, n, "the samples of an occlusion field");
+    if (st)
+        return st;
+    float *samples = malloc(n);
     if (!samples)
         return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for an occlusion field of %ux%ux%u samples",
                        options->theta, options->phi, options->radii);
@@ -135,6 +140,28 @@ static void destroy_fiv(pn_object *o)
 {
     pn_fiv f = (pn_fiv)o;
     free(f->samples);
+}
+
+const char *pn_fiv_geometry_problem(const struct pn_fiv_impl *f)
+{
+    for (int c = 0; c < 3; ++c)
+        if (!isfinite(f->centre[c]))
+            return "its bounding-sphere centre is not finite";
+    if (!(isfinite(f->radius) && f->radius > 0.0f))
+        return "its bounding radius is not a positive finite number (the mesh's extent overflows float)";
+    if (!(isfinite(f->inner) && f->inner > 0.0f))
+        return "its innermost sphere radius is not a positive finite number";
+    if (!(isfinite(f->outer) && f->outer > f->inner))
+        return "its outermost sphere radius (R / sqrt(error_target)) overflows float or is not above the innermost";
+    for (int c = 0; c < 3; ++c)
+        if (!isfinite(fabs((double)f->centre[c]) + (double)f->outer) ||
+            fabs((double)f->centre[c]) + (double)f->outer > (double)FLT_MAX)
+            return "points of its outermost sphere overflow float (the mesh is too large or too far from the origin)";
+    if (!(isfinite(f->value_scale) && f->value_scale > 0.0f))
+        return "its value scale is not a positive finite number";
+    if (!(isfinite(f->outer_max) && f->outer_max >= 0.0f))
+        return "its largest outer value is not a finite number >= 0";
+    return NULL;
 }
 
 uint64_t pn_fiv_sample_count(const pn_fiv_options *o)

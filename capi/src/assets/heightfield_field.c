@@ -25,8 +25,12 @@ pn_status pn_heightfield_do_set_heights(pn_heightfield hf, const float *heights,
         return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "a height field needs at least 2 x 2 heights (got %u x %u)", width,
                        depth);
     if ((uint64_t)width * depth > (uint64_t)INT32_MAX / 4)
-        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "a height field of %u x %u heights is too large", width, depth);
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "a height field of %u x %u heights is too large (at most 2^29 heights)", width, depth);
     const size_t n = (size_t)width * depth;
+    /* heights, and the pyramid and triangle mesh made from them: a few times more */
+    pn_status cap = pn_check_bytes(ctx, pn_mul_size(n, sizeof(float), 4), "a height field's heights");
+    if (cap)
+        return cap;
     size_t bad = 0, first = 0;
     for (size_t k = 0; k < n; ++k)
         if (!isfinite(heights[k]) && bad++ == 0)

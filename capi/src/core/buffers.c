@@ -2,6 +2,7 @@
  * caller (docs/gbuffer.md gives the layout). */
 #include "core/core.h"
 
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 
@@ -52,6 +53,8 @@ pn_status pn_gbuffer_new(pn_context ctx, uint32_t width, uint32_t height, const 
     if (st)
         return st;
     const size_t pixels = (size_t)width * height;
+    if (!planes && (st = pn_check_bytes(ctx, pn_mul_size(pixels, 4 * 16 + 4, 1), "a G-buffer")))
+        return st;
     for (int p = 0; planes && p < PN_GBUFFER_PLANE_COUNT; ++p) {
         char what[64];
         snprintf(what, sizeof what, "G-buffer plane %d (%s)", p, plane_names[p]);
@@ -98,6 +101,29 @@ pn_status pn_gbuffer_transfer(pn_gbuffer gb, pn_gbuffer_plane plane, void *host,
     return err == CL_SUCCESS ? PN_SUCCESS : pn_fail_cl(ctx, err, write ? "writing a G-buffer plane" : "reading a G-buffer plane");
 }
 
+/* The first field of a pixel's albedo (rgb, k_s) or material (shininess,
+ * roughness, lobe) that the validation kernel's rules refuse. */
+static const char *bad_field(int plane, const float v[4], char *buf, size_t size)
+{
+    if (plane == 1) {
+        static const char *const names[3] = {"albedo.r", "albedo.g", "albedo.b"};
+        for (int c = 0; c < 3; ++c)
+            if (!(v[c] >= 0.0f && isfinite(v[c]))) {
+                snprintf(buf, size, "%s = %g (must be finite and >= 0)", names[c], (double)v[c]);
+                return buf;
+            }
+        snprintf(buf, size, "specular k_s (albedo.w) = %g (must be in [0, 1])", (double)v[3]);
+        return buf;
+    }
+    if (!(v[0] >= 0.0f && isfinite(v[0])))
+        snprintf(buf, size, "shininess (material.x) = %g (must be finite and >= 0)", (double)v[0]);
+    else if (!(v[1] >= 0.0f && v[1] <= 1.0f))
+        snprintf(buf, size, "roughness (material.y) = %g (must be in [0, 1])", (double)v[1]);
+    else
+        snprintf(buf, size, "lobe (material.z) = %g (must be 0, 1 or 2)", (double)v[2]);
+    return buf;
+}
+
 pn_status pn_gbuffer_do_validate(pn_gbuffer gb)
 {
     pn_context ctx = gb->obj.ctx;
@@ -105,37 +131,55 @@ pn_status pn_gbuffer_do_validate(pn_gbuffer gb)
     pn_status st = pn_context_kernel(ctx, "raycast", "gbuffer_validate", &k);
     if (st)
         return st;
-    cl_int zero = 0;
+    cl_int zero[3] = {0, 0, 0};
     cl_mem counters;
-    if ((st = pn_alloc(ctx, sizeof zero, CL_MEM_READ_WRITE, &zero, &counters, "G-buffer validation")))
+    if ((st = pn_alloc(ctx, sizeof zero, CL_MEM_READ_WRITE, zero, &counters, "G-buffer validation")))
         return st;
     cl_mem first = NULL;
-    cl_int init_first = 0x7fffffff;
-    st = pn_alloc(ctx, sizeof init_first, CL_MEM_READ_WRITE, &init_first, &first, "G-buffer validation");
+    cl_int init_first[3] = {0x7fffffff, 0x7fffffff, 0x7fffffff};
+    st = pn_alloc(ctx, sizeof init_first, CL_MEM_READ_WRITE, init_first, &first, "G-buffer validation");
     const cl_int count = (cl_int)(gb->width * gb->height);
     if (!st) {
-        size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count, sizeof(cl_mem), sizeof(cl_mem)};
+        size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem),
+                          sizeof(cl_mem), sizeof count,   sizeof(cl_mem), sizeof(cl_mem)};
         const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
-                              &gb->planes[PN_GBUFFER_INSTANCE], &count, &counters, &first};
-        st = pn_set_args(ctx, k, "gbuffer_validate", 6, sizes, vals);
+                              &gb->planes[PN_GBUFFER_ALBEDO],   &gb->planes[PN_GBUFFER_MATERIAL],
+                              &gb->planes[PN_GBUFFER_INSTANCE], &count,
+                              &counters,                        &first};
+        st = pn_set_args(ctx, k, "gbuffer_validate", 8, sizes, vals);
     }
     if (!st)
         st = pn_enqueue_1d(ctx, k, "gbuffer_validate", (size_t)count, 64);
-    cl_int bad = 0, first_bad = 0;
+    cl_int bad[3] = {0, 0, 0}, first_bad[3] = {0, 0, 0};
     if (!st) {
-        cl_int err = clEnqueueReadBuffer(ctx->queue, counters, CL_TRUE, 0, sizeof bad, &bad, 0, NULL, NULL);
+        cl_int err = clEnqueueReadBuffer(ctx->queue, counters, CL_TRUE, 0, sizeof bad, bad, 0, NULL, NULL);
         if (err == CL_SUCCESS)
-            err = clEnqueueReadBuffer(ctx->queue, first, CL_TRUE, 0, sizeof first_bad, &first_bad, 0, NULL, NULL);
+            err = clEnqueueReadBuffer(ctx->queue, first, CL_TRUE, 0, sizeof first_bad, first_bad, 0, NULL, NULL);
         if (err != CL_SUCCESS)
             st = pn_fail_cl(ctx, err, "reading G-buffer validation results");
     }
     pn_mem_release(&counters);
     pn_mem_release(&first);
-    if (!st && bad > 0)
-        st = pn_fail(ctx, PN_ERROR_INVALID_VALUE,
-                     "G-buffer has %d foreground pixels with a non-finite position or normal or a zero normal, first at "
-                     "(x=%u, y=%u)",
-                     bad, (unsigned)first_bad % gb->width, (unsigned)first_bad / gb->width);
+    if (!st && bad[0] > 0)
+        return pn_fail(ctx, PN_ERROR_INVALID_VALUE,
+                       "G-buffer has %d foreground pixels with a non-finite position or normal or a zero normal, first "
+                       "at (x=%u, y=%u)",
+                       bad[0], (unsigned)first_bad[0] % gb->width, (unsigned)first_bad[0] / gb->width);
+    for (int c = 1; !st && c < 3; ++c) {
+        if (bad[c] <= 0)
+            continue;
+        const pn_gbuffer_plane plane = c == 1 ? PN_GBUFFER_ALBEDO : PN_GBUFFER_MATERIAL;
+        float v[4] = {0, 0, 0, 0};
+        cl_int err = clEnqueueReadBuffer(ctx->queue, gb->planes[plane], CL_TRUE, (size_t)first_bad[c] * sizeof v,
+                                         sizeof v, v, 0, NULL, NULL);
+        if (err != CL_SUCCESS)
+            return pn_fail_cl(ctx, err, "reading a G-buffer pixel that failed validation");
+        char field[128];
+        return pn_fail(ctx, PN_ERROR_INVALID_VALUE,
+                       "G-buffer %s plane has %d foreground pixels out of range, first at (x=%u, y=%u): %s",
+                       plane_names[plane], bad[c], (unsigned)first_bad[c] % gb->width,
+                       (unsigned)first_bad[c] / gb->width, bad_field(c, v, field, sizeof field));
+    }
     return st;
 }
 
@@ -149,6 +193,8 @@ pn_status pn_image_new(pn_context ctx, uint32_t width, uint32_t height, cl_mem b
         return st;
     const size_t bytes = (size_t)width * height * 16;
     if (buffer && (st = pn_check_cl_buffer(ctx, buffer, bytes, "image buffer")))
+        return st;
+    if (!buffer && (st = pn_check_bytes(ctx, bytes, "an image")))
         return st;
     pn_image img = pn_object_new(ctx, sizeof *img, &image_type, "an image");
     if (!img)

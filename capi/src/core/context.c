@@ -1,8 +1,11 @@
 /* Contexts: device choice from a config string, borrowed caller objects, and
  * the per-context cache of built programs and kernels. */
+#define _XOPEN_SOURCE 700 /* PTHREAD_MUTEX_RECURSIVE */
 #include "core/core.h"
 
 #include <ctype.h>
+#include <errno.h>
+#include <stdint.h>
 #include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -148,7 +151,6 @@ pn_status pn_context_new(const char *config, cl_context cl_ctx, cl_command_queue
     if (!ctx)
         return pn_fail(NULL, PN_ERROR_OUT_OF_MEMORY, "out of memory creating a context");
     ctx->obj.magic = PN_MAGIC_CONTEXT;
-    ctx->obj.refcount = 1;
     ctx->obj.ctx = ctx;
     ctx->obj.type = &context_type;
     ctx->serial = atomic_fetch_add(&next_serial, 1);
@@ -193,6 +195,21 @@ pn_status pn_context_new(const char *config, cl_context cl_ctx, cl_command_queue
     const char *extra = getenv("PENUMBRA_CL_BUILD_OPTIONS");
     snprintf(ctx->build_options, sizeof ctx->build_options, "-cl-std=CL1.2 %s %s", req.build_options,
              extra ? extra : "");
+    /* Every call on the context's objects holds its lock; recursive, so that
+     * callbacks run under it may call the library again. */
+    pthread_mutexattr_t attr;
+    pthread_mutexattr_init(&attr);
+    pthread_mutexattr_settype(&attr, PTHREAD_MUTEX_RECURSIVE);
+    const int lock_err = pthread_mutex_init(&ctx->lock, &attr);
+    pthread_mutexattr_destroy(&attr);
+    if (lock_err || pn_object_setup(&ctx->obj, ctx, &context_type)) {
+        if (!lock_err)
+            pthread_mutex_destroy(&ctx->lock);
+        clReleaseCommandQueue(ctx->queue);
+        clReleaseContext(ctx->cl_ctx);
+        free(ctx);
+        return lock_err ? pn_fail(NULL, PN_ERROR_OUT_OF_MEMORY, "cannot create the context's mutex") : PN_ERROR_OUT_OF_MEMORY;
+    }
     *out = ctx;
     return PN_SUCCESS;
 }
@@ -200,6 +217,7 @@ pn_status pn_context_new(const char *config, cl_context cl_ctx, cl_command_queue
 static void destroy_context(pn_object *o)
 {
     pn_context ctx = (pn_context)o;
+    pthread_mutex_destroy(&ctx->lock);
     clFinish(ctx->queue);
     for (int i = 0; i < ctx->kernel_count; ++i)
         clReleaseKernel(ctx->kernels[i].kernel);
@@ -397,6 +415,11 @@ pn_status pn_enqueue_1d(pn_context ctx, cl_kernel kernel, const char *name, size
 
 pn_status pn_alloc(pn_context ctx, size_t bytes, cl_mem_flags flags, const void *host, cl_mem *out, const char *what)
 {
+    pn_status st = pn_check_bytes(ctx, bytes, what);
+    if (st) {
+        *out = NULL;
+        return st;
+    }
     cl_int err;
     if (host)
         flags |= CL_MEM_COPY_HOST_PTR;
@@ -461,20 +484,3 @@ void pn_mem_release(cl_mem *mem)
     *mem = NULL;
 }
 
-void *pn_malloc(pn_context ctx, size_t bytes, const char *what)
-{
-    void *p = bytes == SIZE_MAX ? NULL : malloc(bytes ? bytes : 1);
-    if (!p)
-        pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of host memory allocating %zu bytes for %s", bytes, what);
-    return p;
-}
-
-size_t pn_mul_size(size_t a, size_t b, size_t c)
-{
-    if (a && b > SIZE_MAX / a)
-        return SIZE_MAX;
-    size_t ab = a * b;
-    if (ab && c > SIZE_MAX / ab)
-        return SIZE_MAX;
-    return ab * c;
-}

@@ -8,6 +8,8 @@
 
 #include "penumbra.h"
 
+#include <pthread.h>
+#include <stdatomic.h>
 #include <stdbool.h>
 
 /* ---------------------------------------------------------------- objects */
@@ -23,8 +25,13 @@ enum {
     PN_MAGIC_FIV = 0x504e4656,
     PN_MAGIC_HEIGHTFIELD = 0x504e4846,
     PN_MAGIC_SPHERES = 0x504e5350,
-    PN_MAGIC_DEAD = 0x44454144
+    PN_MAGIC_DEAD = 0x44454144,
+    PN_MAGIC_ANY = 0 /* pn_call_enter / pn_call_resolve: any kind of object */
 };
+
+/* Every reference an object may hold in all (the caller's, other objects',
+ * calls in progress); the headroom above it is for the calls' pins. */
+#define PN_REFS_MAX (INT32_MAX - (1 << 20))
 
 typedef struct pn_object pn_object;
 
@@ -39,21 +46,57 @@ typedef struct pn_object_type {
     pn_status (*check_attach)(const pn_object *asset, pn_scene scene, uint32_t instance);
 } pn_object_type;
 
-/* Common head of every handle: type tag, reference count, owning context. */
+/* Common head of every object: type tag, reference counts, handle, owning
+ * context (core/objects.c describes handles and lifetimes). */
 struct pn_object {
     uint32_t magic;
-    int32_t refcount;
+    atomic_int refs;     /* every reference: the caller's, other objects', calls' pins */
+    atomic_int public_refs; /* the caller's (create, retain, release); the handle is valid while > 0 */
+    void *handle;           /* what the caller holds (index and generation of a slot, freed at destruction) */
     pn_context ctx;
     const pn_object_type *type;
 };
 
 /* A zeroed object of `size` bytes (head included) of `type`, holding one
- * reference to its context; NULL (error recorded) when out of memory. */
+ * reference to its context, registered with a handle; NULL (error recorded)
+ * when out of memory. */
 void *pn_object_new(pn_context ctx, size_t size, const pn_object_type *type, const char *what);
-void pn_object_retain(pn_object *object);
+/* Fills the head of an object made without pn_object_new (the context) and registers its handle. */
+pn_status pn_object_setup(pn_object *object, pn_context ctx, const pn_object_type *type);
+/* The handle the caller holds for an object (what a create function returns). */
+void *pn_object_handle(const pn_object *object);
+/* A reference held inside the library (a scene's mesh); fails, changing
+ * nothing, when the object holds PN_REFS_MAX references. */
+pn_status pn_object_retain(pn_object *object);
 /* Drops a reference; the last one destroys the object, then releases the
  * context it held (objects keep their context alive). NULL is ignored. */
 void pn_object_release(pn_object *object);
+/* The caller's references (pn_*_retain / pn_*_release): saturating at
+ * PN_REFCOUNT_MAX; the last release makes the handle invalid at once, even
+ * while the library still holds the object. Under the context's lock. */
+pn_status pn_object_public_retain(pn_object *object);
+void pn_object_public_release(pn_object *object);
+
+/* One exported call in progress: the context whose lock it holds. */
+typedef struct pn_call {
+    pn_context ctx;
+} pn_call;
+/* Resolves the first handle of a call: *handle (what the caller passed) must
+ * be a live object of kind `magic` (PN_MAGIC_ANY: any), else
+ * PN_ERROR_NULL_HANDLE (NULL, wrong kind) or PN_ERROR_INVALID_HANDLE (released,
+ * or never created), recorded in the global slot with `func` and `arg` named.
+ * On success *handle is the object, its context is locked (recursive) and
+ * kept alive until pn_call_leave. */
+pn_status pn_call_enter(pn_call *call, void **handle, uint32_t magic, const char *kind, const char *func,
+                        const char *arg);
+/* pn_call_enter for pn_get_error: also accepts a context whose handle the
+ * caller released while objects of it still live (its errors stay readable). */
+pn_status pn_call_enter_released(pn_call *call, void **handle, uint32_t magic, const char *kind, const char *func,
+                                 const char *arg);
+/* Resolves another handle of the same call; it must belong to the call's context. */
+pn_status pn_call_resolve(pn_call *call, void **handle, uint32_t magic, const char *kind, const char *func,
+                          const char *arg);
+void pn_call_leave(pn_call *call);
 #define PN_RELEASE(handle) pn_object_release((handle) ? &(handle)->obj : NULL)
 /* One entry of a parameter table (a method's, or a bake's options): the
  * library's single statement of a parameter's name, type, default, range,
@@ -124,6 +167,7 @@ typedef struct pn_cache_entry {
 
 struct pn_context_impl {
     pn_object obj;
+    pthread_mutex_t lock; /* recursive: every call on the context's objects holds it (pn_call_enter) */
     uint64_t serial; /* keys the per-thread error slots */
     cl_context cl_ctx;
     cl_command_queue queue;
@@ -268,6 +312,14 @@ pn_status pn_check_cl_buffer(pn_context ctx, cl_mem buffer, size_t needed, const
 /* n-point Gauss–Legendre nodes x and weights w on [-1, 1] (Newton on the recurrence). */
 void pn_gauss_legendre(int n, double *x, double *w);
 
+/* The cap on every allocation sized by input: PENUMBRA_MAX_BYTES (bytes, or
+ * with a suffix K/M/G/T), default PN_DEFAULT_MAX_BYTES. pn_check_bytes fails
+ * with PN_ERROR_INVALID_SIZE naming `what`, the size and the limit when
+ * `bytes` exceeds it (SIZE_MAX: a product that overflowed, pn_mul_size), and
+ * with PN_ERROR_BAD_CONFIG when the variable is not a byte count. */
+#define PN_DEFAULT_MAX_BYTES ((size_t)(SIZE_MAX > 0xFFFFFFFFu ? 8ull << 30 : 0x7FFFFFFFu))
+pn_status pn_check_bytes(pn_context ctx, size_t bytes, const char *what);
+/* malloc under the cap (an error recorded either way when it fails). */
 void *pn_malloc(pn_context ctx, size_t bytes, const char *what);
 /* a * b * c without overflow, or SIZE_MAX. */
 size_t pn_mul_size(size_t a, size_t b, size_t c);

@@ -38,7 +38,11 @@ pn_status pn_envmap_do_set_latlong(pn_envmap env, const float *rgb, uint32_t wid
         return pn_fail(ctx, PN_ERROR_EMPTY_INPUT, "env map size %ux%u is empty", width, height);
     size_t bytes = pn_mul_size(width, height, 3 * sizeof(float));
     if (bytes == SIZE_MAX || (uint64_t)width * height > (1u << 28))
-        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "env map size %ux%u is too large", width, height);
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "env map size %ux%u is too large (at most 2^28 texels)", width,
+                       height);
+    pn_status cap = pn_check_bytes(ctx, bytes, "the env map's texels");
+    if (cap)
+        return cap;
     size_t nan = 0, inf = 0, neg = 0, first = SIZE_MAX;
     const size_t n = (size_t)width * height;
     for (size_t i = 0; i < n; ++i) {

@@ -115,6 +115,7 @@ const char *pn_status_name_of(pn_status status)
     case PN_ERROR_UNSUPPORTED: return "PN_ERROR_UNSUPPORTED";
     case PN_ERROR_CANCELLED: return "PN_ERROR_CANCELLED";
     case PN_ERROR_FILE: return "PN_ERROR_FILE";
+    case PN_ERROR_INVALID_HANDLE: return "PN_ERROR_INVALID_HANDLE";
     case PN_ERROR_INTERNAL: return "PN_ERROR_INTERNAL";
     default: return status < 0 && status > -1000 ? "OpenCL error" : "unknown status";
     }

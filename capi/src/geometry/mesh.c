@@ -2,7 +2,9 @@
  * binned-SAH BVH with the triangles laid out in leaf order for the kernels. */
 #include "geometry/geometry.h"
 
+#include <float.h>
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -55,11 +57,40 @@ pn_status pn_mesh_do_set_geometry(pn_mesh mesh, const float *positions, uint32_t
     if (vertex_count == 0 || triangle_count == 0)
         return pn_fail(ctx, PN_ERROR_EMPTY_INPUT, "mesh has %u vertices and %u triangles; it needs at least one of each",
                        vertex_count, triangle_count);
+    /* Sizes first: nothing is read from the caller's arrays before they are known to fit the cap. */
+    char what[96];
+    snprintf(what, sizeof what, "a mesh of %u vertices", vertex_count);
+    pn_status st = pn_check_bytes(ctx, pn_mul_size(vertex_count, normals ? 6 : 3, sizeof(float)), what);
+    if (!st) {
+        snprintf(what, sizeof what, "a mesh of %u triangles", triangle_count);
+        /* indices, and at commit the leaf-ordered triangles (3 float4) and BVH */
+        st = pn_check_bytes(ctx, pn_mul_size(triangle_count, 3 * sizeof(uint32_t) + 3 * 16 + 64, 1), what);
+    }
+    if (st)
+        return st;
     for (uint32_t v = 0; v < vertex_count; ++v)
         for (int c = 0; c < 3; ++c)
             if (!isfinite(positions[3 * (size_t)v + c]))
                 return pn_fail(ctx, PN_ERROR_INVALID_VALUE, "mesh vertex %u has a non-finite coordinate (%g)", v,
                                (double)positions[3 * (size_t)v + c]);
+    /* Finite coordinates can still span more than a float holds: the bounds'
+     * extent, the bounding sphere and every distance computed from them would
+     * be Inf (a bake of it would write a file its reader refuses). */
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (uint32_t v = 0; v < vertex_count; ++v)
+        for (int c = 0; c < 3; ++c) {
+            const double x = positions[3 * (size_t)v + c];
+            lo[c] = x < lo[c] ? x : lo[c];
+            hi[c] = x > hi[c] ? x : hi[c];
+        }
+    double diagonal2 = 0.0;
+    for (int c = 0; c < 3; ++c)
+        diagonal2 += (hi[c] - lo[c]) * (hi[c] - lo[c]);
+    if (sqrt(diagonal2) > (double)FLT_MAX)
+        return pn_fail(ctx, PN_ERROR_INVALID_VALUE,
+                       "mesh bounds [%g, %g] x [%g, %g] x [%g, %g]: their extent (diagonal %g) overflows float; scale "
+                       "the mesh down",
+                       lo[0], hi[0], lo[1], hi[1], lo[2], hi[2], sqrt(diagonal2));
     if (normals)
         for (uint32_t v = 0; v < vertex_count; ++v)
             for (int c = 0; c < 3; ++c)

@@ -48,7 +48,9 @@ pn_status pn_scene_do_set_envmap(pn_scene scene, pn_envmap env)
 {
     if (env->obj.ctx != scene->obj.ctx)
         return pn_fail(scene->obj.ctx, PN_ERROR_INVALID_ARGUMENT, "the env map belongs to a different context");
-    pn_object_retain(&env->obj);
+    pn_status st = pn_object_retain(&env->obj);
+    if (st)
+        return st;
     PN_RELEASE(scene->env);
     scene->env = env;
     return PN_SUCCESS;
@@ -114,9 +116,10 @@ pn_status pn_scene_do_add_instance(pn_scene scene, pn_mesh mesh, const float *tr
         scene->instances = grown;
         scene->instance_capacity = cap;
     }
+    if ((st = pn_object_retain(&mesh->obj)))
+        return st;
     inst.mesh = mesh;
     inst.material = mat;
-    pn_object_retain(&mesh->obj);
     *id = scene->instance_count;
     scene->instances[scene->instance_count++] = inst;
     scene->committed = false;
@@ -189,7 +192,8 @@ pn_status pn_scene_do_attach(pn_scene scene, uint32_t instance, pn_object *asset
     for (uint32_t i = 0; i < scene->attachment_count; ++i) {
         pn_attachment *a = &scene->attachments[i];
         if (a->instance == instance && a->asset->type == asset->type) {
-            pn_object_retain(asset);
+            if ((st = pn_object_retain(asset)))
+                return st;
             pn_object_release(a->asset);
             a->asset = asset;
             scene->attachment_version = pn_next_version();
@@ -209,9 +213,10 @@ pn_status pn_scene_do_attach(pn_scene scene, uint32_t instance, pn_object *asset
     uint32_t at = scene->attachment_count;
     while (at > 0 && scene->attachments[at - 1].instance > instance)
         --at;
+    if ((st = pn_object_retain(asset)))
+        return st;
     memmove(scene->attachments + at + 1, scene->attachments + at,
             (scene->attachment_count - at) * sizeof *scene->attachments);
-    pn_object_retain(asset);
     scene->attachments[at].instance = instance;
     scene->attachments[at].asset = asset;
     scene->attachment_count++;

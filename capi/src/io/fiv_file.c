@@ -16,6 +16,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #define HEADER_BYTES 256
@@ -142,6 +143,9 @@ static int create_temp_beside(const char *path, char *tmp, size_t size)
 pn_status pn_fiv_write_file(pn_fiv f, const char *path)
 {
     pn_context ctx = f->obj.ctx;
+    const char *problem = pn_fiv_geometry_problem(f);
+    if (problem) /* the reader would refuse the file */
+        return pn_fail(ctx, PN_ERROR_INVALID_VALUE, "cannot write %s: the occlusion field is not valid: %s", path, problem);
     size_t bytes;
     unsigned char *payload = encode_samples(f, &bytes);
     if (!payload)
@@ -216,6 +220,21 @@ static pn_status read_header(pn_context ctx, const char *path, FILE *file, bool 
         return pn_fail(ctx, PN_ERROR_FILE,
                        "%s is an unfinished bake (%u of %u spheres); run the bake again with the same options to resume",
                        path, done, o.radii);
+    /* What the header promises against what the file holds, before anything
+     * is allocated for it. */
+    const uint64_t per_sphere = (uint64_t)o.theta * o.phi * 9u * (o.precision == PN_PRECISION_FLOAT16 ? 2u : 4u);
+    const uint64_t promised = HEADER_BYTES + per_sphere * done;
+    struct stat sb;
+    if (fstat(fileno(file), &sb) != 0)
+        return pn_fail(ctx, PN_ERROR_FILE, "cannot read the size of %s: %s", path, strerror(errno));
+    if (!S_ISREG(sb.st_mode))
+        return pn_fail(ctx, PN_ERROR_FILE, "%s is not a regular file", path);
+    if ((uint64_t)sb.st_size != promised)
+        return pn_fail(ctx, PN_ERROR_FILE,
+                       "%s %s: its header promises %llu bytes (a %ux%ux%u grid, %u spheres stored) but the file has "
+                       "%llu bytes",
+                       path, (uint64_t)sb.st_size < promised ? "is truncated" : "is corrupt: it has bytes past its samples",
+                       (unsigned long long)promised, o.theta, o.phi, o.radii, done, (unsigned long long)sb.st_size);
     *options = o;
     *spheres_done = done;
     return st;
@@ -240,9 +259,12 @@ static pn_status header_fields(pn_context ctx, const char *path, const unsigned 
     const uint64_t seconds = get_u64(h + 136);
     memcpy(&f->bake_seconds, &seconds, sizeof seconds);
     f->radii_done = done;
-    if (!(isfinite(f->radius) && f->radius > 0.0f && f->inner > 0.0f && f->outer > f->inner &&
-          isfinite(f->outer) && f->value_scale > 0.0f && isfinite(f->value_scale) && f->outer_max >= 0.0f))
-        return pn_fail(ctx, PN_ERROR_FILE, "%s is corrupt: its bounding sphere or scales are not valid numbers", path);
+    /* Checked whether or not the checksum matched: a header rewritten with a
+     * new checksum is no more plausible for it. */
+    const char *problem = pn_fiv_geometry_problem(f);
+    if (problem)
+        return pn_fail(ctx, PN_ERROR_FILE, "%s is corrupt: its bounding sphere or scales are not valid numbers: %s", path,
+                       problem);
     if (!(isfinite(f->bake_seconds) && f->bake_seconds >= 0.0))
         return pn_fail(ctx, PN_ERROR_FILE, "%s is corrupt: its bake time is not a valid number", path);
     return PN_SUCCESS;
@@ -280,6 +302,11 @@ pn_status pn_fiv_read_file(pn_context ctx, const char *path, bool partial, pn_fi
     unsigned char *payload = NULL;
     const bool half = !st && o.precision == PN_PRECISION_FLOAT16;
     const size_t n = st ? 0 : (size_t)done * o.theta * o.phi * 9u, bytes = n * (half ? 2u : 4u);
+    if (!st) { /* the header's numbers, before anything is allocated for them */
+        struct pn_fiv_impl probe;
+        memset(&probe, 0, sizeof probe);
+        st = header_fields(ctx, path, h, done, &probe);
+    }
     if (!st && !(st = pn_fiv_new(ctx, &o, &f))) {
         payload = malloc(bytes ? bytes : 1);
         if (!payload)
