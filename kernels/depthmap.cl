@@ -9,7 +9,7 @@
  *
  * A map's frame is DM_FRAME float4 (host: methods/depthmap.c, fit_frames):
  *   [0] e1.xyz, u_min     [1] e2.xyz, v_min     [2] d.xyz, far = max p.d
- *   [3] du, dv, depth extent, 0
+ *   [3] du, dv, depth extent, has a map (1; 0: lit unshadowed, skip_power)
  * texel coordinates of a point p: ((p.e1 - u_min) / du, (p.e2 - v_min) / dv),
  * its depth z = far - p.d (distance from the light side of the fitted box).
  * Depths are float bits of z >= 0 in uint (their order is the float order,
@@ -38,15 +38,17 @@ kernel void depthmap_clear(global uint *depth, int count, global uint *large_cou
 }
 
 /* Ray-cast maps: one closest-hit ray per texel centre, from just outside the
- * fitted box towards -d. One work-item per texel of every map. */
+ * fitted box towards -d. One work-item per texel of every map drawn: `list`
+ * holds the map_count domains that have a map (skip_power). */
 kernel void depthmap_raycast(PN_SCENE_ARGS, global const float4 *frames, int map_count, int res,
-                             global uint *depth)
+                             global uint *depth, global const uint *list)
 {
     int gid = get_global_id(0);
     int per_map = res * res;
     if (gid >= per_map * map_count)
         return;
-    int m = gid / per_map, k = gid - m * per_map;
+    int slot = gid / per_map, k = gid - slot * per_map;
+    int m = (int)list[slot];
     int j = k / res, i = k - j * res;
     global const float4 *f = frames + DM_FRAME * m;
     float3 e1 = f[0].xyz, e2 = f[1].xyz, d = f[2].xyz;
@@ -58,7 +60,7 @@ kernel void depthmap_raycast(PN_SCENE_ARGS, global const float4 *frames, int map
     uint z = DM_EMPTY;
     if (pn_trace(scene, org, -d, 0.0f, extent + 2.0f * margin, &hit, false))
         z = as_uint(fmax(hit.t - margin, 0.0f));
-    depth[gid] = z;
+    depth[(size_t)m * per_map + k] = z;
 }
 
 /* Rasterised maps. A triangle's three vertices in map m: texel coordinates
@@ -117,7 +119,8 @@ inline void dm_texel(const dm_projected *t, int i, int j, int res, volatile glob
     atomic_min(map + j * res + i, as_uint(zz));
 }
 
-/* One work-item per (triangle, map). `ranges`: per instance the first
+/* One work-item per (triangle, map drawn: `list` holds the map_count domains
+ * that have one). `ranges`: per instance the first
  * triangle in `tris` and the count; `objects`: per instance its
  * object-to-world rows (3 float4); `starts`: the exclusive prefix sum of the
  * counts. A triangle covering more than DM_LARGE texels of bounding box goes
@@ -127,12 +130,14 @@ inline void dm_texel(const dm_projected *t, int i, int j, int res, volatile glob
 kernel void depthmap_raster(global const float4 *tris, global const uint2 *ranges, global const uint *starts,
                             global const float4 *objects, int instance_total, int triangle_total,
                             global const float4 *frames, int map_count, int res, volatile global uint *depth,
-                            volatile global uint *large_count, global uint2 *large, int large_capacity)
+                            volatile global uint *large_count, global uint2 *large, int large_capacity,
+                            global const uint *list)
 {
     int gid = get_global_id(0);
     if (gid >= triangle_total * map_count)
         return;
-    int m = gid / triangle_total, g = gid - m * triangle_total;
+    int slot = gid / triangle_total, g = gid - slot * triangle_total;
+    int m = (int)list[slot];
     dm_projected t;
     if (!dm_project(tris, ranges, starts, objects, instance_total, g, frames + DM_FRAME * m, res, &t))
         return;
@@ -282,8 +287,8 @@ kernel void shade_depthmap(global const float4 *position, global const float4 *n
         if (c <= 0.0f)
             continue; /* the centre below the horizon: the seed's rule, no lookup */
         float vis = 1.0f;
-        if (use_maps) {
-            global const float4 *f = frames + DM_FRAME * i;
+        global const float4 *f = frames + DM_FRAME * i;
+        if (use_maps && f[3].w != 0.0f) { /* a domain without a map (skip_power) is lit unshadowed */
             float tan_theta = fmin(sqrt(fmax(1.0f - c * c, 0.0f)) / c, DM_MAX_SLOPE);
             float texel = fmax(f[3].x, f[3].y);
             float bias = texel * (bias_constant + bias_slope * ((float)pcf + 1.0f) * tan_theta);
