@@ -18,7 +18,7 @@
 #define DM_MAX_TEXELS (1u << 28) /* maps x res^2 (1 GiB of depths) */
 #define DM_LARGE_CAPACITY (1u << 20) /* (map, triangle) entries of the rasteriser's large-triangle list */
 #define DM_LARGE_GROUPS 256          /* work-groups of depthmap_raster_large */
-#define SKIP_POWER_DEFAULT 0.0       /* skip_power's default (docs/depthmap.md, measured) */
+#define SKIP_POWER_DEFAULT 0.01      /* skip_power's default (docs/depthmap.md, measured) */
 
 enum { P_BACKGROUND, P_DIRECTIONS, P_SEED, P_RESOLUTION, P_MAP_RENDERER, P_BIAS, P_SLOPE_BIAS, P_PCF, P_SPECULAR,
        P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS, P_SKIP_POWER };
