@@ -63,6 +63,24 @@ kernel void depthmap_raycast(PN_SCENE_ARGS, global const float4 *frames, int map
     depth[(size_t)m * per_map + k] = z;
 }
 
+/* half_maps: the 16-bit copy of every map drawn, depth quantised to
+ * q = rint(z / extent * DM_Q_MAX) (clamped to DM_Q_MAX), DM_Q_EMPTY where empty. */
+#define DM_Q_MAX 65534.0f
+#define DM_Q_EMPTY 65535
+kernel void depthmap_pack16(global const uint *depth, global const float4 *frames, global const uint *list,
+                            int map_count, int res, global ushort *out)
+{
+    int gid = get_global_id(0);
+    int per_map = res * res;
+    if (gid >= per_map * map_count)
+        return;
+    int slot = gid / per_map, k = gid - slot * per_map;
+    size_t at = (size_t)list[slot] * per_map + k;
+    float z = as_float(depth[at]);
+    float extent = frames[DM_FRAME * list[slot] + 3].z;
+    out[at] = isinf(z) ? (ushort)DM_Q_EMPTY : (ushort)fmin(rint(z / extent * DM_Q_MAX), DM_Q_MAX);
+}
+
 /* Rasterised maps. A triangle's three vertices in map m: texel coordinates
  * q and depths z; false when it is degenerate in this projection. */
 typedef struct {
@@ -181,8 +199,10 @@ kernel void depthmap_raster_large(global const float4 *tris, global const uint2 
  * texels around p's texel whose stored depth is not in front of p by more
  * than the bias. Outside the footprint nothing of the scene lies between p
  * and the light: visible. */
-inline float dm_visibility(global const float4 *f, global const uint *map, int res, float3 p, float bias, int pcf)
+inline float dm_visibility(global const float4 *f, global const uint *map, global const ushort *map16, int res,
+                           float3 p, float bias, int pcf)
 {
+    float quantum = f[3].z / DM_Q_MAX; /* 16-bit maps: depth of one step */
     float tu = (dot(p, f[0].xyz) - f[0].w) / f[3].x, tv = (dot(p, f[1].xyz) - f[1].w) / f[3].y;
     float z = f[2].w - dot(p, f[2].xyz) - bias;
     if (!(tu >= 0.0f && tv >= 0.0f && tu < (float)res && tv < (float)res))
@@ -194,7 +214,13 @@ inline float dm_visibility(global const float4 *f, global const uint *map, int r
         for (int di = -pcf; di <= pcf; ++di) {
             int i = ci + di;
             ++taps;
-            if (i < 0 || j < 0 || i >= res || j >= res || z <= as_float(map[j * res + i]))
+            if (i < 0 || j < 0 || i >= res || j >= res)
+                ++lit;
+            else if (map16) {
+                ushort q = map16[j * res + i];
+                if (q == DM_Q_EMPTY || z <= (float)q * quantum)
+                    ++lit;
+            } else if (z <= as_float(map[j * res + i]))
                 ++lit;
         }
     }
@@ -264,7 +290,8 @@ kernel void shade_depthmap(global const float4 *position, global const float4 *n
                            global const float4 *material, global const uint *instance_id, int count, float4 camera,
                            global const float4 *domains, int domain_count, global const float4 *frames,
                            global const uint *depth, int res, int use_maps, float bias_constant, float bias_slope,
-                           int pcf, int specular, int cap_samples, global float4 *image)
+                           int pcf, int specular, int cap_samples, global float4 *image,
+                           global const ushort *depth16, int half_maps)
 {
     int gid = get_global_id(0);
     if (gid >= count)
@@ -292,7 +319,9 @@ kernel void shade_depthmap(global const float4 *position, global const float4 *n
             float tan_theta = fmin(sqrt(fmax(1.0f - c * c, 0.0f)) / c, DM_MAX_SLOPE);
             float texel = fmax(f[3].x, f[3].y);
             float bias = texel * (bias_constant + bias_slope * ((float)pcf + 1.0f) * tan_theta);
-            vis = dm_visibility(f, depth + (size_t)i * res * res, res, p, bias, pcf);
+            size_t at = (size_t)i * res * res;
+            vis = dm_visibility(f, depth + at, half_maps ? depth16 + at : (global const ushort *)0, res, p, bias,
+                                pcf);
             if (vis == 0.0f)
                 continue;
         }

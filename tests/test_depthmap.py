@@ -110,8 +110,17 @@ def test_raycast_and_raster_maps_agree(ctx, box_scene):
 # --------------------------------------------------------------------------- shading against the twin
 
 
+def quantise16(frames, maps):
+    """The 16-bit maps of half_maps as the shading reads them (kernels/depthmap.cl depthmap_pack16), in float32."""
+    extent = frames[:, 14].astype(np.float32)[:, None, None]
+    z = maps.astype(np.float32)
+    q = np.minimum(np.rint(np.where(np.isinf(z), 0, z) / extent * np.float32(65534.0)), np.float32(65534.0))
+    return np.where(np.isinf(z), np.inf, q * (extent / np.float32(65534.0))).astype(np.float32)
+
+
 @pytest.mark.parametrize("params", [dict(), dict(pcf=1), dict(pcf=2, bias=0.5), dict(specular=0),
-                                    dict(specular=1), dict(specular=2, cap_samples=5), dict(visibility=0)])
+                                    dict(specular=1), dict(specular=2, cap_samples=5), dict(visibility=0),
+                                    dict(half_maps=1), dict(half_maps=1, pcf=1)])
 def test_shading_matches_float64(ctx, box_scene, params):
     s = box_scene
     res = 64
@@ -122,6 +131,8 @@ def test_shading_matches_float64(ctx, box_scene, params):
     if params.get("visibility", 1):
         frames = r.read_output(s["scene"], "map_frames", 0).astype(np.float64)
         maps = np.stack([r.read_output(s["scene"], "depth_map", 0, i) for i in range(len(s["domains"]))])
+        if params.get("half_maps"):
+            maps = quantise16(frames, maps)
         maps = maps.astype(np.float64)
     else:
         frames = maps = None
@@ -456,7 +467,7 @@ def test_cap_quadrature_against_the_exact_cap_average(n, samples, pointwise):
 # --------------------------------------------------------------------------- the caller's maps
 
 
-@pytest.mark.parametrize("params", [dict(skip_power=0.0), dict(skip_power=0.05, pcf=1)])
+@pytest.mark.parametrize("params", [dict(skip_power=0.0), dict(skip_power=0.05, pcf=1), dict(half_maps=1)])
 def test_supplied_maps_give_the_same_image_bit_for_bit(ctx, box_scene, params):
     """Maps read back from one renderer (domains, map_frames, depth_map) and
     supplied to a second give its image bit for bit. The second renders a
@@ -573,3 +584,32 @@ def test_skip_power_bounds_the_change_and_drops_maps(ctx, box_scene):
     none, r = render(ctx, s["scene"], s["gb"], doms, skip_power=1.0)
     free, _ = render(ctx, s["scene"], s["gb"], doms, visibility=0)
     assert dm.maps_drawn(r, s["scene"]) == 0 and np.array_equal(none, free)
+
+
+# --------------------------------------------------------------------------- 16-bit maps
+
+
+def test_half_maps_are_close_and_keep_the_bias_policy(ctx, box_scene):
+    """half_maps 1: the lookups read depths quantised to extent / 65534, far
+    below the bias (a texel), so the image barely moves; the maps read back
+    are the float ones; no acne appears on a lit plane (the bias holds)."""
+    s = box_scene
+    full, _ = render(ctx, s["scene"], s["gb"], s["domains"])
+    half, r = render(ctx, s["scene"], s["gb"], s["domains"], half_maps=1)
+    fg = s["planes"]["instance"] != BACKGROUND
+    err = nrmse(half[..., :3], full[..., :3], fg)
+    assert err < 2e-3, err
+    # Without bias the surfaces compare against their own quantised depths: the lookups must differ (the 16-bit
+    # copies are what is read).
+    raw = dict(bias=0.0, slope_bias=0.0)
+    assert not np.array_equal(render(ctx, s["scene"], s["gb"], s["domains"], half_maps=1, **raw)[0],
+                              render(ctx, s["scene"], s["gb"], s["domains"], **raw)[0])
+    scene, gb, planes, keep, _ = lit_plane(ctx, 0.6)
+    k = np.arange(32)
+    elev = np.radians(3.0 + 84.0 * (k % 16) / 15.0)
+    local = np.stack([np.cos(elev) * np.cos(2.39996 * k), np.sin(elev), np.cos(elev) * np.sin(2.39996 * k)], 1)
+    doms = dm.domain_array(local @ rotation((1, 0, 0), 0.6).T, np.ones((32, 3)) * 0.05)
+    plane_fg = planes["instance"] != BACKGROUND
+    free, _ = render(ctx, scene, gb, doms, visibility=0)
+    got, _ = render(ctx, scene, gb, doms, half_maps=1)
+    assert np.abs(got[plane_fg] - free[plane_fg]).max() <= 1e-6 * free[plane_fg].max()

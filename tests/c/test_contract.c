@@ -2648,6 +2648,11 @@ static void test_depthmap(pn_context ctx, rig *r)
                   pn_renderer_read_output(dr, r->scene, "depth_map", 0, m, maps + 256 * m, 256 * sizeof(float)), ctx);
     expect_ok("supply the maps", pn_renderer_set_depth_maps(dr, frames, maps, 3, 16), ctx);
     check_enqueue_only(ctx, r, dr, "depthmap (the caller's maps)");
+    pn_renderer_set_int(dr, "half_maps", 1);
+    pn_renderer_commit(dr);
+    check_enqueue_only(ctx, r, dr, "depthmap (the caller's maps, 16-bit lookups)");
+    pn_renderer_set_int(dr, "half_maps", 0);
+    pn_renderer_commit(dr);
     expect_error("maps of another resolution", pn_renderer_set_depth_maps(dr, frames, maps, 3, 8),
                  PN_ERROR_INVALID_SIZE, ctx, "resolution is 16", NULL);
     expect_error("fewer maps than domains", pn_renderer_set_depth_maps(dr, frames, maps, 2, 16), PN_ERROR_INVALID_SIZE,

@@ -21,7 +21,7 @@
 #define SKIP_POWER_DEFAULT 0.01      /* skip_power's default (docs/depthmap.md, measured) */
 
 enum { P_BACKGROUND, P_DIRECTIONS, P_SEED, P_RESOLUTION, P_MAP_RENDERER, P_BIAS, P_SLOPE_BIAS, P_PCF, P_SPECULAR,
-       P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS, P_SKIP_POWER };
+       P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS, P_SKIP_POWER, P_HALF_MAPS };
 
 static const pn_param_desc params[] = {
     PN_PARAM_BACKGROUND,
@@ -48,6 +48,9 @@ static const pn_param_desc params[] = {
     {"skip_power", PN_PARAM_FLOAT, PN_PARAM_FRAME, SKIP_POWER_DEFAULT, 0, 1, "of the power",
      "The weakest domains whose powers add up to at most this share of the total get no depth map and are lit "
      "unshadowed (docs/depthmap.md)."},
+    {"half_maps", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
+     "1: the shading looks up 16-bit copies of the maps (depth quantised to extent / 65534, the seed's storage); 0: "
+     "32-bit floats."},
 };
 
 enum { OUT_DOMAINS, OUT_FRAMES, OUT_DEPTH };
@@ -90,6 +93,9 @@ typedef struct state {
     float *supplied_frames;        /* supplied_count x DM_FRAME_FLOATS */
     uint32_t supplied_count, supplied_res;
     size_t supplied_bytes;         /* size of supplied_depth */
+    /* half_maps: 16-bit copies of the maps for the lookups */
+    cl_mem depth16;                /* map_count x res^2 ushort, or NULL */
+    bool packed;                   /* depth16 holds the current maps */
 } state;
 
 /* --------------------------------------------------------------- domains */
@@ -389,8 +395,14 @@ static pn_status plan(pn_renderer r, pn_scene scene)
     if (st || (st = plan_skip(r)) || (st = check_supplied(r)))
         return st;
     const uint32_t maps = s->domain_count ? s->domain_count : 1, res = (uint32_t)r->params[P_RESOLUTION];
-    if (s->depth && s->map_count == maps && s->res == res)
+    if (s->depth && s->map_count == maps && s->res == res) {
+        if ((int)r->params[P_HALF_MAPS] && !s->depth16) {
+            s->packed = false;
+            return pn_alloc(ctx, pn_mul_size(maps, (size_t)res * res, sizeof(uint16_t)), CL_MEM_READ_WRITE, NULL,
+                            &s->depth16, "the 16-bit depth maps");
+        }
         return PN_SUCCESS;
+    }
     const size_t texels = pn_mul_size(maps, res, res);
     if (texels > DM_MAX_TEXELS)
         return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
@@ -401,6 +413,8 @@ static pn_status plan(pn_renderer r, pn_scene scene)
         return PN_ERROR_OUT_OF_MEMORY;
     pn_mem_release(&s->frames);
     pn_mem_release(&s->depth);
+    pn_mem_release(&s->depth16);
+    s->packed = false;
     free(s->host_frames);
     s->host_frames = host;
     s->map_count = 0;
@@ -411,7 +425,9 @@ static pn_status plan(pn_renderer r, pn_scene scene)
           (st = pn_alloc(ctx, 4, CL_MEM_READ_WRITE, NULL, &s->large_count, "the rasteriser's count")))) ||
         (st = pn_alloc(ctx, (size_t)maps * DM_FRAME_FLOATS * sizeof(float), CL_MEM_READ_ONLY, NULL, &s->frames,
                        "the depth-map frames")) ||
-        (st = pn_alloc(ctx, texels * sizeof(uint32_t), CL_MEM_READ_WRITE, NULL, &s->depth, "the depth maps")))
+        (st = pn_alloc(ctx, texels * sizeof(uint32_t), CL_MEM_READ_WRITE, NULL, &s->depth, "the depth maps")) ||
+        ((int)r->params[P_HALF_MAPS] && (st = pn_alloc(ctx, texels * sizeof(uint16_t), CL_MEM_READ_WRITE, NULL,
+                                                       &s->depth16, "the 16-bit depth maps"))))
         return st;
     s->map_count = maps;
     s->res = res;
@@ -635,6 +651,7 @@ static pn_status prepare_maps(pn_renderer r, pn_scene scene, bool *use_maps)
                                        (size_t)s->domain_count * DM_FRAME_FLOATS * sizeof(float),
                                        "uploading the caller's map frames");
         s->maps_drawn = !st;
+        s->packed = false;
         *use_maps = !st && s->drawn;
         return st;
     }
@@ -647,6 +664,7 @@ static pn_status prepare_maps(pn_renderer r, pn_scene scene, bool *use_maps)
     if (!st && s->drawn)
         st = draw_maps(r, scene);
     s->maps_drawn = !st;
+    s->packed = false;
     *use_maps = !st && s->drawn;
     return st;
 }
@@ -658,6 +676,18 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     bool maps = false;
     pn_status st = prepare_maps(r, scene, &maps);
     cl_kernel k;
+    const cl_int half = maps && (int)r->params[P_HALF_MAPS] && s->depth16;
+    if (!st && half && !s->packed) { /* the 16-bit copies of the maps just drawn or supplied */
+        const cl_int drawn = (cl_int)s->drawn, side = (cl_int)s->res;
+        const size_t psizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof drawn, sizeof side,
+                                 sizeof(cl_mem)};
+        const void *pvals[] = {s->supplied_count ? &s->supplied_depth : &s->depth, &s->frames, &s->list, &drawn,
+                               &side, &s->depth16};
+        if (!(st = pn_context_kernel(ctx, "depthmap", "depthmap_pack16", &k)) &&
+            !(st = pn_set_args(ctx, k, "depthmap_pack16", 6, psizes, pvals)) &&
+            !(st = pn_enqueue_1d(ctx, k, "depthmap_pack16", (size_t)drawn * s->res * s->res, 64)))
+            s->packed = true;
+    }
     if (st || (st = pn_context_kernel(ctx, "depthmap", "shade_depthmap", &k)))
         return st;
     const cl_int count = (cl_int)(gb->width * gb->height), domains = (cl_int)s->domain_count;
@@ -668,13 +698,13 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem),
                             sizeof count, sizeof camera, sizeof(cl_mem), sizeof domains, sizeof(cl_mem),
                             sizeof(cl_mem), sizeof res, sizeof use_maps, sizeof bias, sizeof slope, sizeof pcf,
-                            sizeof specular, sizeof samples, sizeof(cl_mem)};
+                            sizeof specular, sizeof samples, sizeof(cl_mem), sizeof(cl_mem), sizeof half};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &camera, &s->device_domains, &domains,
                           &s->frames, s->supplied_count ? &s->supplied_depth : &s->depth, &res, &use_maps, &bias, &slope, &pcf, &specular, &samples,
-                          &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_depthmap", 19, sizes, vals)))
+                          &image->buffer, half ? &s->depth16 : &s->depth, &half};
+    if ((st = pn_set_args(ctx, k, "shade_depthmap", 21, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_depthmap", (size_t)count, 64);
 }
@@ -740,6 +770,7 @@ static void destroy(pn_renderer r)
     pn_mem_release(&s->large_count);
     pn_mem_release(&s->list);
     pn_mem_release(&s->supplied_depth);
+    pn_mem_release(&s->depth16);
     free(s->shadowed);
     free(s->host_list);
     free(s->supplied_frames);
