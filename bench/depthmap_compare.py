@@ -20,6 +20,7 @@ cached in --out/cache/ (ignored by git).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -83,6 +84,45 @@ def skip_rows(name, built, truth, mask, rounds=7) -> list[dict]:
     return out
 
 
+def half_rows(name, built, truth, mask, rounds=15) -> list[dict]:
+    """half_maps 0 / 1 at the other defaults: NRMSE against the reference
+    and the largest change between the two images at this size; the shading
+    alone (reuse_maps 1) at this size and at 4x and 8x the side (the lookups' cost
+    grows with the pixels), in interleaved rounds."""
+    ctx = built.ctx
+    w, h = built.camera.resolution
+    out = []
+    imgs = {}
+    for scale in (1, 4, 8):
+        gb = GBuffer(ctx, w * scale, h * scale)
+        if scale != 1:
+            built.scene.set_camera(dataclasses.replace(built.camera, resolution=(w * scale, h * scale)))
+        built.scene.render_gbuffer(gb)
+        img = Image(ctx, w * scale, h * scale)
+        rs = {half: Renderer(ctx, "depthmap", half_maps=half, background=0) for half in (0, 1)}
+        times = {half: [] for half in rs}
+        for half, r in rs.items():
+            r.execute(built.scene, gb, img)
+            if scale == 1:
+                imgs[half] = img.read()[..., :3]
+            r.set(reuse_maps=1)
+        for _ in range(rounds):
+            for half, r in rs.items():
+                ms, _ = harness.median_ms(lambda: r.execute(built.scene, gb, img), 1, ctx.finish)
+                times[half].append(ms)
+        for half in rs:
+            row = {"map": name, "half_maps": half, "size": f"{w * scale}x{h * scale}",
+                   "shading_ms": float(np.median(times[half])), "load": load_avg()}
+            if scale == 1:
+                row.update(metrics(truth, imgs[half], mask, ("nrmse",)),
+                           max_change=float(np.abs(imgs[half] - imgs[0])[mask].max()))
+            out.append(row)
+            log(json.dumps(row))
+        if scale != 1:
+            built.scene.set_camera(built.camera)
+    return out
+
+
 def run_map(name: str, env: str | None, size: tuple[int, int], cache: Path, parts=("methods", "skip")) -> dict:
     over = [f"camera.resolution=[{size[0]},{size[1]}]"]
     if env:
@@ -109,8 +149,9 @@ def run_map(name: str, env: str | None, size: tuple[int, int], cache: Path, part
         rows.append(row)
         log(json.dumps(row))
     skip = skip_rows(name, built, truth, mask) if "skip" in parts else []
+    half = half_rows(name, built, truth, mask) if "half" in parts else []
     return {"pixels": int(mask.sum()), "reference_s": ref_s, "floor_ms": floor.timings_ms["shade_median"],
-            "rows": rows, "skip": skip}
+            "rows": rows, "skip": skip, "half": half}
 
 
 def fmt(p: dict) -> str:
@@ -133,6 +174,14 @@ def report(res: dict) -> str:
         for row in r["rows"]:
             out.append(f"| {row['method']} | {fmt(row['params'])} | {row['nrmse']:.4f} | {row['rel_rms']:.4f} | "
                        f"{row['frame_ms']:.1f} | {row['prepare_s']:.2f} | {row['load']} |")
+        if r.get("half"):
+            out.append("\nhalf_maps (other parameters at their defaults; shading alone, reuse_maps 1, medians of 15 "
+                       "interleaved rounds; max change: largest |image - the 32-bit image| over the pixels):\n")
+            out.append("| half_maps | size | NRMSE | max change | shading ms | load |")
+            out.append("|---|---|---|---|---|---|")
+            for row in r["half"]:
+                err = f"{row['nrmse']:.5f} | {row['max_change']:.2g}" if "nrmse" in row else "- | -"
+                out.append(f"| {row['half_maps']} | {row['size']} | {err} | {row['shading_ms']:.1f} | {row['load']} |")
         if not r["skip"]:
             continue
         out.append("\nskip_power (other parameters at their defaults; times: medians of 7 interleaved rounds; maps = "
@@ -149,7 +198,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--size", default="64x48")
     ap.add_argument("--maps", default=",".join(MAPS))
-    ap.add_argument("--only", default="methods,skip", help="methods (the comparison), skip (skip_power)")
+    ap.add_argument("--only", default="methods,skip,half",
+                    help="methods (the comparison), skip (skip_power), half (half_maps)")
     ap.add_argument("--out", default=str(REPO / "bench" / "results" / "depthmap_compare"))
     args = ap.parse_args(argv)
     size = tuple(int(x) for x in args.size.split("x"))
@@ -163,9 +213,9 @@ def main(argv=None) -> int:
     for name in args.maps.split(","):
         res["maps"][name] = run_map(name, MAPS[name], size, out / "cache", parts)
         if old and name in old["maps"]:  # keep the parts not rerun
-            for part, key in (("methods", "rows"), ("skip", "skip")):
+            for part, key in (("methods", "rows"), ("skip", "skip"), ("half", "half")):
                 if part not in parts:
-                    res["maps"][name][key] = old["maps"][name][key]
+                    res["maps"][name][key] = old["maps"][name].get(key, [])
         res["meta"]["load_end"] = load_avg()
         atomic_write_text(out / "results.json", json.dumps(res, indent=1, default=str))
         atomic_write_text(out / "report.md", report(res))
