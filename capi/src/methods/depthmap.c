@@ -318,16 +318,20 @@ static pn_status plan_domains(pn_renderer r, pn_scene scene)
  * the weakest whose powers add up to at most skip_power x the total get no
  * map (black domains always: they add nothing). The rest, in domain order,
  * is the list of maps to draw. */
-static const pn_env_domain *sort_domains;
+typedef struct ranked {
+    double power;
+    uint32_t index;
+} ranked;
+
 static double domain_power(const pn_env_domain *d)
 {
     return 0.2126 * d->radiance[0] + 0.7152 * d->radiance[1] + 0.0722 * d->radiance[2];
 }
+
 static int by_power(const void *a, const void *b)
 {
-    const uint32_t i = *(const uint32_t *)a, j = *(const uint32_t *)b;
-    const double pi = domain_power(sort_domains + i), pj = domain_power(sort_domains + j);
-    return pi < pj ? -1 : pi > pj ? 1 : (i > j) - (i < j);
+    const ranked *x = a, *y = b;
+    return x->power < y->power ? -1 : x->power > y->power ? 1 : (x->index > y->index) - (x->index < y->index);
 }
 
 static pn_status plan_skip(pn_renderer r)
@@ -340,7 +344,7 @@ static pn_status plan_skip(pn_renderer r)
     const uint32_t n = s->domain_count, cap = n ? n : 1;
     unsigned char *shadowed = pn_malloc(ctx, cap, "the shadowed domains");
     uint32_t *list = pn_malloc(ctx, pn_mul_size(cap, 1, sizeof *list), "the list of depth maps");
-    uint32_t *order = pn_malloc(ctx, pn_mul_size(cap, 1, sizeof *order), "the domains by power");
+    ranked *order = pn_malloc(ctx, pn_mul_size(cap, 1, sizeof *order), "the domains by power");
     if (!shadowed || !list || !order) {
         free(shadowed);
         free(list);
@@ -349,20 +353,18 @@ static pn_status plan_skip(pn_renderer r)
     }
     double total = 0.0;
     for (uint32_t i = 0; i < n; ++i) {
-        order[i] = i;
+        order[i].power = domain_power(s->domains + i);
+        order[i].index = i;
         shadowed[i] = 1;
-        total += domain_power(s->domains + i);
+        total += order[i].power;
     }
-    sort_domains = s->domains; /* plan runs on the context's one thread */
     qsort(order, n, sizeof *order, by_power);
-    sort_domains = NULL;
     double sum = 0.0;
     for (uint32_t k = 0; k < n; ++k) {
-        const double p = domain_power(s->domains + order[k]);
-        if (fraction < 1.0 && sum + p > fraction * total)
+        if (fraction < 1.0 && sum + order[k].power > fraction * total)
             break;
-        sum += p;
-        shadowed[order[k]] = 0;
+        sum += order[k].power;
+        shadowed[order[k].index] = 0;
     }
     free(order);
     uint32_t m = 0;

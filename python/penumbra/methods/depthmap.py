@@ -97,7 +97,8 @@ def set_maps(renderer, frames, depths) -> None:
 
 def maps_drawn(renderer, scene) -> int:
     """How many domains have a depth map this frame (the others are below
-    ``skip_power`` and lit unshadowed): column 15 of ``map_frames``."""
+    ``skip_power`` and lit unshadowed): column 15 of ``map_frames`` (reading
+    it computes the frame's maps for the scene as it is now, like any output)."""
     return int(renderer.read_output(scene, "map_frames", 0)[:, 15].sum())
 
 
