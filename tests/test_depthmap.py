@@ -564,8 +564,9 @@ def test_skip_power_bounds_the_change_and_drops_maps(ctx, box_scene):
         drawn.append(int((~skipped).sum()))
         assert drawn[-1] == dm.maps_drawn(r, s["scene"])
         assert lum[skipped].sum() <= fraction * lum.sum() * (1 + 1e-6)
-        # The weakest go first: every skipped domain is weaker than every shadowed one.
+        # The weakest go first: every skipped domain is weaker than every shadowed one, and as many as fit.
         assert not skipped.any() or lum[skipped].max() <= lum[~skipped].min()
+        assert skipped.all() or lum[skipped].sum() + lum[~skipped].min() > fraction * lum.sum() * (1 - 1e-6)
         # The change: between 0 and the skipped domains' unshadowed light (their own image, visibility 0).
         if skipped.any():
             bound, _ = render(ctx, s["scene"], s["gb"], doms[skipped], visibility=0)
