@@ -539,7 +539,7 @@ def test_supplied_maps_are_checked(ctx, box_scene):
     # The resolution changed since.
     dm.set_maps(r, frames, maps)
     r.set(resolution=64)
-    with pytest.raises(PenumbraError, match="supplied depth maps are 32 x 32 texels but the renderer's resolution is now 64"):
+    with pytest.raises(PenumbraError, match="maps are 32 x 32 texels but the renderer's resolution is now 64"):
         r.execute(s["scene"], s["gb"], img)
 
 

@@ -198,11 +198,11 @@ pn_status pn_depthmap_set_maps(pn_renderer r, const float *frames, const float *
     const uint32_t res = (uint32_t)r->params[P_RESOLUTION];
     if (resolution != res)
         return pn_fail(ctx, PN_ERROR_INVALID_SIZE,
-                       "depth maps of %u x %u texels but the renderer's resolution is %u: set resolution first", resolution,
-                       resolution, res);
+                       "depth maps of %u x %u texels but the renderer's resolution is %u: set resolution first",
+                       resolution, resolution, res);
     if (s->caller_count && count != s->caller_count)
-        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "%u depth maps but the renderer shades with %u domains (one map each)",
-                       count, s->caller_count);
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE,
+                       "%u depth maps but the renderer shades with %u domains (one map each)", count, s->caller_count);
     const size_t per_map = (size_t)res * res, texels = pn_mul_size(count, res, res);
     if (texels > DM_MAX_TEXELS)
         return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "%u depth maps of %u x %u texels: more than %u texels", count, res,
@@ -704,8 +704,9 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &camera, &s->device_domains, &domains,
-                          &s->frames, s->supplied_count ? &s->supplied_depth : &s->depth, &res, &use_maps, &bias, &slope, &pcf, &specular, &samples,
-                          &image->buffer, half ? &s->depth16 : &s->depth, &half};
+                          &s->frames, s->supplied_count ? &s->supplied_depth : &s->depth, &res, &use_maps,
+                          &bias, &slope, &pcf, &specular, &samples, &image->buffer,
+                          half ? &s->depth16 : &s->depth, &half};
     if ((st = pn_set_args(ctx, k, "shade_depthmap", 21, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_depthmap", (size_t)count, 64);
