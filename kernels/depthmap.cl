@@ -9,7 +9,7 @@
  *
  * A map's frame is DM_FRAME float4 (host: methods/depthmap.c, fit_frames):
  *   [0] e1.xyz, u_min     [1] e2.xyz, v_min     [2] d.xyz, far = max p.d
- *   [3] du, dv, depth extent, 0
+ *   [3] du, dv, depth extent, has a map (1; 0: lit unshadowed, skip_power)
  * texel coordinates of a point p: ((p.e1 - u_min) / du, (p.e2 - v_min) / dv),
  * its depth z = far - p.d (distance from the light side of the fitted box).
  * Depths are float bits of z >= 0 in uint (their order is the float order,
@@ -38,15 +38,17 @@ kernel void depthmap_clear(global uint *depth, int count, global uint *large_cou
 }
 
 /* Ray-cast maps: one closest-hit ray per texel centre, from just outside the
- * fitted box towards -d. One work-item per texel of every map. */
+ * fitted box towards -d. One work-item per texel of every map drawn: `list`
+ * holds the map_count domains that have a map (skip_power). */
 kernel void depthmap_raycast(PN_SCENE_ARGS, global const float4 *frames, int map_count, int res,
-                             global uint *depth)
+                             global uint *depth, global const uint *list)
 {
     int gid = get_global_id(0);
     int per_map = res * res;
     if (gid >= per_map * map_count)
         return;
-    int m = gid / per_map, k = gid - m * per_map;
+    int slot = gid / per_map, k = gid - slot * per_map;
+    int m = (int)list[slot];
     int j = k / res, i = k - j * res;
     global const float4 *f = frames + DM_FRAME * m;
     float3 e1 = f[0].xyz, e2 = f[1].xyz, d = f[2].xyz;
@@ -58,7 +60,25 @@ kernel void depthmap_raycast(PN_SCENE_ARGS, global const float4 *frames, int map
     uint z = DM_EMPTY;
     if (pn_trace(scene, org, -d, 0.0f, extent + 2.0f * margin, &hit, false))
         z = as_uint(fmax(hit.t - margin, 0.0f));
-    depth[gid] = z;
+    depth[(size_t)m * per_map + k] = z;
+}
+
+/* half_maps: the 16-bit copy of every map drawn, depth quantised to
+ * q = rint(z / extent * DM_Q_MAX) (clamped to DM_Q_MAX), DM_Q_EMPTY where empty. */
+#define DM_Q_MAX 65534.0f
+#define DM_Q_EMPTY 65535
+kernel void depthmap_pack16(global const uint *depth, global const float4 *frames, global const uint *list,
+                            int map_count, int res, global ushort *out)
+{
+    int gid = get_global_id(0);
+    int per_map = res * res;
+    if (gid >= per_map * map_count)
+        return;
+    int slot = gid / per_map, k = gid - slot * per_map;
+    size_t at = (size_t)list[slot] * per_map + k;
+    float z = as_float(depth[at]);
+    float extent = frames[DM_FRAME * list[slot] + 3].z;
+    out[at] = isinf(z) ? (ushort)DM_Q_EMPTY : (ushort)fmin(rint(z / extent * DM_Q_MAX), DM_Q_MAX);
 }
 
 /* Rasterised maps. A triangle's three vertices in map m: texel coordinates
@@ -117,7 +137,8 @@ inline void dm_texel(const dm_projected *t, int i, int j, int res, volatile glob
     atomic_min(map + j * res + i, as_uint(zz));
 }
 
-/* One work-item per (triangle, map). `ranges`: per instance the first
+/* One work-item per (triangle, map drawn: `list` holds the map_count domains
+ * that have one). `ranges`: per instance the first
  * triangle in `tris` and the count; `objects`: per instance its
  * object-to-world rows (3 float4); `starts`: the exclusive prefix sum of the
  * counts. A triangle covering more than DM_LARGE texels of bounding box goes
@@ -127,12 +148,14 @@ inline void dm_texel(const dm_projected *t, int i, int j, int res, volatile glob
 kernel void depthmap_raster(global const float4 *tris, global const uint2 *ranges, global const uint *starts,
                             global const float4 *objects, int instance_total, int triangle_total,
                             global const float4 *frames, int map_count, int res, volatile global uint *depth,
-                            volatile global uint *large_count, global uint2 *large, int large_capacity)
+                            volatile global uint *large_count, global uint2 *large, int large_capacity,
+                            global const uint *list)
 {
     int gid = get_global_id(0);
     if (gid >= triangle_total * map_count)
         return;
-    int m = gid / triangle_total, g = gid - m * triangle_total;
+    int slot = gid / triangle_total, g = gid - slot * triangle_total;
+    int m = (int)list[slot];
     dm_projected t;
     if (!dm_project(tris, ranges, starts, objects, instance_total, g, frames + DM_FRAME * m, res, &t))
         return;
@@ -176,8 +199,10 @@ kernel void depthmap_raster_large(global const float4 *tris, global const uint2 
  * texels around p's texel whose stored depth is not in front of p by more
  * than the bias. Outside the footprint nothing of the scene lies between p
  * and the light: visible. */
-inline float dm_visibility(global const float4 *f, global const uint *map, int res, float3 p, float bias, int pcf)
+inline float dm_visibility(global const float4 *f, global const uint *map, global const ushort *map16, int res,
+                           float3 p, float bias, int pcf)
 {
+    float quantum = f[3].z / DM_Q_MAX; /* 16-bit maps: depth of one step */
     float tu = (dot(p, f[0].xyz) - f[0].w) / f[3].x, tv = (dot(p, f[1].xyz) - f[1].w) / f[3].y;
     float z = f[2].w - dot(p, f[2].xyz) - bias;
     if (!(tu >= 0.0f && tv >= 0.0f && tu < (float)res && tv < (float)res))
@@ -189,7 +214,13 @@ inline float dm_visibility(global const float4 *f, global const uint *map, int r
         for (int di = -pcf; di <= pcf; ++di) {
             int i = ci + di;
             ++taps;
-            if (i < 0 || j < 0 || i >= res || j >= res || z <= as_float(map[j * res + i]))
+            if (i < 0 || j < 0 || i >= res || j >= res)
+                ++lit;
+            else if (map16) {
+                ushort q = map16[j * res + i];
+                if (q == DM_Q_EMPTY || z <= (float)q * quantum)
+                    ++lit;
+            } else if (z <= as_float(map[j * res + i]))
                 ++lit;
         }
     }
@@ -259,7 +290,8 @@ kernel void shade_depthmap(global const float4 *position, global const float4 *n
                            global const float4 *material, global const uint *instance_id, int count, float4 camera,
                            global const float4 *domains, int domain_count, global const float4 *frames,
                            global const uint *depth, int res, int use_maps, float bias_constant, float bias_slope,
-                           int pcf, int specular, int cap_samples, global float4 *image)
+                           int pcf, int specular, int cap_samples, global float4 *image,
+                           global const ushort *depth16, int half_maps)
 {
     int gid = get_global_id(0);
     if (gid >= count)
@@ -282,12 +314,14 @@ kernel void shade_depthmap(global const float4 *position, global const float4 *n
         if (c <= 0.0f)
             continue; /* the centre below the horizon: the seed's rule, no lookup */
         float vis = 1.0f;
-        if (use_maps) {
-            global const float4 *f = frames + DM_FRAME * i;
+        global const float4 *f = frames + DM_FRAME * i;
+        if (use_maps && f[3].w != 0.0f) { /* a domain without a map (skip_power) is lit unshadowed */
             float tan_theta = fmin(sqrt(fmax(1.0f - c * c, 0.0f)) / c, DM_MAX_SLOPE);
             float texel = fmax(f[3].x, f[3].y);
             float bias = texel * (bias_constant + bias_slope * ((float)pcf + 1.0f) * tan_theta);
-            vis = dm_visibility(f, depth + (size_t)i * res * res, res, p, bias, pcf);
+            size_t at = (size_t)i * res * res;
+            vis = dm_visibility(f, depth + at, half_maps ? depth16 + at : (global const ushort *)0, res, p, bias,
+                                pcf);
             if (vis == 0.0f)
                 continue;
         }

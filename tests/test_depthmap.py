@@ -85,7 +85,8 @@ def test_frames_fit_the_scene_tightly(ctx, box_scene):
 def test_maps_match_the_float64_rasteriser(ctx, box_scene, renderer):
     s = box_scene
     res = 48
-    _, r = render(ctx, s["scene"], s["gb"], s["domains"], resolution=res, map_renderer=renderer)
+    # skip_power 0: every domain gets a map (at the default 0.01 some of this sky's have none: empty maps).
+    _, r = render(ctx, s["scene"], s["gb"], s["domains"], resolution=res, map_renderer=renderer, skip_power=0.0)
     frames = r.read_output(s["scene"], "map_frames", 0).astype(np.float64)
     for i in (0, 5, 11):
         got = r.read_output(s["scene"], "depth_map", 0, i).astype(np.float64)
@@ -109,8 +110,17 @@ def test_raycast_and_raster_maps_agree(ctx, box_scene):
 # --------------------------------------------------------------------------- shading against the twin
 
 
+def quantise16(frames, maps):
+    """The 16-bit maps of half_maps as the shading reads them (kernels/depthmap.cl depthmap_pack16), in float32."""
+    extent = frames[:, 14].astype(np.float32)[:, None, None]
+    z = maps.astype(np.float32)
+    q = np.minimum(np.rint(np.where(np.isinf(z), 0, z) / extent * np.float32(65534.0)), np.float32(65534.0))
+    return np.where(np.isinf(z), np.inf, q * (extent / np.float32(65534.0))).astype(np.float32)
+
+
 @pytest.mark.parametrize("params", [dict(), dict(pcf=1), dict(pcf=2, bias=0.5), dict(specular=0),
-                                    dict(specular=1), dict(specular=2, cap_samples=5), dict(visibility=0)])
+                                    dict(specular=1), dict(specular=2, cap_samples=5), dict(visibility=0),
+                                    dict(half_maps=1), dict(half_maps=1, pcf=1)])
 def test_shading_matches_float64(ctx, box_scene, params):
     s = box_scene
     res = 64
@@ -121,6 +131,8 @@ def test_shading_matches_float64(ctx, box_scene, params):
     if params.get("visibility", 1):
         frames = r.read_output(s["scene"], "map_frames", 0).astype(np.float64)
         maps = np.stack([r.read_output(s["scene"], "depth_map", 0, i) for i in range(len(s["domains"]))])
+        if params.get("half_maps"):
+            maps = quantise16(frames, maps)
         maps = maps.astype(np.float64)
     else:
         frames = maps = None
@@ -450,3 +462,155 @@ def test_cap_quadrature_against_the_exact_cap_average(n, samples, pointwise):
     blend = d64.phong_energy(lambda c: float(d64.seed_blend(c, r, n)), r, n, nodes=60)
     if n >= 100:
         assert blend < 0.7  # the seed's blend loses a third and more of the lobe here
+
+
+# --------------------------------------------------------------------------- the caller's maps
+
+
+@pytest.mark.parametrize("params", [dict(skip_power=0.0), dict(skip_power=0.05, pcf=1), dict(half_maps=1)])
+def test_supplied_maps_give_the_same_image_bit_for_bit(ctx, box_scene, params):
+    """Maps read back from one renderer (domains, map_frames, depth_map) and
+    supplied to a second give its image bit for bit. The second renders a
+    scene without the boxes (same G-buffer): had it drawn its own maps, the
+    boxes' shadows would be gone."""
+    s = box_scene
+    first, r1 = render(ctx, s["scene"], s["gb"], s["domains"], resolution=64, **params)
+    doms, frames, maps = dm.read_maps(r1, s["scene"])
+    assert frames[:, 15].sum() == dm.maps_drawn(r1, s["scene"]) > 0
+    floor_only, _, keep = make_scene(ctx, [(procedural.plane((4.0, 4.0)), xform(), Material())], s["env"],
+                                     s["camera"])
+    r2 = Renderer(ctx, "depthmap", resolution=64, **params)
+    dm.set_domains(r2, doms)
+    dm.set_maps(r2, frames, maps)
+    img = Image(ctx, s["gb"].width, s["gb"].height)
+    r2.execute(floor_only, s["gb"], img)
+    assert np.array_equal(img.read(), first)
+    back = dm.read_maps(r2, floor_only)
+    assert np.array_equal(back[1], frames) and np.array_equal(back[2], maps)
+    # Back to drawing: the floor alone casts no shadow, so the image changes.
+    dm.set_maps(r2, None, None)
+    r2.execute(floor_only, s["gb"], img)
+    assert not np.array_equal(img.read(), first)
+
+
+def test_supplied_maps_are_checked(ctx, box_scene):
+    s = box_scene
+    _, r1 = render(ctx, s["scene"], s["gb"], s["domains"], resolution=32)
+    doms, frames, maps = dm.read_maps(r1, s["scene"])
+    r = Renderer(ctx, "depthmap", resolution=32)
+    with pytest.raises(PenumbraError, match="depth maps of 64 x 64 texels but the renderer's resolution is 32"):
+        dm.set_maps(r, frames, np.zeros((16, 64, 64), np.float32))
+    dm.set_domains(r, doms)
+    with pytest.raises(PenumbraError, match="15 depth maps but the renderer shades with 16 domains"):
+        dm.set_maps(r, frames[:15], maps[:15])
+    bad = maps.copy()
+    bad[3, 5, 7] = np.nan
+    with pytest.raises(InputError, match=r"depth map 3 has nan at texel \(7, 5\)"):
+        dm.set_maps(r, frames, bad)
+    bad[3, 5, 7] = -1.0
+    with pytest.raises(InputError, match=r"depth map 3 has -1 at texel \(7, 5\)"):
+        dm.set_maps(r, frames, bad)
+    f = frames.copy()
+    f[2, 0:3] *= 2.0
+    with pytest.raises(InputError, match="depth map 2's frame is not orthonormal"):
+        dm.set_maps(r, f, maps)
+    f = frames.copy()
+    f[4, 13] = 0.0
+    with pytest.raises(InputError, match="depth map 4's frame has texel sizes"):
+        dm.set_maps(r, f, maps)
+    f = frames.copy()
+    f[1, 6] = np.inf
+    with pytest.raises(InputError, match="depth map 1's frame has a non-finite value at float 6"):
+        dm.set_maps(r, f, maps)
+    with pytest.raises(PenumbraError, match="takes no depth maps"):
+        dm.set_maps(Renderer(ctx, "unshadowed"), frames, maps)
+    img = Image(ctx, s["gb"].width, s["gb"].height)
+    # Without caller domains the count is checked at execute, against the decomposition's.
+    r3 = Renderer(ctx, "depthmap", resolution=32, directions=8)
+    dm.set_maps(r3, frames, maps)
+    with pytest.raises(PenumbraError, match="16 depth maps were supplied but the renderer shades with 8 domains"):
+        r3.execute(s["scene"], s["gb"], img)
+    # A map that does not look along its domain.
+    f = frames.copy()
+    f[[0, 1]] = f[[1, 0]]
+    dm.set_maps(r, f, maps)
+    with pytest.raises(InputError, match="supplied depth map 0 looks along"):
+        r.execute(s["scene"], s["gb"], img)
+    # The resolution changed since.
+    dm.set_maps(r, frames, maps)
+    r.set(resolution=64)
+    with pytest.raises(PenumbraError, match="maps are 32 x 32 texels but the renderer's resolution is now 64"):
+        r.execute(s["scene"], s["gb"], img)
+
+
+# --------------------------------------------------------------------------- skip_power
+
+
+def test_skip_power_bounds_the_change_and_drops_maps(ctx, box_scene):
+    """Domains whose powers add up to at most skip_power of the total get no
+    map and are lit unshadowed: the image can only brighten, by at most the
+    skipped domains' unshadowed light; fewer maps are drawn."""
+    s = box_scene
+    doms = domains_of(procedural.sky(64, 32), 64)
+    full, r0 = render(ctx, s["scene"], s["gb"], doms, skip_power=0.0)
+    assert dm.maps_drawn(r0, s["scene"]) == 64
+    lum = doms[:, 4:7] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    fg = s["planes"]["instance"] != BACKGROUND
+    drawn = []
+    for fraction in (0.001, 0.01, 0.05, 0.2):
+        got, r = render(ctx, s["scene"], s["gb"], doms, skip_power=fraction)
+        frames = r.read_output(s["scene"], "map_frames", 0)
+        skipped = frames[:, 15] == 0
+        drawn.append(int((~skipped).sum()))
+        assert drawn[-1] == dm.maps_drawn(r, s["scene"])
+        assert lum[skipped].sum() <= fraction * lum.sum() * (1 + 1e-6)
+        # The weakest go first: every skipped domain is weaker than every shadowed one, and as many as fit.
+        assert not skipped.any() or lum[skipped].max() <= lum[~skipped].min()
+        assert skipped.all() or lum[skipped].sum() + lum[~skipped].min() > fraction * lum.sum() * (1 - 1e-6)
+        # The change: between 0 and the skipped domains' unshadowed light (their own image, visibility 0).
+        if skipped.any():
+            bound, _ = render(ctx, s["scene"], s["gb"], doms[skipped], visibility=0)
+        else:
+            bound = np.zeros_like(got)
+        delta = got[..., :3] - full[..., :3]
+        tol = 1e-5 * full[..., :3][fg].max()
+        assert (delta[fg] >= -tol).all() and (delta[fg] <= bound[..., :3][fg] + tol).all(), fraction
+        assert np.sqrt(np.mean(delta[fg] ** 2)) / (full[fg].max() - full[fg].min()) <= fraction
+    # Measured: 64, 56, 36 and 2 maps (the sun's domains) at 0.001 / 0.01 / 0.05 / 0.2.
+    assert drawn == sorted(drawn, reverse=True) and drawn[1] < 64 and drawn[-1] <= 4
+    assert delta[fg].max() > 0  # at 0.2 some skipped light reaches a shadowed pixel
+    # A skipped domain's map reads as empty; drawing none at all still shades (unshadowed).
+    i = int(np.argmin(lum))
+    assert np.isposinf(r.read_output(s["scene"], "depth_map", 0, i)).all()
+    none, r = render(ctx, s["scene"], s["gb"], doms, skip_power=1.0)
+    free, _ = render(ctx, s["scene"], s["gb"], doms, visibility=0)
+    assert dm.maps_drawn(r, s["scene"]) == 0 and np.array_equal(none, free)
+
+
+# --------------------------------------------------------------------------- 16-bit maps
+
+
+def test_half_maps_are_close_and_keep_the_bias_policy(ctx, box_scene):
+    """half_maps 1: the lookups read depths quantised to extent / 65534, far
+    below the bias (a texel), so the image barely moves; the maps read back
+    are the float ones; no acne appears on a lit plane (the bias holds)."""
+    s = box_scene
+    full, _ = render(ctx, s["scene"], s["gb"], s["domains"])
+    half, r = render(ctx, s["scene"], s["gb"], s["domains"], half_maps=1)
+    fg = s["planes"]["instance"] != BACKGROUND
+    err = nrmse(half[..., :3], full[..., :3], fg)
+    assert err < 2e-3, err
+    # Without bias the surfaces compare against their own quantised depths: the lookups must differ (the 16-bit
+    # copies are what is read).
+    raw = dict(bias=0.0, slope_bias=0.0)
+    assert not np.array_equal(render(ctx, s["scene"], s["gb"], s["domains"], half_maps=1, **raw)[0],
+                              render(ctx, s["scene"], s["gb"], s["domains"], **raw)[0])
+    scene, gb, planes, keep, _ = lit_plane(ctx, 0.6)
+    k = np.arange(32)
+    elev = np.radians(3.0 + 84.0 * (k % 16) / 15.0)
+    local = np.stack([np.cos(elev) * np.cos(2.39996 * k), np.sin(elev), np.cos(elev) * np.sin(2.39996 * k)], 1)
+    doms = dm.domain_array(local @ rotation((1, 0, 0), 0.6).T, np.ones((32, 3)) * 0.05)
+    plane_fg = planes["instance"] != BACKGROUND
+    free, _ = render(ctx, scene, gb, doms, visibility=0)
+    got, _ = render(ctx, scene, gb, doms, half_maps=1)
+    assert np.abs(got[plane_fg] - free[plane_fg]).max() <= 1e-6 * free[plane_fg].max()

@@ -739,6 +739,26 @@ PN_API pn_status pn_renderer_read_output(pn_renderer renderer, pn_scene scene, c
  * non-finite or negative solid angle: the message names the domain). */
 PN_API pn_status pn_renderer_set_env_domains(pn_renderer renderer, const pn_env_domain *domains, uint32_t count);
 
+/* The caller's own depth maps for depthmap (a simulator with its own
+ * rasteriser), used instead of drawing them, from the next execute on, until
+ * replaced or count 0 (draw again). One map per domain the renderer shades
+ * with, in the order of its `domains` output, in the layout of its outputs
+ * (docs/depthmap.md "Maps from the caller"): `frames`, count x 16 floats
+ * (e1 | u_min, e2 | v_min, d | far, du, dv, depth extent, ignored);
+ * `depths`, count x resolution^2 floats, map after map, row-major, the
+ * distance far - p.d of the nearest surface at each texel centre, +inf where
+ * empty. Copied (blocking upload). `resolution` must equal the renderer's.
+ * Errors: PN_ERROR_UNSUPPORTED (another method), PN_ERROR_INVALID_SIZE
+ * (resolution other than the renderer's; count above 1024 or, with caller
+ * domains set, other than their count; at execute: count other than the
+ * domains shaded with, or the resolution changed since),
+ * PN_ERROR_INVALID_ARGUMENT (a NULL pointer with count > 0; a frame with a
+ * non-finite value, axes not orthonormal to 1e-3 or a non-positive texel size
+ * or extent; a depth NaN or negative: the message names map and texel; at
+ * execute: a map's d more than 1.4e-3 rad from its domain's direction). */
+PN_API pn_status pn_renderer_set_depth_maps(pn_renderer renderer, const float *frames, const float *depths,
+                                            uint32_t count, uint32_t resolution);
+
 #ifdef __cplusplus
 }
 #endif

@@ -761,6 +761,13 @@ pn_status pn_renderer_set_env_domains(pn_renderer renderer, const pn_env_domain 
     return pn_renderer_do_set_env_domains(renderer, domains, count);
 }
 
+pn_status pn_renderer_set_depth_maps(pn_renderer renderer, const float *frames, const float *depths, uint32_t count,
+                                     uint32_t resolution)
+{
+    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    return pn_depthmap_set_maps(renderer, frames, depths, count, resolution);
+}
+
 /* ------------------------------------------------------ occlusion fields */
 
 pn_status pn_envmap_get_hash(pn_envmap env, uint64_t *hash)

@@ -2640,6 +2640,39 @@ static void test_depthmap(pn_context ctx, rig *r)
                  "takes no env domains", NULL);
     expect_error("NULL renderer", pn_renderer_set_env_domains(NULL, d, 3), PN_ERROR_NULL_HANDLE, NULL,
                  "pn_renderer_set_env_domains", NULL);
+
+    /* The caller's maps (pn_renderer_set_depth_maps): the maps read back, supplied, enqueue only; errors. */
+    float frames[3 * 16], maps[3 * 256];
+    expect_ok("read the map frames", pn_renderer_read_output(dr, r->scene, "map_frames", 0, 0, frames, sizeof frames),
+              ctx);
+    for (uint32_t m = 0; m < 3; ++m)
+        expect_ok("read a depth map",
+                  pn_renderer_read_output(dr, r->scene, "depth_map", 0, m, maps + 256 * m, 256 * sizeof(float)), ctx);
+    expect_ok("supply the maps", pn_renderer_set_depth_maps(dr, frames, maps, 3, 16), ctx);
+    check_enqueue_only(ctx, r, dr, "depthmap (the caller's maps)");
+    pn_renderer_set_int(dr, "half_maps", 1);
+    pn_renderer_commit(dr);
+    check_enqueue_only(ctx, r, dr, "depthmap (the caller's maps, 16-bit lookups)");
+    pn_renderer_set_int(dr, "half_maps", 0);
+    pn_renderer_commit(dr);
+    expect_error("maps of another resolution", pn_renderer_set_depth_maps(dr, frames, maps, 3, 8),
+                 PN_ERROR_INVALID_SIZE, ctx, "resolution is 16", NULL);
+    expect_error("fewer maps than domains", pn_renderer_set_depth_maps(dr, frames, maps, 2, 16), PN_ERROR_INVALID_SIZE,
+                 ctx, "2 depth maps but the renderer shades with 3 domains", NULL);
+    maps[256 + 17] = NAN;
+    expect_error("a NaN depth", pn_renderer_set_depth_maps(dr, frames, maps, 3, 16), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "depth map 1 has nan at texel (1, 1)", NULL);
+    maps[256 + 17] = 0.0f;
+    frames[16 + 4] = 2.0f;
+    expect_error("a frame not orthonormal", pn_renderer_set_depth_maps(dr, frames, maps, 3, 16),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "depth map 1's frame is not orthonormal", NULL);
+    expect_error("NULL depths", pn_renderer_set_depth_maps(dr, frames, NULL, 3, 16), PN_ERROR_INVALID_ARGUMENT, ctx,
+                 "NULL", NULL);
+    expect_error("maps for unshadowed", pn_renderer_set_depth_maps(r->renderer, frames, maps, 3, 16),
+                 PN_ERROR_UNSUPPORTED, ctx, "takes no depth maps", NULL);
+    expect_error("maps for a NULL renderer", pn_renderer_set_depth_maps(NULL, frames, maps, 3, 16),
+                 PN_ERROR_NULL_HANDLE, NULL, "pn_renderer_set_depth_maps", NULL);
+    expect_ok("back to drawing the maps", pn_renderer_set_depth_maps(dr, NULL, NULL, 0, 0), ctx);
     pn_renderer_release(dr);
 }
 

@@ -18,9 +18,10 @@
 #define DM_MAX_TEXELS (1u << 28) /* maps x res^2 (1 GiB of depths) */
 #define DM_LARGE_CAPACITY (1u << 20) /* (map, triangle) entries of the rasteriser's large-triangle list */
 #define DM_LARGE_GROUPS 256          /* work-groups of depthmap_raster_large */
+#define SKIP_POWER_DEFAULT 0.01      /* skip_power's default (docs/depthmap.md, measured) */
 
 enum { P_BACKGROUND, P_DIRECTIONS, P_SEED, P_RESOLUTION, P_MAP_RENDERER, P_BIAS, P_SLOPE_BIAS, P_PCF, P_SPECULAR,
-       P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS };
+       P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS, P_SKIP_POWER, P_HALF_MAPS };
 
 static const pn_param_desc params[] = {
     PN_PARAM_BACKGROUND,
@@ -44,14 +45,22 @@ static const pn_param_desc params[] = {
     {"visibility", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "", "1: depth-map shadows, 0: every domain unoccluded."},
     {"reuse_maps", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
      "1: keep the maps of the previous frame (nothing moved); the first frame draws them anyway."},
+    {"skip_power", PN_PARAM_FLOAT, PN_PARAM_FRAME, SKIP_POWER_DEFAULT, 0, 1, "of the power",
+     "The weakest domains whose powers add up to at most this share of the total get no depth map and are lit "
+     "unshadowed (docs/depthmap.md)."},
+    {"half_maps", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
+     "1: the shading looks up 16-bit copies of the maps (depth quantised to extent / 65534, the seed's storage); 0: "
+     "32-bit floats."},
 };
 
 enum { OUT_DOMAINS, OUT_FRAMES, OUT_DEPTH };
 
 static const pn_output_desc outputs[] = {
     {"domains", "N pn_env_domain (8 floats each): the domains shaded with."},
-    {"map_frames", "16 floats per domain: e1 | u_min, e2 | v_min, d | far, du, dv, depth extent, 0 (kernels/depthmap.cl)."},
-    {"depth_map", "resolution^2 floats of domain `index`, row-major: depth from the light side of its box, +inf empty."},
+    {"map_frames", "16 floats per domain: e1 | u_min, e2 | v_min, d | far, du, dv, depth extent, has a map (1) or "
+                   "is lit unshadowed (0, skip_power) (kernels/depthmap.cl)."},
+    {"depth_map", "resolution^2 floats of domain `index`, row-major: depth from the light side of its box, +inf empty "
+                  "(all +inf for a domain without a map)."},
 };
 
 typedef struct state {
@@ -72,6 +81,21 @@ typedef struct state {
     uint32_t *host_ranges, *host_starts;
     float *host_objects;
     bool maps_drawn;               /* the maps hold a frame (reuse_maps) */
+    /* skip_power: which domains get a map */
+    unsigned char *shadowed;       /* per domain: 1 has a map, 0 lit unshadowed */
+    uint32_t *host_list;           /* the domains with a map, in domain order */
+    uint32_t drawn;                /* their count */
+    cl_mem list;                   /* host_list on the device */
+    double key_skip;               /* skip_power the list was made for */
+    bool skip_valid;               /* false when the domains changed */
+    /* The caller's maps (pn_renderer_set_depth_maps), or none (supplied_count 0). */
+    cl_mem supplied_depth;         /* supplied_count x supplied_res^2 floats */
+    float *supplied_frames;        /* supplied_count x DM_FRAME_FLOATS */
+    uint32_t supplied_count, supplied_res;
+    size_t supplied_bytes;         /* size of supplied_depth */
+    /* half_maps: 16-bit copies of the maps for the lookups */
+    cl_mem depth16;                /* map_count x res^2 ushort, or NULL */
+    bool packed;                   /* depth16 holds the current maps */
 } state;
 
 /* --------------------------------------------------------------- domains */
@@ -122,6 +146,129 @@ static pn_status set_domains(pn_renderer r, const pn_env_domain *domains, uint32
     return PN_SUCCESS;
 }
 
+/* ---------------------------------------------------------- caller's maps */
+
+static pn_status check_frame(pn_context ctx, const float *f, uint32_t m)
+{
+    for (int k = 0; k < DM_FRAME_FLOATS - 1; ++k)
+        if (!isfinite(f[k]))
+            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "depth map %u's frame has a non-finite value at float %d",
+                           m, k);
+    const float *axis[3] = {f, f + 4, f + 8};
+    static const char *const names[3] = {"e1", "e2", "d"};
+    for (int a = 0; a < 3; ++a)
+        for (int b = a; b < 3; ++b) {
+            const double dot = (double)axis[a][0] * axis[b][0] + (double)axis[a][1] * axis[b][1] +
+                               (double)axis[a][2] * axis[b][2];
+            if (fabs(dot - (a == b ? 1.0 : 0.0)) > 1e-3)
+                return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                               "depth map %u's frame is not orthonormal: %s.%s = %g (e1, e2, d must be unit and "
+                               "orthogonal)",
+                               m, names[a], names[b], dot);
+        }
+    if (!(f[12] > 0.0f && f[13] > 0.0f && f[14] > 0.0f))
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                       "depth map %u's frame has texel sizes %g x %g and depth extent %g: all must be > 0", m,
+                       (double)f[12], (double)f[13], (double)f[14]);
+    return PN_SUCCESS;
+}
+
+pn_status pn_depthmap_set_maps(pn_renderer r, const float *frames, const float *depths, uint32_t count,
+                               uint32_t resolution)
+{
+    pn_context ctx = r->obj.ctx;
+    if (r->method != &pn_method_depthmap)
+        return pn_fail(ctx, PN_ERROR_UNSUPPORTED, "method %s takes no depth maps (depthmap does)", r->method->name);
+    state *s = r->state;
+    if (!count) {
+        pn_mem_release(&s->supplied_depth);
+        free(s->supplied_frames);
+        s->supplied_frames = NULL;
+        s->supplied_count = s->supplied_res = 0;
+        s->supplied_bytes = 0;
+        s->maps_drawn = false;
+        return PN_SUCCESS;
+    }
+    if (!frames || !depths)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "%u depth maps but the %s pointer is NULL", count,
+                       frames ? "depths" : "frames");
+    if (count > PN_ENV_DOMAINS_MAX)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "%u depth maps: at most %u (one per domain)", count,
+                       PN_ENV_DOMAINS_MAX);
+    const uint32_t res = (uint32_t)r->params[P_RESOLUTION];
+    if (resolution != res)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE,
+                       "depth maps of %u x %u texels but the renderer's resolution is %u: set resolution first",
+                       resolution, resolution, res);
+    if (s->caller_count && count != s->caller_count)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE,
+                       "%u depth maps but the renderer shades with %u domains (one map each)", count, s->caller_count);
+    const size_t per_map = (size_t)res * res, texels = pn_mul_size(count, res, res);
+    if (texels > DM_MAX_TEXELS)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "%u depth maps of %u x %u texels: more than %u texels", count, res,
+                       res, DM_MAX_TEXELS);
+    pn_status st;
+    for (uint32_t m = 0; m < count; ++m)
+        if ((st = check_frame(ctx, frames + (size_t)m * DM_FRAME_FLOATS, m)))
+            return st;
+    for (size_t k = 0; k < texels; ++k)
+        if (!(depths[k] >= 0.0f)) /* NaN, negative, -inf; +inf is an empty texel */
+            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                           "depth map %u has %g at texel (%zu, %zu): depths must be >= 0 (+inf: empty)",
+                           (uint32_t)(k / per_map), (double)depths[k], k % per_map % res, k % per_map / res);
+    float *copy = pn_malloc(ctx, pn_mul_size(count, DM_FRAME_FLOATS, sizeof(float)), "the caller's map frames");
+    if (!copy)
+        return PN_ERROR_OUT_OF_MEMORY;
+    memcpy(copy, frames, (size_t)count * DM_FRAME_FLOATS * sizeof(float));
+    s->maps_drawn = false;
+    const size_t bytes = texels * sizeof(float);
+    if (s->supplied_bytes != bytes) {
+        pn_mem_release(&s->supplied_depth);
+        s->supplied_bytes = 0;
+        if ((st = pn_alloc(ctx, bytes, CL_MEM_READ_ONLY, NULL, &s->supplied_depth, "the caller's depth maps"))) {
+            free(copy);
+            return st;
+        }
+        s->supplied_bytes = bytes;
+    }
+    cl_int err = clEnqueueWriteBuffer(ctx->queue, s->supplied_depth, CL_TRUE, 0, bytes, depths, 0, NULL, NULL);
+    if (err != CL_SUCCESS) {
+        free(copy);
+        return pn_fail_cl(ctx, err, "uploading the caller's depth maps");
+    }
+    free(s->supplied_frames);
+    s->supplied_frames = copy;
+    s->supplied_count = count;
+    s->supplied_res = res;
+    return PN_SUCCESS;
+}
+
+/* The caller's maps against the domains and resolution of this frame. */
+static pn_status check_supplied(pn_renderer r)
+{
+    state *s = r->state;
+    pn_context ctx = r->obj.ctx;
+    if (!s->supplied_count)
+        return PN_SUCCESS;
+    if (s->supplied_count != s->domain_count)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE,
+                       "%u depth maps were supplied but the renderer shades with %u domains (one map each)",
+                       s->supplied_count, s->domain_count);
+    if (s->supplied_res != (uint32_t)r->params[P_RESOLUTION])
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE,
+                       "the supplied depth maps are %u x %u texels but the renderer's resolution is now %u",
+                       s->supplied_res, s->supplied_res, (uint32_t)r->params[P_RESOLUTION]);
+    for (uint32_t m = 0; m < s->domain_count; ++m) {
+        const float *d = s->supplied_frames + (size_t)m * DM_FRAME_FLOATS + 8, *c = s->domains[m].direction;
+        const double dot = (double)d[0] * c[0] + (double)d[1] * c[1] + (double)d[2] * c[2];
+        if (dot < 1.0 - 1e-6) /* 1.4e-3 rad */
+            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                           "supplied depth map %u looks along (%g, %g, %g) but domain %u's direction is (%g, %g, %g)",
+                           m, (double)d[0], (double)d[1], (double)d[2], m, (double)c[0], (double)c[1], (double)c[2]);
+    }
+    return PN_SUCCESS;
+}
+
 /* The domains to shade with: the caller's, or the env map's decomposition. */
 static pn_status plan_domains(pn_renderer r, pn_scene scene)
 {
@@ -163,6 +310,82 @@ static pn_status plan_domains(pn_renderer r, pn_scene scene)
     s->key_n = n;
     s->key_seed = seed;
     s->maps_drawn = false;
+    s->skip_valid = false;
+    return PN_SUCCESS;
+}
+
+/* skip_power: the domains sorted by power (luminance of L~, ties by index);
+ * the weakest whose powers add up to at most skip_power x the total get no
+ * map (black domains always: they add nothing). The rest, in domain order,
+ * is the list of maps to draw. */
+typedef struct ranked {
+    double power;
+    uint32_t index;
+} ranked;
+
+static double domain_power(const pn_env_domain *d)
+{
+    return 0.2126 * d->radiance[0] + 0.7152 * d->radiance[1] + 0.0722 * d->radiance[2];
+}
+
+static int by_power(const void *a, const void *b)
+{
+    const ranked *x = a, *y = b;
+    return x->power < y->power ? -1 : x->power > y->power ? 1 : (x->index > y->index) - (x->index < y->index);
+}
+
+static pn_status plan_skip(pn_renderer r)
+{
+    state *s = r->state;
+    pn_context ctx = r->obj.ctx;
+    const double fraction = r->params[P_SKIP_POWER];
+    if (s->skip_valid && s->key_skip == fraction)
+        return PN_SUCCESS;
+    const uint32_t n = s->domain_count, cap = n ? n : 1;
+    unsigned char *shadowed = pn_malloc(ctx, cap, "the shadowed domains");
+    uint32_t *list = pn_malloc(ctx, pn_mul_size(cap, 1, sizeof *list), "the list of depth maps");
+    ranked *order = pn_malloc(ctx, pn_mul_size(cap, 1, sizeof *order), "the domains by power");
+    if (!shadowed || !list || !order) {
+        free(shadowed);
+        free(list);
+        free(order);
+        return PN_ERROR_OUT_OF_MEMORY;
+    }
+    double total = 0.0;
+    for (uint32_t i = 0; i < n; ++i) {
+        order[i].power = domain_power(s->domains + i);
+        order[i].index = i;
+        shadowed[i] = 1;
+        total += order[i].power;
+    }
+    qsort(order, n, sizeof *order, by_power);
+    double sum = 0.0;
+    for (uint32_t k = 0; k < n; ++k) {
+        if (fraction < 1.0 && sum + order[k].power > fraction * total)
+            break;
+        sum += order[k].power;
+        shadowed[order[k].index] = 0;
+    }
+    free(order);
+    uint32_t m = 0;
+    for (uint32_t i = 0; i < n; ++i)
+        if (shadowed[i])
+            list[m++] = i;
+    pn_status st = PN_SUCCESS;
+    pn_mem_release(&s->list);
+    if ((st = pn_alloc(ctx, (size_t)cap * sizeof *list, CL_MEM_READ_ONLY, list, &s->list, "the list of depth maps"))) {
+        free(shadowed);
+        free(list);
+        return st;
+    }
+    free(s->shadowed);
+    free(s->host_list);
+    s->shadowed = shadowed;
+    s->host_list = list;
+    s->drawn = m;
+    s->key_skip = fraction;
+    s->skip_valid = true;
+    s->maps_drawn = false;
     return PN_SUCCESS;
 }
 
@@ -171,11 +394,17 @@ static pn_status plan(pn_renderer r, pn_scene scene)
     state *s = r->state;
     pn_context ctx = r->obj.ctx;
     pn_status st = plan_domains(r, scene);
-    if (st)
+    if (st || (st = plan_skip(r)) || (st = check_supplied(r)))
         return st;
     const uint32_t maps = s->domain_count ? s->domain_count : 1, res = (uint32_t)r->params[P_RESOLUTION];
-    if (s->depth && s->map_count == maps && s->res == res)
+    if (s->depth && s->map_count == maps && s->res == res) {
+        if ((int)r->params[P_HALF_MAPS] && !s->depth16) {
+            s->packed = false;
+            return pn_alloc(ctx, pn_mul_size(maps, (size_t)res * res, sizeof(uint16_t)), CL_MEM_READ_WRITE, NULL,
+                            &s->depth16, "the 16-bit depth maps");
+        }
         return PN_SUCCESS;
+    }
     const size_t texels = pn_mul_size(maps, res, res);
     if (texels > DM_MAX_TEXELS)
         return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
@@ -186,6 +415,8 @@ static pn_status plan(pn_renderer r, pn_scene scene)
         return PN_ERROR_OUT_OF_MEMORY;
     pn_mem_release(&s->frames);
     pn_mem_release(&s->depth);
+    pn_mem_release(&s->depth16);
+    s->packed = false;
     free(s->host_frames);
     s->host_frames = host;
     s->map_count = 0;
@@ -196,7 +427,9 @@ static pn_status plan(pn_renderer r, pn_scene scene)
           (st = pn_alloc(ctx, 4, CL_MEM_READ_WRITE, NULL, &s->large_count, "the rasteriser's count")))) ||
         (st = pn_alloc(ctx, (size_t)maps * DM_FRAME_FLOATS * sizeof(float), CL_MEM_READ_ONLY, NULL, &s->frames,
                        "the depth-map frames")) ||
-        (st = pn_alloc(ctx, texels * sizeof(uint32_t), CL_MEM_READ_WRITE, NULL, &s->depth, "the depth maps")))
+        (st = pn_alloc(ctx, texels * sizeof(uint32_t), CL_MEM_READ_WRITE, NULL, &s->depth, "the depth maps")) ||
+        ((int)r->params[P_HALF_MAPS] && (st = pn_alloc(ctx, texels * sizeof(uint16_t), CL_MEM_READ_WRITE, NULL,
+                                                       &s->depth16, "the 16-bit depth maps"))))
         return st;
     s->map_count = maps;
     s->res = res;
@@ -273,7 +506,7 @@ static bool fit_frames(state *s, pn_scene scene)
         const double extent = fmax(hi[2] - lo[2], floor_size);
         float *f = s->host_frames + (size_t)m * DM_FRAME_FLOATS;
         const double vals[DM_FRAME_FLOATS] = {e1[0], e1[1], e1[2], u0, e2[0], e2[1], e2[2], v0,
-                                              d[0],  d[1],  d[2],  hi[2], du, dv, extent, 0.0};
+                                              d[0],  d[1],  d[2],  hi[2], du, dv, extent, s->shadowed[m]};
         for (int k = 0; k < DM_FRAME_FLOATS; ++k)
             f[k] = (float)vals[k];
     }
@@ -343,22 +576,23 @@ static pn_status draw_maps(pn_renderer r, pn_scene scene)
 {
     state *s = r->state;
     pn_context ctx = r->obj.ctx;
-    const cl_int maps = (cl_int)s->domain_count, res = (cl_int)s->res;
-    const size_t texels = (size_t)maps * s->res * s->res;
+    /* `maps`: the maps drawn (the list), `texels`: every domain's, cleared */
+    const cl_int maps = (cl_int)s->drawn, res = (cl_int)s->res;
+    const size_t texels = (size_t)s->domain_count * s->res * s->res;
     cl_kernel k;
     pn_status st;
     if ((int)r->params[P_MAP_RENDERER] == 1) {
         if ((st = pn_context_kernel(ctx, "depthmap", "depthmap_raycast", &k)) ||
             (st = pn_scene_set_kernel_args(scene, k, "depthmap_raycast", 0)))
             return st;
-        const size_t sizes[] = {sizeof(cl_mem), sizeof maps, sizeof res, sizeof(cl_mem)};
-        const void *vals[] = {&s->frames, &maps, &res, &s->depth};
-        for (cl_uint i = 0; i < 4; ++i) {
+        const size_t sizes[] = {sizeof(cl_mem), sizeof maps, sizeof res, sizeof(cl_mem), sizeof(cl_mem)};
+        const void *vals[] = {&s->frames, &maps, &res, &s->depth, &s->list};
+        for (cl_uint i = 0; i < 5; ++i) {
             cl_int err = clSetKernelArg(k, 6 + i, sizes[i], vals[i]);
             if (err != CL_SUCCESS)
                 return pn_fail_cl(ctx, err, "setting depthmap_raycast arguments");
         }
-        return pn_enqueue_1d(ctx, k, "depthmap_raycast", texels, 64);
+        return pn_enqueue_1d(ctx, k, "depthmap_raycast", (size_t)maps * s->res * s->res, 64);
     }
     uint32_t instances = 0, triangles = 0;
     if ((st = raster_tables(r, scene, &instances, &triangles)))
@@ -380,10 +614,10 @@ static pn_status draw_maps(pn_renderer r, pn_scene scene)
     const cl_int inst = (cl_int)instances, tri_total = (cl_int)triangles, capacity = (cl_int)DM_LARGE_CAPACITY;
     const size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof inst,
                             sizeof tri_total, sizeof(cl_mem), sizeof maps, sizeof res, sizeof(cl_mem),
-                            sizeof(cl_mem), sizeof(cl_mem), sizeof capacity};
+                            sizeof(cl_mem), sizeof(cl_mem), sizeof capacity, sizeof(cl_mem)};
     const void *vals[] = {&scene->tris, &s->ranges, &s->starts, &s->objects, &inst, &tri_total, &s->frames,
-                          &maps, &res, &s->depth, &s->large_count, &s->large, &capacity};
-    if ((st = pn_set_args(ctx, k, "depthmap_raster", 13, sizes, vals)) ||
+                          &maps, &res, &s->depth, &s->large_count, &s->large, &capacity, &s->list};
+    if ((st = pn_set_args(ctx, k, "depthmap_raster", 14, sizes, vals)) ||
         (st = pn_enqueue_1d(ctx, k, "depthmap_raster", (size_t)triangles * (size_t)maps, 64)) ||
         (st = pn_context_kernel(ctx, "depthmap", "depthmap_raster_large", &k)))
         return st;
@@ -406,17 +640,34 @@ static pn_status prepare_maps(pn_renderer r, pn_scene scene, bool *use_maps)
     if (!(int)r->params[P_VISIBILITY] || !s->domain_count)
         return PN_SUCCESS;
     if ((int)r->params[P_REUSE_MAPS] && s->maps_drawn) {
-        *use_maps = true;
+        *use_maps = s->drawn > 0;
         return PN_SUCCESS;
     }
-    if (!fit_frames(s, scene))
+    if (s->supplied_count) { /* the caller's maps: their frames, the renderer's flags */
+        for (uint32_t m = 0; m < s->domain_count; ++m) {
+            float *f = s->host_frames + (size_t)m * DM_FRAME_FLOATS;
+            memcpy(f, s->supplied_frames + (size_t)m * DM_FRAME_FLOATS, (DM_FRAME_FLOATS - 1) * sizeof(float));
+            f[DM_FRAME_FLOATS - 1] = s->shadowed[m];
+        }
+        pn_status st = pn_upload_async(r->obj.ctx, s->frames, s->host_frames,
+                                       (size_t)s->domain_count * DM_FRAME_FLOATS * sizeof(float),
+                                       "uploading the caller's map frames");
+        s->maps_drawn = !st;
+        s->packed = false;
+        *use_maps = !st && s->drawn;
+        return st;
+    }
+    if (!fit_frames(s, scene)) {
+        s->maps_drawn = false;
         return PN_SUCCESS; /* no triangles: nothing casts a shadow */
+    }
     pn_status st = pn_upload_async(r->obj.ctx, s->frames, s->host_frames,
                                    (size_t)s->domain_count * DM_FRAME_FLOATS * sizeof(float), "uploading map frames");
-    if (!st)
+    if (!st && s->drawn)
         st = draw_maps(r, scene);
     s->maps_drawn = !st;
-    *use_maps = !st;
+    s->packed = false;
+    *use_maps = !st && s->drawn;
     return st;
 }
 
@@ -427,6 +678,18 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     bool maps = false;
     pn_status st = prepare_maps(r, scene, &maps);
     cl_kernel k;
+    const cl_int half = maps && (int)r->params[P_HALF_MAPS] && s->depth16;
+    if (!st && half && !s->packed) { /* the 16-bit copies of the maps just drawn or supplied */
+        const cl_int drawn = (cl_int)s->drawn, side = (cl_int)s->res;
+        const size_t psizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof drawn, sizeof side,
+                                 sizeof(cl_mem)};
+        const void *pvals[] = {s->supplied_count ? &s->supplied_depth : &s->depth, &s->frames, &s->list, &drawn,
+                               &side, &s->depth16};
+        if (!(st = pn_context_kernel(ctx, "depthmap", "depthmap_pack16", &k)) &&
+            !(st = pn_set_args(ctx, k, "depthmap_pack16", 6, psizes, pvals)) &&
+            !(st = pn_enqueue_1d(ctx, k, "depthmap_pack16", (size_t)drawn * s->res * s->res, 64)))
+            s->packed = true;
+    }
     if (st || (st = pn_context_kernel(ctx, "depthmap", "shade_depthmap", &k)))
         return st;
     const cl_int count = (cl_int)(gb->width * gb->height), domains = (cl_int)s->domain_count;
@@ -437,13 +700,14 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem),
                             sizeof count, sizeof camera, sizeof(cl_mem), sizeof domains, sizeof(cl_mem),
                             sizeof(cl_mem), sizeof res, sizeof use_maps, sizeof bias, sizeof slope, sizeof pcf,
-                            sizeof specular, sizeof samples, sizeof(cl_mem)};
+                            sizeof specular, sizeof samples, sizeof(cl_mem), sizeof(cl_mem), sizeof half};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &camera, &s->device_domains, &domains,
-                          &s->frames, &s->depth, &res, &use_maps, &bias, &slope, &pcf, &specular, &samples,
-                          &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_depthmap", 19, sizes, vals)))
+                          &s->frames, s->supplied_count ? &s->supplied_depth : &s->depth, &res, &use_maps,
+                          &bias, &slope, &pcf, &specular, &samples, &image->buffer,
+                          half ? &s->depth16 : &s->depth, &half};
+    if ((st = pn_set_args(ctx, k, "shade_depthmap", 21, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_depthmap", (size_t)count, 64);
 }
@@ -471,6 +735,12 @@ static pn_status read_output(pn_renderer r, pn_scene scene, int what, uint32_t i
     if (what == OUT_DEPTH && index >= s->domain_count)
         return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "depth map %u: the method has %u domains", index,
                        s->domain_count);
+    if (what == OUT_DEPTH && !s->shadowed[index]) { /* lit unshadowed (skip_power): an empty map */
+        float *out = host;
+        for (size_t k = 0; k < (size_t)s->res * s->res; ++k)
+            out[k] = INFINITY;
+        return PN_SUCCESS;
+    }
     /* Frames and maps of the scene as it is now, drawn even with visibility 0. */
     const double visibility = r->params[P_VISIBILITY], reuse = r->params[P_REUSE_MAPS];
     r->params[P_VISIBILITY] = 1;
@@ -481,12 +751,12 @@ static pn_status read_output(pn_renderer r, pn_scene scene, int what, uint32_t i
     r->params[P_REUSE_MAPS] = reuse;
     if (st)
         return st;
-    if (!maps)
+    if (!maps && !(s->supplied_count || (what == OUT_FRAMES && s->maps_drawn)))
         return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "the scene has no triangles: there are no depth maps");
     cl_int err = what == OUT_FRAMES
                      ? clEnqueueReadBuffer(ctx->queue, s->frames, CL_TRUE, 0, need, host, 0, NULL, NULL)
-                     : clEnqueueReadBuffer(ctx->queue, s->depth, CL_TRUE, (size_t)index * need, need, host, 0, NULL,
-                                           NULL);
+                     : clEnqueueReadBuffer(ctx->queue, s->supplied_count ? s->supplied_depth : s->depth, CL_TRUE,
+                                           (size_t)index * need, need, host, 0, NULL, NULL);
     return err == CL_SUCCESS ? PN_SUCCESS : pn_fail_cl(ctx, err, "reading a depthmap output");
 }
 
@@ -501,6 +771,12 @@ static void destroy(pn_renderer r)
     pn_mem_release(&s->objects);
     pn_mem_release(&s->large);
     pn_mem_release(&s->large_count);
+    pn_mem_release(&s->list);
+    pn_mem_release(&s->supplied_depth);
+    pn_mem_release(&s->depth16);
+    free(s->shadowed);
+    free(s->host_list);
+    free(s->supplied_frames);
     free(s->domains);
     free(s->caller);
     free(s->host_frames);

@@ -72,6 +72,9 @@ pn_status pn_renderer_param_float(pn_renderer r, const char *name, float *value,
 pn_status pn_renderer_do_commit(pn_renderer r);
 pn_status pn_renderer_do_execute(pn_renderer r, pn_scene scene, pn_gbuffer gbuffer, pn_image image);
 pn_status pn_renderer_do_set_env_domains(pn_renderer r, const pn_env_domain *domains, uint32_t count);
+/* pn_renderer_set_depth_maps (methods/depthmap.c). */
+pn_status pn_depthmap_set_maps(pn_renderer r, const float *frames, const float *depths, uint32_t count,
+                               uint32_t resolution);
 pn_status pn_renderer_do_read_output(pn_renderer r, pn_scene scene, const char *output, uint32_t instance,
                                      uint32_t index, void *host, size_t bytes);
 

@@ -61,6 +61,47 @@ def set_domains(renderer, domains) -> None:
     renderer._caller_domains = len(a)
 
 
+FRAME_FLOATS = 16  # a map's frame: e1 | u_min, e2 | v_min, d | far, du, dv, depth extent, has a map
+
+
+def read_maps(renderer, scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The renderer's domains (N, 8), map frames (N, 16) and depth maps
+    (N, res, res) for ``scene`` as it is now (its ``domains``, ``map_frames``
+    and ``depth_map`` outputs): what :func:`set_maps` takes back. A domain
+    without a map (``skip_power``) reads as an empty map (+inf)."""
+    doms = renderer.read_output(scene, "domains", 0)
+    frames = renderer.read_output(scene, "map_frames", 0)
+    maps = np.stack([renderer.read_output(scene, "depth_map", 0, i) for i in range(len(doms))])
+    return doms, frames, maps
+
+
+def set_maps(renderer, frames, depths) -> None:
+    """The caller's depth maps for ``renderer`` (pn_renderer_set_depth_maps),
+    drawn by the caller instead of the library: ``frames`` (N, 16) and
+    ``depths`` (N, res, res) float32 in the layout of the ``map_frames`` and
+    ``depth_map`` outputs, one per domain the renderer shades with (its
+    ``domains`` output, or the caller's :func:`set_domains`), res its
+    ``resolution``; None returns to drawing the maps. The library checks them
+    (sizes, orthonormal frames, depths >= 0 or +inf, no NaN)."""
+    if frames is None or depths is None:
+        renderer._call("pn_renderer_set_depth_maps", renderer._h, None, None, 0, 0)
+        return
+    f = np.ascontiguousarray(frames, np.float32)
+    d = np.ascontiguousarray(depths, np.float32)
+    if f.ndim != 2 or f.shape[1] != FRAME_FLOATS:
+        raise InputError(f"frames must be an (N, {FRAME_FLOATS}) array, got shape {f.shape}")
+    if d.ndim != 3 or d.shape[1] != d.shape[2] or len(d) != len(f):
+        raise InputError(f"depths must be an (N, res, res) array with N = {len(f)} (the frames'), got shape {d.shape}")
+    renderer._call("pn_renderer_set_depth_maps", renderer._h, _ptr(f), _ptr(d), len(f), d.shape[1])
+
+
+def maps_drawn(renderer, scene) -> int:
+    """How many domains have a depth map this frame (the others are below
+    ``skip_power`` and lit unshadowed): column 15 of ``map_frames`` (reading
+    it computes the frame's maps for the scene as it is now, like any output)."""
+    return int(renderer.read_output(scene, "map_frames", 0)[:, 15].sum())
+
+
 def domain_count(renderer) -> int:
     """The number of domains the renderer shades with: the caller's (set
     through :func:`set_domains`), else its ``directions``."""
