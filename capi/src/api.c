@@ -764,7 +764,7 @@ pn_status pn_renderer_set_env_domains(pn_renderer renderer, const pn_env_domain 
 pn_status pn_renderer_set_depth_maps(pn_renderer renderer, const float *frames, const float *depths, uint32_t count,
                                      uint32_t resolution)
 {
-    CHECK_HANDLE(renderer, PN_MAGIC_RENDERER, "renderer");
+    ENTER(renderer, PN_MAGIC_RENDERER, "renderer");
     return pn_depthmap_set_maps(renderer, frames, depths, count, resolution);
 }
 
