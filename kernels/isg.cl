@@ -158,6 +158,95 @@ inline int pn_isg_mark_sphere(const pn_isg_grid *pg, float cos_cone, float sin_c
     return marked != 0u;
 }
 
+/* pn_isg_mark_sphere without trigonometry beyond one atan2, marking the same
+ * patches (the same float test on each patch centre): a row can hold marks
+ * only where its best direction, at the sphere's phi, is within the cap
+ * (sin(theta_i) rho + cos(theta_i) u_y >= cos alpha, with a 1e-6 slack for
+ * rounding); in a row the cap's patches are the columns around the window's
+ * column nearest the sphere's phi (cos(phi - phi_u) is unimodal over a window
+ * not holding phi_u + pi, else the whole row is tested), found by walking out
+ * from it while the patch test holds. */
+inline int pn_isg_mark_sphere_rows(const pn_isg_grid *pg, float cos_cone, float sin_cone, float3 p, float3 n,
+                                   float4 sp, bool own, int self_occlusion, uint *mask)
+{
+    const int grid = pg->grid;
+    const float lo = pg->lo, step = pg->step;
+    const float3 v = sp.xyz - p;
+    const float r = sp.w, d2 = dot(v, v);
+    if (dot(v, n) <= -r) /* wholly behind the receiver plane */
+        return 0;
+    if (own && self_occlusion == 0)
+        return 0;
+    if (d2 <= r * r * (1.0f + PN_ISG_TOUCH) * (1.0f + PN_ISG_TOUCH))
+        return own && self_occlusion == 1 ? 0 : -1; /* inside an occluder */
+    const float d = sqrt(d2);
+    const float3 u = v / d;
+    const float sa = fmin(r / d, 1.0f), ca = sqrt(fmax(1.0f - sa * sa, 0.0f));
+    if (cos_cone > -ca && dot(u, pg->z) < cos_cone * ca - sin_cone * sa)
+        return 0;
+    const float3 ul = (float3)(dot(u, pg->x), dot(u, pg->y), dot(u, pg->z));
+    const float rho = sqrt(ul.x * ul.x + ul.z * ul.z), hi = lo + (float)grid * step;
+    float ph = pn_atan2(ul.z, ul.x);
+    ph = ph < 0.0f ? ph + PN_TWO_PI : ph;
+    const float anti = ph < PN_PI ? ph + PN_PI : ph - PN_PI;
+    const bool whole = anti > lo && anti < hi; /* the row's minimum inside the window: test every column */
+    int jc;
+    if (ph >= lo && ph <= hi) {
+        jc = clamp((int)floor((ph - lo) / step), 0, grid - 1);
+    } else { /* the window's end nearer phi_u around the circle */
+        const float dlo = ph < lo ? lo - ph : lo + PN_TWO_PI - ph, dhi = ph > hi ? ph - hi : ph + PN_TWO_PI - hi;
+        jc = dlo <= dhi ? 0 : grid - 1;
+    }
+    /* Rows: cos(theta_i - theta_u) is unimodal in i; walk out from the row nearest theta_u. */
+    const float th = pn_atan2(rho, ul.y);
+    const int ic = clamp((int)floor((th - lo) / step), 0, grid - 1);
+#define PN_ISG_ROW_NEAR(i) (pg->sin_c[i] * rho + pg->cos_c[i] * ul.y >= ca - 1e-6f)
+    int r0 = -1;
+    if (PN_ISG_ROW_NEAR(ic))
+        r0 = ic;
+    else if (ic > 0 && PN_ISG_ROW_NEAR(ic - 1))
+        r0 = ic - 1;
+    else if (ic < grid - 1 && PN_ISG_ROW_NEAR(ic + 1))
+        r0 = ic + 1;
+    if (r0 < 0)
+        return 0;
+    int i0 = r0, i1 = r0;
+    while (i0 > 0 && PN_ISG_ROW_NEAR(i0 - 1))
+        --i0;
+    while (i1 < grid - 1 && PN_ISG_ROW_NEAR(i1 + 1))
+        ++i1;
+#undef PN_ISG_ROW_NEAR
+    uint marked = 0u;
+    for (int i = i0; i <= i1; ++i) {
+        const float si = pg->sin_c[i], ci = pg->cos_c[i];
+#define PN_ISG_IN_CAP(j) (si * (pg->cos_c[j] * ul.x + pg->sin_c[j] * ul.z) + ci * ul.y >= ca)
+        uint bits = 0u;
+        if (whole) {
+            for (int j = 0; j < grid; ++j)
+                bits |= (PN_ISG_IN_CAP(j) ? 1u : 0u) << j;
+        } else {
+            int start = -1;
+            if (PN_ISG_IN_CAP(jc))
+                start = jc;
+            else if (jc > 0 && PN_ISG_IN_CAP(jc - 1))
+                start = jc - 1;
+            else if (jc < grid - 1 && PN_ISG_IN_CAP(jc + 1))
+                start = jc + 1;
+            if (start < 0)
+                continue;
+            bits = 1u << start;
+            for (int j = start - 1; j >= 0 && PN_ISG_IN_CAP(j); --j)
+                bits |= 1u << j;
+            for (int j = start + 1; j < grid && PN_ISG_IN_CAP(j); ++j)
+                bits |= 1u << j;
+        }
+#undef PN_ISG_IN_CAP
+        mask[i] |= bits;
+        marked |= bits;
+    }
+    return marked != 0u;
+}
+
 /* A tree node (bounding sphere b) that may hold a sphere marking a patch or
  * containing the receiver: not wholly behind the receiver plane, and its cap
  * not outside the window's cone unless the receiver is inside it. The host
@@ -212,7 +301,7 @@ inline int pn_isg_mark(const pn_isg_grid *pg, float3 p, float3 n, uint self_id, 
             }
             const int s1 = min((i + 1) * PN_ISG_TREE_FANOUT, sphere_count);
             for (int s = i * PN_ISG_TREE_FANOUT; s < s1; ++s) {
-                const int m = pn_isg_mark_sphere(pg, cos_cone, sin_cone, p, n, spheres[s], owners[s] == self_id,
+                const int m = pn_isg_mark_sphere_rows(pg, cos_cone, sin_cone, p, n, spheres[s], owners[s] == self_id,
                                                  self_occlusion, mask);
                 if (m < 0)
                     return -1;
