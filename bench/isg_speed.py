@@ -111,10 +111,70 @@ class Kernel:
                 np.int32(self_occlusion), np.int32(specular_shadows), np.float32(env_sharpness), self.camera,
                 self.table, self.out, *extra_args]
         self.queue.finish()
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         k(self.queue, (self.n,), (64,) if self.n % 64 == 0 else None, *args)
         self.queue.finish()
-        dt = time.perf_counter() - t0
+        dt, dc = time.perf_counter() - t0, time.process_time() - c0
         img = np.empty((self.n, 4), np.float32)
         cl.enqueue_copy(self.queue, img, self.out)
-        return 1e3 * dt, img
+        return 1e3 * dt, img, 1e3 * dc
+
+
+def library_ms(built, gb, res, reps, **params):
+    """One isg frame through the library (Renderer.execute: spheres to world space, the tree, the
+    kernel), after a warm-up frame: (wall ms, CPU ms of the process, all its threads: PoCL's
+    included; the A/B measure on a shared machine, where wall time depends on the others' load),
+    each the minimum of `reps`, and the image."""
+    img = Image(built.ctx, *res)
+    r = Renderer(built.ctx, "isg", **params)
+    r.execute(built.scene, gb, img)
+    built.ctx.finish()
+    ts, cpu = [], []
+    for _ in range(reps):
+        t0, c0 = time.perf_counter(), time.process_time()
+        r.execute(built.scene, gb, img)
+        built.ctx.finish()
+        ts.append(time.perf_counter() - t0), cpu.append(time.process_time() - c0)
+    return 1e3 * min(ts), 1e3 * min(cpu), img.read()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sizes", default="100x100,160x120")
+    ap.add_argument("--spheres", default="50,300")
+    ap.add_argument("--reps", type=int, default=2)
+    ap.add_argument("--old-kernels", default=None,
+                    help="another version's kernels/ folder (git archive COMMIT kernels | tar -x -C DIR) timed too")
+    a = ap.parse_args()
+    from penumbra import Context
+    ctx = Context()
+    rows = []
+    for size in a.sizes.split(","):
+        res = tuple(int(x) for x in size.split("x"))
+        for n in (int(x) for x in a.spheres.split(",")):
+            built, gb, planes, sph, own = scene(ctx, res, n)
+            fl = floor_ms(built, gb, res)
+            t_old = c_old = None
+            if a.old_kernels:
+                k = Kernel(ctx, built, planes, sph, own)
+                k.run(kernels=a.old_kernels)
+                runs = [k.run(kernels=a.old_kernels) for _ in range(a.reps)]
+                t_old, c_old = min(r[0] for r in runs), min(r[2] for r in runs)
+            flat, c_flat, img_flat = library_ms(built, gb, res, a.reps, sphere_tree=0)
+            tree, c_tree, img_tree = library_ms(built, gb, res, a.reps, sphere_tree=1)
+            same = bool(np.array_equal(img_flat, img_tree))
+            rows.append((res, len(sph), c_old, c_flat, c_tree, fl, tree, same))
+            print(f"{res} {len(sph)} spheres: wall old {t_old} flat {flat:.1f} tree {tree:.1f} floor {fl:.3f} ms; "
+                  f"CPU old {c_old} flat {c_flat:.1f} tree {c_tree:.1f} ms; same image {same}", flush=True)
+    print("\n| pixels | spheres | CPU ms: old kernel | flat | tree | old / tree | wall ms: tree | floor | "
+          "tree x floor | same image |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for res, n, old, flat, tree, fl, wall, same in rows:
+        o = f"{old:.0f}" if old else "-"
+        sp = f"{old / tree:.2f}" if old else f"{flat / tree:.2f} (flat)"
+        print(f"| {res[0]} x {res[1]} | {n} | {o} | {flat:.0f} | {tree:.0f} | {sp} | {wall:.0f} | {fl:.3f} | "
+              f"{wall / fl:.0f} | {same} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -54,7 +54,7 @@ inline float pn_isg_window(float lambda)
  * sines and cosines of the patch centres' angles (theta and phi alike). */
 typedef struct {
     float3 x, y, z;
-    float lo, step;
+    float lo, step, cos_lo;
     int grid;
     float sin_c[PN_ISG_MAX_GRID], cos_c[PN_ISG_MAX_GRID];
 } pn_isg_grid;
@@ -66,6 +66,7 @@ inline void pn_isg_grid_init(pn_sg g, int grid, pn_isg_grid *pg)
     const float w = pn_isg_window(g.sharpness);
     pg->lo = 0.5f * PN_PI - w;
     pg->step = 2.0f * w / (float)grid;
+    pg->cos_lo = cos(pg->lo);
     pg->grid = grid;
     /* Angle addition from the first centre: two sincos per lobe, not 2M. */
     float cs, sn = sincos(pg->lo + 0.5f * pg->step, &cs), cd, sd = sincos(pg->step, &cd);
@@ -158,6 +159,21 @@ inline int pn_isg_mark_sphere(const pn_isg_grid *pg, float cos_cone, float sin_c
     return marked != 0u;
 }
 
+/* The first row whose centre cosine is <= c (grid - 1 if none): the row nearest
+ * the angle acos(c), within one. */
+inline int pn_isg_bisect(const pn_isg_grid *pg, float c)
+{
+    int a = 0, b = pg->grid;
+    while (a < b) {
+        const int m = (a + b) >> 1;
+        if (pg->cos_c[m] <= c)
+            b = m;
+        else
+            a = m + 1;
+    }
+    return min(a, pg->grid - 1);
+}
+
 /* pn_isg_mark_sphere without trigonometry beyond one atan2, marking the same
  * patches (the same float test on each patch centre): a row can hold marks
  * only where its best direction, at the sphere's phi, is within the cap
@@ -185,65 +201,73 @@ inline int pn_isg_mark_sphere_rows(const pn_isg_grid *pg, float cos_cone, float 
     if (cos_cone > -ca && dot(u, pg->z) < cos_cone * ca - sin_cone * sa)
         return 0;
     const float3 ul = (float3)(dot(u, pg->x), dot(u, pg->y), dot(u, pg->z));
-    const float rho = sqrt(ul.x * ul.x + ul.z * ul.z), hi = lo + (float)grid * step;
-    float ph = pn_atan2(ul.z, ul.x);
-    ph = ph < 0.0f ? ph + PN_TWO_PI : ph;
-    const float anti = ph < PN_PI ? ph + PN_PI : ph - PN_PI;
-    const bool whole = anti > lo && anti < hi; /* the row's minimum inside the window: test every column */
-    int jc;
-    if (ph >= lo && ph <= hi) {
-        jc = clamp((int)floor((ph - lo) / step), 0, grid - 1);
-    } else { /* the window's end nearer phi_u around the circle */
-        const float dlo = ph < lo ? lo - ph : lo + PN_TWO_PI - ph, dhi = ph > hi ? ph - hi : ph + PN_TWO_PI - hi;
-        jc = dlo <= dhi ? 0 : grid - 1;
+    const float rho = sqrt(ul.x * ul.x + ul.z * ul.z);
+    /* The row and column nearest the sphere's direction (theta_u, phi_u), within one, by
+     * bisection of the centres' cosines (decreasing; rows and columns share them): cos
+     * theta_u = u_y; cos phi_u = u_x / rho where u_z >= 0, else phi_u is behind the window
+     * (in (pi, 2 pi)), nearer its phi = 0 end when u_x >= 0. */
+    const int ic = pn_isg_bisect(pg, ul.y);
+    int jc = ul.x >= 0.0f ? 0 : grid - 1;
+    if (ul.z >= 0.0f) {
+        int lo_j = 0, hi_j = grid;
+        while (lo_j < hi_j) {
+            const int m = (lo_j + hi_j) >> 1;
+            if (pg->cos_c[m] * rho <= ul.x)
+                hi_j = m;
+            else
+                lo_j = m + 1;
+        }
+        jc = min(lo_j, grid - 1);
     }
-    /* Rows: cos(theta_i - theta_u) is unimodal in i; walk out from the row nearest theta_u. */
-    const float th = pn_atan2(rho, ul.y);
-    const int ic = clamp((int)floor((th - lo) / step), 0, grid - 1);
+    /* phi_u + pi inside the window: cos(phi - phi_u) is not unimodal there, test every column. */
+    const bool whole = ul.z < 0.0f && fabs(ul.x) <= rho * pg->cos_lo + 1e-6f;
+    /* Rows: cos(theta_i - theta_u) is unimodal in i; those near ic always, then outwards
+     * until a row whose best direction is outside the cap. */
 #define PN_ISG_ROW_NEAR(i) (pg->sin_c[i] * rho + pg->cos_c[i] * ul.y >= ca - 1e-6f)
-    int r0 = -1;
-    if (PN_ISG_ROW_NEAR(ic))
-        r0 = ic;
-    else if (ic > 0 && PN_ISG_ROW_NEAR(ic - 1))
-        r0 = ic - 1;
-    else if (ic < grid - 1 && PN_ISG_ROW_NEAR(ic + 1))
-        r0 = ic + 1;
-    if (r0 < 0)
-        return 0;
-    int i0 = r0, i1 = r0;
+    int i0 = max(ic - 1, 0), i1 = min(ic + 1, grid - 1);
     while (i0 > 0 && PN_ISG_ROW_NEAR(i0 - 1))
         --i0;
     while (i1 < grid - 1 && PN_ISG_ROW_NEAR(i1 + 1))
         ++i1;
-#undef PN_ISG_ROW_NEAR
+    const int a0 = max(jc - 1, 0), a1 = min(jc + 1, grid - 1);
     uint marked = 0u;
     for (int i = i0; i <= i1; ++i) {
         const float si = pg->sin_c[i], ci = pg->cos_c[i];
-#define PN_ISG_IN_CAP(j) (si * (pg->cos_c[j] * ul.x + pg->sin_c[j] * ul.z) + ci * ul.y >= ca)
+        if (!PN_ISG_ROW_NEAR(i))
+            continue;
+        /* Columns: those near jc, then outwards until one outside the cap; patches already
+         * marked are not tested again (the cap's columns are contiguous, so walking over
+         * them never skips one of its columns). */
+        const uint row = mask[i];
+#define PN_ISG_TODO(j) ((((row >> (j)) & 1u) == 0u) && \
+                        (si * (pg->cos_c[j] * ul.x + pg->sin_c[j] * ul.z) + ci * ul.y >= ca))
         uint bits = 0u;
         if (whole) {
             for (int j = 0; j < grid; ++j)
-                bits |= (PN_ISG_IN_CAP(j) ? 1u : 0u) << j;
+                bits |= (PN_ISG_TODO(j) ? 1u : 0u) << j;
         } else {
-            int start = -1;
-            if (PN_ISG_IN_CAP(jc))
-                start = jc;
-            else if (jc > 0 && PN_ISG_IN_CAP(jc - 1))
-                start = jc - 1;
-            else if (jc < grid - 1 && PN_ISG_IN_CAP(jc + 1))
-                start = jc + 1;
-            if (start < 0)
-                continue;
-            bits = 1u << start;
-            for (int j = start - 1; j >= 0 && PN_ISG_IN_CAP(j); --j)
+            for (int j = a0; j <= a1; ++j)
+                bits |= (PN_ISG_TODO(j) ? 1u : 0u) << j;
+            for (int j = a1 + 1; j < grid; ++j) {
+                if ((row >> j) & 1u)
+                    continue;
+                if (!PN_ISG_TODO(j))
+                    break;
                 bits |= 1u << j;
-            for (int j = start + 1; j < grid && PN_ISG_IN_CAP(j); ++j)
+            }
+            for (int j = a0 - 1; j >= 0; --j) {
+                if ((row >> j) & 1u)
+                    continue;
+                if (!PN_ISG_TODO(j))
+                    break;
                 bits |= 1u << j;
+            }
         }
-#undef PN_ISG_IN_CAP
-        mask[i] |= bits;
+#undef PN_ISG_TODO
+        mask[i] = row | bits;
         marked |= bits;
     }
+#undef PN_ISG_ROW_NEAR
     return marked != 0u;
 }
 
