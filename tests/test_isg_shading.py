@@ -195,6 +195,33 @@ def test_sphere_tree_gives_the_flat_loops_image(cl_pair, build_test_kernel, coun
     assert (flat[:, :3] < 0.9 * free[:, :3]).any() and not flat[-1, :3].any()  # shadows, and the inside pixel
 
 
+@pytest.mark.parametrize("grid", [2, 5, 16, 24])
+def test_sphere_tree_gives_the_flat_loops_image_on_random_scenes(cl_pair, build_test_kernel, grid):
+    """Random receivers (any normal), spheres of any size from tiny to ones holding or
+    touching receivers, and lobes from broad to very sharp (lambda up to 1e4, the
+    windows' rows and columns then 0.2 mrad apart): the tree path's patch walk marks
+    what the flat loop's lat-long bounds do."""
+    rng = np.random.default_rng(100 + grid)
+    c = rng.uniform(-3, 3, (80, 3))
+    spheres = np.c_[c, np.exp(rng.uniform(np.log(0.01), np.log(0.8), 80))].tolist()
+    owners = rng.integers(1, 4, 80).tolist()
+    lobes = np.array([lobe(rng.normal(size=3), lam, [1.0, 0.8, 0.6]) for lam in (0.5, 3.0, 30.0, 300.0, 1e4)])
+    px = [{"p": tuple(rng.uniform(-2, 2, 3)), "n": tuple(unit(rng.normal(size=3))), "albedo": (0.6, 0.6, 0.6),
+           "ks": 0.3, "material": (float(rng.choice([20.0, 2000.0])), 0.3, 0.0), "id": int(rng.integers(0, 4))}
+          for _ in range(48)]
+    px.append({"p": tuple(spheres[0][:3]), "n": (0, 1, 0), "albedo": (1, 1, 1), "ks": 0.0, "material": (0, 0.3, 0),
+               "id": 0})  # inside another instance's sphere
+    for policy in (1, 2):
+        args = dict(grid=grid, self_occlusion=policy, env_sharpness=100.0)
+        flat = run_kernel(cl_pair, build_test_kernel, px, lobes, spheres, owners, tree=0, **args)
+        tree = run_kernel(cl_pair, build_test_kernel, px, lobes, spheres, owners, tree=1, **args)
+        np.testing.assert_array_equal(tree, flat)
+    free = run_kernel(cl_pair, build_test_kernel, px, lobes, [], [], grid=grid, env_sharpness=100.0)
+    lit = (flat[:, :3] > 0).any(axis=1)
+    assert lit.sum() > len(px) // 2 and (~lit).any()  # most receivers outside the spheres, some inside
+    assert (flat[lit, :3] < 0.9 * free[lit, :3]).any(axis=1).sum() > len(px) // 4  # and shadowed
+
+
 def test_sphere_tree_levels():
     """The Python twin of the host's tree: levels of ceil(previous / 8) nodes up to at
     most 8, each node's sphere holding its spheres (or child nodes)."""
