@@ -163,15 +163,14 @@ inline int pn_isg_mark_sphere(const pn_isg_grid *pg, float cos_cone, float sin_c
  * the angle acos(c), within one. */
 inline int pn_isg_bisect(const pn_isg_grid *pg, float c)
 {
-    int a = 0, b = pg->grid;
-    while (a < b) {
-        const int m = (a + b) >> 1;
-        if (pg->cos_c[m] <= c)
-            b = m;
-        else
-            a = m + 1;
+    /* Branch-free: the trip count depends on the grid only, the step is a select. */
+    int base = 0, n = pg->grid;
+    while (n > 1) {
+        const int h = n >> 1;
+        base = pg->cos_c[base + h] > c ? base + h : base;
+        n -= h;
     }
-    return min(a, pg->grid - 1);
+    return min(base + (pg->cos_c[base] > c ? 1 : 0), pg->grid - 1);
 }
 
 /* pn_isg_mark_sphere without trigonometry beyond one atan2, marking the same
@@ -207,18 +206,7 @@ inline int pn_isg_mark_sphere_rows(const pn_isg_grid *pg, float cos_cone, float 
      * theta_u = u_y; cos phi_u = u_x / rho where u_z >= 0, else phi_u is behind the window
      * (in (pi, 2 pi)), nearer its phi = 0 end when u_x >= 0. */
     const int ic = pn_isg_bisect(pg, ul.y);
-    int jc = ul.x >= 0.0f ? 0 : grid - 1;
-    if (ul.z >= 0.0f) {
-        int lo_j = 0, hi_j = grid;
-        while (lo_j < hi_j) {
-            const int m = (lo_j + hi_j) >> 1;
-            if (pg->cos_c[m] * rho <= ul.x)
-                hi_j = m;
-            else
-                lo_j = m + 1;
-        }
-        jc = min(lo_j, grid - 1);
-    }
+    const int jc = ul.z >= 0.0f ? pn_isg_bisect(pg, ul.x / fmax(rho, 1e-30f)) : ul.x >= 0.0f ? 0 : grid - 1;
     /* phi_u + pi inside the window: cos(phi - phi_u) is not unimodal there, test every column. */
     const bool whole = ul.z < 0.0f && fabs(ul.x) <= rho * pg->cos_lo + 1e-6f;
     /* Rows: cos(theta_i - theta_u) is unimodal in i; those near ic always, then outwards
