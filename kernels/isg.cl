@@ -38,7 +38,6 @@
 #include "common/sphere_maps.cl"
 
 #define PN_ISG_MAX_GRID 24
-#define PN_ISG_MASK_WORDS ((PN_ISG_MAX_GRID * PN_ISG_MAX_GRID + 31) / 32)
 #define PN_ISG_WINDOW_SIGMAS 3.0f
 #define PN_ISG_TOUCH 1e-3f
 /* The seed's cosine lobe (after [WRG*09]). */
@@ -55,7 +54,7 @@ inline float pn_isg_window(float lambda)
  * sines and cosines of the patch centres' angles (theta and phi alike). */
 typedef struct {
     float3 x, y, z;
-    float lo, step;
+    float lo, step, cos_lo;
     int grid;
     float sin_c[PN_ISG_MAX_GRID], cos_c[PN_ISG_MAX_GRID];
 } pn_isg_grid;
@@ -67,6 +66,7 @@ inline void pn_isg_grid_init(pn_sg g, int grid, pn_isg_grid *pg)
     const float w = pn_isg_window(g.sharpness);
     pg->lo = 0.5f * PN_PI - w;
     pg->step = 2.0f * w / (float)grid;
+    pg->cos_lo = cos(pg->lo);
     pg->grid = grid;
     /* Angle addition from the first centre: two sincos per lobe, not 2M. */
     float cs, sn = sincos(pg->lo + 0.5f * pg->step, &cs), cd, sd = sincos(pg->step, &cd);
@@ -77,74 +77,260 @@ inline void pn_isg_grid_init(pn_sg g, int grid, pn_isg_grid *pg)
     }
 }
 
-/* Marks in `mask` the patches whose centre direction meets a sphere seen from
- * (p, n). Returns -1 when the receiver is inside an occluder, else the
- * number of spheres that marked something (0: the lobe is unoccluded). */
-inline int pn_isg_mark(const pn_isg_grid *pg, float3 p, float3 n, uint self_id, int self_occlusion,
-                       global const float4 *spheres, global const uint *owners, int sphere_count, uint *mask)
+/* The sphere tree (built by the host every frame, capi/src/methods/isg.c
+ * sphere_tree; docs/isg.md section 8): the spheres in Morton order, level 1
+ * the bounding spheres of 8 consecutive spheres, level l + 1 those of 8
+ * consecutive level-l nodes, up to a top level of at most 8 nodes; the levels
+ * are stored one after the other in `nodes`. levels = 0: no tree, the flat
+ * loop over all spheres (the brute path, kept for the A/B). */
+#define PN_ISG_TREE_FANOUT 8
+#define PN_ISG_MAX_LEVELS 9
+
+typedef struct {
+    int levels;
+    int count[PN_ISG_MAX_LEVELS + 1], offset[PN_ISG_MAX_LEVELS + 1];
+} pn_isg_tree;
+
+inline void pn_isg_tree_init(int sphere_count, int use_tree, pn_isg_tree *t)
+{
+    t->levels = 0;
+    t->count[0] = sphere_count, t->offset[0] = 0;
+    if (!use_tree || sphere_count <= 0)
+        return;
+    int n = sphere_count, offset = 0, l = 0;
+    do {
+        offset += l > 0 ? n : 0; /* past level l's nodes */
+        n = (n + PN_ISG_TREE_FANOUT - 1) / PN_ISG_TREE_FANOUT, ++l;
+        t->count[l] = n, t->offset[l] = offset;
+    } while (n > PN_ISG_TREE_FANOUT && l < PN_ISG_MAX_LEVELS);
+    t->levels = l;
+}
+
+/* One sphere's patches: marks in `mask` (one word per patch row, bit j for
+ * column j) the patches whose centre direction lies in its cap seen from
+ * (p, n). Returns -1 when the receiver is inside it (an occluder), 1 when it
+ * marked something, else 0. */
+inline int pn_isg_mark_sphere(const pn_isg_grid *pg, float cos_cone, float sin_cone, float3 p, float3 n,
+                              float4 sp, bool own, int self_occlusion, uint *mask)
 {
     const int grid = pg->grid;
     const float lo = pg->lo, step = pg->step;
+    const float3 v = sp.xyz - p;
+    const float r = sp.w, d2 = dot(v, v);
+    if (dot(v, n) <= -r) /* wholly behind the receiver plane */
+        return 0;
+    if (own && self_occlusion == 0)
+        return 0;
+    if (d2 <= r * r * (1.0f + PN_ISG_TOUCH) * (1.0f + PN_ISG_TOUCH))
+        return own && self_occlusion == 1 ? 0 : -1; /* inside an occluder */
+    const float d = sqrt(d2);
+    const float3 u = v / d;
+    const float sa = fmin(r / d, 1.0f), ca = sqrt(fmax(1.0f - sa * sa, 0.0f));
+    /* Outside the window's cone: axis angle > cone + alpha (possible only when cone + alpha < pi). */
+    if (cos_cone > -ca && dot(u, pg->z) < cos_cone * ca - sin_cone * sa)
+        return 0;
+    const float alpha = asin(sa);
+    const float2 tp = pn_isg_angles(u, pg->x, pg->y, pg->z);
+    /* Patch rows and columns the cap can reach (lat-long bounds of a cap). */
+    int i0 = (int)floor((tp.x - alpha - lo) / step), i1 = (int)floor((tp.x + alpha - lo) / step);
+    int j0, j1;
+    const float st = sin(tp.x);
+    if (tp.x - alpha <= 0.0f || tp.x + alpha >= PN_PI || sa >= st) {
+        j0 = 0, j1 = grid - 1;
+    } else {
+        const float dphi = asin(fmin(sa / st, 1.0f));
+        float ph = tp.y;
+        if (ph > 1.5f * PN_PI) /* behind the lobe, on the phi seam side */
+            ph -= PN_TWO_PI;
+        j0 = (int)floor((ph - dphi - lo) / step), j1 = (int)floor((ph + dphi - lo) / step);
+    }
+    i0 = max(i0, 0), j0 = max(j0, 0), i1 = min(i1, grid - 1), j1 = min(j1, grid - 1);
+    const float3 ul = (float3)(dot(u, pg->x), dot(u, pg->y), dot(u, pg->z));
+    uint marked = 0u;
+    for (int i = i0; i <= i1; ++i) {
+        uint bits = 0u;
+        for (int j = j0; j <= j1; ++j) {
+            const float dotc = pg->sin_c[i] * (pg->cos_c[j] * ul.x + pg->sin_c[j] * ul.z) + pg->cos_c[i] * ul.y;
+            bits |= (dotc >= ca ? 1u : 0u) << j;
+        }
+        mask[i] |= bits;
+        marked |= bits;
+    }
+    return marked != 0u;
+}
+
+/* The first row whose centre cosine is <= c (grid - 1 if none): the row nearest
+ * the angle acos(c), within one. */
+inline int pn_isg_bisect(const pn_isg_grid *pg, float c)
+{
+    /* Branch-free: the trip count depends on the grid only, the step is a select. */
+    int base = 0, n = pg->grid;
+    while (n > 1) {
+        const int h = n >> 1;
+        base = pg->cos_c[base + h] > c ? base + h : base;
+        n -= h;
+    }
+    return min(base + (pg->cos_c[base] > c ? 1 : 0), pg->grid - 1);
+}
+
+/* pn_isg_mark_sphere without trigonometry beyond one atan2, marking the same
+ * patches (the same float test on each patch centre): a row can hold marks
+ * only where its best direction, at the sphere's phi, is within the cap
+ * (sin(theta_i) rho + cos(theta_i) u_y >= cos alpha, with a 1e-6 slack for
+ * rounding); in a row the cap's patches are the columns around the window's
+ * column nearest the sphere's phi (cos(phi - phi_u) is unimodal over a window
+ * not holding phi_u + pi, else the whole row is tested), found by walking out
+ * from it while the patch test holds. */
+inline int pn_isg_mark_sphere_rows(const pn_isg_grid *pg, float cos_cone, float sin_cone, float3 p, float3 n,
+                                   float4 sp, bool own, int self_occlusion, uint *mask)
+{
+    const int grid = pg->grid;
+    const float lo = pg->lo, step = pg->step;
+    const float3 v = sp.xyz - p;
+    const float r = sp.w, d2 = dot(v, v);
+    if (dot(v, n) <= -r) /* wholly behind the receiver plane */
+        return 0;
+    if (own && self_occlusion == 0)
+        return 0;
+    if (d2 <= r * r * (1.0f + PN_ISG_TOUCH) * (1.0f + PN_ISG_TOUCH))
+        return own && self_occlusion == 1 ? 0 : -1; /* inside an occluder */
+    const float d = sqrt(d2);
+    const float3 u = v / d;
+    const float sa = fmin(r / d, 1.0f), ca = sqrt(fmax(1.0f - sa * sa, 0.0f));
+    if (cos_cone > -ca && dot(u, pg->z) < cos_cone * ca - sin_cone * sa)
+        return 0;
+    const float3 ul = (float3)(dot(u, pg->x), dot(u, pg->y), dot(u, pg->z));
+    const float rho = sqrt(ul.x * ul.x + ul.z * ul.z);
+    /* The row and column nearest the sphere's direction (theta_u, phi_u), within one, by
+     * bisection of the centres' cosines (decreasing; rows and columns share them): cos
+     * theta_u = u_y; cos phi_u = u_x / rho where u_z >= 0, else phi_u is behind the window
+     * (in (pi, 2 pi)), nearer its phi = 0 end when u_x >= 0. */
+    const int ic = pn_isg_bisect(pg, ul.y);
+    const int jc = ul.z >= 0.0f ? pn_isg_bisect(pg, ul.x / fmax(rho, 1e-30f)) : ul.x >= 0.0f ? 0 : grid - 1;
+    /* phi_u + pi inside the window: cos(phi - phi_u) is not unimodal there, test every column. */
+    const bool whole = ul.z < 0.0f && fabs(ul.x) <= rho * pg->cos_lo + 1e-6f;
+    /* Rows: cos(theta_i - theta_u) is unimodal in i; those near ic always, then outwards
+     * until a row whose best direction is outside the cap. */
+#define PN_ISG_ROW_NEAR(i) (pg->sin_c[i] * rho + pg->cos_c[i] * ul.y >= ca - 1e-6f)
+    int i0 = max(ic - 1, 0), i1 = min(ic + 1, grid - 1);
+    while (i0 > 0 && PN_ISG_ROW_NEAR(i0 - 1))
+        --i0;
+    while (i1 < grid - 1 && PN_ISG_ROW_NEAR(i1 + 1))
+        ++i1;
+    const int a0 = max(jc - 1, 0), a1 = min(jc + 1, grid - 1);
+    uint marked = 0u;
+    for (int i = i0; i <= i1; ++i) {
+        const float si = pg->sin_c[i], ci = pg->cos_c[i];
+        if (!PN_ISG_ROW_NEAR(i))
+            continue;
+        /* Columns: those near jc, then outwards until one outside the cap; patches already
+         * marked are not tested again (the cap's columns are contiguous, so walking over
+         * them never skips one of its columns). */
+        const uint row = mask[i];
+#define PN_ISG_TODO(j) ((((row >> (j)) & 1u) == 0u) && \
+                        (si * (pg->cos_c[j] * ul.x + pg->sin_c[j] * ul.z) + ci * ul.y >= ca))
+        uint bits = 0u;
+        if (whole) {
+            for (int j = 0; j < grid; ++j)
+                bits |= (PN_ISG_TODO(j) ? 1u : 0u) << j;
+        } else {
+            for (int j = a0; j <= a1; ++j)
+                bits |= (PN_ISG_TODO(j) ? 1u : 0u) << j;
+            for (int j = a1 + 1; j < grid; ++j) {
+                if ((row >> j) & 1u)
+                    continue;
+                if (!PN_ISG_TODO(j))
+                    break;
+                bits |= 1u << j;
+            }
+            for (int j = a0 - 1; j >= 0; --j) {
+                if ((row >> j) & 1u)
+                    continue;
+                if (!PN_ISG_TODO(j))
+                    break;
+                bits |= 1u << j;
+            }
+        }
+#undef PN_ISG_TODO
+        mask[i] = row | bits;
+        marked |= bits;
+    }
+#undef PN_ISG_ROW_NEAR
+    return marked != 0u;
+}
+
+/* A tree node (bounding sphere b) that may hold a sphere marking a patch or
+ * containing the receiver: not wholly behind the receiver plane, and its cap
+ * not outside the window's cone unless the receiver is inside it. The host
+ * pads node radii (sphere_tree), so a node is culled only where every sphere
+ * in it is culled by pn_isg_mark_sphere's own tests beyond rounding. */
+inline bool pn_isg_node_open(float4 b, float3 p, float3 n, float3 z, float cos_cone, float sin_cone)
+{
+    const float3 v = b.xyz - p;
+    const float r = b.w, d2 = dot(v, v);
+    if (dot(v, n) <= -r)
+        return false;
+    const float rin = r * (1.0f + PN_ISG_TOUCH);
+    if (d2 <= rin * rin)
+        return true;
+    const float d = sqrt(d2), sa = fmin(r / d, 1.0f), ca = sqrt(fmax(1.0f - sa * sa, 0.0f));
+    return !(cos_cone > -ca && dot(v, z) < d * (cos_cone * ca - sin_cone * sa));
+}
+
+/* Marks in `mask` the patches whose centre direction meets a sphere seen from
+ * (p, n): every sphere (tree->levels = 0) or those in the tree's nodes that
+ * pn_isg_node_open keeps. Returns -1 when the receiver is inside an occluder,
+ * else the number of spheres that marked something (0: the lobe is
+ * unoccluded). */
+inline int pn_isg_mark(const pn_isg_grid *pg, float3 p, float3 n, uint self_id, int self_occlusion,
+                       global const float4 *spheres, global const uint *owners, int sphere_count,
+                       global const float4 *nodes, const pn_isg_tree *tree, uint *mask)
+{
     /* The window's cone: its corners lie within w * sqrt(2) of the axis. */
-    const float cone = fmin((0.5f * PN_PI - lo) * 1.41421356f, PN_PI), cos_cone = cos(cone), sin_cone = sin(cone);
-    for (int i = 0; i < PN_ISG_MASK_WORDS; ++i)
+    const float cone = fmin((0.5f * PN_PI - pg->lo) * 1.41421356f, PN_PI), cos_cone = cos(cone), sin_cone = sin(cone);
+    for (int i = 0; i < PN_ISG_MAX_GRID; ++i)
         mask[i] = 0u;
     int any = 0;
-    for (int s = 0; s < sphere_count; ++s) {
-        const float4 sp = spheres[s];
-        const float3 v = sp.xyz - p;
-        const float r = sp.w, d2 = dot(v, v);
-        if (dot(v, n) <= -r) /* wholly behind the receiver plane */
-            continue;
-        const bool own = owners[s] == self_id;
-        if (own && self_occlusion == 0)
-            continue;
-        if (d2 <= r * r * (1.0f + PN_ISG_TOUCH) * (1.0f + PN_ISG_TOUCH)) {
-            if (own && self_occlusion == 1)
+    if (sphere_count <= 0)
+        return 0;
+    if (tree->levels == 0) {
+        for (int s = 0; s < sphere_count; ++s) {
+            const int m = pn_isg_mark_sphere(pg, cos_cone, sin_cone, p, n, spheres[s], owners[s] == self_id,
+                                             self_occlusion, mask);
+            if (m < 0)
+                return -1;
+            any += m;
+        }
+        return any;
+    }
+    const int top = tree->levels;
+    int l = top, i = 0;
+    while (l < top || i < tree->count[top]) {
+        if (pn_isg_node_open(nodes[tree->offset[l] + i], p, n, pg->z, cos_cone, sin_cone)) {
+            if (l > 1) {
+                --l, i *= PN_ISG_TREE_FANOUT;
                 continue;
-            return -1; /* inside an occluder */
-        }
-        const float d = sqrt(d2);
-        const float3 u = v / d;
-        const float sa = fmin(r / d, 1.0f), ca = sqrt(fmax(1.0f - sa * sa, 0.0f));
-        /* Outside the window's cone: axis angle > cone + alpha (possible only when cone + alpha < pi). */
-        if (cos_cone > -ca && dot(u, pg->z) < cos_cone * ca - sin_cone * sa)
-            continue;
-        const float alpha = asin(sa);
-        const float2 tp = pn_isg_angles(u, pg->x, pg->y, pg->z);
-        /* Patch rows and columns the cap can reach (lat-long bounds of a cap). */
-        int i0 = (int)floor((tp.x - alpha - lo) / step), i1 = (int)floor((tp.x + alpha - lo) / step);
-        int j0, j1;
-        const float st = sin(tp.x);
-        if (tp.x - alpha <= 0.0f || tp.x + alpha >= PN_PI || sa >= st) {
-            j0 = 0, j1 = grid - 1;
-        } else {
-            const float dphi = asin(fmin(sa / st, 1.0f));
-            float ph = tp.y;
-            if (ph > 1.5f * PN_PI) /* behind the lobe, on the phi seam side */
-                ph -= PN_TWO_PI;
-            j0 = (int)floor((ph - dphi - lo) / step), j1 = (int)floor((ph + dphi - lo) / step);
-        }
-        i0 = max(i0, 0), j0 = max(j0, 0), i1 = min(i1, grid - 1), j1 = min(j1, grid - 1);
-        const float3 ul = (float3)(dot(u, pg->x), dot(u, pg->y), dot(u, pg->z));
-        int marked = 0;
-        for (int i = i0; i <= i1; ++i)
-            for (int j = j0; j <= j1; ++j) {
-                const float dotc = pg->sin_c[i] * (pg->cos_c[j] * ul.x + pg->sin_c[j] * ul.z) + pg->cos_c[i] * ul.y;
-                if (dotc >= ca) {
-                    const int b = i * grid + j;
-                    mask[b >> 5] |= 1u << (b & 31);
-                    marked = 1;
-                }
             }
-        any += marked;
+            const int s1 = min((i + 1) * PN_ISG_TREE_FANOUT, sphere_count);
+            for (int s = i * PN_ISG_TREE_FANOUT; s < s1; ++s) {
+                const int m = pn_isg_mark_sphere_rows(pg, cos_cone, sin_cone, p, n, spheres[s], owners[s] == self_id,
+                                                 self_occlusion, mask);
+                if (m < 0)
+                    return -1;
+                any += m;
+            }
+        }
+        /* The next node: the next sibling, or up while this sibling group is done. */
+        ++i;
+        while (l < top && (i % PN_ISG_TREE_FANOUT == 0 || i >= tree->count[l]))
+            i = (i - 1) / PN_ISG_TREE_FANOUT + 1, ++l;
     }
     return any;
 }
 
-inline bool pn_isg_masked(const uint *mask, int b)
+inline bool pn_isg_masked(const uint *mask, int i, int j)
 {
-    return (mask[b >> 5] & (1u << (b & 31))) != 0u;
+    return ((mask[i] >> j) & 1u) != 0u;
 }
 
 /* The window lies in the front half (phi <= pi), where the table's ISG is
@@ -166,22 +352,25 @@ inline void pn_isg_edges(const pn_isg_grid *pg, float lambda, global const float
 /* The visible share of lobe g (its amplitude unused) seen from p with normal n:
  * 1 - sum over occluded patches of ISG(patch) / ISG(window). */
 inline float pn_isg_visibility(pn_sg g, float3 p, float3 n, uint self_id, int self_occlusion,
-                               global const float4 *spheres, global const uint *owners, int sphere_count, int grid,
+                               global const float4 *spheres, global const uint *owners, int sphere_count,
+                               global const float4 *nodes, const pn_isg_tree *tree, int grid,
                                global const float *table)
 {
     pn_isg_grid pg;
     pn_isg_grid_init(g, grid, &pg);
-    uint mask[PN_ISG_MASK_WORDS];
-    const int any = pn_isg_mark(&pg, p, n, self_id, self_occlusion, spheres, owners, sphere_count, mask);
+    uint mask[PN_ISG_MAX_GRID];
+    const int any = pn_isg_mark(&pg, p, n, self_id, self_occlusion, spheres, owners, sphere_count, nodes, tree, mask);
     if (any <= 0)
         return any < 0 ? 0.0f : 1.0f;
     float a_edge[PN_ISG_MAX_GRID + 1], b_edge[PN_ISG_MAX_GRID + 1];
     pn_isg_edges(&pg, g.sharpness, table, a_edge, b_edge);
     float occluded = 0.0f;
     for (int i = 0; i < grid; ++i) {
+        if (mask[i] == 0u)
+            continue;
         float row = 0.0f;
         for (int j = 0; j < grid; ++j)
-            if (pn_isg_masked(mask, i * grid + j))
+            if (pn_isg_masked(mask, i, j))
                 row += b_edge[j + 1] - b_edge[j];
         occluded += (a_edge[i + 1] - a_edge[i]) * row;
     }
@@ -197,13 +386,14 @@ inline float pn_isg_visibility(pn_sg g, float3 p, float3 n, uint self_id, int se
  * seed's Gamma_L) evaluated on the lobe's own patches, occluded patches left
  * out (the seed's visibility ratio, patch by patch). */
 inline float3 pn_isg_env_specular(pn_sg b, float3 p, float3 n, uint self_id, int self_occlusion,
-                                  global const float4 *spheres, global const uint *owners, int sphere_count, int grid,
+                                  global const float4 *spheres, global const uint *owners, int sphere_count,
+                                  global const float4 *nodes, const pn_isg_tree *tree, int grid,
                                   global const float *table, global const float4 *cube, int n_cube)
 {
     pn_isg_grid pg;
     pn_isg_grid_init(b, grid, &pg);
-    uint mask[PN_ISG_MASK_WORDS];
-    if (pn_isg_mark(&pg, p, n, self_id, self_occlusion, spheres, owners, sphere_count, mask) < 0)
+    uint mask[PN_ISG_MAX_GRID];
+    if (pn_isg_mark(&pg, p, n, self_id, self_occlusion, spheres, owners, sphere_count, nodes, tree, mask) < 0)
         return (float3)(0.0f);
     float a_edge[PN_ISG_MAX_GRID + 1], b_edge[PN_ISG_MAX_GRID + 1];
     pn_isg_edges(&pg, b.sharpness, table, a_edge, b_edge);
@@ -211,7 +401,7 @@ inline float3 pn_isg_env_specular(pn_sg b, float3 p, float3 n, uint self_id, int
     for (int i = 0; i < grid; ++i) {
         float3 row = (float3)(0.0f);
         for (int j = 0; j < grid; ++j) {
-            if (pn_isg_masked(mask, i * grid + j))
+            if (pn_isg_masked(mask, i, j))
                 continue;
             const float3 d = pg.sin_c[i] * (pg.cos_c[j] * pg.x + pg.sin_c[j] * pg.z) + pg.cos_c[i] * pg.y;
             const float c = dot(n, d);
@@ -227,6 +417,7 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
                       global const float4 *material, global const uint *instance_id, int count,
                       global const float4 *cube, int n_cube, global const float4 *lobes,
                       int lobe_count, global const float4 *spheres, global const uint *owners, int sphere_count,
+                      global const float4 *nodes, int use_tree,
                       int grid, int self_occlusion, int specular_shadows, float env_sharpness, float4 camera,
                       global const float *table, global float4 *image)
 {
@@ -238,6 +429,8 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
         image[gid] = (float4)(0.0f);
         return;
     }
+    pn_isg_tree tree;
+    pn_isg_tree_init(sphere_count, use_tree, &tree);
     const float3 p = position[gid].xyz;
     const float3 n = normalize(normal[gid].xyz);
     const pn_material m = pn_material_from_gbuffer(albedo[gid], material[gid]);
@@ -255,19 +448,19 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
     float3 diffuse = (float3)(0.0f), specular = (float3)(0.0f);
     if (env_specular)
         specular = pn_isg_env_specular(brdf, p, n, id, specular_shadows ? self_occlusion : 0, spheres, owners,
-                                       specular_shadows ? sphere_count : 0, grid, table, cube, n_cube);
+                                       specular_shadows ? sphere_count : 0, nodes, &tree, grid, table, cube, n_cube);
     for (int k = 0; k < lobe_count; ++k) {
         const pn_sg g = pn_sg_load(lobes, k);
         const float3 e = pn_sg_irradiance(g, n);
         if (e.x > 0.0f || e.y > 0.0f || e.z > 0.0f)
             diffuse += e * pn_isg_visibility(pn_sg_product(g, cosine), p, n, id, self_occlusion, spheres, owners,
-                                             sphere_count, grid, table);
+                                             sphere_count, nodes, &tree, grid, table);
         if (m.ks > 0.0f && !env_specular) {
             const pn_sg gb = pn_sg_product(g, brdf);
             const float3 s = pn_sg_reflected(g, brdf, n);
             if (s.x > 0.0f || s.y > 0.0f || s.z > 0.0f)
                 specular += s * (specular_shadows ? pn_isg_visibility(gb, p, n, id, self_occlusion, spheres, owners,
-                                                                      sphere_count, grid, table)
+                                                                      sphere_count, nodes, &tree, grid, table)
                                                   : 1.0f);
         }
     }

@@ -21,6 +21,7 @@ from isg_shading64 import COS_AMPLITUDE, COS_SHARPNESS, sg_product, shade, visib
 from tolerances import ISG_SHADE_ATOL, ISG_SHADE_RTOL, ISG_VISIBILITY_GRID_ATOL, ISG_VISIBILITY_PATCH_ATOL
 
 from penumbra._native import call
+from penumbra.methods.isg import sphere_tree
 
 BACKGROUND = 0xFFFFFFFF
 SOURCE = '#include "isg.cl"\n'
@@ -54,8 +55,9 @@ FACES = np.array([[1.0, 0.9, 0.8], [0.2, 0.3, 0.4], [3.0, 2.8, 2.5], [0.1, 0.1, 
 
 
 def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=16, self_occlusion=1,
-               specular_shadows=1, camera=(0.0, 3.0, 6.0), env_sharpness=1e30):
-    """pixels: list of dicts p, n, albedo, ks, material (shininess, roughness, lobe), id."""
+               specular_shadows=1, camera=(0.0, 3.0, 6.0), env_sharpness=1e30, tree=1):
+    """pixels: list of dicts p, n, albedo, ks, material (shininess, roughness, lobe), id. tree: 1 the
+    spheres through the sphere tree (the method's default), 0 the flat loop over them."""
     ctx, queue = cl_pair
     n = len(pixels)
     f4 = lambda rows: np.ascontiguousarray(np.array(rows, np.float32).reshape(n, 4))  # noqa: E731
@@ -66,8 +68,9 @@ def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=
     ids = np.array([q["id"] for q in pixels], np.uint32)
     mf = cl.mem_flags
     ro = lambda a: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a)  # noqa: E731
-    sp = np.ascontiguousarray(np.array(spheres, np.float32).reshape(-1, 4)) if len(spheres) else np.zeros((1, 4), np.float32)
-    ow = np.array(owners, np.uint32) if len(owners) else np.zeros(1, np.uint32)
+    sp, ow, nodes = sphere_tree(spheres, owners)
+    sp = np.ascontiguousarray(sp) if len(spheres) else np.zeros((1, 4), np.float32)
+    ow = np.ascontiguousarray(ow) if len(owners) else np.zeros(1, np.uint32)
     lb = np.zeros((len(lobes), 8), np.float32)
     lb[:, :4], lb[:, 4:7] = np.asarray(lobes)[:, :4], np.asarray(lobes)[:, 4:7]
     cube = np.zeros((6, 4), np.float32)
@@ -76,7 +79,7 @@ def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=
     obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
     k = cl.Kernel(build_test_kernel(SOURCE), "shade_isg")
     k(queue, (n,), None, ro(pos), ro(nrm), ro(alb), ro(mat), ro(ids), np.int32(n), ro(cube), np.int32(1),
-      ro(lb), np.int32(len(lobes)), ro(sp), ro(ow), np.int32(len(spheres)), np.int32(grid),
+      ro(lb), np.int32(len(lobes)), ro(sp), ro(ow), np.int32(len(spheres)), ro(nodes), np.int32(tree), np.int32(grid),
       np.int32(self_occlusion), np.int32(specular_shadows), np.float32(env_sharpness),
       np.array([*camera, 0.0], np.float32), ro(table32()),
       obuf)
@@ -154,6 +157,84 @@ def test_blinn_phong_and_ggx_specular_match_twin(cl_pair, build_test_kernel, lob
     px = floor_pixels(ks=0.4, material=(param, param, float(lobe_kind)), xs=(-1.0, 0.2, 1.2))
     got = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES, OWNERS)
     check(got, twin(px, LOBES, SPHERES, OWNERS))
+
+
+def spread_spheres(count, seed=3):
+    """`count` spheres of radius 0.05-0.3 scattered over a 12 x 12 area up to 3 above
+    the floor (most of them outside most lobes' cones from any one pixel), owners 1-3."""
+    rng = np.random.default_rng(seed)
+    c = np.c_[rng.uniform(-6, 6, count), rng.uniform(0.1, 3.0, count), rng.uniform(-6, 6, count)]
+    return np.c_[c, rng.uniform(0.05, 0.3, count)].tolist(), (1 + np.arange(count) % 3).tolist()
+
+
+@pytest.mark.parametrize("count", [7, 9, 300])
+def test_sphere_tree_gives_the_flat_loops_image(cl_pair, build_test_kernel, count):
+    """The tree's culling (kernels/isg.cl pn_isg_node_open) drops no sphere that marks a
+    patch or holds the receiver: the same image as the flat loop, bit for bit, on spread
+    spheres (one tree level, two, three) with receivers among them: on the floor, on
+    spheres' surfaces with each self-occlusion policy, one inside a sphere, a sharp
+    specular lobe (the env path) and broad ones (the lobe products)."""
+    spheres, owners = spread_spheres(count)
+    rng = np.random.default_rng(5)
+    px = floor_pixels(ks=0.4, material=(1000.0, 0.3, 0.0), xs=np.linspace(-5.5, 5.5, 7), zs=(-5.0, -1.0, 0.3, 4.0))
+    px += floor_pixels(ks=0.3, material=(30.0, 0.3, 0.0), xs=np.linspace(-5.0, 5.0, 5), zs=(2.0,))
+    for s, o in list(zip(spheres, owners))[:12]:  # on a sphere's surface, facing out
+        d = unit(rng.normal(size=3))
+        px.append({"p": tuple(np.array(s[:3]) + s[3] * d), "n": tuple(d), "albedo": (0.6, 0.6, 0.6), "ks": 0.2,
+                   "material": (200.0, 0.3, 0.0), "id": o})
+    px.append({"p": tuple(spheres[0][:3]), "n": (0, 1, 0), "albedo": (1, 1, 1), "ks": 0.0, "material": (0, 0.3, 0),
+               "id": 0})  # inside another instance's sphere
+    cam = (0.5, 4.0, 8.0)
+    for policy in (0, 1, 2):
+        for env_sharpness in (100.0, 1e30):
+            args = dict(self_occlusion=policy, camera=cam, env_sharpness=env_sharpness)
+            flat = run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, owners, tree=0, **args)
+            tree = run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, owners, tree=1, **args)
+            np.testing.assert_array_equal(tree, flat)
+    free = run_kernel(cl_pair, build_test_kernel, px, LOBES, [], [])
+    assert (flat[:, :3] < 0.9 * free[:, :3]).any() and not flat[-1, :3].any()  # shadows, and the inside pixel
+
+
+@pytest.mark.parametrize("grid", [2, 5, 16, 24])
+def test_sphere_tree_gives_the_flat_loops_image_on_random_scenes(cl_pair, build_test_kernel, grid):
+    """Random receivers (any normal), spheres of any size from tiny to ones holding or
+    touching receivers, and lobes from broad to very sharp (lambda up to 1e4, the
+    windows' rows and columns then 0.2 mrad apart): the tree path's patch walk marks
+    what the flat loop's lat-long bounds do."""
+    rng = np.random.default_rng(100 + grid)
+    c = rng.uniform(-3, 3, (80, 3))
+    spheres = np.c_[c, np.exp(rng.uniform(np.log(0.01), np.log(0.8), 80))].tolist()
+    owners = rng.integers(1, 4, 80).tolist()
+    lobes = np.array([lobe(rng.normal(size=3), lam, [1.0, 0.8, 0.6]) for lam in (0.5, 3.0, 30.0, 300.0, 1e4)])
+    px = [{"p": tuple(rng.uniform(-2, 2, 3)), "n": tuple(unit(rng.normal(size=3))), "albedo": (0.6, 0.6, 0.6),
+           "ks": 0.3, "material": (float(rng.choice([20.0, 2000.0])), 0.3, 0.0), "id": int(rng.integers(0, 4))}
+          for _ in range(48)]
+    px.append({"p": tuple(spheres[0][:3]), "n": (0, 1, 0), "albedo": (1, 1, 1), "ks": 0.0, "material": (0, 0.3, 0),
+               "id": 0})  # inside another instance's sphere
+    for policy in (1, 2):
+        args = dict(grid=grid, self_occlusion=policy, env_sharpness=100.0)
+        flat = run_kernel(cl_pair, build_test_kernel, px, lobes, spheres, owners, tree=0, **args)
+        tree = run_kernel(cl_pair, build_test_kernel, px, lobes, spheres, owners, tree=1, **args)
+        np.testing.assert_array_equal(tree, flat)
+    free = run_kernel(cl_pair, build_test_kernel, px, lobes, [], [], grid=grid, env_sharpness=100.0)
+    lit = (flat[:, :3] > 0).any(axis=1)
+    assert lit.sum() > len(px) // 2 and (~lit).any()  # most receivers outside the spheres, some inside
+    assert (flat[lit, :3] < 0.9 * free[lit, :3]).any(axis=1).sum() > len(px) // 4  # and shadowed
+
+
+def test_sphere_tree_levels():
+    """The Python twin of the host's tree: levels of ceil(previous / 8) nodes up to at
+    most 8, each node's sphere holding its spheres (or child nodes)."""
+    spheres, owners = spread_spheres(300)
+    sp, ow, nodes = sphere_tree(spheres, owners)
+    assert len(nodes) == 38 + 5 and sorted(map(tuple, sp.tolist())) == sorted(
+        map(tuple, np.asarray(spheres, np.float32).tolist()))
+    for i, node in enumerate(nodes[:38]):
+        kids = sp[8 * i:8 * i + 8].astype(np.float64)
+        assert (np.linalg.norm(kids[:, :3] - node[:3], axis=1) + kids[:, 3] <= node[3]).all()
+    for i, node in enumerate(nodes[38:]):
+        kids = nodes[8 * i:min(8 * i + 8, 38)].astype(np.float64)
+        assert (np.linalg.norm(kids[:, :3] - node[:3], axis=1) + kids[:, 3] <= node[3]).all()
 
 
 def test_overlapping_spheres_occlude_a_patch_once(cl_pair, build_test_kernel):

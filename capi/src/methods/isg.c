@@ -12,7 +12,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-enum { P_BACKGROUND, P_LOBES, P_PATCH_GRID, P_SELF_OCCLUSION, P_SPECULAR_SHADOWS, P_ENV_SHARPNESS };
+enum { P_BACKGROUND, P_LOBES, P_PATCH_GRID, P_SELF_OCCLUSION, P_SPECULAR_SHADOWS, P_ENV_SHARPNESS, P_SPHERE_TREE };
 
 static const pn_param_desc params[] = {
     PN_PARAM_BACKGROUND,
@@ -28,6 +28,9 @@ static const pn_param_desc params[] = {
     {"env_sharpness", PN_PARAM_FLOAT, PN_PARAM_FRAME, 100, 0, 1e9, "",
      "BRDF lobes at least this sharp integrate the env cube on their own visible patches; broader ones use "
      "the SG lobe products."},
+    {"sphere_tree", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
+     "1: spheres culled per lobe through a tree of bounding spheres over them (rebuilt every frame in Morton "
+     "order), 0: every sphere tested for every lobe (the same image, slower; kept for comparison)."},
 };
 
 static const pn_param_desc bake_params[] = {
@@ -41,8 +44,10 @@ typedef struct state {
     uint64_t env_version;     /* env map that `lobes` was fitted to */
     float *spheres;           /* host: world centre + radius per sphere */
     uint32_t *owners;         /* host: instance id per sphere */
-    size_t capacity, device_capacity;
-    cl_mem device_spheres, device_owners;
+    float *nodes;             /* host: the sphere tree's bounding spheres, level 1 first */
+    uint32_t *scratch;        /* host: Morton keys and order, sorted spheres (sphere_tree) */
+    size_t capacity, device_capacity, node_capacity, device_node_capacity;
+    cl_mem device_spheres, device_owners, device_nodes;
 } state;
 
 static bool is_sphere_set(const pn_attachment *a)
@@ -129,6 +134,132 @@ static pn_status gather_spheres(pn_renderer r, pn_scene scene, uint32_t *count_o
     return PN_SUCCESS;
 }
 
+enum { TREE_FANOUT = 8 };
+
+/* Nodes of the sphere tree over n > 0 spheres: levels of ceil(previous / 8)
+ * up to a top level of at most 8 (kernels/isg.cl pn_isg_tree_init). */
+static size_t tree_node_count(size_t n)
+{
+    size_t total = 0;
+    do {
+        n = (n + TREE_FANOUT - 1) / TREE_FANOUT;
+        total += n;
+    } while (n > TREE_FANOUT);
+    return total;
+}
+
+/* Spreads the low 10 bits of v to every third bit. */
+static uint32_t spread3(uint32_t v)
+{
+    v &= 0x3ffu;
+    v = (v | (v << 16)) & 0x030000ffu;
+    v = (v | (v << 8)) & 0x0300f00fu;
+    v = (v | (v << 4)) & 0x030c30c3u;
+    v = (v | (v << 2)) & 0x09249249u;
+    return v;
+}
+
+/* Bounding sphere of `count` spheres (x, y, z, r) at `in` (stride 4): mean
+ * centre, padded radius (see sphere_tree). */
+static void bound(const float *in, size_t count, float pad, float *out)
+{
+    double c[3] = {0.0, 0.0, 0.0};
+    for (size_t i = 0; i < count; ++i)
+        for (int a = 0; a < 3; ++a)
+            c[a] += in[4 * i + a];
+    for (int a = 0; a < 3; ++a)
+        c[a] /= (double)count;
+    double r = 0.0;
+    for (size_t i = 0; i < count; ++i) {
+        const double dx = in[4 * i] - c[0], dy = in[4 * i + 1] - c[1], dz = in[4 * i + 2] - c[2];
+        r = fmax(r, sqrt(dx * dx + dy * dy + dz * dz) + in[4 * i + 3]);
+    }
+    for (int a = 0; a < 3; ++a)
+        out[a] = (float)c[a];
+    out[3] = (float)(r * (1.0 + 1e-4)) + pad;
+}
+
+/* The sphere tree of kernels/isg.cl, O(N) every frame: the spheres (and
+ * their owners) reordered along a 30-bit Morton curve of their centres by a
+ * three-pass radix sort, then bounding spheres of 8 consecutive spheres
+ * (level 1), of 8 consecutive level-1 nodes, ... up to at most 8 nodes. Radii
+ * are padded by 1e-4 of themselves plus 1e-5 of the spheres' extent, so the
+ * kernel culls a node only where each of its spheres is culled beyond
+ * rounding (the image is the flat loop's). Python twin:
+ * penumbra.methods.isg.sphere_tree. */
+static pn_status sphere_tree(pn_renderer r, uint32_t n, size_t *node_count)
+{
+    state *s = r->state;
+    pn_context ctx = r->obj.ctx;
+    *node_count = 0;
+    if (n == 0)
+        return PN_SUCCESS;
+    const size_t nodes = tree_node_count(n);
+    if (n > s->node_capacity) { /* the node count grows with n */
+        free(s->nodes), free(s->scratch);
+        s->node_capacity = 0;
+        s->nodes = pn_malloc(ctx, pn_mul_size(nodes, 4, sizeof(float)), "the sphere tree");
+        /* keys, order (twice each, for the radix passes), sorted spheres, sorted owners */
+        s->scratch = pn_malloc(ctx, pn_mul_size(n, 9, sizeof(uint32_t)), "the sphere tree's scratch");
+        if (!s->nodes || !s->scratch)
+            return PN_ERROR_OUT_OF_MEMORY;
+        s->node_capacity = n;
+    }
+    uint32_t *key = s->scratch, *key2 = key + n, *order = key2 + n, *order2 = order + n, *owners = order2 + n;
+    float *sorted = (float *)(owners + n);
+    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY}, rmax = 0.0f;
+    for (uint32_t i = 0; i < n; ++i) {
+        for (int a = 0; a < 3; ++a)
+            lo[a] = fminf(lo[a], s->spheres[4 * i + a]), hi[a] = fmaxf(hi[a], s->spheres[4 * i + a]);
+        rmax = fmaxf(rmax, s->spheres[4 * i + 3]);
+    }
+    for (uint32_t i = 0; i < n; ++i) {
+        uint32_t k = 0;
+        for (int a = 0; a < 3; ++a) {
+            const float ext = hi[a] - lo[a];
+            const float q = ext > 0.0f ? (s->spheres[4 * i + a] - lo[a]) / ext * 1024.0f : 0.0f;
+            k |= spread3((uint32_t)fminf(fmaxf(q, 0.0f), 1023.0f)) << (2 - a);
+        }
+        key[i] = k, order[i] = i;
+    }
+    for (int pass = 0; pass < 3; ++pass) { /* stable LSD radix sort, 10 bits a pass */
+        uint32_t histogram[1025] = {0};
+        const int shift = 10 * pass;
+        for (uint32_t i = 0; i < n; ++i)
+            ++histogram[((key[i] >> shift) & 1023u) + 1];
+        for (int b = 0; b < 1024; ++b)
+            histogram[b + 1] += histogram[b];
+        for (uint32_t i = 0; i < n; ++i) {
+            const uint32_t at = histogram[(key[i] >> shift) & 1023u]++;
+            key2[at] = key[i], order2[at] = order[i];
+        }
+        uint32_t *t = key;
+        key = key2, key2 = t, t = order, order = order2, order2 = t;
+    }
+    for (uint32_t i = 0; i < n; ++i) {
+        memcpy(sorted + 4 * (size_t)i, s->spheres + 4 * (size_t)order[i], 4 * sizeof(float));
+        owners[i] = s->owners[order[i]];
+    }
+    memcpy(s->spheres, sorted, (size_t)n * 4 * sizeof(float));
+    memcpy(s->owners, owners, (size_t)n * sizeof(uint32_t));
+    const float diag = sqrtf((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
+                             (hi[2] - lo[2]) * (hi[2] - lo[2]));
+    const float pad = 1e-5f * (diag + rmax);
+    const float *level = s->spheres;
+    float *out = s->nodes;
+    size_t count = n;
+    do {
+        const size_t parents = (count + TREE_FANOUT - 1) / TREE_FANOUT;
+        for (size_t i = 0; i < parents; ++i) {
+            const size_t first = i * TREE_FANOUT, m = count - first < TREE_FANOUT ? count - first : TREE_FANOUT;
+            bound(level + 4 * first, m, pad, out + 4 * i);
+        }
+        level = out, out += 4 * parents, count = parents;
+    } while (count > TREE_FANOUT);
+    *node_count = nodes;
+    return PN_SUCCESS;
+}
+
 static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image)
 {
     pn_context ctx = r->obj.ctx;
@@ -140,6 +271,20 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     pn_status st;
     if ((st = pn_context_kernel(ctx, "isg", "shade_isg", &k)) || (st = pn_isg_table_buffer(ctx, &table)) ||
         (st = gather_spheres(r, scene, &sphere_count)))
+        return st;
+    const cl_int use_tree = (cl_int)r->params[P_SPHERE_TREE];
+    size_t node_count = 0;
+    if (use_tree && (st = sphere_tree(r, sphere_count, &node_count)))
+        return st;
+    const size_t node_need = node_count ? node_count : 1;
+    if (node_need > s->device_node_capacity) {
+        pn_mem_release(&s->device_nodes);
+        s->device_node_capacity = 0;
+        if ((st = pn_alloc(ctx, node_need * 16, CL_MEM_READ_ONLY, NULL, &s->device_nodes, "the sphere tree")))
+            return st;
+        s->device_node_capacity = node_need;
+    }
+    if (node_count && (st = pn_upload_async(ctx, s->device_nodes, s->nodes, node_count * 16, "uploading the sphere tree")))
         return st;
     const size_t need = sphere_count ? sphere_count : 1;
     if (need > s->device_capacity) {
@@ -162,14 +307,14 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const cl_float4 camera = pn_scene_camera_position(scene);
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count,
                       sizeof(cl_mem), sizeof n, sizeof(cl_mem), sizeof lobes, sizeof(cl_mem),
-                      sizeof(cl_mem), sizeof spheres, sizeof grid, sizeof self, sizeof spec, sizeof env_sharpness, sizeof camera,
+                      sizeof(cl_mem), sizeof spheres, sizeof(cl_mem), sizeof use_tree, sizeof grid, sizeof self, sizeof spec, sizeof env_sharpness, sizeof camera,
                       sizeof(cl_mem), sizeof(cl_mem)};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->cube, &n, &s->lobes, &lobes,
-                          &s->device_spheres, &s->device_owners, &spheres, &grid, &self, &spec, &env_sharpness, &camera, &table,
-                          &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_isg", 20, sizes, vals)))
+                          &s->device_spheres, &s->device_owners, &spheres, &s->device_nodes, &use_tree, &grid, &self,
+                          &spec, &env_sharpness, &camera, &table, &image->buffer};
+    if ((st = pn_set_args(ctx, k, "shade_isg", 22, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_isg", (size_t)count, 64);
 }
@@ -180,8 +325,11 @@ static void destroy(pn_renderer r)
     pn_mem_release(&s->lobes);
     pn_mem_release(&s->device_spheres);
     pn_mem_release(&s->device_owners);
+    pn_mem_release(&s->device_nodes);
     free(s->spheres);
     free(s->owners);
+    free(s->nodes);
+    free(s->scratch);
 }
 
 const pn_method_desc pn_method_isg = {

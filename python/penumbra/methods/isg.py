@@ -77,6 +77,50 @@ class SphereSet(_Handle):
 # ---------------------------------------------------------------- the technique
 
 
+TREE_FANOUT = 8
+
+
+def _morton_keys(centres: np.ndarray) -> np.ndarray:
+    """30-bit Morton codes of points quantised to 1024 cells per side of their bounds."""
+    lo, hi = centres.min(axis=0), centres.max(axis=0)
+    q = np.clip(((centres - lo) / np.maximum(hi - lo, 1e-30) * 1024.0).astype(np.int64), 0, 1023)
+    keys = np.zeros(len(centres), np.int64)
+    for bit in range(10):
+        for axis in range(3):
+            keys |= ((q[:, axis] >> bit) & 1) << (3 * bit + (2 - axis))
+    return keys
+
+
+def _bound(centres: np.ndarray, radii: np.ndarray, pad: float) -> np.ndarray:
+    c = centres.mean(axis=0)
+    r = float(np.max(np.linalg.norm(centres - c, axis=1) + radii))
+    return np.array([*c, r * (1.0 + 1e-4) + pad])
+
+
+def sphere_tree(spheres, owners) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The isg kernel's sphere tree, as the method builds it every frame
+    (capi/src/methods/isg.c, docs/isg.md section 8): (spheres in Morton order
+    (N, 4) float32, their owners uint32, the nodes (float4 bounding spheres of
+    8 consecutive spheres, then of 8 consecutive nodes, up to a top level of at
+    most 8 nodes) float32). The kernel's result does not depend on the order
+    of the spheres, so tests may use this order with any kernel path."""
+    s = np.asarray(spheres, np.float64).reshape(-1, 4)
+    o = np.asarray(owners, np.uint32).reshape(-1)
+    if not len(s):
+        return np.zeros((0, 4), np.float32), o, np.zeros((1, 4), np.float32)
+    order = np.argsort(_morton_keys(s[:, :3]), kind="stable")
+    s, o = s[order], o[order]
+    pad = 1e-5 * (float(np.linalg.norm(s[:, :3].max(axis=0) - s[:, :3].min(axis=0))) + float(s[:, 3].max()))
+    levels, level = [], s
+    while True:
+        level = np.array([_bound(level[i:i + TREE_FANOUT, :3], level[i:i + TREE_FANOUT, 3], pad)
+                          for i in range(0, len(level), TREE_FANOUT)])
+        levels.append(level)
+        if len(level) <= TREE_FANOUT:
+            break
+    return s.astype(np.float32), o, np.vstack(levels).astype(np.float32)
+
+
 def _sphere_count_param():
     from . import spec
 
