@@ -15,6 +15,7 @@ import os
 from pathlib import Path
 
 from .errors import InputError, PenumbraError
+from .limits import INT32, INT64, UINT32, UINT64, checked_int
 
 SUCCESS = 0
 ERROR_NULL_HANDLE = -1001
@@ -271,12 +272,22 @@ def last_error(ctx_handle) -> tuple[int, str]:
     return status, (msg.value or b"").decode("utf-8", "replace")
 
 
+_INT_RANGES = {ctypes.c_uint32: UINT32, ctypes.c_int32: INT32, ctypes.c_int: INT32, ctypes.c_uint64: UINT64,
+               ctypes.c_int64: INT64, ctypes.c_size_t: UINT64}
+
+
 def call(name: str, ctx_handle, *args) -> None:
     """Calls ``name``; on failure raises with the message recorded for ``ctx_handle``.
 
     Errors are recorded on the context of the object passed; a NULL handle or
     a failed context creation records on the global slot, so both are read."""
-    status = getattr(lib, name)(*args)
+    fn = getattr(lib, name)
+    for k, (arg, kind) in enumerate(zip(args, fn.argtypes)):
+        if kind in _INT_RANGES and not isinstance(arg, ctypes._SimpleCData):
+            # ctypes wraps an int that does not fit (2**32 + 1 -> 1); refuse it instead.
+            lo, hi = _INT_RANGES[kind]
+            checked_int(arg, f"{name}: argument {k + 1}", lo, hi)
+    status = fn(*args)
     if status == SUCCESS:
         return
     _, message = last_error(ctx_handle)
