@@ -296,8 +296,10 @@ def read_npy(path: str | os.PathLike, check=None) -> np.ndarray:
             size = os.fstat(f.fileno()).st_size
     except OSError as exc:
         raise InputError(f"{path}: cannot read .npy file: {exc.strerror or exc}") from exc
-    except (ValueError, EOFError, SyntaxError, TypeError) as exc:  # what numpy raises for a bad header
-        raise InputError(f"{path}: cannot read .npy file: {exc}") from exc
+    except InputError:
+        raise
+    except Exception as exc:  # numpy's header parser raises ValueError, EOFError, SyntaxError, TokenError, ...
+        raise InputError(f"{path}: cannot read .npy file: bad header ({type(exc).__name__}: {exc})") from exc
     if dtype.hasobject or dtype.itemsize == 0:
         raise InputError(f"{path}: .npy files holding {dtype} (objects or empty records) are not supported")
     if check is not None:
