@@ -285,3 +285,20 @@ def test_ply_list_coordinates(tmp_path):
             "2 0 0 0 0\n1 1 0 0\n1 0 1 0\n3 0 1 2\n")
     with pytest.raises(InputError, match="x, y, z"):
         load_mesh(write(tmp_path / "m.ply", text))
+
+
+def test_npy_header_tokenizer_error(tmp_path):
+    """Fuzz finding: an unterminated header raised tokenize.TokenError from numpy's header parser."""
+    header = b"{'descr': '<f4', 'fortran_order': FLLLalse,          \n\0\0\0>\0 'shape': (3, 3), }" + b" " * 40 + b"\n"
+    data = b"\x93NUMPY\x01\x00" + struct.pack("<H", len(header)) + header + b"\0" * 64
+    with pytest.raises(InputError, match="header"):
+        read_envmap(write(tmp_path / "t.npy", data))
+
+
+@pytest.mark.xfail(strict=True, reason="fuzz finding in scenefile.read_toml (UnicodeDecodeError escapes); "
+                                       "scenefile.py is outside the loader work, reported for its owner")
+def test_scene_file_not_utf8(tmp_path):
+    from penumbra.scenefile import load_scene
+
+    with pytest.raises(InputError):
+        load_scene(write(tmp_path / "s.toml", b"[camera]\nresolution = [8, 8]\n# \x92\n"))
