@@ -302,3 +302,14 @@ def test_scene_file_not_utf8(tmp_path):
 
     with pytest.raises(InputError):
         load_scene(write(tmp_path / "s.toml", b"[camera]\nresolution = [8, 8]\n# \x92\n"))
+
+
+def test_file_size_over_max_bytes(tmp_path, monkeypatch):
+    """The mesh and Radiance readers hold the whole file: its size counts against PENUMBRA_MAX_BYTES."""
+    mesh = write(tmp_path / "m.obj", QUAD + "f 1 2 3\n" + "# padding\n" * 200)
+    picture = write(tmp_path / "p.hdr", old_rle_hdr(300, 100))
+    monkeypatch.setenv("PENUMBRA_MAX_BYTES", "1000")
+    for path in (mesh, picture):
+        assert path.stat().st_size > 1000
+        with pytest.raises(InputError, match="PENUMBRA_MAX_BYTES"):
+            (load_mesh if path.suffix == ".obj" else read_envmap)(path)

@@ -168,6 +168,7 @@ def _require_file(path: Path) -> None:
 def _read_bytes(path: Path) -> bytes:
     _require_file(path)
     try:
+        check_bytes(path.stat().st_size, "reading the file", str(path))
         return path.read_bytes()
     except OSError as exc:
         raise InputError(f"{path}: cannot read file: {exc.strerror or exc}") from exc

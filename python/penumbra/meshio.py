@@ -93,10 +93,11 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
     if not path.is_file():
         raise InputError(f"{path}: not a regular file")
     try:
-        with open(path, "rb"):
-            pass
+        with open(path, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
     except OSError as exc:
         raise InputError(f"{path}: cannot read file: {exc.strerror or exc}") from exc
+    check_bytes(size, "reading the mesh file", str(path))  # the parsers hold the whole file
     vertices, faces, normals = loader(path)
     vertices, faces, normals = _validated(vertices, faces, normals, str(path))
     return Mesh(vertices, faces, normals)
