@@ -288,9 +288,15 @@ def test_ply_list_coordinates(tmp_path):
 
 
 def test_npy_header_tokenizer_error(tmp_path):
-    """Fuzz finding: an unterminated header raised tokenize.TokenError from numpy's header parser."""
-    header = b"{'descr': '<f4', 'fortran_order': FLLLalse,          \n\0\0\0>\0 'shape': (3, 3), }" + b" " * 40 + b"\n"
-    data = b"\x93NUMPY\x01\x00" + struct.pack("<H", len(header)) + header + b"\0" * 64
+    """Fuzz finding (the input as found): a header that does not tokenize raised
+    tokenize.TokenError from numpy's header parser."""
+    import base64
+
+    data = base64.b64decode(
+        "k05VTVBZAQB2AHsnZGVzY3InOiAnPGY0JywgJ2ZvcnRyYW5fb3JkZXInOiBGTExMTExMTExMTExMTExMTExMTExMTGFsc2Us"
+        "ICAgICAgICAgIAoAAAAAAAAAPgAAgD4AAMA+AAAAPwAAID8AAEA/ACAnc2hhcGUnOiAoMywgMyksIH0gICAgICAgICAgICAg"
+        "ICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgCgAAAAAAAAA+AACAPgAAwD4AAAA/AAAgPwAA"
+        "QD8AAGA/AACAPw==")
     with pytest.raises(InputError, match="header"):
         read_envmap(write(tmp_path / "t.npy", data))
 
