@@ -301,6 +301,23 @@ def test_npy_header_tokenizer_error(tmp_path):
         read_envmap(write(tmp_path / "t.npy", data))
 
 
+def test_npy_subarray_dtype(tmp_path):
+    """Fuzz finding (the input as found): descr '4f2', a subarray type, made the height and albedo
+    readers raise ValueError (cannot reshape)."""
+    import base64
+
+    from penumbra.heightfield import load_albedo, load_heights
+
+    path = write(tmp_path / "t.npy", base64.b64decode(
+        "k05VTVBZAQB2AHsnZGVzY3InOiAnNGYyJywgJ2ZvcnRyYW5fb3JkZXInOiBGYWxzZSwgJ3NoYXBlJzogKDIsIDIsIDMpLCB9"
+        "ICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgICAg"
+        "ICAgICAgICAgICAgICAgICAgICAgICAgICAgICAgIAoAAAAAAAAAAAAAAAAAABhAAAAAAAAAKEAAAAAAAAAIQAAAAAAAACJA"
+        "AAAgICAgICAgIAoAPAA8ADwAPAA8ADwAPAA8AAA8"))
+    for load in (read_envmap, load_heights, load_albedo):
+        with pytest.raises(InputError, match="subarrays"):
+            load(path)
+
+
 @pytest.mark.xfail(strict=True, reason="fuzz finding in scenefile.read_toml (UnicodeDecodeError escapes); "
                                        "scenefile.py is outside the loader work, reported for its owner")
 def test_scene_file_not_utf8(tmp_path):

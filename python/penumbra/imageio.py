@@ -301,8 +301,9 @@ def read_npy(path: str | os.PathLike, check=None) -> np.ndarray:
         raise
     except Exception as exc:  # numpy's header parser raises ValueError, EOFError, SyntaxError, TokenError, ...
         raise InputError(f"{path}: cannot read .npy file: bad header ({type(exc).__name__}: {exc})") from exc
-    if dtype.hasobject or dtype.itemsize == 0:
-        raise InputError(f"{path}: .npy files holding {dtype} (objects or empty records) are not supported")
+    if dtype.hasobject or dtype.itemsize == 0 or dtype.subdtype is not None:
+        raise InputError(f"{path}: .npy files holding {dtype} (objects, empty records or subarrays) are not "
+                         "supported")
     if check is not None:
         check(shape, dtype)
     count = math.prod(shape)
