@@ -318,6 +318,18 @@ def test_npy_subarray_dtype(tmp_path):
             load(path)
 
 
+@pytest.mark.parametrize("shape", [(0, 444444444444444444444444444444444444444444443), (0, 2**63), (-1, 4, 3)])
+def test_npy_implausible_shape(tmp_path, shape):
+    """Fuzz finding: a zero-size shape with a huge dimension raised ValueError (reshape) here,
+    OverflowError from np.load before."""
+    from penumbra.heightfield import load_heights
+
+    path = write(tmp_path / "t.npy", npy_bytes(shape, data=b"\0" * 64))
+    for load in (read_envmap, load_heights):
+        with pytest.raises(InputError):
+            load(path)
+
+
 @pytest.mark.xfail(strict=True, reason="fuzz finding in scenefile.read_toml (UnicodeDecodeError escapes); "
                                        "scenefile.py is outside the loader work, reported for its owner")
 def test_scene_file_not_utf8(tmp_path):
@@ -336,3 +348,12 @@ def test_file_size_over_max_bytes(tmp_path, monkeypatch):
         assert path.stat().st_size > 1000
         with pytest.raises(InputError, match="PENUMBRA_MAX_BYTES"):
             (load_mesh if path.suffix == ".obj" else read_envmap)(path)
+
+
+@pytest.mark.xfail(strict=True, reason="fuzz finding in data.resolve (RuntimeError from Path.expanduser for "
+                                       "'~user' paths); outside the loader work, reported for its owner")
+def test_scene_path_tilde_user(tmp_path):
+    from penumbra.scenefile import load_scene
+
+    with pytest.raises(InputError):
+        load_scene(write(tmp_path / "s.toml", b'[environment]\nmap = "~{ky"\n'))

@@ -301,6 +301,8 @@ def read_npy(path: str | os.PathLike, check=None) -> np.ndarray:
         raise
     except Exception as exc:  # numpy's header parser raises ValueError, EOFError, SyntaxError, TokenError, ...
         raise InputError(f"{path}: cannot read .npy file: bad header ({type(exc).__name__}: {exc})") from exc
+    if len(shape) > 32 or not all(0 <= d < 1 << 63 for d in shape):  # numpy indexes with int64
+        raise InputError(f"{path}: implausible .npy shape {shape}"[:200])
     if dtype.hasobject or dtype.itemsize == 0 or dtype.subdtype is not None:
         raise InputError(f"{path}: .npy files holding {dtype} (objects, empty records or subarrays) are not "
                          "supported")

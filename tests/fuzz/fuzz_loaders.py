@@ -52,12 +52,13 @@ def _loaders(target: str) -> list:
             "scene": [scenefile.load_scene]}.get(target, [meshio.load_mesh])
 
 
-def _utf8(data: bytes) -> bool:
-    try:
-        data.decode("utf-8")
-        return True
-    except UnicodeDecodeError:
+def known_finding(target: str, exc: BaseException) -> bool:
+    """Findings in code outside the loader work, reported to its owners and held by xfail tests in
+    tests/test_hostile_loaders.py; the scene target goes on past them instead of stopping."""
+    if target != "scene":
         return False
+    return (isinstance(exc, UnicodeDecodeError)  # test_scene_file_not_utf8 (scenefile.read_toml)
+            or (isinstance(exc, RuntimeError) and "home directory" in str(exc)))  # test_scene_path_tilde_user
 
 
 def fuzz_main(target: str, argv: list[str]) -> None:
@@ -79,14 +80,15 @@ def fuzz_main(target: str, argv: list[str]) -> None:
     warnings.simplefilter("ignore")  # loaders warn about odd but readable headers; not findings
 
     def test_one_input(data: bytes) -> None:
-        if target == "scene" and not _utf8(data):
-            return  # known finding, not ours to fix here: see test_hostile_loaders.py::test_scene_file_not_utf8
         path.write_bytes(data)
         for load in loaders:
             try:
                 load(path)
             except PenumbraError:
                 pass
+            except Exception as exc:
+                if not known_finding(target, exc):
+                    raise
 
     atheris.Setup([sys.argv[0], *argv], test_one_input)
     atheris.Fuzz()
@@ -117,6 +119,12 @@ def run_target(target: str, seconds: float, out: Path) -> dict:
             "findings": findings, "output": text}
 
 
+def excerpt(output: str, size: int = 6000) -> str:
+    """The part of a run's output that shows a finding: from the uncaught exception on, else the end."""
+    start = output.rfind("=== Uncaught Python exception")
+    return output[start:start + size] if start >= 0 else output[-size:]
+
+
 def main() -> int:
     if len(sys.argv) > 2 and sys.argv[1] == "--target" and sys.argv[2] in TARGETS:
         fuzz_main(sys.argv[2], sys.argv[3:])
@@ -135,7 +143,7 @@ def main() -> int:
               f"{', '.join(r['findings']) or 'none'}", flush=True)
         if r["returncode"] != 0 or r["findings"]:
             failed += 1
-            sys.stderr.write(r["output"][-6000:] + "\n")
+            sys.stderr.write(excerpt(r["output"]) + "\n")
     return 1 if failed else 0
 
 
