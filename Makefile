@@ -3,7 +3,7 @@
 SHELL := /bin/bash
 VENV ?= .venv
 PY := $(VENV)/bin/python
-DEBS := pocl-opencl-icd ocl-icd-opencl-dev opencl-headers cmake ninja-build g++ pkg-config python3-venv libllvm19 libstb-dev
+DEBS := pocl-opencl-icd ocl-icd-opencl-dev opencl-headers cmake ninja-build g++ pkg-config python3-venv libllvm19 libstb-dev libopenexr-dev
 STAMP_DEPS := $(VENV)/.deps-installed
 STAMP_PKG := $(VENV)/.penumbra-installed
 # Fuzzing the Python loaders (make fuzz-python; tests/fuzz/): atheris, libFuzzer for Python.
@@ -68,11 +68,16 @@ docs: install
 
 # Speed against error on the standard scenes (bench/scenes; test data from $PENUMBRA_DATA, default ../shared/data):
 # reports in bench/results/<scene>/, and the table in README.md refreshed.
+# BENCH_WORKERS=N runs the scenes on a local Dask cluster of N workers, one scene per
+# worker (docs/farm.md): ratios stay within one run, but workers share the cores.
 BENCH_SCENES := $(wildcard bench/scenes/*.toml)
+BENCH_WORKERS ?=
 bench: install
-	@for s in $(BENCH_SCENES); do \
+	@if [ -n "$(BENCH_WORKERS)" ]; then \
+	  $(VENV)/bin/penumbra bench $(BENCH_SCENES) --out bench/results --readme README.md --workers $(BENCH_WORKERS); \
+	else for s in $(BENCH_SCENES); do \
 	  $(VENV)/bin/penumbra bench $$s --out bench/results/$$(basename $$s .toml) --readme README.md || exit 1; \
-	done
+	done; fi
 
 # fiv's per-frame cost against the number of occluders (1, 10, 30, 60 bunnies, 512x512),
 # next to the paper's Table 2: bench/results/fiv_scaling/.

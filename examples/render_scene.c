@@ -1,9 +1,12 @@
 /* render_scene: a standalone consumer of libpenumbra.
  *
- *   render_scene ENV.hdr OUT.pfm [WIDTH HEIGHT [METHOD]]
+ *   render_scene ENV.hdr|ENV.exr OUT.pfm [WIDTH HEIGHT [METHOD]]
  *
  * Reads a lat-long environment map from a Radiance .hdr file (through
- * stb_image, Debian's libstb-dev: `pkg-config stb`), builds a small scene in
+ * stb_image, Debian's libstb-dev: `pkg-config stb`) or, when OpenEXR's
+ * development files were found at configure time (`pkg-config OpenEXR`,
+ * Debian's libopenexr-dev), from an OpenEXR file through its C API
+ * (OpenEXRCore), builds a small scene in
  * C (a unit box standing on a ground quad), renders it with the "unshadowed"
  * method (or METHOD; the library's method metadata says what the method
  * reads: for one that reads occlusion fields, such as "fiv", the box's field
@@ -22,6 +25,9 @@
 
 #include <penumbra.h>
 #include <stb_image.h>
+#ifdef RENDER_SCENE_OPENEXR
+#include <openexr.h>
+#endif
 
 #include <errno.h>
 #include <fcntl.h>
@@ -33,10 +39,108 @@
 
 /* ------------------------------------------------------------ env map in */
 
-/* Returns width*height RGB triples, top row first (free with stbi_image_free),
- * or NULL with a message on stderr. Only HDR files are taken: stb_image would
- * also decode an 8-bit PNG or JPEG, but guessing its radiance (an inverse
- * gamma of 2.2, up to 1) would light the scene with made-up values. */
+#ifdef RENDER_SCENE_OPENEXR
+/* Returns width*height RGB triples of a scanline OpenEXR file's R, G and B
+ * channels (half, float or uint, converted to float by OpenEXRCore), top row
+ * first (free with free()), or NULL with a message on stderr. */
+static float *read_exr(const char *path, uint32_t *width, uint32_t *height)
+{
+    exr_context_t exr = NULL;
+    exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
+    exr_decode_pipeline_t decoder = EXR_DECODE_PIPELINE_INITIALIZER;
+    int decoder_ready = 0;
+    float *rgb = NULL;
+    const char *problem = NULL;
+    exr_result_t rv = exr_start_read(&exr, path, &init);
+    exr_storage_t storage;
+    exr_attr_box2i_t dw;
+    const exr_attr_chlist_t *channels = NULL;
+    int32_t lines_per_chunk = 0;
+    if (rv != EXR_ERR_SUCCESS)
+        goto fail;
+    if ((rv = exr_get_storage(exr, 0, &storage)) || (rv = exr_get_data_window(exr, 0, &dw)) ||
+        (rv = exr_get_channels(exr, 0, &channels)) || (rv = exr_get_scanlines_per_chunk(exr, 0, &lines_per_chunk)))
+        goto fail;
+    if (storage != EXR_STORAGE_SCANLINE) {
+        problem = "only scanline images are read (this one is tiled or deep)";
+        goto fail;
+    }
+    const int64_t w = (int64_t)dw.max.x - dw.min.x + 1, h = (int64_t)dw.max.y - dw.min.y + 1;
+    if (w < 1 || h < 1 || w > 65536 || h > 65536) {
+        problem = "its data window is empty or larger than 65536 pixels on a side";
+        goto fail;
+    }
+    int found = 0;
+    for (int32_t c = 0; c < channels->num_channels; ++c) {
+        const exr_attr_chlist_entry_t *e = &channels->entries[c];
+        if (e->name.length == 1 && e->name.str[0] && strchr("RGB", e->name.str[0])) {
+            if (e->x_sampling != 1 || e->y_sampling != 1) {
+                problem = "its R, G or B channel is subsampled";
+                goto fail;
+            }
+            found |= 1 << (strchr("RGB", e->name.str[0]) - "RGB");
+        }
+    }
+    if (found != 7) {
+        problem = "it has no R, G and B channels";
+        goto fail;
+    }
+    rgb = calloc((size_t)w * (size_t)h * 3, sizeof *rgb);
+    if (!rgb) {
+        problem = "out of memory";
+        goto fail;
+    }
+    for (int64_t y = dw.min.y; y <= dw.max.y; y += lines_per_chunk) {
+        exr_chunk_info_t chunk;
+        if ((rv = exr_read_scanline_chunk_info(exr, 0, (int)y, &chunk)))
+            goto fail;
+        rv = decoder_ready ? exr_decoding_update(exr, 0, &chunk, &decoder)
+                           : exr_decoding_initialize(exr, 0, &chunk, &decoder);
+        if (rv)
+            goto fail;
+        decoder_ready = 1;
+        for (int16_t c = 0; c < decoder.channel_count; ++c) {
+            exr_coding_channel_info_t *ch = &decoder.channels[c];
+            const char *name = ch->channel_name;
+            const char *slot = name && name[0] && !name[1] ? strchr("RGB", name[0]) : NULL;
+            if (!slot) {
+                ch->decode_to_ptr = NULL; /* other channels (A, Z, ...) are skipped */
+                continue;
+            }
+            const size_t row = (size_t)(chunk.start_y - dw.min.y);
+            ch->decode_to_ptr = (uint8_t *)(rgb + row * (size_t)w * 3 + (size_t)(slot - "RGB"));
+            ch->user_pixel_stride = 3 * (int32_t)sizeof(float);
+            ch->user_line_stride = (int32_t)(w * 3 * (int64_t)sizeof(float));
+            ch->user_bytes_per_element = sizeof(float);
+            ch->user_data_type = EXR_PIXEL_FLOAT;
+        }
+        if ((rv = exr_decoding_choose_default_routines(exr, 0, &decoder)) || (rv = exr_decoding_run(exr, 0, &decoder)))
+            goto fail;
+    }
+    if (decoder_ready)
+        exr_decoding_destroy(exr, &decoder);
+    exr_finish(&exr);
+    *width = (uint32_t)w;
+    *height = (uint32_t)h;
+    return rgb;
+fail:
+    fprintf(stderr, "render_scene: cannot read %s: %s\n", path,
+            problem ? problem : exr_get_default_error_message(rv));
+    if (decoder_ready)
+        exr_decoding_destroy(exr, &decoder);
+    if (exr)
+        exr_finish(&exr);
+    free(rgb);
+    return NULL;
+}
+#endif
+
+/* Returns width*height RGB triples, top row first (free with free()), or
+ * NULL with a message on stderr. Radiance .hdr files through stb_image, and
+ * OpenEXR files when the example was built with OpenEXR (RENDER_SCENE_OPENEXR,
+ * found by pkg-config). Other image files are refused: stb_image would also
+ * decode an 8-bit PNG or JPEG, but guessing its radiance (an inverse gamma of
+ * 2.2, up to 1) would light the scene with made-up values. */
 static float *read_envmap(const char *path, uint32_t *width, uint32_t *height)
 {
     FILE *f = fopen(path, "rb");
@@ -44,19 +148,42 @@ static float *read_envmap(const char *path, uint32_t *width, uint32_t *height)
         fprintf(stderr, "render_scene: cannot open %s: %s\n", path, strerror(errno));
         return NULL;
     }
+    unsigned char magic[4] = {0};
+    const size_t got = fread(magic, 1, 4, f);
+    rewind(f);
     const int hdr = stbi_is_hdr_from_file(f);
     fclose(f);
+    const int exr = got == 4 && magic[0] == 0x76 && magic[1] == 0x2f && magic[2] == 0x31 && magic[3] == 0x01;
+    if (exr) {
+#ifdef RENDER_SCENE_OPENEXR
+        return read_exr(path, width, height);
+#else
+        fprintf(stderr, "render_scene: %s is an OpenEXR file, and this build has no OpenEXR (install OpenEXR's "
+                "development files, e.g. Debian's libopenexr-dev, and configure again)\n", path);
+        return NULL;
+#endif
+    }
     if (!hdr) {
-        fprintf(stderr, "render_scene: %s is not a Radiance .hdr file (no \"#?RADIANCE\" or \"#?RGBE\" header)\n",
-                path);
+        fprintf(stderr, "render_scene: %s is not a Radiance .hdr file (no \"#?RADIANCE\" or \"#?RGBE\" header)"
+#ifdef RENDER_SCENE_OPENEXR
+                " nor an OpenEXR file"
+#endif
+                "\n", path);
         return NULL;
     }
     int w = 0, h = 0, channels = 0;
-    float *rgb = stbi_loadf(path, &w, &h, &channels, 3);
-    if (!rgb) {
+    float *stb = stbi_loadf(path, &w, &h, &channels, 3);
+    if (!stb) {
         fprintf(stderr, "render_scene: cannot read %s: %s\n", path, stbi_failure_reason());
         return NULL;
     }
+    /* A copy in memory of our own, so every reader's result is freed with free(). */
+    float *rgb = malloc((size_t)w * (size_t)h * 3 * sizeof *rgb);
+    if (rgb)
+        memcpy(rgb, stb, (size_t)w * (size_t)h * 3 * sizeof *rgb);
+    else
+        fprintf(stderr, "render_scene: out of memory reading %s\n", path);
+    stbi_image_free(stb);
     *width = (uint32_t)w;
     *height = (uint32_t)h;
     return rgb;
@@ -191,7 +318,7 @@ int main(int argc, char **argv)
     uint32_t width = 160, height = 120;
     const char *method = argc == 6 ? argv[5] : "unshadowed";
     if (argc != 3 && argc != 5 && argc != 6) {
-        fprintf(stderr, "usage: %s ENV.hdr OUT.pfm [WIDTH HEIGHT [METHOD]]\n", argv[0]);
+        fprintf(stderr, "usage: %s ENV.hdr|ENV.exr OUT.pfm [WIDTH HEIGHT [METHOD]]\n", argv[0]);
         return 2;
     }
     if (argc >= 5 && (!parse_size(argv[3], &width) || !parse_size(argv[4], &height))) {
@@ -296,7 +423,7 @@ cleanup:
             ok = 0;
     }
     free(pixels);
-    stbi_image_free(env_rgb);
+    free(env_rgb);
     if (ok)
         printf("wrote %s (%ux%u)\n", argv[2], width, height);
     return ok ? 0 : 1;

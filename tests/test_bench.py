@@ -214,3 +214,56 @@ def test_cli_bench_rejects_bad_lists(capsys):
     with pytest.raises(SystemExit):
         main(["bench", str(SCENE), "--out", "x", "--spp", "1,a"])
     assert "not a comma-separated list" in capsys.readouterr().err
+
+
+SHAPES = REPO / "examples" / "scenes" / "shapes_sky.toml"   # procedural: no test data needed
+TINY_CLI = ["--set", "camera.resolution=[24,18]", "--spp", "1,2", "--reference-face-size", "8",
+            "--reference-sun-supersampling", "1", "--methods", "unshadowed,reference", "--face-sizes", "4",
+            "--no-rays"]
+
+
+def test_bench_scenes_on_a_local_dask_cluster_match_a_serial_run(tmp_path, capsys):
+    """`penumbra bench A B --workers 2`: each scene a job on a 2-worker
+    LocalCluster, its report in <out>/<stem>/, the same errors as a serial
+    run in this process (only times differ), the README rows of both."""
+    pytest.importorskip("distributed")
+    pytest.importorskip("mitsuba")
+    a, b = tmp_path / "a.toml", tmp_path / "b.toml"
+    a.write_text(SHAPES.read_text())
+    b.write_text(SHAPES.read_text().replace("fov_deg = 45", "fov_deg = 30"))
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# x\n\n{README_BEGIN}\n{README_HEADER}\n{README_END}\n")
+    assert main(["bench", str(a), str(b), "--out", str(tmp_path / "farm"), "--workers", "2",
+                 "--readme", str(readme), *TINY_CLI]) == 0
+    assert main(["bench", str(a), str(b), "--out", str(tmp_path / "serial"), *TINY_CLI]) == 0
+    errors = {}
+    for run_name in ("farm", "serial"):
+        for stem in ("a", "b"):
+            rows = json.loads((tmp_path / run_name / stem / "results.json").read_text())["results"]
+            errors[run_name, stem] = [(r["method"], r["params"], r["nrmse"]) for r in rows if r["method"] != "mitsuba"]
+            assert (tmp_path / run_name / stem / "report.md").is_file()
+    for stem in ("a", "b"):
+        assert [(m, p) for m, p, _ in errors["farm", stem]] == [(m, p) for m, p, _ in errors["serial", stem]]
+        for (_, _, f), (_, _, s) in zip(errors["farm", stem], errors["serial", stem]):
+            assert f == pytest.approx(s, rel=1e-6, abs=1e-9)
+    assert errors["farm", "a"] != errors["farm", "b"]   # two scenes, not one twice
+    text = readme.read_text()
+    assert "| a | 24x18 |" in text and "| b | 24x18 |" in text
+
+
+@pytest.mark.parametrize("extra,message", [
+    (["--workers", "0"], "--workers 0 must be >= 1"),
+    (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "not both"),
+])
+def test_cli_bench_cluster_argument_errors(tmp_path, capsys, extra, message):
+    assert main(["bench", str(SHAPES), "--out", str(tmp_path / "o"), "--no-rays", *extra]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_cli_bench_two_scenes_of_one_name_refused(tmp_path, capsys):
+    (tmp_path / "x").mkdir()
+    (tmp_path / "x" / "shapes_sky.toml").write_text(SHAPES.read_text())
+    assert main(["bench", str(SHAPES), str(tmp_path / "x" / "shapes_sky.toml"), "--out", str(tmp_path / "o"),
+                 "--no-rays"]) == 2
+    assert "same name" in capsys.readouterr().err

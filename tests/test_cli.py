@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -18,6 +19,7 @@ from PIL import Image
 import penumbra
 from penumbra._native import library_path
 from penumbra.cli import main
+from penumbra.errors import InputError
 from penumbra.imageio import read_exr
 from penumbra.methods.fiv import read_header
 from penumbra.scenefile import load_scene
@@ -692,3 +694,154 @@ def test_bench_reports_a_missing_dependency_before_any_work(capsys, sky_scene, t
     assert calls == [] and not (tmp_path / "out").exists()   # no ground truth, no output folder
     if module == "embreex":   # the ray comparison can be skipped instead
         assert "--no-rays" in err
+
+
+# ------------------------------------------------------------- hostile input and faults (docs/reliability-outputs.md)
+
+
+def _no_temporaries(folder: Path) -> bool:
+    return not [p for p in folder.iterdir() if ".tmp" in p.name]
+
+
+@pytest.mark.parametrize("bad", [["--exposure", "nan"], ["--exposure", "1100"], ["--json", "DIR"], ["--png", "DIR"],
+                                 ["--json", "FILE/r.json"]], ids=["exposure-nan", "exposure-1100", "json-dir",
+                                                                  "png-dir", "json-under-file"])
+def test_a_failed_render_leaves_every_output_alone(capsys, sky_scene, tmp_path, bad):
+    keep_exr, keep_png = tmp_path / "keep.exr", tmp_path / "keep.png"
+    keep_exr.write_bytes(b"old exr")
+    keep_png.write_bytes(b"old png")
+    (tmp_path / "DIR").mkdir()
+    bad = [str(tmp_path / a) if a in ("DIR", "FILE/r.json") else a for a in bad]
+    (tmp_path / "FILE").write_text("a file")
+    extra = [] if "--png" in bad else ["--png", keep_png]
+    code, out, err = run_cli(capsys, "render", sky_scene, "-o", keep_exr, *extra, *bad)
+    assert code == 2 and err.startswith("penumbra: error: ") and "Traceback" not in err
+    assert keep_exr.read_bytes() == b"old exr" and keep_png.read_bytes() == b"old png"
+    assert _no_temporaries(tmp_path)
+
+
+@pytest.mark.parametrize("fault", [InputError("the PNG writer failed"), OSError(28, "No space left on device")],
+                         ids=["input-error", "disk-full"])
+def test_outputs_appear_together_or_not_at_all(capsys, sky_scene, tmp_path, monkeypatch, fault):
+    import penumbra.imageio
+
+    keep_exr = tmp_path / "keep.exr"
+    keep_exr.write_bytes(b"old exr")
+
+    def failing(path, *a, **k):
+        raise fault
+
+    monkeypatch.setattr(penumbra.imageio, "write_png", failing)   # the EXR is written first, then this fails
+    code, out, err = run_cli(capsys, "render", sky_scene, "-o", keep_exr, "--png", tmp_path / "k.png",
+                             "--json", tmp_path / "k.json")
+    assert code == 2 and err.startswith("penumbra: error: ") and str(fault.args[-1]) in err
+    assert keep_exr.read_bytes() == b"old exr"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.exr", "sky.toml"]
+
+
+@pytest.mark.parametrize("kind", ["fifo", "folder", "link to /dev/null", "under a file"])
+def test_render_refuses_outputs_that_are_not_regular_files(capsys, sky_scene, tmp_path, kind):
+    target = tmp_path / "out.exr"
+    if kind == "fifo":
+        os.mkfifo(target)
+    elif kind == "folder":
+        target.mkdir()
+    elif kind == "link to /dev/null":
+        target.symlink_to(os.devnull)
+    else:
+        target.write_text("a file")
+        target = target / "x.exr"
+    before = os.lstat(tmp_path / "out.exr")
+    code, out, err = run_cli(capsys, "render", sky_scene, "-o", target)
+    assert code == 2 and err.startswith("penumbra: error: -o ") and "Traceback" not in err
+    assert "replaces only regular files" in err or "is a file, not a folder" in err
+    after = os.lstat(tmp_path / "out.exr")
+    assert (after.st_mode, after.st_ino, after.st_mtime_ns) == (before.st_mode, before.st_ino, before.st_mtime_ns)
+    assert out == ""                                                   # refused before rendering
+
+
+def test_render_follows_an_output_link_and_refuses_one_file_twice(capsys, sky_scene, tmp_path):
+    link = tmp_path / "latest.exr"
+    link.symlink_to("render-1.exr")
+    code, out, err = run_cli(capsys, "render", sky_scene, "-o", link)
+    assert code == 0, err
+    assert link.is_symlink() and read_exr(tmp_path / "render-1.exr").shape == (30, 40, 3)
+    code, out, err = run_cli(capsys, "render", sky_scene, "-o", tmp_path / "render-1.exr", "--png", link)
+    assert code == 2 and "name the same file" in err
+
+
+DEEP = "a = " + "[" * 3000 + "]" * 3000 + "\n"
+
+
+@pytest.mark.parametrize("scene, args, words", [
+    (b"\xff\xfe[camera]\n", [], "is not UTF-8 text"),
+    (DEEP.encode(), [], "nests arrays or tables too deeply"),
+    (("[camera]\nfov_deg = " + "9" * 5000 + "\n").encode(), [], "cannot be read"),
+    (None, ["--set", 'environment.params={width="abc"}'],
+     "[environment] params of map 'sky': width must be an integer"),
+    (None, ["--set", "environment.params={sun_radiance=[1,2]}"], "sun_radiance must be one number or 3 numbers"),
+    (None, ["--set", "environment.params={width=inf}"], "width must be an integer, got inf"),
+    (None, ["--set", "object.ball.params={subdivisions=12}"], "subdivisions = 12 is above 8, the limit"),
+    (None, ["--set", "object.ground.params={size=[1,2,3]}"], "size must be 2 positive finite numbers"),
+    (None, ["--exposure", "1100", "--png", "OUT/x.png"], "--exposure 1100.0 must be a finite number of stops"),
+    (None, ["-o", "OUT"], "-o OUT"),
+    (None, ["-o", "OUT/scene.toml/x.exr"], "is a file, not a folder"),
+    (None, ["--method", "reference", "--set", "render.face_size=4294967328"],
+     "[render] face_size = 4294967328 is outside [0, 256]"),
+], ids=["non-utf8", "deep-nesting", "5000-digits", "width-abc", "rgb-of-2", "width-inf", "subdivisions-12",
+        "plane-size-3", "exposure-1100", "o-folder", "o-under-file", "face-size-2**32+32"])
+def test_hostile_input_is_an_error_line_and_exit_2(capsys, sky_scene, tmp_path, scene, args, words):
+    if scene is not None:
+        sky_scene = tmp_path / "hostile.toml"
+        sky_scene.write_bytes(scene)
+    else:
+        (tmp_path / "OUT").mkdir()
+        (tmp_path / "OUT" / "scene.toml").write_text("")
+    args = [a.replace("OUT", str(tmp_path / "OUT")) for a in args]
+    code, out, err = run_cli(capsys, "render", sky_scene, *args)
+    assert code == 2, err
+    assert err.startswith("penumbra: error: ") and "Traceback" not in err
+    assert words.replace("OUT", str(tmp_path / "OUT")) in err
+
+
+@pytest.mark.parametrize("fault, words", [(OSError(13, "Permission denied", "/x/y.exr"), "/x/y.exr: Permission denied"),
+                                          (MemoryError(), "out of memory"),
+                                          (RecursionError(), "nested too deeply"),
+                                          (UnicodeDecodeError("utf-8", b"\xff", 0, 1, "invalid start byte"),
+                                           "not valid UTF-8")])
+def test_faults_of_the_input_or_machine_are_error_lines(capsys, monkeypatch, fault, words):
+    import penumbra.cli
+
+    def failing(args):
+        raise fault
+
+    monkeypatch.setattr(penumbra.cli, "cmd_info", failing)
+    code, out, err = run_cli(capsys, "info")
+    assert code == 2 and err == f"penumbra: error: {err[len('penumbra: error: '):]}" and words in err
+
+
+def test_demo_refuses_an_out_that_is_a_file(capsys, tmp_path):
+    (tmp_path / "demo").write_text("a file")
+    code, out, err = run_cli(capsys, "demo", "--out", tmp_path / "demo")
+    assert code == 2 and "--out" in err and "is not a folder" in err
+    assert (tmp_path / "demo").read_text() == "a file"
+
+
+def test_bake_fiv_follows_a_dangling_link_and_refuses_a_fifo(capsys, shared_data, tmp_path):
+    link = tmp_path / "b.pnfiv"
+    link.symlink_to("baked.pnfiv")
+    code, out, err = run_cli(capsys, "bake-fiv", shared_data / BUNNY, "--env", "sky", *TINY_FIV, "-o", link)
+    assert code == 0, err
+    assert link.is_symlink() and read_header(tmp_path / "baked.pnfiv")["radii_done"] == 4
+    fifo = tmp_path / "f.pnfiv"
+    os.mkfifo(fifo)
+    code, out, err = run_cli(capsys, "bake-fiv", shared_data / BUNNY, "--env", "sky", *TINY_FIV, "-o", fifo)
+    assert code == 2 and "is a FIFO" in err and stat.S_ISFIFO(os.lstat(fifo).st_mode)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.pnfiv", "baked.pnfiv", "f.pnfiv"]
+
+
+def test_fiv_info_refuses_a_fifo(capsys, tmp_path):
+    fifo = tmp_path / "f.pnfiv"
+    os.mkfifo(fifo)                  # the library's read would block for ever
+    code, out, err = run_cli(capsys, "fiv-info", fifo)
+    assert code == 2 and "is not a regular file" in err

@@ -340,3 +340,66 @@ def test_terrain_heights():
     fine = P.terrain_heights(256, 128, seed=3)
     coarse_from_fine = fine.reshape(64, 2, 128, 2).mean(axis=(1, 3))
     assert np.abs(coarse_from_fine - heights).mean() < 0.05
+
+
+# --------------------------------------------------------------------------- #
+# Hostile arguments: types and resource limits (docs/reliability-outputs.md)
+# --------------------------------------------------------------------------- #
+
+
+@pytest.mark.parametrize("maker, kwargs, words", [
+    (P.sky, {"width": "abc"}, "width must be an integer, got 'abc'"),
+    (P.sky, {"width": math.inf}, "width must be an integer, got inf"),
+    (P.sky, {"height": 1.5}, "height must be an integer"),
+    (P.sky, {"width": True}, "width must be an integer"),
+    (P.sky, {"sun_radiance": [1, 2]}, r"sun_radiance must be one number or 3 numbers \(RGB\), got \[1, 2\]"),
+    (P.sky, {"sun_radiance": "bright"}, "sun_radiance must be one number or 3 numbers"),
+    (P.sky, {"sun_direction": "up"}, "sun_direction must be 3 finite numbers"),
+    (P.sky, {"sun_angular_radius_deg": "x"}, "sun_angular_radius_deg must be a finite number"),
+    (P.constant, {"value": {"r": 1}}, "value must be one number or 3 numbers"),
+    (P.directional, {"direction": [0, 1], "irradiance_rgb": 1}, "direction must be 3 finite numbers"),
+    (P.sphere, {"radius": "big"}, "radius must be a positive finite number, got 'big'"),
+    (P.sphere, {"subdivisions": 10**400}, r"subdivisions = 1000.*\(401 characters\) is above 8"),
+    (P.box, {"size": ["a", 1, 1]}, "size must be 3 positive finite numbers"),
+    (P.plane, {"size": 5}, "size must be 2 positive finite numbers"),
+    (P.plane, {"size": "ab"}, "size must be 2 positive finite numbers"),
+    (P.torus, {"segments": "many"}, "segments must be an integer"),
+    (P.terrain_heights, {"nx": 8, "ny": 8, "seed": "s"}, "seed must be an integer"),
+])
+def test_wrong_types_are_input_errors_naming_the_argument(maker, kwargs, words):
+    with pytest.raises(InputError, match=words):
+        maker(**kwargs)
+
+
+@pytest.mark.parametrize("maker, kwargs, limit", [
+    (P.sphere, {"subdivisions": 12}, "above 8, the limit"),
+    (P.sphere, {"subdivisions": 9}, "above 8, the limit"),
+    (P.plane, {"subdivisions": 100000}, "above 1448, the limit"),
+    (P.sky, {"width": 100000}, f"above {P.MAX_ENV_WIDTH}, the limit"),
+    (P.sky, {"width": 4096, "height": 4096}, "MAX_ENV_PIXELS"),
+    (P.constant, {"width": 1 << 40, "height": 1}, f"above {P.MAX_ENV_WIDTH}, the limit"),
+    (P.two_area_lights, {"width": 8192, "height": 4096}, "MAX_ENV_PIXELS"),
+    (P.torus, {"segments": 60000, "tube_segments": 60000}, "MAX_TRIANGLES"),
+    (P.torus_knot, {"segments": 1 << 15, "tube_segments": 1 << 10}, "MAX_TRIANGLES"),
+    (P.cylinder, {"segments": 1 << 30}, f"above {P.MAX_SEGMENTS}, the limit"),
+    (P.cone, {"segments": 1 << 30}, f"above {P.MAX_SEGMENTS}, the limit"),
+    (P.rounded_cube, {"segments": 2000}, "MAX_TRIANGLES"),
+    (P.terrain_heights, {"nx": 100000, "ny": 1}, f"above {P.MAX_TERRAIN_SIDE}, the limit"),
+    (P.terrain_heights, {"nx": 16384, "ny": 16384}, "MAX_TERRAIN_SAMPLES"),
+    (P.terrain_heights, {"nx": 8, "ny": 8, "octaves": 1000}, f"above {P.MAX_OCTAVES}, the limit"),
+])
+def test_sizes_beyond_the_limits_are_refused_at_once(maker, kwargs, limit):
+    import time
+
+    t0 = time.perf_counter()
+    with pytest.raises(InputError, match=limit):
+        maker(**kwargs)
+    assert time.perf_counter() - t0 < 1.0      # refused before any work
+
+
+def test_sizes_at_the_limits_are_accepted():
+    assert P.MAX_TRIANGLES >= 20 * 4**8
+    assert len(P.sky(P.MAX_ENV_WIDTH, P.MAX_ENV_PIXELS // P.MAX_ENV_WIDTH, sun_radiance=1.0)) == \
+        P.MAX_ENV_PIXELS // P.MAX_ENV_WIDTH
+    assert len(P.plane(subdivisions=1448).faces) <= P.MAX_TRIANGLES
+    assert P.terrain_heights(P.MAX_TERRAIN_SIDE, 4, octaves=P.MAX_OCTAVES).shape == (4, P.MAX_TERRAIN_SIDE)

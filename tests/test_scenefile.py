@@ -663,3 +663,52 @@ def test_bad_override_forms(item, words):
     with pytest.raises(InputError) as info:
         apply_overrides(BASE, [item])
     assert words in str(info.value)
+
+
+# ---------------------------------------------------------------- hostile files: errors, not tracebacks
+
+
+@pytest.mark.parametrize("content, words", [
+    (b"\xff\xfe[camera]\n", "is not UTF-8 text"),
+    (b"[camera]\nfov_deg = 4\xe9\n", "is not UTF-8 text"),
+    (("a = " + "[" * 3000 + "]" * 3000 + "\n").encode(), "nests arrays or tables too deeply"),
+    (("[camera]\nfov_deg = " + "9" * 5000 + "\n").encode(), "cannot be read"),
+], ids=["utf16-bom", "latin1", "deep-nesting", "5000-digits"])
+def test_unreadable_scene_files_are_input_errors(tmp_path, content, words):
+    path = tmp_path / "bad.toml"
+    path.write_bytes(content)
+    with pytest.raises(InputError, match=words) as err:
+        load_scene(path)
+    assert str(path) in str(err.value)
+
+
+def test_huge_integers_are_out_of_range_not_overflow(tmp_path):
+    path = write_scene(tmp_path / "big.toml", "[camera]\nfov_deg = " + "9" * 4000 + "\n")
+    with pytest.raises(InputError, match=r"\[camera\] fov_deg must be a finite number") as err:
+        load_scene(path)
+    assert len(str(err.value)) < 200           # the value is shortened in the message
+    path = write_scene(tmp_path / "face.toml", '[render]\nmethod = "reference"\nface_size = 4294967328\n')
+    with pytest.raises(InputError, match=r"\[render\] face_size = 4294967328 is outside \[0, 256\]"):
+        load_scene(path)
+
+
+def test_set_values_that_cannot_be_read_are_input_errors():
+    with pytest.raises(InputError, match="--set camera.fov_deg"):
+        apply_overrides({}, ["camera.fov_deg=" + "[" * 3000 + "]" * 3000])
+    with pytest.raises(InputError, match="--set camera.fov_deg"):
+        apply_overrides({}, ["camera.fov_deg=" + "9" * 5000])
+
+
+@pytest.mark.parametrize("kind", ["fifo", "folder", "device"])
+def test_a_scene_path_that_is_not_a_file_is_refused_without_reading(tmp_path, kind):
+    import os
+
+    path = tmp_path / "scene.toml"
+    if kind == "fifo":
+        os.mkfifo(path)          # reading it would block for ever
+    elif kind == "folder":
+        path.mkdir()
+    else:
+        path = Path("/dev/zero")  # reading it would never end
+    with pytest.raises(InputError, match=f"scene file {path} is (a folder|not a regular file)"):
+        read_toml(path)

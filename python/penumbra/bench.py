@@ -179,6 +179,21 @@ def run(scene_path: str | Path, out_dir: str | Path, opts: BenchOptions | None =
     return {"summary": summary, "results": results}
 
 
+def bench_job(job: dict) -> dict:
+    """One scene's benchmark as a job of ``penumbra bench SCENE... --workers N
+    / --scheduler ADDRESS`` (penumbra.farm): ``job`` = {"scene": file, "out":
+    folder, "options": BenchOptions, "overrides": ["KEY=VALUE", ...]}. The
+    whole scene runs on one worker, in its own context, so every ratio of its
+    report is still measured in one run; the report files are written there
+    (a shared file system). Returns the summary, the result rows without
+    their images (results.json's) and the worker."""
+    from .farm import worker_name
+
+    res = run(job["scene"], job["out"], job["options"], overrides=job.get("overrides", ()), log=lambda _m: None)
+    return {"scene": str(job["scene"]), "out": str(job["out"]), "summary": res["summary"],
+            "results": [_public(r) for r in res["results"]], "worker": worker_name()}
+
+
 def _run_mitsuba(desc, opts: BenchOptions, truth, mask, log) -> dict:
     from . import mitsuba as mi_bridge
 

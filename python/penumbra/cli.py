@@ -7,6 +7,8 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
+import os
 import sys
 from pathlib import Path
 
@@ -143,9 +145,30 @@ class _BandBar:
         self.bar.close()
 
 
+# --exposure is limited to this many stops either way (2**1100 overflows a float;
+# beyond 64 stops every lit pixel is black or white anyway).
+MAX_EXPOSURE = 64.0
+
+
+def check_outputs(named: dict[str, str | None]) -> None:
+    """Checks a command's output paths before any work ({option: path}; None:
+    not asked): each is one the output policy accepts (fileutil.output_target:
+    not a folder, device or FIFO, not under a file), and no two name one file."""
+    from .fileutil import output_target
+
+    seen: dict[str, str] = {}
+    for option, path in named.items():
+        if path is None:
+            continue
+        target = os.path.abspath(output_target(path, option, create_dirs=False))
+        if target in seen:
+            raise InputError(f"{option} {path} and {seen[target]} name the same file")
+        seen[target] = f"{option} {path}"
+
+
 def cmd_render(args) -> int:
     from .core import Context
-    from .fileutil import atomic_write_text
+    from .fileutil import all_or_nothing, atomic_write_text
     from .imageio import auto_exposure
     from .render import build_scene, render
     from .methods import spec, technique
@@ -153,6 +176,12 @@ def cmd_render(args) -> int:
 
     if args.frames is not None and args.frames < 1:
         raise InputError(f"--frames {args.frames} must be >= 1")
+    if args.exposure is not None and not (math.isfinite(args.exposure) and abs(args.exposure) <= MAX_EXPOSURE):
+        raise InputError(f"--exposure {args.exposure} must be a finite number of stops in "
+                         f"[-{MAX_EXPOSURE:g}, {MAX_EXPOSURE:g}]")
+    out = args.output if args.output or args.png else "out.exr"
+    # Every output is checked before any work, and written only when all of it succeeded (all_or_nothing).
+    check_outputs({"-o": out, "--png": args.png, "--json": args.json})
     if args.method:
         spec(args.method)   # unknown: InputError listing the methods
     # --method goes in as [render] method, so the file's [render] keys are checked against that method.
@@ -175,13 +204,13 @@ def cmd_render(args) -> int:
                         band_progress=bands, **params)
     for line in technique(method).summary_lines(built):
         print(line)
-    out = args.output if args.output or args.png else "out.exr"
     exposure = args.exposure if args.exposure is not None else auto_exposure(result.image)
-    written = _write_outputs(result, out, args.png, exposure)
     rep = report(result, str(args.scene), exposure if args.png else None)
-    if args.json:
-        atomic_write_text(args.json, json.dumps(rep, indent=2) + "\n")
-        written.append(args.json)
+    with all_or_nothing():
+        written = _write_outputs(result, out, args.png, exposure)
+        if args.json:
+            atomic_write_text(args.json, json.dumps(rep, indent=2) + "\n")
+            written.append(args.json)
     t = result.timings_ms
     if timed:
         frame = (f"frame median {t['frame_median']:.2f} ms of {frames} after warm-up "
@@ -197,12 +226,19 @@ def cmd_render(args) -> int:
 
 def cmd_demo(args) -> int:
     from .core import Context
+    from .fileutil import all_or_nothing
     from .imageio import auto_exposure, write_exr, write_png
     from .methods import interactive, technique
     from .render import GBUFFER_VIEWS, build_scene, render
     from .scenefile import default_scene_path, load_scene
 
     out = Path(args.out)
+    if args.frames < 1:
+        raise InputError(f"--frames {args.frames} must be >= 1")
+    if args.reference_face_size < 0:
+        raise InputError(f"--reference-face-size {args.reference_face_size} must be >= 0 (0: skip the reference)")
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out} is not a folder")
     desc = load_scene(default_scene_path(), args.set)
     ctx = Context(args.device)
     built = build_scene(desc, ctx)
@@ -215,7 +251,8 @@ def cmd_demo(args) -> int:
         runs.append(("reference", 1, {"face_size": args.reference_face_size}))
     # Warm-up frames only for methods that are timed frame after frame.
     warm = {m: technique(m).interactive for m, _, _ in runs}
-    with _BakeBars() as bakes, _progress(sum(f + warm[m] for m, f, _ in runs), "demo") as bar:
+    # The images appear together when every render succeeded (all_or_nothing), else none is replaced.
+    with all_or_nothing(), _BakeBars() as bakes, _progress(sum(f + warm[m] for m, f, _ in runs), "demo") as bar:
         for method, frames, params in runs:
             result = render(built, method, frames=frames, progress=bar, warmup=warm[method],
                             bake_progress=bakes, **params)
@@ -223,10 +260,10 @@ def cmd_demo(args) -> int:
             write_exr(out / f"{method}.exr", rgb)
             write_png(out / f"{method}.png", rgb, exposure=auto_exposure(result.image))
             rows.append((method, result.timings_ms))
-    for view in GBUFFER_VIEWS:
-        img = result.view(view)
-        write_exr(out / f"gbuffer_{view}.exr", img)
-        write_png(out / f"gbuffer_{view}.png", img)
+        for view in GBUFFER_VIEWS:
+            img = result.view(view)
+            write_exr(out / f"gbuffer_{view}.exr", img)
+            write_png(out / f"gbuffer_{view}.png", img)
     w, h = desc.camera.resolution
     print(f"penumbra demo: built-in scene, {w}x{h}, device {ctx.device_name}")
     print(f"{'method':<14}{'frame median ms':>17}{'frame min ms':>14}{'G-buffer ms':>13}{'shading ms':>12}")
@@ -307,6 +344,22 @@ def cmd_bench(args) -> int:
             return code
     if not args.scene:
         raise InputError("bench needs a scene file (or a technique's experiment option, e.g. --fiv-scaling)")
+    on_cluster = args.workers is not None or args.scheduler is not None
+    if on_cluster:
+        from .farm import require_dask
+
+        if args.workers is not None and args.scheduler is not None:
+            raise InputError("--workers N starts a local cluster, --scheduler ADDRESS uses a running one: not both")
+        if args.workers is not None and args.workers < 1:
+            raise InputError(f"--workers {args.workers} must be >= 1")
+        require_dask()
+    # One scene: --out is its folder; several: one folder per scene under --out, named by the file.
+    outs = [Path(args.out)] if len(args.scene) == 1 else [Path(args.out) / Path(s).stem for s in args.scene]
+    if len(set(outs)) < len(outs):
+        raise InputError("two scene files have the same name: their results would share one folder under --out")
+    for scene in args.scene:
+        if not Path(scene).is_file():
+            raise InputError(f"scene file not found: {scene}")
 
     opts = BenchOptions(frames=args.frames, reference_face_size=args.reference_face_size,
                         reference_sun_supersampling=args.reference_sun_supersampling,
@@ -317,13 +370,27 @@ def cmd_bench(args) -> int:
         opts.spp = args.spp
     if args.face_sizes:
         opts.sweeps["reference"] = [{"face_size": f} for f in args.face_sizes]
-    out = Path(args.out)
-    res = run(args.scene, out, opts, overrides=args.set, log=lambda msg: print(msg, file=sys.stderr))
-    print(f"penumbra bench: wrote {out}/results.json, results.csv, pareto.png, report.md")
+    if on_cluster:
+        from . import farm
+        from .bench import bench_job
+
+        jobs = [{"scene": str(Path(s).resolve()), "out": str(o.resolve()), "options": opts, "overrides": args.set}
+                for s, o in zip(args.scene, outs)]
+        with farm.client(args.scheduler, args.workers) as c:
+            done = farm.run(c, bench_job, jobs, log=lambda msg: print(msg, file=sys.stderr),
+                            describe=lambda r: f"{r['scene']} on {r['worker']}")
+    else:
+        done = []
+        for scene, out in zip(args.scene, outs):
+            res = run(scene, out, opts, overrides=args.set, log=lambda msg: print(msg, file=sys.stderr))
+            done.append({"summary": res["summary"], "results": res["results"], "out": str(out)})
+    for d in done:
+        print(f"penumbra bench: wrote {d['out']}/results.json, results.csv, pareto.png, report.md")
     if args.readme:
         from .bench import readme_row, update_readme
 
-        update_readme(args.readme, readme_row(res["summary"], res["results"]))
+        for d in done:
+            update_readme(args.readme, readme_row(d["summary"], d["results"]))
         print(f"penumbra bench: updated the benchmark table in {args.readme}")
     return 0
 
@@ -387,10 +454,15 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict]:
     m.add_argument("--force", action="store_true",
                    help="replace files in DIR even if no earlier export wrote them")
 
-    b = sub.add_parser("bench", help="speed against error of methods and Mitsuba 3 on one scene (docs/benchmarks.md)")
-    b.add_argument("scene", nargs="?", help="scene file (docs/scene-format.md)")
+    b = sub.add_parser("bench", help="speed against error of methods and Mitsuba 3 on scenes (docs/benchmarks.md)")
+    b.add_argument("scene", nargs="*", help="scene files (docs/scene-format.md)")
     b.add_argument("--out", required=True, metavar="DIR", help="output directory for results.json/csv, pareto.png, "
-                   "report.md and images")
+                   "report.md and images; with several scenes, one folder per scene in it, named by the file")
+    b.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="run the scenes on a local Dask cluster of N worker processes, one scene per job "
+                        "(docs/farm.md; needs dask[distributed])")
+    b.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run the scenes on the Dask cluster of this scheduler (a shared file system)")
     b.add_argument("--methods", default=None, help="comma-separated methods (default: those of "
                    f"{', '.join(t.name for t in techniques() if t.benchmarked)} "
                    "that apply to the scene)")
@@ -418,16 +490,35 @@ def main(argv: list[str] | None = None) -> int:
     try:
         parser, commands = build_parser()
     except PenumbraError as exc:
-        print(f"penumbra: error: {exc}", file=sys.stderr)
-        return 2
+        return _error(str(exc))
     args = parser.parse_args(argv)
     handlers = {"info": cmd_info, "methods": cmd_methods, "render": cmd_render, "demo": cmd_demo,
                 "export-mitsuba": cmd_export_mitsuba, "bench": cmd_bench, **commands}
     try:
         return handlers[args.command](args)
     except PenumbraError as exc:
-        print(f"penumbra: error: {exc}", file=sys.stderr)
-        return 2
+        return _error(str(exc))
+    # Failures that the input or the machine causes, not penumbra's code: an
+    # error line, not a traceback (docs/reliability-outputs.md). Their causes
+    # are checked at the source where we can; this is the net under them.
+    except OSError as exc:
+        where = f"{exc.filename}: " if exc.filename else ""
+        return _error(f"{where}{exc.strerror or exc}")
+    except MemoryError:
+        return _error("out of memory (an input too large for this machine?)")
+    except RecursionError:
+        return _error("input nested too deeply")
+    except UnicodeError as exc:
+        return _error(f"text that is not valid UTF-8: {exc}")
+    except KeyboardInterrupt:
+        print("penumbra: interrupted", file=sys.stderr)
+        return 130
+
+
+def _error(message: str) -> int:
+    """The command line's report of a failure it was given (exit status 2)."""
+    print(f"penumbra: error: {message}", file=sys.stderr)
+    return 2
 
 
 if __name__ == "__main__":

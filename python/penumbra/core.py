@@ -111,13 +111,19 @@ class Context(_Handle):
     _release = "pn_context_release"
 
     def __init__(self, config: str | None = None, *, queue=None):
-        super().__init__(None)
+        self._h = ctypes.c_void_p()
         cfg = config.encode() if config else None
         if queue is not None:
             call("pn_context_create_from_cl", None, queue.context.int_ptr, queue.int_ptr, cfg, ctypes.byref(self._h))
         else:
             call("pn_context_create", None, cfg, ctypes.byref(self._h))
-        self._ctx = self
+
+    @property
+    def _ctx(self) -> "Context":
+        """A context is its own context; computed, not stored: a stored
+        reference to itself would keep a released Context (and its device
+        memory) alive until the cycle collector runs."""
+        return self
 
     @property
     def device_name(self) -> str:

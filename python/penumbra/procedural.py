@@ -51,10 +51,53 @@ __all__ = [
 # --------------------------------------------------------------------------- #
 
 
+# Resource limits (docs/reliability-outputs.md): procedural content is made in
+# memory, in float64, so every size is bounded before anything is allocated.
+# A request beyond a limit is an InputError that names it.
+MAX_ENV_WIDTH = 8192            # lat-long map columns
+MAX_ENV_HEIGHT = 4096           # lat-long map rows
+MAX_ENV_PIXELS = 1 << 22        # width x height (about 0.5 GB of float64 temporaries for the sky)
+MAX_TRIANGLES = 1 << 22         # triangles of one shape (a sphere: subdivisions <= 8)
+MAX_SEGMENTS = 1 << 16          # one count of a shape (segments, tube_segments, p, q)
+MAX_TERRAIN_SIDE = 16384        # terrain_heights nx, ny
+MAX_TERRAIN_SAMPLES = 1 << 24   # nx x ny
+MAX_OCTAVES = 32
+
+
+def _integer(value, name: str, minimum: int, maximum: int) -> int:
+    """``value`` as an int in [minimum, maximum] (an integral float is accepted), else InputError naming ``name``."""
+    ok = False
+    if isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)):
+        ok = True
+    elif isinstance(value, (float, np.floating)) and math.isfinite(value) and float(value).is_integer():
+        ok = True
+    if not ok:
+        raise InputError(f"{name} must be an integer, got {_shown(value)}")
+    if not minimum <= value <= maximum:
+        raise InputError(f"{name} = {_shown(value)} is above {maximum}, the limit of penumbra.procedural "
+                         "(docs/reliability-outputs.md)" if value > maximum else
+                         f"{name} must be an integer >= {minimum}, got {_shown(value)}")
+    return int(value)
+
+
+def _shown(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else f"{text[:40]}... ({len(text)} characters)"
+
+
+def _check_triangles(count: int, what: str) -> None:
+    if count > MAX_TRIANGLES:
+        raise InputError(f"{what} gives {count} triangles, more than the limit of {MAX_TRIANGLES} "
+                         "(penumbra.procedural.MAX_TRIANGLES)")
+
+
 def _check_size(width: int, height: int) -> tuple[int, int]:
-    if int(width) != width or int(height) != height or width < 1 or height < 1:
-        raise InputError(f"environment map size must be positive integers, got {width}x{height}")
-    return int(width), int(height)
+    width = _integer(width, "width", 1, MAX_ENV_WIDTH)
+    height = _integer(height, "height", 1, MAX_ENV_HEIGHT)
+    if width * height > MAX_ENV_PIXELS:
+        raise InputError(f"an environment map of {width}x{height} has more than {MAX_ENV_PIXELS} pixels, the limit "
+                         "(penumbra.procedural.MAX_ENV_PIXELS)")
+    return width, height
 
 
 def _direction(phi: np.ndarray, theta: np.ndarray) -> np.ndarray:
@@ -100,8 +143,18 @@ def envmap_integral(envmap: np.ndarray) -> np.ndarray:
     return np.einsum("hwc,h->c", envmap.astype(np.float64), omega)
 
 
+def _floats(value, name: str, what: str) -> np.ndarray:
+    """``value`` as a float64 array, or InputError naming ``name`` (``what``: what it must be)."""
+    if isinstance(value, (str, bytes, dict)):
+        raise InputError(f"{name} must be {what}, got {_shown(value)}")
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"{name} must be {what}, got {_shown(value)}") from None
+
+
 def _unit(vector: Sequence[float], name: str) -> np.ndarray:
-    v = np.asarray(vector, dtype=np.float64)
+    v = _floats(vector, name, "3 finite numbers")
     if v.shape != (3,) or not np.isfinite(v).all():
         raise InputError(f"{name} must be 3 finite numbers, got {vector!r}")
     length = float(np.linalg.norm(v))
@@ -111,7 +164,10 @@ def _unit(vector: Sequence[float], name: str) -> np.ndarray:
 
 
 def _rgb(value: float | Sequence[float], name: str) -> np.ndarray:
-    rgb = np.broadcast_to(np.asarray(value, dtype=np.float64), (3,)).copy()
+    v = _floats(value, name, "one number or 3 numbers (RGB)")
+    if v.shape not in ((), (1,), (3,)):
+        raise InputError(f"{name} must be one number or 3 numbers (RGB), got {_shown(value)}")
+    rgb = np.broadcast_to(v, (3,)).copy()
     if not np.isfinite(rgb).all() or (rgb < 0).any():
         raise InputError(f"{name} must be finite and non-negative, got {value!r}")
     return rgb
@@ -148,7 +204,7 @@ def sky(width: int = 512, height: int = 256, sun_direction: Sequence[float] = (0
     """
     width, height = _check_size(width, height)
     sun = _unit(sun_direction, "sun_direction")
-    radius = math.radians(float(sun_angular_radius_deg))
+    radius = math.radians(_finite(sun_angular_radius_deg, "sun_angular_radius_deg"))
     if not (0.0 < radius < math.pi / 2):
         raise InputError(f"sun_angular_radius_deg must be in (0, 90), got {sun_angular_radius_deg!r}")
     sun_rgb = _rgb(sun_radiance, "sun_radiance")
@@ -313,17 +369,31 @@ def two_area_lights(width: int = 512, height: int = 256) -> np.ndarray:
 # --------------------------------------------------------------------------- #
 
 
-def _positive(value: float, name: str) -> float:
-    value = float(value)
-    if not (math.isfinite(value) and value > 0):
-        raise InputError(f"{name} must be a positive finite number, got {value!r}")
+def _finite(value: float, name: str) -> float:
+    """``value`` as a finite float, or InputError naming ``name``."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise InputError(f"{name} must be a finite number, got {_shown(value)}")
+    try:
+        value = float(value)
+    except OverflowError:
+        value = math.inf
+    if not math.isfinite(value):
+        raise InputError(f"{name} must be a finite number, got {_shown(value)}")
     return value
 
 
-def _count(value: int, name: str, minimum: int) -> int:
-    if int(value) != value or value < minimum:
-        raise InputError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
+def _positive(value: float, name: str) -> float:
+    try:
+        number = _finite(value, name)
+    except InputError:
+        number = None
+    if number is None or not number > 0:
+        raise InputError(f"{name} must be a positive finite number, got {_shown(value)}")
+    return number
+
+
+def _count(value: int, name: str, minimum: int, maximum: int = MAX_SEGMENTS) -> int:
+    return _integer(value, name, minimum, maximum)
 
 
 def _normalized(v: np.ndarray) -> np.ndarray:
@@ -346,7 +416,8 @@ def sphere(radius: float = 1.0, subdivisions: int = 4) -> Mesh:
     The default (4) has 2562 vertices and a volume 0.2% below the sphere's.
     """
     radius = _positive(radius, "radius")
-    subdivisions = _count(subdivisions, "subdivisions", 0)
+    # 20 * 4**s triangles: s = 8 is the largest within MAX_TRIANGLES.
+    subdivisions = _count(subdivisions, "subdivisions", 0, int(math.log(MAX_TRIANGLES / 20, 4)))
     g = (1.0 + math.sqrt(5.0)) / 2.0
     vertices = _normalized(np.array([
         [-1, g, 0], [1, g, 0], [-1, -g, 0], [1, -g, 0],
@@ -381,7 +452,7 @@ def _cube_face_frames():
 
 def box(size: Sequence[float] = (1.0, 1.0, 1.0)) -> Mesh:
     """An axis-aligned box with the given edge lengths: 24 vertices (4 per side) with flat normals."""
-    half = np.asarray(size, dtype=np.float64) / 2.0
+    half = _floats(size, "size", "3 positive finite numbers") / 2.0
     if half.shape != (3,) or not (np.isfinite(half).all() and (half > 0).all()):
         raise InputError(f"size must be 3 positive finite numbers, got {size!r}")
     vertices, normals, faces = [], [], []
@@ -397,10 +468,11 @@ def box(size: Sequence[float] = (1.0, 1.0, 1.0)) -> Mesh:
 def plane(size: Sequence[float] = (10.0, 10.0), subdivisions: int = 1) -> Mesh:
     """A rectangle in y = 0 facing +y, ``size`` = (extent in x, extent in z), split into
     ``subdivisions`` x ``subdivisions`` cells of two triangles each."""
-    sx, sz = (float(s) for s in size)
-    if not (math.isfinite(sx) and math.isfinite(sz) and sx > 0 and sz > 0):
-        raise InputError(f"size must be 2 positive finite numbers, got {size!r}")
-    n = _count(subdivisions, "subdivisions", 1)
+    extent = _floats(size, "size", "2 positive finite numbers")
+    if extent.shape != (2,) or not (np.isfinite(extent).all() and (extent > 0).all()):
+        raise InputError(f"size must be 2 positive finite numbers, got {_shown(size)}")
+    sx, sz = (float(x) for x in extent)
+    n = _count(subdivisions, "subdivisions", 1, math.isqrt(MAX_TRIANGLES // 2))
     xs = np.linspace(-sx / 2, sx / 2, n + 1)
     zs = np.linspace(-sz / 2, sz / 2, n + 1)
     x, z = np.meshgrid(xs, zs, indexing="ij")  # vertex (i, j) = (xs[i], zs[j]) at index i * (n + 1) + j
@@ -448,6 +520,7 @@ def torus(R: float = 1.0, r: float = 0.3, segments: int = 64, tube_segments: int
         raise InputError(f"the tube radius r ({r}) must be smaller than R ({R})")
     segments = _count(segments, "segments", 3)
     tube_segments = _count(tube_segments, "tube_segments", 3)
+    _check_triangles(2 * segments * tube_segments, f"a torus of {segments} x {tube_segments} segments")
     phi = 2.0 * np.pi * np.arange(segments) / segments
     radial = np.stack([np.cos(phi), np.zeros_like(phi), np.sin(phi)], axis=1)
     tangent = np.stack([-np.sin(phi), np.zeros_like(phi), np.cos(phi)], axis=1)
@@ -475,6 +548,7 @@ def torus_knot(p: int = 2, q: int = 3, radius: float = 1.0, tube_radius: float =
     tube_radius = _positive(tube_radius, "tube_radius")
     segments = _count(segments, "segments", 8)
     tube_segments = _count(tube_segments, "tube_segments", 3)
+    _check_triangles(2 * segments * tube_segments, f"a torus knot of {segments} x {tube_segments} segments")
     t = 2.0 * np.pi * np.arange(segments) / segments
     ring = 2.0 + np.cos(q * t)
     scale = radius / 3.0
@@ -583,6 +657,7 @@ def rounded_cube(size: float = 1.0, radius: float = 0.15, segments: int = 8) -> 
     if radius > half:
         raise InputError(f"radius ({radius}) must be at most half the size ({half})")
     segments = _count(segments, "segments", 2)
+    _check_triangles(12 * (2 * (segments // 2) + 1) ** 2, f"a rounded cube of {segments} segments")
     inner = half - radius
     band_steps = max(1, segments // 2)
     # On a face, a grid coordinate inner + radius*tan(alpha) maps to the angle alpha in [0, 45 deg]
@@ -662,9 +737,13 @@ def terrain_heights(nx: int, ny: int, seed: int = 0, octaves: int = 6, frequency
     unit and amplitude ``persistence**k``. The sum is divided by the total
     amplitude, so heights lie in [-1, 1]. Deterministic for a given ``seed``.
     """
-    nx = _count(nx, "nx", 1)
-    ny = _count(ny, "ny", 1)
-    octaves = _count(octaves, "octaves", 1)
+    nx = _count(nx, "nx", 1, MAX_TERRAIN_SIDE)
+    ny = _count(ny, "ny", 1, MAX_TERRAIN_SIDE)
+    if nx * ny > MAX_TERRAIN_SAMPLES:
+        raise InputError(f"a terrain of {nx}x{ny} has more than {MAX_TERRAIN_SAMPLES} samples, the limit "
+                         "(penumbra.procedural.MAX_TERRAIN_SAMPLES)")
+    octaves = _count(octaves, "octaves", 1, MAX_OCTAVES)
+    seed = _integer(seed, "seed", -(1 << 63), (1 << 63) - 1)
     for name, value in (("frequency", frequency), ("persistence", persistence), ("lacunarity", lacunarity)):
         _positive(value, name)
     x = ((np.arange(nx) + 0.5) / nx)[None, :]

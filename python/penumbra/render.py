@@ -43,6 +43,8 @@ def environment_latlong(env: EnvironmentDesc) -> np.ndarray:
             return makers[env.map](**env.params)
         except TypeError as exc:
             raise InputError(f"[environment] params do not fit map '{env.map}': {exc}") from None
+        except InputError as exc:
+            raise InputError(f"[environment] params of map '{env.map}': {exc}") from None
     return read_envmap(env.map)
 
 
@@ -56,6 +58,8 @@ def object_geometry(obj: ObjectDesc):
             m = getattr(procedural, obj.primitive)(**obj.params)
         except TypeError as exc:
             raise InputError(f"[object '{obj.name}'] params do not fit primitive '{obj.primitive}': {exc}") from None
+        except InputError as exc:
+            raise InputError(f"[object '{obj.name}'] params of primitive '{obj.primitive}': {exc}") from None
     if m.normals is None and obj.crease_angle_deg > 0:
         m = smooth_normals(m, obj.crease_angle_deg)
     return m.vertices, m.faces, m.normals

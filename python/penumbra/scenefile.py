@@ -128,10 +128,24 @@ def _where(table: str, key: str) -> str:
     return f"[{table}] {key}"
 
 
+def _finite(v: int | float) -> bool:
+    """Whether a number is finite as a float (an integer too large for a float is not)."""
+    try:
+        return math.isfinite(v)
+    except OverflowError:
+        return False
+
+
+def _shown(v: Any) -> str:
+    """``repr(v)``, shortened for messages (a 4000-digit integer)."""
+    text = repr(v)
+    return text if len(text) <= 60 else f"{text[:40]}... ({len(text)} characters)"
+
+
 def _number(table: str, key: str, v: Any, lo: float | None = None, hi: float | None = None,
             lo_open: bool = False) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise InputError(f"{_where(table, key)} must be a finite number, got {v!r}")
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v):
+        raise InputError(f"{_where(table, key)} must be a finite number, got {_shown(v)}")
     if lo is not None and (v < lo or (lo_open and v == lo)):
         raise InputError(f"{_where(table, key)} = {v} must be {'>' if lo_open else '>='} {lo}")
     if hi is not None and v > hi:
@@ -141,7 +155,7 @@ def _number(table: str, key: str, v: Any, lo: float | None = None, hi: float | N
 
 def _integer(table: str, key: str, v: Any, lo: int, hi: int) -> int:
     if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-        raise InputError(f"{_where(table, key)} must be an integer in [{lo}, {hi}], got {v!r}")
+        raise InputError(f"{_where(table, key)} must be an integer in [{lo}, {hi}], got {_shown(v)}")
     return v
 
 
@@ -334,6 +348,8 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict:
             value = tomllib.loads(f"v = {raw}")["v"]
         except tomllib.TOMLDecodeError:
             value = raw
+        except (RecursionError, ValueError):
+            raise InputError(f"--set {key}: the value nests too deeply or cannot be read") from None
         parts = key.strip().split(".")
         if parts[0] in arrays:
             kind = arrays[parts[0]]
@@ -362,16 +378,37 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict:
     return data
 
 
-def read_toml(path: str | Path) -> dict:
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise InputError(f"cannot read scene file {p}: {exc.strerror or exc}") from None
+# A scene file larger than this is refused before it is parsed (scenes are a few KiB).
+MAX_SCENE_BYTES = 16 << 20
+
+
+def _parse_toml(text: str, what: str) -> dict:
+    """tomllib.loads, with every way it fails on bad input as an InputError naming ``what``."""
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"scene file {p} is not valid TOML: {exc}") from None
+        raise InputError(f"{what} is not valid TOML: {exc}") from None
+    except RecursionError:
+        raise InputError(f"{what} nests arrays or tables too deeply") from None
+    except ValueError as exc:   # e.g. an integer of more than 4300 digits
+        raise InputError(f"{what} holds a value that cannot be read: {exc}") from None
+
+
+def read_toml(path: str | Path) -> dict:
+    p = Path(path)
+    try:
+        if p.exists() and not p.is_file():   # a FIFO would block the read, a device never end
+            raise InputError(f"scene file {p} is {'a folder' if p.is_dir() else 'not a regular file'}")
+        if p.is_file() and p.stat().st_size > MAX_SCENE_BYTES:
+            raise InputError(f"scene file {p} is larger than {MAX_SCENE_BYTES >> 20} MiB")
+        data = p.read_bytes()
+    except OSError as exc:
+        raise InputError(f"cannot read scene file {p}: {exc.strerror or exc}") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"scene file {p} is not UTF-8 text (byte {exc.start}: {exc.reason})") from None
+    return _parse_toml(text, f"scene file {p}")
 
 
 def load_scene(path: str | Path, overrides: list[str] | None = None) -> SceneDescription:

@@ -172,14 +172,15 @@ def read_header(path: str | os.PathLike) -> dict:
     return _info_dict(i)
 
 
-def _finished_header(path) -> dict | None:
+def _holds_finished_bake(path) -> bool:
+    """Whether ``path`` is a finished bake file (of any inputs)."""
     if path is None or not Path(path).is_file():
-        return None
+        return False
     try:
         head = read_header(path)
     except PenumbraError:
-        return None
-    return head if head["radii_done"] >= head["samples"][2] else None
+        return False
+    return head["radii_done"] >= head["samples"][2]
 
 
 class FivReuseWarning(UserWarning):
@@ -211,26 +212,45 @@ class FivField:
         :class:`FivReuseWarning` says so (not with ``quiet``, for caches). A
         file of other inputs is an :class:`~penumbra.errors.InputError` naming
         what differs, and is left alone. ``reuse=False`` replaces whatever is
-        at ``path`` with a new bake."""
+        at ``path`` with a new bake.
+
+        ``path`` follows the output policy (fileutil.output_target): a
+        symbolic link is followed (the file it names is written), a target
+        that is not a regular file is an InputError. Temporary files of
+        earlier checkpoints of that file whose writer died are removed first
+        (the library writes them; fileutil.remove_stale_temporaries)."""
+        from ..fileutil import output_target, remove_stale_temporaries
+
         opts = (options or FivOptions()).native()
         out = ctypes.c_void_p()
+        if path is not None:
+            path = output_target(path, "FIV bake file", create_dirs=False)   # a missing folder: the library says so
+            remove_stale_temporaries(path)
         if path is not None and not reuse:
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(path)
-        before = _finished_header(path)
+        finished_before = _holds_finished_bake(path)
+        spheres = [0]   # spheres baked by this call: the library reports after each one it bakes
 
         def trampoline(_user, done, total):
+            spheres[0] += 1
+            if progress is None:
+                return 0
             try:
                 return 1 if progress(int(done), int(total)) else 0
             except BaseException:  # nothing (not even Ctrl-C) may cross the C boundary: stop the bake instead
                 return 1
 
-        cb = _native.PROGRESS(trampoline) if progress else _native.PROGRESS()
+        cb = _native.PROGRESS(trampoline)
         call("pn_fiv_bake", env._ctx._h, env._h, mesh._h, ctypes.byref(opts),
              None if path is None else os.fsencode(path), cb, None, ctypes.byref(out))
         f = cls(env._ctx, out)
-        f.baked_now = before is None or before != _finished_header(path)
-        f.reused = not f.baked_now
+        # Reused: a finished file was there and the library baked no sphere in this call (it
+        # loads a finished file of the same inputs; one of other inputs is an error). Comparing
+        # the file's header before and after could not tell a fresh bake from a loaded one when
+        # the two headers were equal.
+        f.reused = finished_before and spheres[0] == 0
+        f.baked_now = not f.reused
         if f.reused and not quiet:
             warnings.warn(f"{path} holds a finished bake of this mesh, env map and options: loaded it instead of "
                           "baking (reuse=False bakes anew)", FivReuseWarning, stacklevel=2)
@@ -680,6 +700,7 @@ TECHNIQUE = Fiv(NAME)
 
 def cmd_bake_fiv(args) -> int:
     from .. import cli
+    from ..fileutil import output_target
     from ..data import resolve as resolve_path
     from ..meshio import load_mesh
     from ..render import environment_latlong
@@ -702,6 +723,7 @@ def cmd_bake_fiv(args) -> int:
                              "--scheduler, give --cache DIR")
         return _bake_many(args, given, envs)
     args.mesh, args.env = args.mesh[0], args.env[0]
+    output_target(args.output, "-o", create_dirs=False)   # before any work: not a folder, device or FIFO
     mesh_file = args.mesh
     env_desc = EnvironmentDesc(map=envs[0], rotation_deg=args.env_rotation, intensity=args.env_intensity)
     ctx = Context(args.device)
@@ -709,7 +731,7 @@ def cmd_bake_fiv(args) -> int:
                  intensity=env_desc.intensity)
     m = load_mesh(mesh_file)
     mesh = Mesh(ctx, m.vertices, m.faces, m.normals)
-    out = Path(args.output)
+    out = Path(args.output)   # checked above; FivField.bake follows a symbolic link
     try:
         head = read_header(out) if out.exists() else None
     except PenumbraError:
@@ -798,6 +820,8 @@ def _bake_many(args, given: dict, envs: list[str]) -> int:
 
 
 def cmd_fiv_info(args) -> int:
+    if Path(args.file).exists() and not Path(args.file).is_file():   # a FIFO would block the library's read
+        raise InputError(f"{args.file} is not a regular file")
     info = read_header(args.file)
     theta, phi, radii = info["samples"]
     if info["radii_done"] < radii:
