@@ -330,9 +330,8 @@ def test_npy_implausible_shape(tmp_path, shape):
             load(path)
 
 
-@pytest.mark.xfail(strict=True, reason="fuzz finding in scenefile.read_toml (UnicodeDecodeError escapes); "
-                                       "scenefile.py is outside the loader work, reported for its owner")
 def test_scene_file_not_utf8(tmp_path):
+    """Fuzz finding: scenefile.read_toml raised UnicodeDecodeError (fixed on main by the scene file work)."""
     from penumbra.scenefile import load_scene
 
     with pytest.raises(InputError):
