@@ -356,3 +356,12 @@ def test_scene_path_tilde_user(tmp_path):
 
     with pytest.raises(InputError):
         load_scene(write(tmp_path / "s.toml", b'[environment]\nmap = "~{ky"\n'))
+
+
+def test_sg_fit_option_not_wrapped(ctx):
+    """face_size=2**32 + 16 in a ctypes int32 field was 16."""
+    from penumbra.core import EnvMap
+
+    env = EnvMap(ctx, np.ones((8, 16, 3), np.float32))
+    with pytest.raises(InputError, match="face_size"):
+        env.fit_sgs(1, face_size=2**32 + 16)
