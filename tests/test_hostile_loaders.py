@@ -365,3 +365,15 @@ def test_sg_fit_option_not_wrapped(ctx):
     env = EnvMap(ctx, np.ones((8, 16, 3), np.float32))
     with pytest.raises(InputError, match="face_size"):
         env.fit_sgs(1, face_size=2**32 + 16)
+
+
+def test_native_structures_refuse_wrapping():
+    """Every ctypes structure of the bindings checks its integer fields (FivOptions.theta = 2**32 + 4 was 4)."""
+    from penumbra import _native
+
+    with pytest.raises(InputError, match="FivOptions.theta"):
+        _native.FivOptions(theta=2**32 + 4)
+    options = _native.FivOptions(theta=8)
+    with pytest.raises(InputError, match="FivOptions.phi"):
+        options.phi = -1
+    assert _native.FivOptions(theta=8.0).theta == 8

@@ -275,10 +275,7 @@ class EnvMap(_Handle):
         for name, value in options.items():
             if name not in names:
                 raise InputError(f"the SG fit has no option '{name}' ({', '.join(names)})")
-            kind = dict(opts._fields_)[name]
-            if kind in _native._INT_RANGES:  # a ctypes field wraps what does not fit
-                value = checked_int(value, f"SG fit option {name}", *_native._INT_RANGES[kind])
-            setattr(opts, name, value)
+            setattr(opts, name, value)  # integer fields are checked (_native._Checked)
         if int(count) != count or count < 0:
             raise InputError(f"the lobe count must be a whole number >= 1, got {count!r}")
         out = np.zeros(max(int(count), 1), SG_LOBE)
