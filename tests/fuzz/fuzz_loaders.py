@@ -73,8 +73,9 @@ def fuzz_main(target: str, argv: list[str]) -> None:
     from penumbra.errors import PenumbraError
 
     loaders = _loaders(target)
-    folder = Path(tempfile.mkdtemp(prefix=f"penumbra-fuzz-{target}-", dir="/dev/shm" if os.path.isdir("/dev/shm")
-                                   else None))
+    # The file each input is written to: in the runner's output folder, else a new temporary folder.
+    scratch = os.environ.get("PENUMBRA_FUZZ_SCRATCH")
+    folder = Path(scratch) if scratch else Path(tempfile.mkdtemp(prefix=f"penumbra-fuzz-{target}-"))
     path = folder / f"input.{'toml' if target == 'scene' else target}"
     warnings.simplefilter("ignore")  # loaders warn about odd but readable headers; not findings
 
@@ -107,7 +108,8 @@ def run_target(target: str, seconds: float, out: Path) -> dict:
                f"-rss_limit_mb={RSS_LIMIT_MB}", "-timeout=20", "-max_len=8192", "-print_final_stats=1",
                f"-artifact_prefix={artifacts}/", str(scratch), str(CORPUS / target)]
     start = time.monotonic()
-    proc = subprocess.run(command, capture_output=True, text=True, timeout=seconds + 120)
+    env = dict(os.environ, PENUMBRA_FUZZ_SCRATCH=str(out / target))
+    proc = subprocess.run(command, capture_output=True, text=True, timeout=seconds + 120, env=env)
     text = proc.stdout + proc.stderr
     stats = _STATS.search(text)
     execs = _EXECS.search(text)
