@@ -6,13 +6,16 @@ PY := $(VENV)/bin/python
 DEBS := pocl-opencl-icd ocl-icd-opencl-dev opencl-headers cmake ninja-build g++ pkg-config python3-venv libllvm19 libstb-dev libopenexr-dev clang-15
 STAMP_DEPS := $(VENV)/.deps-installed
 STAMP_PKG := $(VENV)/.penumbra-installed
+# Fuzzing the Python loaders (make fuzz-python; tests/fuzz/): atheris, libFuzzer for Python.
+FUZZ_PIP := "atheris>=2.3"
+FUZZ_SECONDS ?= 10
 # The documentation site (make docs): Sphinx with Markdown pages through myst-parser.
 DOCS_PIP := "sphinx>=7" "myst-parser>=2"
 # Mitsuba 3's LLVM variant (cross-validation, benchmarks) loads Debian's libLLVM 19.
 export DRJIT_LIBLLVM_PATH ?= /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
 SOURCES := $(shell find capi kernels python cmake -type f) CMakeLists.txt pyproject.toml
 
-.PHONY: all deps venv install demo test test-c test-python fuzz-c docs bench bench-fiv-scaling clean
+.PHONY: all deps venv install demo test test-c test-python fuzz fuzz-c fuzz-python docs bench bench-fiv-scaling clean
 
 all: install
 
@@ -30,7 +33,7 @@ $(STAMP_DEPS): pyproject.toml | deps
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q "scikit-build-core>=0.10" "numpy>=1.24" "pyopencl>=2023.1" "OpenEXR>=3.2" \
 	  "libigl>=2.5" "pillow>=10" "tqdm>=4.60" "pytest>=7" "mitsuba>=3.5" "embreex>=2.17" "matplotlib>=3.7" \
-	  $(DOCS_PIP) "dask[distributed]>=2024.1"
+	  $(DOCS_PIP) "dask[distributed]>=2024.1" $(FUZZ_PIP)
 	touch $@
 
 venv: $(STAMP_DEPS)
@@ -58,7 +61,6 @@ test-python: install
 # ASan + UBSan, each run for FUZZ_SECONDS from its committed seed corpus
 # (tests/fuzz/corpus/<target>); new inputs go to build/fuzz/corpus/<target>,
 # crashes to build/fuzz/crash-<target>-*. Prints executions and coverage.
-FUZZ_SECONDS ?= 10
 FUZZ_TARGETS := fuzz_fiv_header fuzz_fiv_load fuzz_config fuzz_params
 FUZZ_CC ?= clang-15
 fuzz-c: deps
@@ -104,6 +106,16 @@ bench: install
 # next to the paper's Table 2: bench/results/fiv_scaling/.
 bench-fiv-scaling: install
 	$(VENV)/bin/penumbra bench --fiv-scaling --out bench/results/fiv_scaling
+
+# Each Python loader's fuzz target (EXR, HDR, NPY, PNG, OBJ, PLY, OFF, STL, scene TOML) for
+# FUZZ_SECONDS seconds from its seed corpus (tests/fuzz/corpus/); new inputs and findings go to
+# build/fuzz-python/<target>/. A venv made before atheris joined the pip line gets it here.
+fuzz-python: install
+	@$(PY) -c "import atheris" 2>/dev/null || $(PY) -m pip install -q $(FUZZ_PIP)
+	$(PY) tests/fuzz/fuzz_loaders.py --seconds $(FUZZ_SECONDS) --out build/fuzz-python
+
+# Every fuzz target, C and Python, for FUZZ_SECONDS each (e.g. make fuzz FUZZ_SECONDS=600).
+fuzz: fuzz-c fuzz-python
 
 clean:
 	rm -rf build out

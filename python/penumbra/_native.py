@@ -15,6 +15,7 @@ import os
 from pathlib import Path
 
 from .errors import InputError, PenumbraError
+from .limits import INT32, INT64, UINT32, UINT64, checked_int
 
 SUCCESS = 0
 ERROR_NULL_HANDLE = -1001
@@ -47,35 +48,60 @@ PARAM_STAGES = ("frame", "plan", "bake")
 INPUTS = {"envmap": 1, "geometry": 2, "lights": 4, "camera": 8, "fiv": 16, "heightfield": 32, "spheres": 64}
 
 
-class Material(ctypes.Structure):
+_INT_RANGES = {ctypes.c_uint32: UINT32, ctypes.c_int32: INT32, ctypes.c_int: INT32, ctypes.c_uint64: UINT64,
+               ctypes.c_int64: INT64, ctypes.c_size_t: UINT64}
+
+
+class _Checked(ctypes.Structure):
+    """A ctypes structure whose integer fields refuse values that do not fit their C type
+    (ctypes itself wraps them: 2**32 + 16 in a uint32 field is 16)."""
+
+    def __init__(self, *args, **kwargs):
+        names = [f[0] for f in self._fields_]
+        args = [self._checked(name, value) for name, value in zip(names, args)]
+        kwargs = {name: self._checked(name, value) for name, value in kwargs.items()}
+        super().__init__(*args, **kwargs)
+
+    def __setattr__(self, name, value):
+        super().__setattr__(name, self._checked(name, value))
+
+    @classmethod
+    def _checked(cls, name, value):
+        kind = dict(cls._fields_).get(name)
+        if kind in _INT_RANGES and not isinstance(value, ctypes._SimpleCData):
+            return checked_int(value, f"{cls.__name__}.{name}", *_INT_RANGES[kind])
+        return value
+
+
+class Material(_Checked):
     _fields_ = [("albedo", ctypes.c_float * 3), ("specular", ctypes.c_float), ("shininess", ctypes.c_float),
                 ("roughness", ctypes.c_float), ("lobe", ctypes.c_uint32)]
 
 
-class Camera(ctypes.Structure):
+class Camera(_Checked):
     _fields_ = [("position", ctypes.c_float * 3), ("look_at", ctypes.c_float * 3), ("up", ctypes.c_float * 3),
                 ("fov_deg", ctypes.c_float), ("width", ctypes.c_uint32), ("height", ctypes.c_uint32)]
 
 
-class MeshInfo(ctypes.Structure):
+class MeshInfo(_Checked):
     _fields_ = [("vertex_count", ctypes.c_uint32), ("triangle_count", ctypes.c_uint32),
                 ("bvh_node_count", ctypes.c_uint32), ("bvh_depth", ctypes.c_uint32),
                 ("bounds_lo", ctypes.c_float * 3), ("bounds_hi", ctypes.c_float * 3),
                 ("has_normals", ctypes.c_uint32)]
 
 
-class FivOptions(ctypes.Structure):
+class FivOptions(_Checked):
     _fields_ = [("theta", ctypes.c_uint32), ("phi", ctypes.c_uint32), ("radii", ctypes.c_uint32),
                 ("inner_radius", ctypes.c_float), ("error_target", ctypes.c_float), ("face_size", ctypes.c_uint32),
                 ("sun_supersampling", ctypes.c_uint32), ("sun_threshold", ctypes.c_float),
                 ("precision", ctypes.c_uint32)]
 
 
-class SgFitOptions(ctypes.Structure):
+class SgFitOptions(_Checked):
     _fields_ = [("face_size", ctypes.c_int32), ("iterations", ctypes.c_int32), ("max_sharpness", ctypes.c_float)]
 
 
-class FivInfo(ctypes.Structure):
+class FivInfo(_Checked):
     _fields_ = [("options", FivOptions), ("centre", ctypes.c_float * 3), ("radius", ctypes.c_float),
                 ("inner", ctypes.c_float), ("outer", ctypes.c_float), ("mesh_hash", ctypes.c_uint64),
                 ("env_hash", ctypes.c_uint64), ("sample_count", ctypes.c_uint64), ("inside_count", ctypes.c_uint64),
@@ -83,42 +109,42 @@ class FivInfo(ctypes.Structure):
                 ("radii_done", ctypes.c_uint32)]
 
 
-class ParamInfo(ctypes.Structure):
+class ParamInfo(_Checked):
     _fields_ = [("name", ctypes.c_char_p), ("type", ctypes.c_uint32), ("stage", ctypes.c_uint32),
                 ("default_value", ctypes.c_double), ("min", ctypes.c_double), ("max", ctypes.c_double),
                 ("unit", ctypes.c_char_p), ("doc", ctypes.c_char_p)]
 
 
-class MethodInfo(ctypes.Structure):
+class MethodInfo(_Checked):
     _fields_ = [("name", ctypes.c_char_p), ("summary", ctypes.c_char_p), ("stage", ctypes.c_char_p),
                 ("doc_page", ctypes.c_char_p), ("param_count", ctypes.c_uint32), ("output_count", ctypes.c_uint32),
                 ("inputs", ctypes.c_uint32)]
 
 
-class OutputInfo(ctypes.Structure):
+class OutputInfo(_Checked):
     _fields_ = [("name", ctypes.c_char_p), ("doc", ctypes.c_char_p)]
 
 
-class SphereSetInfo(ctypes.Structure):
+class SphereSetInfo(_Checked):
     _fields_ = [("count", ctypes.c_uint32), ("grid", ctypes.c_uint32), ("mesh_hash", ctypes.c_uint64),
                 ("mesh_volume", ctypes.c_float), ("outside_share", ctypes.c_float), ("missed_share", ctypes.c_float),
                 ("build_seconds", ctypes.c_double)]
 
 
-class HeightfieldPlacement(ctypes.Structure):
+class HeightfieldPlacement(_Checked):
     _fields_ = [("origin", ctypes.c_float * 3), ("size", ctypes.c_float * 2), ("height_scale", ctypes.c_float)]
 
 
-class EnvDomain(ctypes.Structure):
+class EnvDomain(_Checked):
     _fields_ = [("direction", ctypes.c_float * 3), ("solid_angle", ctypes.c_float), ("radiance", ctypes.c_float * 3),
                 ("cap_radius", ctypes.c_float)]
 
 
-class EnvDecomposeOptions(ctypes.Structure):
+class EnvDecomposeOptions(_Checked):
     _fields_ = [("count", ctypes.c_uint32), ("seed", ctypes.c_uint32), ("max_iterations", ctypes.c_uint32)]
 
 
-class EnvSharpOptions(ctypes.Structure):
+class EnvSharpOptions(_Checked):
     _fields_ = [("max_count", ctypes.c_uint32), ("threshold", ctypes.c_float), ("seed", ctypes.c_uint32),
                 ("max_iterations", ctypes.c_uint32)]
 
@@ -278,7 +304,13 @@ def call(name: str, ctx_handle, *args) -> None:
 
     Errors are recorded on the context of the object passed; a NULL handle or
     a failed context creation records on the global slot, so both are read."""
-    status = getattr(lib, name)(*args)
+    fn = getattr(lib, name)
+    for k, (arg, kind) in enumerate(zip(args, fn.argtypes)):
+        if kind in _INT_RANGES and not isinstance(arg, ctypes._SimpleCData):
+            # ctypes wraps an int that does not fit (2**32 + 1 -> 1); refuse it instead.
+            lo, hi = _INT_RANGES[kind]
+            checked_int(arg, f"{name}: argument {k + 1}", lo, hi)
+    status = fn(*args)
     if status == SUCCESS:
         return
     _, message = last_error(ctx_handle)

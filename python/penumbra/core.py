@@ -18,6 +18,7 @@ import numpy as np
 from . import _native
 from ._native import call, lib
 from .errors import InputError
+from .limits import INT32, UINT32, checked_int
 
 # Specular lobe names in the order of their pn_lobe values, from the library.
 LOBES = _native.lobes()
@@ -196,7 +197,7 @@ class EnvMap(_Handle):
     def set(self, **params) -> None:
         for name, value in params.items():
             if name in self._INT:
-                self._call("pn_envmap_set_int", self._h, name.encode(), int(value))
+                self._call("pn_envmap_set_int", self._h, name.encode(), checked_int(value, name, *INT32))
             elif name in self._FLOAT:
                 self._call("pn_envmap_set_float", self._h, name.encode(), float(value))
             else:
@@ -274,7 +275,7 @@ class EnvMap(_Handle):
         for name, value in options.items():
             if name not in names:
                 raise InputError(f"the SG fit has no option '{name}' ({', '.join(names)})")
-            setattr(opts, name, value)
+            setattr(opts, name, value)  # integer fields are checked (_native._Checked)
         if int(count) != count or count < 0:
             raise InputError(f"the lobe count must be a whole number >= 1, got {count!r}")
         out = np.zeros(max(int(count), 1), SG_LOBE)
@@ -292,8 +293,10 @@ class Mesh(_Handle):
         call("pn_mesh_create", ctx._h, ctx._h, ctypes.byref(self._h))
         v = _host(vertices, np.float32, (3,), "vertices")
         f = np.asarray(faces)
-        if f.size and (f.min() < 0 or not np.issubdtype(f.dtype, np.integer)):
+        if f.size and (not np.issubdtype(f.dtype, np.integer) or f.min() < 0):
             raise InputError("faces must hold non-negative integer vertex indices")
+        if f.size and int(f.max()) >= len(v):  # checked before the uint32 cast, which would wrap 2**32 + 3 to 3
+            raise InputError(f"faces: vertex index {int(f.max())} out of range (there are {len(v)} vertices)")
         f = _host(f, np.uint32, (3,), "faces")
         n = None if normals is None else _host(normals, np.float32, (3,), "normals")
         if n is not None and len(n) != len(v):
@@ -358,7 +361,7 @@ class Camera:
 
     def native(self) -> _native.Camera:
         f3 = lambda v: (ctypes.c_float * 3)(*[float(x) for x in v])  # noqa: E731
-        w, h = (int(x) for x in self.resolution)
+        w, h = (checked_int(x, "camera resolution", 0, UINT32[1]) for x in self.resolution)
         if w <= 0 or h <= 0:
             raise InputError(f"camera resolution {self.resolution} must be positive")
         return _native.Camera(f3(self.position), f3(self.look_at), f3(self.up), float(self.fov_deg), w, h)
@@ -505,7 +508,7 @@ class GBuffer(_Handle):
 
     def __init__(self, ctx: Context, width: int, height: int, planes: dict | None = None):
         super().__init__(ctx)
-        self.width, self.height = int(width), int(height)
+        self.width, self.height = checked_int(width, "width"), checked_int(height, "height")
         if planes is None:
             call("pn_gbuffer_create", ctx._h, ctx._h, self.width, self.height, ctypes.byref(self._h))
         else:
@@ -558,7 +561,7 @@ class Image(_Handle):
 
     def __init__(self, ctx: Context, width: int, height: int, buffer=None):
         super().__init__(ctx)
-        self.width, self.height = int(width), int(height)
+        self.width, self.height = checked_int(width, "width"), checked_int(height, "height")
         if buffer is None:
             call("pn_image_create", ctx._h, ctx._h, self.width, self.height, ctypes.byref(self._h))
         else:

@@ -232,13 +232,14 @@ def _require_file(path: Path) -> None:
 
 
 def _load_npy(path: Path) -> np.ndarray:
-    try:
-        a = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as exc:
-        raise InputError(f"{path}: cannot read .npy file: {exc}") from exc
-    if not isinstance(a, np.ndarray):
-        raise InputError(f"{path}: expected a single array, got {type(a).__name__}")
-    return a
+    from .imageio import read_npy
+    from .limits import check_image
+
+    def check(shape, dtype):  # before reading: a map is 2D or 3D, within the caps (float64 copies follow)
+        if len(shape) in (2, 3):
+            check_image(shape[1], shape[0], 8 * (shape[2] if len(shape) == 3 else 1) * 4, str(path), "the map")
+
+    return read_npy(path, check)
 
 
 def _exr_channels(path: Path) -> dict[str, np.ndarray]:
@@ -247,6 +248,9 @@ def _exr_channels(path: Path) -> dict[str, np.ndarray]:
 
     from .fileutil import captured_native_output
 
+    from .imageio import check_exr_header
+
+    check_exr_header(path, 16)
     error = None
     with captured_native_output() as native:
         try:
@@ -280,12 +284,29 @@ def _pick_height_channel(path: Path, channels: dict[str, np.ndarray]) -> np.ndar
 
 
 def _open_png(path: Path):
+    import struct
+    import zlib
+
     from PIL import Image, UnidentifiedImageError
 
+    from .limits import check_image
+
+    # Refuse a decompression bomb from its IHDR before Pillow sees it (Pillow's own
+    # limit raises an exception of its own at open); peak: float64 RGB copies of the
+    # pixels (penumbra.limits).
+    with open(path, "rb") as f:
+        head = f.read(24)
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+        check_image(int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big"), 64, str(path),
+                    "the PNG image")
     try:
         image = Image.open(path)
+        check_image(image.size[0], image.size[1], 64, str(path), "the PNG image")
         image.load()
-    except (OSError, UnidentifiedImageError, ValueError) as exc:
+    except (OSError, UnidentifiedImageError, ValueError, SyntaxError, EOFError, struct.error, zlib.error,
+            Image.DecompressionBombError) as exc:
+        if isinstance(exc, InputError):
+            raise
         raise InputError(f"{path}: cannot read PNG file: {exc}") from exc
     if image.format != "PNG":
         raise InputError(f"{path}: not a PNG file (Pillow reads it as {image.format})")

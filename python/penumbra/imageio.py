@@ -26,7 +26,10 @@ Writers (:func:`write_exr`, :func:`write_png`) write atomically (see
 render never silently turns into a plausible-looking file.
 
 Every problem with a file or an array raises :class:`~penumbra.errors.InputError`
-naming the file and the problem.
+naming the file and the problem. Before decoding, a header's resolution or
+shape is checked against the file's size (where the format allows knowing how
+much data it needs) and against the pixel and memory caps of
+:mod:`penumbra.limits` (``PENUMBRA_MAX_PIXELS``, ``PENUMBRA_MAX_BYTES``).
 """
 
 from __future__ import annotations
@@ -42,12 +45,15 @@ import numpy as np
 
 from .errors import InputError
 from .fileutil import atomic_write, captured_native_output
+from .limits import check_bytes, check_data, check_image
 
 __all__ = ["read_envmap", "read_exr", "write_exr", "write_png", "srgb_encode"]
 
-# Guard against absurd resolutions in a corrupt header before allocating memory
-# (2**28 pixels is a 16k x 16k map, far beyond any environment map in use).
-_MAX_PIXELS = 1 << 28
+# Peak bytes per pixel while decoding, for the checks against PENUMBRA_MAX_BYTES
+# (penumbra.limits): RGBE planes, exponents, factors, the float image and its
+# transposed and scaled copies; an EXR's channels and their stack.
+_RGBE_PEAK_BYTES = 48
+_EXR_PEAK_BYTES = 40
 
 
 # --------------------------------------------------------------------------- #
@@ -162,6 +168,7 @@ def _require_file(path: Path) -> None:
 def _read_bytes(path: Path) -> bytes:
     _require_file(path)
     try:
+        check_bytes(path.stat().st_size, "reading the file", str(path))
         return path.read_bytes()
     except OSError as exc:
         raise InputError(f"{path}: cannot read file: {exc.strerror or exc}") from exc
@@ -201,6 +208,7 @@ def _read_exr_file(path: Path) -> np.ndarray:
     import OpenEXR
 
     _require_file(path)
+    check_exr_header(path, _EXR_PEAK_BYTES)
     error = None
     with captured_native_output() as native:
         try:
@@ -239,31 +247,100 @@ def _read_exr_file(path: Path) -> np.ndarray:
     return np.stack(planes, axis=-1)
 
 
+def check_exr_header(path: Path, bytes_per_pixel: int) -> None:
+    """Refuse an EXR whose data window is over the pixel or memory cap, reading only its header.
+    (Compressed pixel data has no useful lower bound in bytes, so only the caps apply.)"""
+    import OpenEXR
+
+    error = None
+    with captured_native_output() as native:
+        try:
+            header = OpenEXR.File(str(path), header_only=True).header()
+            low, high = header["dataWindow"]
+            width, height = int(high[0]) - int(low[0]) + 1, int(high[1]) - int(low[1]) + 1
+        except Exception as exc:  # the bindings raise RuntimeError, ValueError, ...; a header may lack a key
+            error = exc
+    if error is not None:
+        detail = " ".join(native.text.split()) or str(error)
+        raise InputError(f"{path}: cannot read OpenEXR file: {detail}") from error
+    _forward_native_output(native.text)
+    if width <= 0 or height <= 0:
+        raise InputError(f"{path}: OpenEXR data window is empty ({width} x {height})")
+    channels = max(len(header.get("channels", ())), 1)
+    check_image(width, height, bytes_per_pixel + 4 * channels, str(path), "the OpenEXR image")
+
+
 # --------------------------------------------------------------------------- #
 # numpy
 # --------------------------------------------------------------------------- #
 
 
-def _read_npy(path: Path) -> np.ndarray:
+def read_npy(path: str | os.PathLike, check=None) -> np.ndarray:
+    """Read a .npy file without trusting its header: the shape and dtype are read
+    first; ``check(shape, dtype)`` (if given) may refuse them before any data is
+    read; the data the header promises must be in the file and fit
+    ``PENUMBRA_MAX_BYTES``. Pickled (object) arrays are refused. Every problem
+    raises :class:`InputError`."""
+    path = Path(path)
     _require_file(path)
+    fmt = np.lib.format
     try:
-        array = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as exc:
-        raise InputError(f"{path}: cannot read .npy file: {exc}") from exc
-    if not isinstance(array, np.ndarray) or array.ndim != 3 or array.shape[2] != 3:
-        raise InputError(f"{path}: expected an array of shape (H, W, 3), got {getattr(array, 'shape', type(array))}")
-    if array.shape[0] == 0 or array.shape[1] == 0:
-        raise InputError(f"{path}: the environment map is empty (shape {array.shape})")
-    if array.dtype.kind not in "fiu":
-        raise InputError(f"{path}: expected a real numeric array, got dtype {array.dtype}")
-    return array
+        with open(path, "rb") as f:
+            version = fmt.read_magic(f)
+            if version == (1, 0):
+                shape, fortran, dtype = fmt.read_array_header_1_0(f)
+            elif version in ((2, 0), (3, 0)):
+                shape, fortran, dtype = fmt.read_array_header_2_0(f)
+            else:
+                raise InputError(f"{path}: unsupported .npy format version {version}")
+            offset = f.tell()
+            size = os.fstat(f.fileno()).st_size
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read .npy file: {exc.strerror or exc}") from exc
+    except InputError:
+        raise
+    except Exception as exc:  # numpy's header parser raises ValueError, EOFError, SyntaxError, TokenError, ...
+        raise InputError(f"{path}: cannot read .npy file: bad header ({type(exc).__name__}: {exc})") from exc
+    if len(shape) > 32 or not all(0 <= d < 1 << 63 for d in shape):  # numpy indexes with int64
+        raise InputError(f"{path}: implausible .npy shape {shape}"[:200])
+    if dtype.hasobject or dtype.itemsize == 0 or dtype.subdtype is not None:
+        raise InputError(f"{path}: .npy files holding {dtype} (objects, empty records or subarrays) are not "
+                         "supported")
+    if check is not None:
+        check(shape, dtype)
+    count = math.prod(shape)
+    nbytes = count * dtype.itemsize
+    check_data(nbytes, size - offset, f"an array of shape {shape} and dtype {dtype}", str(path))
+    check_bytes(nbytes, f"an array of shape {shape} and dtype {dtype}", str(path))
+    try:
+        with open(path, "rb") as f:
+            f.seek(offset)
+            raw = f.read(nbytes)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read .npy file: {exc.strerror or exc}") from exc
+    check_data(nbytes, len(raw), f"an array of shape {shape} and dtype {dtype}", str(path))
+    array = np.frombuffer(raw, dtype=dtype, count=count)
+    return array.reshape(shape[::-1]).transpose() if fortran else array.reshape(shape)
+
+
+def _read_npy(path: Path) -> np.ndarray:
+    def check(shape, dtype):
+        if len(shape) != 3 or shape[2] != 3:
+            raise InputError(f"{path}: expected an array of shape (H, W, 3), got {shape}")
+        if shape[0] == 0 or shape[1] == 0:
+            raise InputError(f"{path}: the environment map is empty (shape {shape})")
+        if dtype.kind not in "fiu":
+            raise InputError(f"{path}: expected a real numeric array, got dtype {dtype}")
+        check_image(shape[1], shape[0], 12 + 3 * dtype.itemsize, str(path), "the environment map")
+
+    return read_npy(path, check)
 
 
 # --------------------------------------------------------------------------- #
 # Radiance RGBE
 # --------------------------------------------------------------------------- #
 
-_RESOLUTION_RE = re.compile(rb"^\s*([-+])([XY])\s+(\d+)\s+([-+])([XY])\s+(\d+)\s*$")
+_RESOLUTION_RE = re.compile(rb"^\s*([-+])([XY])\s+([0-9]{1,10})\s+([-+])([XY])\s+([0-9]{1,10})\s*$")
 
 
 def _read_rgbe(path: Path) -> np.ndarray:
@@ -349,8 +426,14 @@ def _parse_rgbe_header(path: Path, data: bytes) -> tuple[int, int, int, bool, np
         raise InputError(f"{path}: unsupported Radiance image orientation {orientation!r} "
                          "(only '-Y H +X W' and '+Y H +X W' are supported)")
     height, width = int(n1), int(n2)
-    if height == 0 or width == 0 or height * width > _MAX_PIXELS:
+    if height == 0 or width == 0:
         raise InputError(f"{path}: implausible Radiance resolution {width}x{height}")
+    # Every scanline takes at least 4 bytes (one pixel, or one run marker), so
+    # the file bounds the height; old-style runs can repeat a pixel 2**48 times,
+    # so only the caps bound the width.
+    what = f"the Radiance resolution {width}x{height}"
+    check_data(4 * height, len(data) - pos, f"{what} ({height} scanlines of at least 4 bytes)", str(path))
+    check_image(width, height, _RGBE_PEAK_BYTES, str(path), what)
     # Radiance defines EXPOSURE and COLORCORR as multipliers already applied to the
     # stored pixels (cumulative), so radiance = stored / (product of them all).
     divisor = exposure * colorcorr

@@ -14,10 +14,15 @@ triangles (m, 3) and optional float32 per-vertex normals (n, 3).
   shading, so such normals are dropped (``normals is None``) and the renderer
   uses geometric normals.
 
-Readers: OBJ and OFF go through libigl, falling back to a small parser here
-when libigl rejects a file that is valid (see :func:`_load_obj`,
-:func:`_load_off`). PLY and STL are parsed here; the reasons are given in
-:func:`_load_ply` and :func:`_load_stl`.
+Readers: OBJ goes through libigl when every face index is a plain positive
+integer within the file's record counts, otherwise (and when libigl rejects a
+valid file) through a small strict parser here (see :func:`_load_obj`). OFF,
+PLY and STL are parsed here; the reasons are given in :func:`_load_off`,
+:func:`_load_ply` and :func:`_load_stl`. Indices are read as strict integers:
+a fraction, trailing characters or a value out of range is an error, never
+truncated or wrapped (docs/reliability-loaders.md). Allocations sized by a
+header are checked against the file's size and ``PENUMBRA_MAX_BYTES``
+(:mod:`penumbra.limits`).
 
 Every problem raises :class:`~penumbra.errors.InputError` naming the file:
 missing/unreadable file, unknown extension, malformed or truncated data, no
@@ -39,6 +44,7 @@ import numpy as np
 
 from .errors import InputError
 from .fileutil import atomic_write, captured_native_output
+from .limits import UINT32, check_bytes, check_data, parse_int
 
 __all__ = ["DEFAULT_CREASE_ANGLE_DEG", "Mesh", "load_mesh", "save_obj", "smooth_normals"]
 
@@ -87,10 +93,11 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
     if not path.is_file():
         raise InputError(f"{path}: not a regular file")
     try:
-        with open(path, "rb"):
-            pass
+        with open(path, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
     except OSError as exc:
         raise InputError(f"{path}: cannot read file: {exc.strerror or exc}") from exc
+    check_bytes(size, "reading the mesh file", str(path))  # the parsers hold the whole file
     vertices, faces, normals = loader(path)
     vertices, faces, normals = _validated(vertices, faces, normals, str(path))
     return Mesh(vertices, faces, normals)
@@ -349,6 +356,8 @@ def _load_obj(path: Path):
     # lines it does not understand), we parse the file ourselves.
     import igl
 
+    if not _obj_faces_plain(path):
+        return _parse_obj(path)  # strict, and names the line of any bad index
     result = _call_igl(igl.readOBJ, path, faces_at=3)
     if result is None:
         return _parse_obj(path)
@@ -359,6 +368,32 @@ def _load_obj(path: Path):
     _validated(vertices, tri_v, None, str(path))  # index range and NaN checks before using the indices
     tri_n = _fan_triangulate(face_normals) if face_normals.shape == faces.shape else np.empty((0, 3), np.int64)
     return vertices, tri_v, _vertex_normals(len(vertices), tri_v, tri_n, normals, str(path))
+
+
+# libigl reads face indices with sscanf, which stops at the first non-digit
+# ('4.9' -> 4, '3x' -> 3) and wraps large values (4294967299 -> 3). It is given
+# a file only when every face corner is v, v/t, v//n or v/t/n with plain
+# positive indices of at most 10 digits within the file's record counts; any
+# other file goes to _parse_obj, which is strict and names the bad line.
+_OBJ_FACE_LINE = re.compile(rb"^[ \t]*f[ \t]([^\r\n]*)", re.M)
+_OBJ_BAD_SLASHES = re.compile(rb"(?:^|\s)/|/(?:\s|$)|/[0-9]*/[0-9]*/|[0-9]{11}")
+_OBJ_RECORD = re.compile(rb"^[ \t]*(?:v|vt|vn)[ \t]", re.M)
+
+
+def _obj_faces_plain(path: Path) -> bool:
+    """Whether every face corner holds only plain positive indices within the
+    file's record counts (see above), so that libigl reads them exactly."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read file: {exc.strerror or exc}") from exc
+    if b"\\" in data:
+        return False  # line continuations: only _parse_obj joins them
+    faces = b" ".join(_OBJ_FACE_LINE.findall(data))
+    if faces.translate(None, b"0123456789/ \t") or _OBJ_BAD_SLASHES.search(faces):
+        return False
+    numbers = np.array(faces.replace(b"/", b" ").split()).astype(np.int64)
+    return numbers.size == 0 or (int(numbers.min()) >= 1 and int(numbers.max()) <= len(_OBJ_RECORD.findall(data)))
 
 
 def _parse_obj(path: Path):
@@ -408,10 +443,7 @@ def _parse_obj(path: Path):
 
 def _obj_index(token: str, count_so_far: int, where: str, line_no: int) -> int:
     """Convert a 1-based (or negative, relative) OBJ index to 0-based."""
-    try:
-        index = int(token)
-    except ValueError:
-        raise InputError(f"{where}: bad index {token!r} on line {line_no}") from None
+    index = parse_int(token, f"{where}: bad index on line {line_no}", -UINT32[1], UINT32[1])
     if index > 0:
         return index - 1  # checked against the final vertex count later (forward references are legal)
     if index < 0 and -index <= count_so_far:
@@ -425,29 +457,11 @@ def _obj_index(token: str, count_so_far: int, where: str, line_no: int) -> int:
 
 
 def _load_off(path: Path):
-    # libigl's readOFF fails on files mixing polygon sizes (same rectangular
-    # matrix limitation as readOBJ); we then parse the file ourselves. Its third
-    # output holds normals for NOFF files but colours for COFF files, so normals
-    # are only taken from NOFF.
-    import igl
-
-    result = _call_igl(igl.readOFF, path, faces_at=1)
-    if result is None:
-        return _parse_off(path)
-    vertices, faces, extra = result
-    if faces.shape[1] < 3:
-        raise InputError(f"{path}: faces have {faces.shape[1]} vertices; a face needs at least 3")
-    tri = _fan_triangulate(faces)
-    _validated(vertices, tri, None, str(path))
-    normals = None
-    if _read_text_head(path).lstrip().startswith("NOFF") and extra.shape == vertices.shape:
-        normals = _vertex_normals(len(vertices), tri, tri, extra, str(path))
-    return vertices, tri, normals
-
-
-def _read_text_head(path: Path, size: int = 64) -> str:
-    with open(path, "rb") as f:
-        return f.read(size).decode("latin-1")
+    # Always parsed here: libigl's readOFF reads a face line's vertex count and
+    # then as many integers as it wants, wherever they are ('5 0 1 2' became
+    # three triangles, '99999 0 1 2' 99,997 degenerate ones), and wraps large
+    # indices. OFF files are small in practice; strictness matters more.
+    return _parse_off(path)
 
 
 def _parse_off(path: Path):
@@ -466,10 +480,10 @@ def _parse_off(path: Path):
     has_normals = "N" in lines[0][0]
     counts = lines[0][1:] if len(lines[0]) > 1 else (lines[1] if len(lines) > 1 else [])
     body = 1 if len(lines[0]) > 1 else 2
-    try:
-        num_v, num_f = int(counts[0]), int(counts[1])
-    except (IndexError, ValueError):
-        raise InputError(f"{where}: bad OFF counts line") from None
+    if len(counts) < 2:
+        raise InputError(f"{where}: bad OFF counts line")
+    num_v = parse_int(counts[0], f"{where}: OFF vertex count", 0, UINT32[1])
+    num_f = parse_int(counts[1], f"{where}: OFF face count", 0, UINT32[1])
     width = 6 if has_normals else 3
     vertex_lines = lines[body:body + num_v]
     face_lines = lines[body + num_v:body + num_v + num_f]
@@ -484,11 +498,9 @@ def _parse_off(path: Path):
         raise InputError(f"{where}: bad number in an OFF vertex line") from None
     polygons = []
     for i, tokens in enumerate(face_lines):
-        try:
-            k = int(tokens[0])
-            polygons.append([int(t) for t in tokens[1:1 + k]])
-        except ValueError:
-            raise InputError(f"{where}: bad OFF face {i}") from None
+        k = parse_int(tokens[0], f"{where}: OFF face {i}: vertex count", 0, UINT32[1])
+        polygons.append([parse_int(t, f"{where}: OFF face {i}: vertex index", 0, UINT32[1])
+                         for t in tokens[1:1 + k]])
         if len(polygons[-1]) != k:
             raise InputError(f"{where}: OFF face {i} lists fewer than its {k} indices")
     tri = _fan_triangulate_lists(polygons, where)
@@ -528,8 +540,9 @@ def _load_ply(path: Path):
         values = _read_ply_binary(data, body, elements, "<" if fmt == "binary_little_endian" else ">", where)
 
     vertex = values.get("vertex")
-    if vertex is None or not all(name in vertex for name in ("x", "y", "z")):
-        raise InputError(f"{where}: PLY file has no vertex element with x, y, z properties")
+    if vertex is None or not all(isinstance(vertex.get(name), np.ndarray) and vertex[name].ndim == 1
+                                 for name in ("x", "y", "z")):
+        raise InputError(f"{where}: PLY file has no vertex element with x, y, z (scalar) properties")
     vertices = np.stack([vertex["x"], vertex["y"], vertex["z"]], axis=1).astype(np.float64)
     face = values.get("face")
     lists = None
@@ -547,7 +560,7 @@ def _load_ply(path: Path):
         raise InputError(f"{where}: the mesh has no faces")
     _validated(vertices, tri, None, where)  # index range and NaN checks before using the indices
     normals = None
-    if all(name in vertex for name in ("nx", "ny", "nz")):
+    if all(isinstance(vertex.get(name), np.ndarray) and vertex[name].ndim == 1 for name in ("nx", "ny", "nz")):
         stacked = np.stack([vertex["nx"], vertex["ny"], vertex["nz"]], axis=1).astype(np.float64)
         normals = _vertex_normals(len(vertices), tri, tri, stacked, where)
     return vertices, tri, normals
@@ -576,7 +589,8 @@ def _parse_ply_header(data: bytes, where: str):
                 if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
                     raise InputError(f"{where}: unknown PLY format {fmt!r}")
             elif tokens[0] == "element":
-                elements.append((tokens[1], int(tokens[2]), []))
+                count = parse_int(tokens[2], f"{where}: PLY element {tokens[1][:40]!r} count", 0, UINT32[1])
+                elements.append((tokens[1], count, []))
             elif tokens[0] == "property":
                 if not elements:
                     raise InputError(f"{where}: PLY property before any element")
@@ -584,18 +598,32 @@ def _parse_ply_header(data: bytes, where: str):
                     kind = (_ply_type(tokens[2], where), _ply_type(tokens[3], where))
                     if kind[0][0] == "f" or (tokens[4] in ("vertex_indices", "vertex_index") and kind[1][0] == "f"):
                         raise InputError(f"{where}: PLY list property {tokens[4]!r} must have integer types")
-                    elements[-1][2].append((tokens[4], kind))
+                    prop = (tokens[4], kind)
                 else:
-                    elements[-1][2].append((tokens[2], _ply_type(tokens[1], where)))
+                    prop = (tokens[2], _ply_type(tokens[1], where))
+                if any(prop[0] == other for other, _ in elements[-1][2]):
+                    raise InputError(f"{where}: PLY element {elements[-1][0]!r} declares property "
+                                     f"{prop[0][:40]!r} twice")
+                elements[-1][2].append(prop)
             else:
                 raise InputError(f"{where}: unexpected PLY header line {line.strip()[:40]!r}")
+        except InputError:
+            raise
         except (IndexError, ValueError):
             raise InputError(f"{where}: malformed PLY header line {line.strip()[:40]!r}") from None
     if fmt is None:
         raise InputError(f"{where}: PLY header has no format line")
-    for name, count, _ in elements:
-        if count < 0:
-            raise InputError(f"{where}: negative element count for {name!r}")
+    # Every element takes at least one token (ASCII) or its scalars' and list
+    # counts' bytes (binary): a header may not promise more elements than the file holds.
+    available = len(data[body:].split()) if fmt == "ascii" else len(data) - body
+    needed = 0
+    for name, count, props in elements:
+        if count and not props:
+            raise InputError(f"{where}: PLY element {name[:40]!r} has {count} items but no properties")
+        per_item = len(props) if fmt == "ascii" else sum(
+            np.dtype(kind if isinstance(kind, str) else kind[0]).itemsize for _, kind in props)
+        needed += count * per_item
+    check_data(needed, available, "the PLY header's element counts", where)
     return fmt, elements, body
 
 
@@ -640,6 +668,8 @@ def _read_ply_uniform_lists(data: bytes, pos: int, count: int, props, endian: st
         if offset + np.dtype(count_type).itemsize > len(data) or count == 0:
             return None
         length = int(np.frombuffer(data, dtype=endian + count_type, count=1, offset=offset)[0])
+        if not 0 <= length <= len(data):
+            return None  # the slow path reports it
         lengths.append(length)
         offset += np.dtype(count_type).itemsize + length * np.dtype(_item).itemsize
     fields = []
@@ -651,7 +681,10 @@ def _read_ply_uniform_lists(data: bytes, pos: int, count: int, props, endian: st
             length = next(list_iter)
             fields.append((prop + "#count", endian + kind[0]))
             fields.append((prop, endian + kind[1], (length,)))
-    dtype = np.dtype(fields)
+    try:
+        dtype = np.dtype(fields)
+    except ValueError:  # e.g. a property named like the count field added here
+        return None
     if pos + dtype.itemsize * count > len(data):
         return None  # let the slow path report where the data ends
     table = np.frombuffer(data, dtype=dtype, count=count, offset=pos)
@@ -680,6 +713,9 @@ def _read_ply_binary_slow(data: bytes, pos: int, count: int, props, endian: str,
                     raise InputError(f"{where}: truncated PLY file (element {name!r} {i} of {count} is incomplete)")
                 length = int(np.frombuffer(data, dtype=count_type, count=1, offset=pos)[0])
                 pos += count_type.itemsize
+                if length < 0:
+                    raise InputError(f"{where}: corrupt PLY file (element {name!r} {i} has a list of "
+                                     f"length {length})")
                 if pos + length * item_type.itemsize > size:
                     raise InputError(f"{where}: truncated PLY file (element {name!r} {i} of {count} is incomplete)")
                 items = np.frombuffer(data, dtype=item_type, count=length, offset=pos)
@@ -717,12 +753,14 @@ def _read_ply_ascii(body: bytes, elements, where: str) -> dict:
                         columns[prop].append(float(tokens[pos]))
                         pos += 1
                     else:
-                        length = int(tokens[pos])
+                        length = parse_int(tokens[pos], f"{where}: PLY element {name!r} {i}: list length",
+                                           0, UINT32[1])
                         items = tokens[pos + 1:pos + 1 + length]
                         if len(items) != length:
                             raise InputError(f"{where}: truncated PLY file (element {name!r} {i} of {count} "
                                              "is incomplete)")
-                        columns[prop].append([int(t) for t in items])
+                        columns[prop].append([parse_int(t, f"{where}: PLY element {name!r} {i}: list item")
+                                              for t in items])
                         pos += 1 + length
         except ValueError:
             raise InputError(f"{where}: bad number in PLY element {name!r}") from None
