@@ -85,7 +85,10 @@ def resolve(value: str, base: str | Path, where: str = "") -> str:
         if not available():
             raise InputError(f"{where or 'path'} {value!r} {missing_reason()}")
         return str(path(rel))
-    p = Path(value).expanduser()
+    try:
+        p = Path(value).expanduser()
+    except RuntimeError as exc:  # '~name' of no such user (or no home directory)
+        raise InputError(f"{where or 'path'} {value!r}: cannot expand '~': {exc}") from None
     return str(p if p.is_absolute() else (Path(base) / p).resolve())
 
 
