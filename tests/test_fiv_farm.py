@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -124,3 +125,21 @@ def test_bake_fiv_argument_errors(tmp_path, capsys, argv, message):
     assert main(["bake-fiv", *(a.format(**names) for a in argv)]) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "c").exists()
+
+
+def test_a_cluster_without_workers_is_an_error_not_a_hang():
+    """A cluster whose workers cannot start (or are all lost) stops the run
+    with an error after no_workers_s, instead of waiting for ever."""
+    distributed = pytest.importorskip("distributed")
+    from penumbra.errors import PenumbraError
+
+    cluster = distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=None)
+    client = distributed.Client(cluster)
+    try:
+        start = time.monotonic()
+        with pytest.raises(PenumbraError, match="no workers for 2 s with 3 of 3 jobs left"):
+            farm.run(client, abs, [1, 2, 3], no_workers_s=2)
+        assert time.monotonic() - start < 60
+    finally:
+        client.close()
+        cluster.close()

@@ -20,7 +20,7 @@ import time
 from contextlib import contextmanager
 from typing import Any, Callable, Iterable, Iterator
 
-from .errors import InputError
+from .errors import InputError, PenumbraError
 
 PIP_COMMAND = 'pip install "dask[distributed]"'
 
@@ -88,19 +88,36 @@ def worker_name() -> str:
 
 
 def run(c, fn: Callable[[Any], dict], items: Iterable[Any], log: Callable[[str], None] | None = None,
-        describe: Callable[[dict], str] = str) -> list[dict]:
+        describe: Callable[[dict], str] = str, no_workers_s: float = 120.0) -> list[dict]:
     """``fn(item)`` for every item on the cluster of client ``c``; the results
     in item order. Tasks of a worker that dies are run again elsewhere (the
     work functions resume from their files); a task that raises stops the
-    run with that error. ``log`` gets one line per finished task."""
+    run with that error, and so does a cluster left without any worker for
+    ``no_workers_s`` seconds (workers that cannot start, or all lost) instead
+    of waiting for ever. ``log`` gets one line per finished task."""
     distributed = require_dask()
     items = list(items)
     start = time.perf_counter()
     futures = c.map(fn, items, pure=False)
     index = {f.key: i for i, f in enumerate(futures)}
     results: list[dict | None] = [None] * len(items)
-    for n, future in enumerate(distributed.as_completed(futures), 1):
-        results[index[future.key]] = r = future.result()
-        if log:
-            log(f"[{n}/{len(items)}, {time.perf_counter() - start:.1f} s] {describe(r)}")
+    pending, finished, workerless_since = set(futures), 0, None
+    while pending:
+        try:
+            done, pending = distributed.wait(pending, timeout=1.0, return_when="FIRST_COMPLETED")
+        except TimeoutError:
+            done = set()
+        for future in done:
+            results[index[future.key]] = r = future.result()
+            finished += 1
+            if log:
+                log(f"[{finished}/{len(items)}, {time.perf_counter() - start:.1f} s] {describe(r)}")
+        if done or c.nthreads():
+            workerless_since = None
+        elif workerless_since is None:
+            workerless_since = time.monotonic()
+        elif time.monotonic() - workerless_since > no_workers_s:
+            raise PenumbraError(f"the Dask cluster has had no workers for {no_workers_s:g} s with {len(pending)} of "
+                                f"{len(items)} jobs left (workers that cannot start or were all lost: see the "
+                                "workers' logs); finished results are in their files")
     return results  # type: ignore[return-value]
