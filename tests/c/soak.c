@@ -110,6 +110,25 @@ static long heap_kib(void)
 #endif
 }
 
+/* Bytes allocated and not freed: ASan's count in sanitizer builds, else
+ * glibc's mallinfo2; -1 where neither is known. */
+#if defined(__GNUC__)
+extern size_t __sanitizer_get_current_allocated_bytes(void) __attribute__((weak));
+#endif
+static long long allocated_bytes(void)
+{
+#if defined(__GNUC__)
+    if (__sanitizer_get_current_allocated_bytes)
+        return (long long)__sanitizer_get_current_allocated_bytes();
+#endif
+#ifdef SOAK_MALLINFO2
+    const struct mallinfo2 m = mallinfo2();
+    return (long long)(m.uordblks + m.hblkhd);
+#else
+    return -1;
+#endif
+}
+
 /* Sanitizer builds: live heap by allocation stack (SOAK_HEAP_PROFILE=1 prints
  * it after the warm-up and at the end, to find what grows). */
 #if defined(__GNUC__)
@@ -525,6 +544,53 @@ static void frame(soak *s, int f)
         }
 }
 
+/* A scene that adds and removes instances forever keeps memory for its live
+ * ones only: CHURN additions and removals (two live at a time, committed
+ * every 100) may not grow the heap by more than CHURN_SLACK bytes (one slot
+ * kept per id ever given out was 136 bytes per addition). Ids keep counting
+ * and removed ones stay invalid. Returns 0 on success. */
+enum { CHURN = 20000, CHURN_SLACK = 256 * 1024 };
+static int churn_check(pn_context ctx, pn_mesh mesh)
+{
+    pn_scene scene;
+    CHECK(ctx, pn_scene_create(ctx, &scene));
+    float t[12];
+    uint32_t live[2];
+    translate(t, 0, 0, 0, 1);
+    CHECK(ctx, pn_scene_add_instance(scene, mesh, t, NULL, &live[0]));
+    CHECK(ctx, pn_scene_add_instance(scene, mesh, t, NULL, &live[1]));
+    CHECK(ctx, pn_scene_commit(scene));
+    const long long before = allocated_bytes();
+    for (int i = 0; i < CHURN; ++i) {
+        CHECK(ctx, pn_scene_remove_instance(scene, live[i % 2]));
+        translate(t, (float)(i % 7), 0, 0, 1);
+        CHECK(ctx, pn_scene_add_instance(scene, mesh, t, NULL, &live[i % 2]));
+        if (i % 100 == 99)
+            CHECK(ctx, pn_scene_commit(scene));
+    }
+    const long long after = allocated_bytes();
+    int failed = 0;
+    if (before >= 0 && after - before > CHURN_SLACK) {
+        printf("FAIL: %d instance additions and removals grew the heap by %lld bytes (%.0f per addition)\n", CHURN,
+               after - before, (double)(after - before) / CHURN);
+        failed = 1;
+    }
+    if (live[0] != CHURN || live[1] != CHURN + 1) {
+        printf("FAIL: the last ids are %u and %u, %u and %u expected\n", live[0], live[1], CHURN, CHURN + 1);
+        failed = 1;
+    }
+    if (pn_scene_set_instance_transform(scene, CHURN / 2, t) != PN_ERROR_OUT_OF_RANGE) {
+        printf("FAIL: removed instance %u is still accepted\n", CHURN / 2);
+        failed = 1;
+    }
+    const char *msg;
+    pn_get_error(ctx, &msg);
+    printf("instance churn: %d additions and removals, heap %+lld bytes%s\n", CHURN, after - before,
+           before < 0 ? " (unknown here)" : "");
+    pn_scene_release(scene);
+    return failed;
+}
+
 static void teardown(soak *s)
 {
     for (int m = 0; m < METHOD_COUNT; ++m)
@@ -557,6 +623,7 @@ int main(int argc, char **argv)
     const double start = now();
     const long rss_start = rss_kib();
     setup(&s, w, h);
+    int failed = churn_check(s.ctx, s.box);
     long rss_warm = 0, heap_warm = 0;
     cl_uint refs_warm = 0;
     for (g_frame = 0; g_frame < frames; ++g_frame) {
@@ -590,7 +657,6 @@ int main(int argc, char **argv)
            frames, warmup, w, h, seconds, rss_start, rss_warm, rss_end,
            1024.0 * (double)(rss_end - rss_warm) / (frames - warmup), heap_warm, heap_end,
            1024.0 * (double)(heap_end - heap_warm) / (frames - warmup), refs_warm, refs_end, refs_after);
-    int failed = 0;
     if (refs_end > refs_warm) {
         printf("FAIL: the cl_context's reference count grew from %u after warm-up to %u: OpenCL objects pile up\n",
                refs_warm, refs_end);
