@@ -81,13 +81,14 @@ test: test-c fuzz-c test-python
 
 # The full soak (docs/reliability-soak.md): 10,000 frames of a dynamic scene in
 # one process, in Python (RSS and heap bounds; ~5 min at 64x48 on 2 shared
-# cores) and in C under ASan/LSan (~1 h there; SOAK_C_FRAMES=N runs fewer).
+# cores) and in C under ASan/LSan (~3 min; SOAK_C_FRAMES=N runs another count).
 # make test runs the short versions (pytest tests/test_soak.py, ctest soak).
 SOAK_FRAMES ?= 10000
 SOAK_C_FRAMES ?= $(SOAK_FRAMES)
 soak: soak-python soak-c
 
 soak-python: install
+	mkdir -p build
 	PYOPENCL_CTX=0 $(PY) tests/soak/soak.py --frames $(SOAK_FRAMES) --progress --json build/soak-python.json
 
 soak-c: deps

@@ -351,7 +351,7 @@ def run(frames: int, warmup: int, width: int, height: int, seed: int, bound_kib:
     soak = Soak(width, height, seed, chosen)
     primed = soak.prime()
     prime_seconds = time.monotonic() - start
-    samples: list[tuple[int, int]] = []
+    samples: list[tuple[int, int, int]] = []  # (frame, RSS, heap in use)
     per_method: dict[str, float] = {m: 0.0 for m in chosen}
     rss_warm = objects_warm = None
     for f in range(frames):
