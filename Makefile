@@ -12,7 +12,7 @@ DOCS_PIP := "sphinx>=7" "myst-parser>=2"
 export DRJIT_LIBLLVM_PATH ?= /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
 SOURCES := $(shell find capi kernels python cmake -type f) CMakeLists.txt pyproject.toml
 
-.PHONY: all deps venv install demo test test-c test-python fuzz-c soak soak-c soak-python docs bench bench-fiv-scaling clean
+.PHONY: all deps venv install demo test test-c test-python fuzz-c docs bench bench-fiv-scaling clean
 
 all: install
 
@@ -80,11 +80,12 @@ fuzz-c: deps
 test: test-c fuzz-c test-python
 
 # The full soak (docs/reliability-soak.md): 10,000 frames of a dynamic scene in
-# one process, in Python (RSS and heap bounds; ~5 min at 64x48 on 2 shared
+# one process, in Python (RSS and heap bounds; 1.5-5 min at 64x48 on 2 shared
 # cores) and in C under ASan/LSan (~3 min; SOAK_C_FRAMES=N runs another count).
 # make test runs the short versions (pytest tests/test_soak.py, ctest soak).
 SOAK_FRAMES ?= 10000
 SOAK_C_FRAMES ?= $(SOAK_FRAMES)
+.PHONY: soak soak-python soak-c
 soak: soak-python soak-c
 
 soak-python: install
