@@ -35,7 +35,8 @@ pn_status pn_mesh_do_read_geometry(pn_mesh mesh, float *positions, uint32_t *ind
 /* ------------------------------------------------------------------ scene */
 
 typedef struct pn_instance {
-    pn_mesh mesh;            /* NULL: removed slot */
+    pn_mesh mesh;
+    uint32_t id;             /* as returned by pn_scene_add_instance (never reused) */
     float object_to_world[12];
     float world_to_object[12];
     pn_material material;
@@ -56,8 +57,9 @@ typedef struct pn_attachment {
 struct pn_scene_impl {
     pn_object obj;
     pn_envmap env;
-    pn_instance *instances;
+    pn_instance *instances;  /* the live instances only, in increasing id order */
     uint32_t instance_count, instance_capacity;
+    uint32_t next_id;        /* ids are 0, 1, 2, ... in order of addition */
     pn_camera camera;
     bool has_camera;
     bool committed;

@@ -108,6 +108,8 @@ pn_status pn_scene_do_add_instance(pn_scene scene, pn_mesh mesh, const float *tr
     pn_instance inst = {0};
     if ((st = set_transform(scene, &inst, transform)))
         return st;
+    if (scene->next_id == PN_BACKGROUND) /* PN_BACKGROUND marks misses: never an id */
+        return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "the scene has given out every instance id (2^32 - 1 additions)");
     if (scene->instance_count == scene->instance_capacity) {
         uint32_t cap = scene->instance_capacity ? 2 * scene->instance_capacity : 8;
         pn_instance *grown = realloc(scene->instances, (size_t)cap * sizeof *grown);
@@ -120,17 +122,33 @@ pn_status pn_scene_do_add_instance(pn_scene scene, pn_mesh mesh, const float *tr
         return st;
     inst.mesh = mesh;
     inst.material = mat;
-    *id = scene->instance_count;
-    scene->instances[scene->instance_count++] = inst;
+    inst.id = scene->next_id++;
+    *id = inst.id;
+    scene->instances[scene->instance_count++] = inst; /* ids increase: the array stays sorted */
     scene->committed = false;
     return PN_SUCCESS;
 }
 
+/* The live instance `id` (binary search: the array holds live instances only,
+ * sorted by id, so a scene that adds and removes instances forever keeps
+ * memory for the live ones), or NULL. */
+static pn_instance *find_instance(pn_scene scene, uint32_t id)
+{
+    uint32_t lo = 0, hi = scene->instance_count;
+    while (lo < hi) {
+        const uint32_t mid = lo + (hi - lo) / 2;
+        if (scene->instances[mid].id < id)
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    return lo < scene->instance_count && scene->instances[lo].id == id ? &scene->instances[lo] : NULL;
+}
+
 static pn_status live_instance(pn_scene scene, uint32_t id, pn_instance **out)
 {
-    if (id >= scene->instance_count || !scene->instances[id].mesh)
+    if (!(*out = find_instance(scene, id)))
         return pn_fail(scene->obj.ctx, PN_ERROR_OUT_OF_RANGE, "scene has no instance %u", id);
-    *out = &scene->instances[id];
     return PN_SUCCESS;
 }
 
@@ -160,7 +178,9 @@ pn_status pn_scene_do_remove(pn_scene scene, uint32_t id)
     pn_status st = live_instance(scene, id, &inst);
     if (!st) {
         PN_RELEASE(inst->mesh);
-        inst->mesh = NULL;
+        const size_t at = (size_t)(inst - scene->instances);
+        memmove(inst, inst + 1, (scene->instance_count - at - 1) * sizeof *inst);
+        scene->instance_count--;
         pn_scene_do_detach(scene, id, NULL);
         scene->committed = false;
     }
@@ -169,7 +189,7 @@ pn_status pn_scene_do_remove(pn_scene scene, uint32_t id)
 
 const pn_instance *pn_scene_instance(pn_scene scene, uint32_t id)
 {
-    return id < scene->instance_count && scene->instances[id].mesh ? &scene->instances[id] : NULL;
+    return find_instance(scene, id);
 }
 
 /* ------------------------------------------------------------ attachments */
@@ -365,7 +385,8 @@ static pn_status gather_meshes(pn_scene scene)
             continue;
         if (!m->committed) {
             free(slots);
-            return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "the mesh of instance %u changed since its last commit", i);
+            return pn_fail(ctx, PN_ERROR_NOT_COMMITTED, "the mesh of instance %u changed since its last commit",
+                           scene->instances[i].id);
         }
         uint32_t k = 0;
         while (k < count && slots[k].mesh != m)
@@ -525,8 +546,7 @@ pn_status pn_scene_do_commit(pn_scene scene)
         r[29] = inst->material.roughness;
         r[30] = (float)inst->material.lobe;
         r[31] = 0.0f;
-        uint32_t offs[4] = {ms->node_offset, ms->tri_offset, inst->mesh->leaf_normals ? 1u : 0u,
-                            ids[tlas.order[slot]]};
+        uint32_t offs[4] = {ms->node_offset, ms->tri_offset, inst->mesh->leaf_normals ? 1u : 0u, inst->id};
         memcpy(r + 32, offs, sizeof offs);
     }
     if (!st) {

@@ -485,8 +485,8 @@ static bool fit_frames(state *s, pn_scene scene)
         double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
         const double *axes[3] = {e1, e2, d};
         for (uint32_t i = 0; i < scene->instance_count; ++i) {
-            const pn_instance *inst = pn_scene_instance(scene, i);
-            if (!inst || !inst->mesh->triangle_count)
+            const pn_instance *inst = &scene->instances[i]; /* the live instances */
+            if (!inst->mesh->triangle_count)
                 continue;
             any = true;
             for (int k = 0; k < 3; ++k)
@@ -545,12 +545,12 @@ static pn_status raster_tables(pn_renderer r, pn_scene scene, uint32_t *instance
     uint32_t n = 0;
     uint64_t total = 0;
     for (uint32_t i = 0; i < scene->instance_count; ++i) {
-        const pn_instance *inst = pn_scene_instance(scene, i);
-        if (!inst || !inst->mesh->triangle_count)
+        const pn_instance *inst = &scene->instances[i]; /* the live instances */
+        if (!inst->mesh->triangle_count)
             continue;
         const pn_mesh_slot *slot = pn_scene_mesh_slot(scene, inst->mesh);
         if (!slot)
-            return pn_fail(ctx, PN_ERROR_INTERNAL, "instance %u's mesh is not in the committed scene", i);
+            return pn_fail(ctx, PN_ERROR_INTERNAL, "instance %u's mesh is not in the committed scene", inst->id);
         s->host_ranges[2 * n] = slot->tri_offset;
         s->host_ranges[2 * n + 1] = inst->mesh->triangle_count;
         s->host_starts[n] = (uint32_t)total;
