@@ -57,7 +57,7 @@ test-python: install
 	PYOPENCL_CTX=0 $(PY) -m pytest -q tests
 
 # libFuzzer targets of the C entry points that parse bytes or strings
-# (tests/fuzz, docs/reliability-c.md "Fuzzing (C)"): built with clang-15 under
+# (tests/fuzz, docs/reliability.md "Fuzzing (C)"): built with clang-15 under
 # ASan + UBSan, each run for FUZZ_SECONDS from its committed seed corpus
 # (tests/fuzz/corpus/<target>); new inputs go to build/fuzz/corpus/<target>,
 # crashes to build/fuzz/crash-<target>-*. Prints executions and coverage.
@@ -81,7 +81,7 @@ fuzz-c: deps
 # per target (4 targets).
 test: test-c fuzz-c test-python
 
-# The full soak (docs/reliability-soak.md): 10,000 frames of a dynamic scene in
+# The full soak (docs/reliability.md): 10,000 frames of a dynamic scene in
 # one process, in Python (RSS and heap bounds; 1.5-5 min at 64x48 on 2 shared
 # cores) and in C under ASan/LSan (~3 min; SOAK_C_FRAMES=N runs another count).
 # make test runs the short versions (pytest tests/test_soak.py, ctest soak).

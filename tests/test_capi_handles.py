@@ -1,4 +1,4 @@
-"""Handles through the bindings (issue 17, docs/reliability-c.md): a released
+"""Handles through the bindings (issue 17, docs/reliability.md): a released
 handle is refused with PN_ERROR_INVALID_HANDLE, never used; Python's objects
 release once."""
 

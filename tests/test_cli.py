@@ -696,7 +696,7 @@ def test_bench_reports_a_missing_dependency_before_any_work(capsys, sky_scene, t
         assert "--no-rays" in err
 
 
-# ------------------------------------------------------------- hostile input and faults (docs/reliability-outputs.md)
+# ------------------------------------------------------------- hostile input and faults (docs/reliability.md)
 
 
 def _no_temporaries(folder: Path) -> bool:

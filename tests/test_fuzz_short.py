@@ -1,4 +1,4 @@
-"""Short fuzzing of the Python loaders, as part of `make test` (tests/fuzz/, docs/reliability-loaders.md).
+"""Short fuzzing of the Python loaders, as part of `make test` (tests/fuzz/, docs/reliability.md).
 
 Time budget: the whole suite must stay under 15 minutes on 2 cores, so this
 file is kept under about 60 s: each of the 9 atheris targets runs for

@@ -3,7 +3,7 @@
 Each test here is a regression test for a defect found by fuzzing the loaders:
 integers that wrapped or were truncated, small files that cost gigabytes, and
 raw Python exceptions (ValueError, MemoryError, OverflowError, ...) where a
-penumbra error (InputError) is the contract. docs/reliability-loaders.md.
+penumbra error (InputError) is the contract. docs/reliability.md.
 """
 
 from __future__ import annotations

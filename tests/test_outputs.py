@@ -110,7 +110,7 @@ def test_wrong_dtype_pyopencl_arrays_are_refused(ctx, cl_pair):
         Image(ctx, w, h, buffer=cla.zeros(queue, (h, 2 * w, 4), np.float32)[:, ::2])
 
 
-# ---------------------------------------------------------------- the output policy (docs/reliability-outputs.md)
+# ---------------------------------------------------------------- the output policy (docs/reliability.md)
 
 
 def _dead_pid() -> int:

@@ -343,7 +343,7 @@ def test_terrain_heights():
 
 
 # --------------------------------------------------------------------------- #
-# Hostile arguments: types and resource limits (docs/reliability-outputs.md)
+# Hostile arguments: types and resource limits (docs/reliability.md)
 # --------------------------------------------------------------------------- #
 
 

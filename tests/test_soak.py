@@ -1,4 +1,4 @@
-"""The soak's short version (docs/reliability-soak.md; ``make soak`` runs the
+"""The soak's short version (docs/reliability.md; ``make soak`` runs the
 full 10,000 frames): 200 frames of the dynamic scene of tests/soak/soak.py in
 a process of their own, with the memory bounds, and the instance churn that
 once grew a scene's memory with every addition.

@@ -68,14 +68,14 @@ enum {
     PN_ERROR_UNSUPPORTED = -1012,      /* valid request the chosen method or device cannot do */
     PN_ERROR_CANCELLED = -1013,        /* a progress callback asked to stop (a checkpoint was kept) */
     PN_ERROR_FILE = -1014,             /* a file cannot be read or written, or is corrupt or foreign */
-    PN_ERROR_INVALID_HANDLE = -1015,   /* a handle was released already (or never created): see docs/reliability-c.md */
+    PN_ERROR_INVALID_HANDLE = -1015,   /* a handle was released already (or never created): see docs/reliability.md */
     PN_ERROR_INTERNAL = -1099
 };
 
 /* Marks background pixels in PN_GBUFFER_INSTANCE and misses in pn_scene_intersect. */
 #define PN_BACKGROUND 0xFFFFFFFFu
 
-/* Handles (docs/reliability-c.md). A handle is an opaque value naming a slot
+/* Handles (docs/reliability.md). A handle is an opaque value naming a slot
  * of a process-wide table and its generation, never an address: a handle that
  * was released (its last pn_*_release) or never created is answered with
  * PN_ERROR_INVALID_HANDLE, never by reading freed memory. Objects the library

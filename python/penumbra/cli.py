@@ -499,7 +499,7 @@ def main(argv: list[str] | None = None) -> int:
     except PenumbraError as exc:
         return _error(str(exc))
     # Failures that the input or the machine causes, not penumbra's code: an
-    # error line, not a traceback (docs/reliability-outputs.md). Their causes
+    # error line, not a traceback (docs/reliability.md). Their causes
     # are checked at the source where we can; this is the net under them.
     except OSError as exc:
         where = f"{exc.filename}: " if exc.filename else ""

@@ -6,7 +6,7 @@
   then replaces the destination in one ``os.replace``. Inside
   :func:`all_or_nothing` the replacements wait until the block succeeds, so a
   command's outputs appear together or not at all.
-* :func:`output_target` is the output policy (docs/reliability-outputs.md):
+* :func:`output_target` is the output policy (docs/reliability.md):
   an existing target that is not a regular file (a directory, a device, a
   FIFO, a socket) is refused; a symbolic link is followed, and the file it
   names is replaced (the link stays).

@@ -11,7 +11,7 @@ an argument) decides is checked first against
   default 2**28, a 16384 x 16384 image).
 
 Refusals are :class:`~penumbra.errors.InputError` naming the limit and the
-variable that sets it (docs/reliability-loaders.md).
+variable that sets it (docs/reliability.md).
 
 :func:`checked_int` converts a value to an integer of a C type's range, refusing
 (never wrapping) a value that is not a whole number or does not fit.

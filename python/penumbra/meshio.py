@@ -20,7 +20,7 @@ valid file) through a small strict parser here (see :func:`_load_obj`). OFF,
 PLY and STL are parsed here; the reasons are given in :func:`_load_off`,
 :func:`_load_ply` and :func:`_load_stl`. Indices are read as strict integers:
 a fraction, trailing characters or a value out of range is an error, never
-truncated or wrapped (docs/reliability-loaders.md). Allocations sized by a
+truncated or wrapped (docs/reliability.md). Allocations sized by a
 header are checked against the file's size and ``PENUMBRA_MAX_BYTES``
 (:mod:`penumbra.limits`).
 

@@ -51,7 +51,7 @@ __all__ = [
 # --------------------------------------------------------------------------- #
 
 
-# Resource limits (docs/reliability-outputs.md): procedural content is made in
+# Resource limits (docs/reliability.md): procedural content is made in
 # memory, in float64, so every size is bounded before anything is allocated.
 # A request beyond a limit is an InputError that names it.
 MAX_ENV_WIDTH = 8192            # lat-long map columns
@@ -75,7 +75,7 @@ def _integer(value, name: str, minimum: int, maximum: int) -> int:
         raise InputError(f"{name} must be an integer, got {_shown(value)}")
     if not minimum <= value <= maximum:
         raise InputError(f"{name} = {_shown(value)} is above {maximum}, the limit of penumbra.procedural "
-                         "(docs/reliability-outputs.md)" if value > maximum else
+                         "(docs/reliability.md)" if value > maximum else
                          f"{name} must be an integer >= {minimum}, got {_shown(value)}")
     return int(value)
 

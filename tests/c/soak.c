@@ -1,6 +1,6 @@
 /* Soak of libpenumbra through its public API (penumbra.h): FRAMES frames of
  * a fully dynamic scene in one process, the C twin of tests/soak/soak.py
- * (docs/reliability-soak.md).
+ * (docs/reliability.md).
  *
  *   test_soak [FRAMES [WIDTH HEIGHT]]      (default 100 frames, 64x48)
  *

@@ -1,4 +1,4 @@
-/* Shared helpers of the libFuzzer targets (docs/reliability-c.md, "Fuzzing (C)"). */
+/* Shared helpers of the libFuzzer targets (docs/reliability.md, "Fuzzing (C)"). */
 #ifndef PENUMBRA_FUZZ_COMMON_H
 #define PENUMBRA_FUZZ_COMMON_H
 

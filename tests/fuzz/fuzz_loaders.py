@@ -18,7 +18,7 @@ or several (named, or all) with a summary (``make fuzz-python``, ``FUZZ_SECONDS`
     python tests/fuzz/fuzz_loaders.py --seconds 10 --out build/fuzz-python [TARGET ...]
 
 The seed corpus (tests/fuzz/corpus/<target>/) is made by make_corpus.py.
-docs/reliability-loaders.md has the figures.
+docs/reliability.md has the figures.
 """
 
 from __future__ import annotations

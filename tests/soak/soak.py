@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Soak: many frames of a fully dynamic scene in one process, with the
-process's memory measured after a warm-up and at the end (docs/reliability-soak.md).
+process's memory measured after a warm-up and at the end (docs/reliability.md).
 
 One Context; a height-field terrain and several mesh instances (spheres with
 a baked occlusion field and a sphere set attached, a rotating box). Every

@@ -1,4 +1,4 @@
-/* Host memory under the cap of PENUMBRA_MAX_BYTES (docs/reliability-c.md,
+/* Host memory under the cap of PENUMBRA_MAX_BYTES (docs/reliability.md,
  * "Limits"): every allocation whose size comes from the caller's input is
  * checked against it before anything is allocated or read. */
 #include "core/core.h"
