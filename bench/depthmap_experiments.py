@@ -26,9 +26,11 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "python"))
-
-import penumbra  # noqa: E402
+try:
+    import penumbra
+except ImportError:  # a checkout without `pip install .` (bench/harness.py says why only then)
+    sys.path.insert(0, str(REPO / "python"))
+    import penumbra
 from penumbra import GBuffer, Image, Renderer  # noqa: E402
 from penumbra.fileutil import atomic_write, atomic_write_text  # noqa: E402
 from penumbra.imageio import write_png  # noqa: E402

@@ -44,10 +44,14 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 KERNELS = REPO / "kernels"
-if str(REPO / "python") not in sys.path:
+try:
+    import penumbra
+except ImportError:
+    # A checkout without `pip install .` (PENUMBRA_LIBRARY set). Only then: the
+    # source folder first on sys.path would also be what Dask's worker
+    # processes import (they inherit sys.path), and it has no built library.
     sys.path.insert(0, str(REPO / "python"))
-
-import penumbra  # noqa: E402
+    import penumbra
 from penumbra.fileutil import atomic_write, atomic_write_text  # noqa: E402
 from penumbra.imageio import write_png  # noqa: E402
 from penumbra.metrics import compare, error_heatmap  # noqa: E402

@@ -106,59 +106,6 @@ inline void pn_isg_tree_init(int sphere_count, int use_tree, pn_isg_tree *t)
     t->levels = l;
 }
 
-/* One sphere's patches: marks in `mask` (one word per patch row, bit j for
- * column j) the patches whose centre direction lies in its cap seen from
- * (p, n). Returns -1 when the receiver is inside it (an occluder), 1 when it
- * marked something, else 0. */
-inline int pn_isg_mark_sphere(const pn_isg_grid *pg, float cos_cone, float sin_cone, float3 p, float3 n,
-                              float4 sp, bool own, int self_occlusion, uint *mask)
-{
-    const int grid = pg->grid;
-    const float lo = pg->lo, step = pg->step;
-    const float3 v = sp.xyz - p;
-    const float r = sp.w, d2 = dot(v, v);
-    if (dot(v, n) <= -r) /* wholly behind the receiver plane */
-        return 0;
-    if (own && self_occlusion == 0)
-        return 0;
-    if (d2 <= r * r * (1.0f + PN_ISG_TOUCH) * (1.0f + PN_ISG_TOUCH))
-        return own && self_occlusion == 1 ? 0 : -1; /* inside an occluder */
-    const float d = sqrt(d2);
-    const float3 u = v / d;
-    const float sa = fmin(r / d, 1.0f), ca = sqrt(fmax(1.0f - sa * sa, 0.0f));
-    /* Outside the window's cone: axis angle > cone + alpha (possible only when cone + alpha < pi). */
-    if (cos_cone > -ca && dot(u, pg->z) < cos_cone * ca - sin_cone * sa)
-        return 0;
-    const float alpha = asin(sa);
-    const float2 tp = pn_isg_angles(u, pg->x, pg->y, pg->z);
-    /* Patch rows and columns the cap can reach (lat-long bounds of a cap). */
-    int i0 = (int)floor((tp.x - alpha - lo) / step), i1 = (int)floor((tp.x + alpha - lo) / step);
-    int j0, j1;
-    const float st = sin(tp.x);
-    if (tp.x - alpha <= 0.0f || tp.x + alpha >= PN_PI || sa >= st) {
-        j0 = 0, j1 = grid - 1;
-    } else {
-        const float dphi = asin(fmin(sa / st, 1.0f));
-        float ph = tp.y;
-        if (ph > 1.5f * PN_PI) /* behind the lobe, on the phi seam side */
-            ph -= PN_TWO_PI;
-        j0 = (int)floor((ph - dphi - lo) / step), j1 = (int)floor((ph + dphi - lo) / step);
-    }
-    i0 = max(i0, 0), j0 = max(j0, 0), i1 = min(i1, grid - 1), j1 = min(j1, grid - 1);
-    const float3 ul = (float3)(dot(u, pg->x), dot(u, pg->y), dot(u, pg->z));
-    uint marked = 0u;
-    for (int i = i0; i <= i1; ++i) {
-        uint bits = 0u;
-        for (int j = j0; j <= j1; ++j) {
-            const float dotc = pg->sin_c[i] * (pg->cos_c[j] * ul.x + pg->sin_c[j] * ul.z) + pg->cos_c[i] * ul.y;
-            bits |= (dotc >= ca ? 1u : 0u) << j;
-        }
-        mask[i] |= bits;
-        marked |= bits;
-    }
-    return marked != 0u;
-}
-
 /* The first row whose centre cosine is <= c (grid - 1 if none): the row nearest
  * the angle acos(c), within one. */
 inline int pn_isg_bisect(const pn_isg_grid *pg, float c)
@@ -173,8 +120,12 @@ inline int pn_isg_bisect(const pn_isg_grid *pg, float c)
     return min(base + (pg->cos_c[base] > c ? 1 : 0), pg->grid - 1);
 }
 
-/* pn_isg_mark_sphere without trigonometry beyond one atan2, marking the same
- * patches (the same float test on each patch centre): a row can hold marks
+/* One sphere's patches: marks in `mask` (one word per patch row, bit j for
+ * column j) the patches whose centre direction lies in its cap seen from
+ * (p, n). Returns -1 when the receiver is inside it (an occluder), 1 when it
+ * marked something, else 0. No trigonometry beyond one atan2 (an earlier
+ * version bounded the cap's rows and columns by asin and atan2 per sphere and
+ * marked the same patches, 1.2-1.35x slower; docs/isg.md): a row can hold marks
  * only where its best direction, at the sphere's phi, is within the cap
  * (sin(theta_i) rho + cos(theta_i) u_y >= cos alpha, with a 1e-6 slack for
  * rounding); in a row the cap's patches are the columns around the window's
@@ -263,7 +214,7 @@ inline int pn_isg_mark_sphere_rows(const pn_isg_grid *pg, float cos_cone, float 
  * containing the receiver: not wholly behind the receiver plane, and its cap
  * not outside the window's cone unless the receiver is inside it. The host
  * pads node radii (sphere_tree), so a node is culled only where every sphere
- * in it is culled by pn_isg_mark_sphere's own tests beyond rounding. */
+ * in it is culled by pn_isg_mark_sphere_rows's own tests beyond rounding. */
 inline bool pn_isg_node_open(float4 b, float3 p, float3 n, float3 z, float cos_cone, float sin_cone)
 {
     const float3 v = b.xyz - p;
@@ -295,8 +246,8 @@ inline int pn_isg_mark(const pn_isg_grid *pg, float3 p, float3 n, uint self_id, 
         return 0;
     if (tree->levels == 0) {
         for (int s = 0; s < sphere_count; ++s) {
-            const int m = pn_isg_mark_sphere(pg, cos_cone, sin_cone, p, n, spheres[s], owners[s] == self_id,
-                                             self_occlusion, mask);
+            const int m = pn_isg_mark_sphere_rows(pg, cos_cone, sin_cone, p, n, spheres[s], owners[s] == self_id,
+                                                  self_occlusion, mask);
             if (m < 0)
                 return -1;
             any += m;

@@ -16,7 +16,10 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "python"))
+try:
+    import penumbra  # noqa: F401
+except ImportError:  # a checkout without `pip install .` (PENUMBRA_LIBRARY set)
+    sys.path.insert(0, str(ROOT / "python"))
 
 import numpy as np  # noqa: E402
 
