@@ -366,6 +366,18 @@ static void bake_mesh_bounds_overflow(void)
     pn_context_release(ctx);
 }
 
+/* The smallest bake worth making: 4 x 3 x 2 samples, cube face 2. */
+static pn_fiv_options tiny_fiv_options(void)
+{
+    pn_fiv_options o = pn_fiv_options_default();
+    o.theta = 3;
+    o.phi = 4;
+    o.radii = 2;
+    o.face_size = 2;
+    o.sun_supersampling = 1;
+    return o;
+}
+
 static void bake_outer_sphere_overflow(void)
 {
     rig r;
@@ -377,12 +389,7 @@ static void bake_outer_sphere_overflow(void)
     expect_status("a large but representable mesh", st, PN_SUCCESS, r.ctx, NULL);
     if (st)
         return rig_release(&r);
-    pn_fiv_options o = pn_fiv_options_default();
-    o.theta = 3;
-    o.phi = 4;
-    o.radii = 2;
-    o.face_size = 2;
-    o.sun_supersampling = 1;
+    pn_fiv_options o = tiny_fiv_options();
     char path[] = "/tmp/pn_hostile_bake_XXXXXX";
     int fd = mkstemp(path);
     if (fd >= 0)
@@ -434,12 +441,7 @@ static void reseal(unsigned char *h)
 /* A small finished bake file at `path`, its header in h[256]. */
 static int small_bake(rig *r, const char *path, unsigned char *h)
 {
-    pn_fiv_options o = pn_fiv_options_default();
-    o.theta = 3;
-    o.phi = 4;
-    o.radii = 2;
-    o.face_size = 2;
-    o.sun_supersampling = 1;
+    pn_fiv_options o = tiny_fiv_options();
     pn_fiv fiv;
     pn_status st = pn_fiv_bake(r->env, r->mesh, &o, NULL, NULL, NULL, &fiv);
     if (!st) {
