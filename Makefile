@@ -15,7 +15,7 @@ DOCS_PIP := "sphinx>=7" "myst-parser>=2"
 export DRJIT_LIBLLVM_PATH ?= /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
 SOURCES := $(shell find capi kernels python cmake -type f) CMakeLists.txt pyproject.toml
 
-.PHONY: all deps venv install demo test test-c test-python fuzz fuzz-c fuzz-python docs bench bench-fiv-scaling clean
+.PHONY: all deps venv install demo test test-c test-python fuzz fuzz-c fuzz-python docs bench bench-roofline bench-fiv-scaling clean
 
 all: install
 
@@ -113,12 +113,18 @@ docs: install
 # worker (docs/farm.md): ratios stay within one run, but workers share the cores.
 BENCH_SCENES := $(wildcard bench/scenes/*.toml)
 BENCH_WORKERS ?=
-bench: install
+bench: install bench-roofline
 	@if [ -n "$(BENCH_WORKERS)" ]; then \
 	  $(VENV)/bin/penumbra bench $(BENCH_SCENES) --out bench/results --readme README.md --workers $(BENCH_WORKERS); \
 	else for s in $(BENCH_SCENES); do \
 	  $(VENV)/bin/penumbra bench $$s --out bench/results/$$(basename $$s .toml) --readme README.md || exit 1; \
 	done; fi
+
+# The machine's peak FMA FLOP/s and memory bandwidth under the OpenCL runtime in use, the
+# roofline docs/performance.md measures every kernel against: bench/results/roofline/.
+bench-roofline: install
+	@mkdir -p bench/results/roofline
+	$(PY) bench/roofline.py --json bench/results/roofline/roofline.json
 
 # fiv's per-frame cost against the number of occluders (1, 10, 30, 60 bunnies, 512x512),
 # next to the paper's Table 2: bench/results/fiv_scaling/.
