@@ -35,7 +35,8 @@ from penumbra.scenefile import load_scene, parse_scene  # noqa: E402
 
 
 def scenes(res):
-    sunny = load_scene(harness.REPO / "bench" / "scenes" / "bunny_sunny.toml", [f"camera.resolution=[{res[0]},{res[1]}]"])
+    sunny = load_scene(harness.REPO / "bench" / "scenes" / "bunny_sunny.toml",
+                       [f"camera.resolution=[{res[0]},{res[1]}]"])
     yield "bunny_sunny (diffuse)", sunny
     yield "Fig. 12 (Phong 1000, k_s 0.5)", parse_scene(copy.deepcopy(bunny_scene(res, 0.5, 0.5)), ".")
 
