@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import os
 import sys
 import time
 from pathlib import Path
@@ -140,6 +141,28 @@ def library_ms(built, gb, res, reps, **params):
     return 1e3 * min(ts), 1e3 * min(cpu), img.read()
 
 
+def interleaved(built, gb, res, k, reps, old_kernels, **params):
+    """A/B in one process, rounds interleaved (A B A B ...) after a warm-up of each, medians of `reps`:
+    A the kernel of another version (`old_kernels`) on the same inputs through pyopencl, B a library
+    frame (Renderer.execute). Returns ((wall, CPU) of A, (wall, CPU) of B, B's image); CPU is the
+    process's CPU time (PoCL's threads included), the measure least moved by others' load."""
+    img = Image(built.ctx, *res)
+    r = Renderer(built.ctx, "isg", **params)
+    r.execute(built.scene, gb, img)
+    built.ctx.finish()
+    k.run(kernels=old_kernels, tree_args=True)
+    a, b = [], []
+    for _ in range(reps):
+        t = k.run(kernels=old_kernels, tree_args=True)
+        a.append((t[0], t[2]))
+        t0, c0 = time.perf_counter(), time.process_time()
+        r.execute(built.scene, gb, img)
+        built.ctx.finish()
+        b.append((1e3 * (time.perf_counter() - t0), 1e3 * (time.process_time() - c0)))
+    med = lambda xs, i: float(np.median([x[i] for x in xs]))  # noqa: E731
+    return (med(a, 0), med(a, 1)), (med(b, 0), med(b, 1)), img.read()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default="100x100,160x120")
@@ -147,10 +170,32 @@ def main() -> None:
     ap.add_argument("--reps", type=int, default=2)
     ap.add_argument("--old-kernels", default=None,
                     help="another version's kernels/ folder (git archive COMMIT kernels | tar -x -C DIR) timed too")
+    ap.add_argument("--no-flat", action="store_true",
+                    help="with --old-kernels: only the old kernel against the library's default, interleaved")
     a = ap.parse_args()
     from penumbra import Context
     ctx = Context()
     rows = []
+    if a.no_flat:
+        print(f"load {os.getloadavg()[0]:.1f} at the start", flush=True)
+        for size in a.sizes.split(","):
+            res = tuple(int(x) for x in size.split("x"))
+            for n in (int(x) for x in a.spheres.split(",")):
+                built, gb, planes, sph, own = scene(ctx, res, n)
+                fl = floor_ms(built, gb, res)
+                k = Kernel(ctx, built, planes, sph, own)
+                (wa, ca), (wb, cb), img = interleaved(built, gb, res, k, a.reps, a.old_kernels)
+                surf = int((planes["instance"] != 0xFFFFFFFF).sum())
+                rows.append((res, len(sph), surf, ca, cb, wa, wb, fl))
+                print(f"{res} {len(sph)} spheres: old wall {wa:.0f} CPU {ca:.0f} | new wall {wb:.0f} CPU {cb:.0f} | "
+                      f"floor {fl:.3f} ms | load {os.getloadavg()[0]:.1f}", flush=True)
+        print("\n| pixels | surface pixels | spheres | CPU ms: old | new | old / new | wall ms: new | floor ms | "
+              "new x floor (wall) | new CPU us per surface pixel |")
+        print("|---|---|---|---|---|---|---|---|---|---|")
+        for res, n, surf, ca, cb, wa, wb, fl in rows:
+            print(f"| {res[0]} x {res[1]} | {surf} | {n} | {ca:.0f} | {cb:.0f} | {ca / cb:.2f} | {wb:.0f} | {fl:.3f} | "
+                  f"{wb / fl:.0f} | {1e3 * cb / surf:.1f} |")
+        return
     for size in a.sizes.split(","):
         res = tuple(int(x) for x in size.split("x"))
         for n in (int(x) for x in a.spheres.split(",")):

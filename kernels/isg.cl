@@ -38,6 +38,7 @@
 #include "common/sphere_maps.cl"
 
 #define PN_ISG_MAX_GRID 24
+#define PN_ISG_LANES 32 /* two float16 */
 #define PN_ISG_WINDOW_SIGMAS 3.0f
 #define PN_ISG_TOUCH 1e-3f
 /* The seed's cosine lobe (after [WRG*09]). */
@@ -56,7 +57,8 @@ typedef struct {
     float3 x, y, z;
     float lo, step, cos_lo;
     int grid;
-    float sin_c[PN_ISG_MAX_GRID], cos_c[PN_ISG_MAX_GRID];
+    /* PN_ISG_LANES entries, zero past `grid`: the marking tests 16 rows or columns at once. */
+    float sin_c[PN_ISG_LANES], cos_c[PN_ISG_LANES];
 } pn_isg_grid;
 
 inline void pn_isg_grid_init(pn_sg g, int grid, pn_isg_grid *pg)
@@ -75,6 +77,8 @@ inline void pn_isg_grid_init(pn_sg g, int grid, pn_isg_grid *pg)
         const float s2 = sn * cd + cs * sd;
         cs = cs * cd - sn * sd, sn = s2;
     }
+    for (int i = grid; i < PN_ISG_LANES; ++i)
+        pg->sin_c[i] = 0.0f, pg->cos_c[i] = 0.0f;
 }
 
 /* The sphere tree (built by the host every frame, capi/src/methods/isg.c
@@ -106,37 +110,60 @@ inline void pn_isg_tree_init(int sphere_count, int use_tree, pn_isg_tree *t)
     t->levels = l;
 }
 
-/* The first row whose centre cosine is <= c (grid - 1 if none): the row nearest
- * the angle acos(c), within one. */
-inline int pn_isg_bisect(const pn_isg_grid *pg, float c)
+/* The row (or column) whose centre is nearest the angle t, within one: the walks
+ * of pn_isg_mark_sphere_rows start there. */
+inline int pn_isg_cell(const pn_isg_grid *pg, float t)
 {
-    /* Branch-free: the trip count depends on the grid only, the step is a select. */
-    int base = 0, n = pg->grid;
-    while (n > 1) {
-        const int h = n >> 1;
-        base = pg->cos_c[base + h] > c ? base + h : base;
-        n -= h;
-    }
-    return min(base + (pg->cos_c[base] > c ? 1 : 0), pg->grid - 1);
+    return (int)clamp((t - pg->lo) / pg->step, 0.0f, (float)(pg->grid - 1));
+}
+
+/* A patch row's mask with every column marked (grid <= PN_ISG_MAX_GRID < 32). */
+inline uint pn_isg_full_row(int grid)
+{
+    return (1u << grid) - 1u;
+}
+
+/* Trailing zeros of f != 0 (ctz is OpenCL 2.0; clz is 1.2). */
+inline int pn_isg_ctz(uint f)
+{
+    return 31 - (int)clz(f & (0u - f));
+}
+
+/* Whether every patch of the window is marked: no further sphere can change V. */
+inline bool pn_isg_all_marked(const uint *mask, int grid)
+{
+    uint all = pn_isg_full_row(grid);
+    for (int i = 0; i < grid; ++i)
+        all &= mask[i];
+    return all == pn_isg_full_row(grid);
+}
+
+/* Lanes of a 16-wide comparison (-1 where true) as bits base..base + 15. */
+inline uint pn_isg_bits16(int16 m, int base)
+{
+    const uint16 w = as_uint16(m) & (uint16)(1u, 2u, 4u, 8u, 16u, 32u, 64u, 128u, 256u, 512u, 1024u, 2048u, 4096u,
+                                             8192u, 16384u, 32768u);
+    const uint8 a = w.lo | w.hi;
+    const uint4 b = a.lo | a.hi;
+    const uint2 c = b.lo | b.hi;
+    return (c.x | c.y) << base;
 }
 
 /* One sphere's patches: marks in `mask` (one word per patch row, bit j for
  * column j) the patches whose centre direction lies in its cap seen from
  * (p, n). Returns -1 when the receiver is inside it (an occluder), 1 when it
- * marked something, else 0. No trigonometry beyond one atan2 (an earlier
- * version bounded the cap's rows and columns by asin and atan2 per sphere and
- * marked the same patches, 1.2-1.35x slower; docs/isg.md): a row can hold marks
- * only where its best direction, at the sphere's phi, is within the cap
+ * marked something new, else 0. No trigonometry: a row can hold marks only
+ * where its best direction, at the sphere's phi, is within the cap
  * (sin(theta_i) rho + cos(theta_i) u_y >= cos alpha, with a 1e-6 slack for
- * rounding); in a row the cap's patches are the columns around the window's
- * column nearest the sphere's phi (cos(phi - phi_u) is unimodal over a window
- * not holding phi_u + pi, else the whole row is tested), found by walking out
- * from it while the patch test holds. */
+ * rounding), and in such a row the patch test is d_ij . u >= cos alpha. Both
+ * are evaluated 16 rows or columns at a time (float16: SIMD on a CPU, where the
+ * earlier scalar walk from the nearest row and column, found by bisection,
+ * was 2-3x slower; it marked the same patches; docs/isg.md section 9). */
 inline int pn_isg_mark_sphere_rows(const pn_isg_grid *pg, float cos_cone, float sin_cone, float3 p, float3 n,
                                    float4 sp, bool own, int self_occlusion, uint *mask)
 {
     const int grid = pg->grid;
-    const float lo = pg->lo, step = pg->step;
+    const uint full = pn_isg_full_row(grid);
     const float3 v = sp.xyz - p;
     const float r = sp.w, d2 = dot(v, v);
     if (dot(v, n) <= -r) /* wholly behind the receiver plane */
@@ -152,61 +179,27 @@ inline int pn_isg_mark_sphere_rows(const pn_isg_grid *pg, float cos_cone, float 
         return 0;
     const float3 ul = (float3)(dot(u, pg->x), dot(u, pg->y), dot(u, pg->z));
     const float rho = sqrt(ul.x * ul.x + ul.z * ul.z);
-    /* The row and column nearest the sphere's direction (theta_u, phi_u), within one, by
-     * bisection of the centres' cosines (decreasing; rows and columns share them): cos
-     * theta_u = u_y; cos phi_u = u_x / rho where u_z >= 0, else phi_u is behind the window
-     * (in (pi, 2 pi)), nearer its phi = 0 end when u_x >= 0. */
-    const int ic = pn_isg_bisect(pg, ul.y);
-    const int jc = ul.z >= 0.0f ? pn_isg_bisect(pg, ul.x / fmax(rho, 1e-30f)) : ul.x >= 0.0f ? 0 : grid - 1;
-    /* phi_u + pi inside the window: cos(phi - phi_u) is not unimodal there, test every column. */
-    const bool whole = ul.z < 0.0f && fabs(ul.x) <= rho * pg->cos_lo + 1e-6f;
-    /* Rows: cos(theta_i - theta_u) is unimodal in i; those near ic always, then outwards
-     * until a row whose best direction is outside the cap. */
-#define PN_ISG_ROW_NEAR(i) (pg->sin_c[i] * rho + pg->cos_c[i] * ul.y >= ca - 1e-6f)
-    int i0 = max(ic - 1, 0), i1 = min(ic + 1, grid - 1);
-    while (i0 > 0 && PN_ISG_ROW_NEAR(i0 - 1))
-        --i0;
-    while (i1 < grid - 1 && PN_ISG_ROW_NEAR(i1 + 1))
-        ++i1;
-    const int a0 = max(jc - 1, 0), a1 = min(jc + 1, grid - 1);
+    const float16 s0 = vload16(0, pg->sin_c), c0 = vload16(0, pg->cos_c);
+    uint rows = pn_isg_bits16(s0 * rho + c0 * ul.y >= ca - 1e-6f, 0);
+    if (grid > 16)
+        rows |= pn_isg_bits16(vload16(1, pg->sin_c) * rho + vload16(1, pg->cos_c) * ul.y >= ca - 1e-6f, 16);
+    /* Each column's azimuthal part, shared by the rows. */
+    const float16 h0 = c0 * ul.x + s0 * ul.z;
+    const float16 h1 = grid > 16 ? vload16(1, pg->cos_c) * ul.x + vload16(1, pg->sin_c) * ul.z : (float16)(0.0f);
     uint marked = 0u;
-    for (int i = i0; i <= i1; ++i) {
-        const float si = pg->sin_c[i], ci = pg->cos_c[i];
-        if (!PN_ISG_ROW_NEAR(i))
-            continue;
-        /* Columns: those near jc, then outwards until one outside the cap; patches already
-         * marked are not tested again (the cap's columns are contiguous, so walking over
-         * them never skips one of its columns). */
+    for (uint f = rows & full; f != 0u; f &= f - 1u) {
+        const int i = pn_isg_ctz(f);
         const uint row = mask[i];
-#define PN_ISG_TODO(j) ((((row >> (j)) & 1u) == 0u) && \
-                        (si * (pg->cos_c[j] * ul.x + pg->sin_c[j] * ul.z) + ci * ul.y >= ca))
-        uint bits = 0u;
-        if (whole) {
-            for (int j = 0; j < grid; ++j)
-                bits |= (PN_ISG_TODO(j) ? 1u : 0u) << j;
-        } else {
-            for (int j = a0; j <= a1; ++j)
-                bits |= (PN_ISG_TODO(j) ? 1u : 0u) << j;
-            for (int j = a1 + 1; j < grid; ++j) {
-                if ((row >> j) & 1u)
-                    continue;
-                if (!PN_ISG_TODO(j))
-                    break;
-                bits |= 1u << j;
-            }
-            for (int j = a0 - 1; j >= 0; --j) {
-                if ((row >> j) & 1u)
-                    continue;
-                if (!PN_ISG_TODO(j))
-                    break;
-                bits |= 1u << j;
-            }
-        }
-#undef PN_ISG_TODO
+        if (row == full) /* nothing left to mark in this row */
+            continue;
+        const float si = pg->sin_c[i], ci = pg->cos_c[i];
+        uint cols = pn_isg_bits16(si * h0 + ci * ul.y >= ca, 0);
+        if (grid > 16)
+            cols |= pn_isg_bits16(si * h1 + ci * ul.y >= ca, 16);
+        const uint bits = cols & full & ~row;
         mask[i] = row | bits;
         marked |= bits;
     }
-#undef PN_ISG_ROW_NEAR
     return marked != 0u;
 }
 
@@ -228,11 +221,60 @@ inline bool pn_isg_node_open(float4 b, float3 p, float3 n, float3 z, float cos_c
     return !(cos_cone > -ca && dot(v, z) < d * (cos_cone * ca - sin_cone * sa));
 }
 
+/* Whether sphere sp makes the receiver "inside an occluder" (pn_isg_mark_sphere_rows's
+ * -1): the same tests, none of which depends on the lobe. */
+inline bool pn_isg_inside_sphere(float3 p, float3 n, float4 sp, bool own, int self_occlusion)
+{
+    const float3 v = sp.xyz - p;
+    const float r = sp.w;
+    if (dot(v, n) <= -r || (own && self_occlusion != 2))
+        return false;
+    return dot(v, v) <= r * r * (1.0f + PN_ISG_TOUCH) * (1.0f + PN_ISG_TOUCH);
+}
+
+/* Whether the receiver is inside an occluder: a per-pixel fact (every lobe's V
+ * is then 0), found once by a walk that opens only the nodes holding p (a node
+ * holds its spheres, so it reaches every sphere pn_isg_mark would report). */
+inline bool pn_isg_inside(float3 p, float3 n, uint self_id, int self_occlusion, global const float4 *spheres,
+                          global const uint *owners, int sphere_count, global const float4 *nodes,
+                          const pn_isg_tree *tree)
+{
+    if (tree->levels == 0) {
+        for (int s = 0; s < sphere_count; ++s)
+            if (pn_isg_inside_sphere(p, n, spheres[s], owners[s] == self_id, self_occlusion))
+                return true;
+        return false;
+    }
+    const int top = tree->levels;
+    int l = top, i = 0;
+    while (l < top || i < tree->count[top]) {
+        const float4 b = nodes[tree->offset[l] + i];
+        const float3 v = b.xyz - p;
+        const float rin = b.w * (1.0f + PN_ISG_TOUCH);
+        if (dot(v, n) > -b.w && dot(v, v) <= rin * rin) {
+            if (l > 1) {
+                --l, i *= PN_ISG_TREE_FANOUT;
+                continue;
+            }
+            const int s1 = min((i + 1) * PN_ISG_TREE_FANOUT, sphere_count);
+            for (int s = i * PN_ISG_TREE_FANOUT; s < s1; ++s)
+                if (pn_isg_inside_sphere(p, n, spheres[s], owners[s] == self_id, self_occlusion))
+                    return true;
+        }
+        ++i;
+        while (l < top && (i % PN_ISG_TREE_FANOUT == 0 || i >= tree->count[l]))
+            i = (i - 1) / PN_ISG_TREE_FANOUT + 1, ++l;
+    }
+    return false;
+}
+
 /* Marks in `mask` the patches whose centre direction meets a sphere seen from
  * (p, n): every sphere (tree->levels = 0) or those in the tree's nodes that
  * pn_isg_node_open keeps. Returns -1 when the receiver is inside an occluder,
  * else the number of spheres that marked something (0: the lobe is
- * unoccluded). */
+ * unoccluded). Stops once every patch is marked: the spheres left can only
+ * report "inside", which shade_isg has ruled out per pixel (pn_isg_inside),
+ * so the image is the same. */
 inline int pn_isg_mark(const pn_isg_grid *pg, float3 p, float3 n, uint self_id, int self_occlusion,
                        global const float4 *spheres, global const uint *owners, int sphere_count,
                        global const float4 *nodes, const pn_isg_tree *tree, uint *mask)
@@ -251,6 +293,8 @@ inline int pn_isg_mark(const pn_isg_grid *pg, float3 p, float3 n, uint self_id, 
             if (m < 0)
                 return -1;
             any += m;
+            if (m > 0 && pn_isg_all_marked(mask, pg->grid))
+                return any;
         }
         return any;
     }
@@ -269,6 +313,8 @@ inline int pn_isg_mark(const pn_isg_grid *pg, float3 p, float3 n, uint self_id, 
                 if (m < 0)
                     return -1;
                 any += m;
+                if (m > 0 && pn_isg_all_marked(mask, pg->grid))
+                    return any;
             }
         }
         /* The next node: the next sibling, or up while this sibling group is done. */
@@ -295,8 +341,10 @@ inline void pn_isg_edges(const pn_isg_grid *pg, float lambda, global const float
     const float u = pn_isg_row(lambda), k = sqrt(0.5f * lambda), inv = 1.0f / erf(k * 0.5f * PN_PI);
     for (int j = 0; j <= pg->grid; ++j) {
         const float e = pg->lo + (float)j * pg->step;
-        a_edge[j] = pn_isg_cdf(table, 0, u, e, k, inv);
-        b_edge[j] = pn_isg_cdf(table, 1, u, e, k, inv);
+        /* pn_isg_cdf of blocks 0 and 1, sharing the erf warp of the edge (the same angle). */
+        const float x = e - 0.5f * PN_PI, rho = pn_isg_front_rho(fabs(x), k, inv);
+        a_edge[j] = 0.5f + copysign(pn_isg_lookup(table, 0, u, rho), x);
+        b_edge[j] = 0.5f + copysign(pn_isg_lookup(table, 1, u, rho), x);
     }
 }
 
@@ -396,23 +444,27 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
     /* A sharp BRDF lobe integrates the env cube on its own patches; a broad one
      * (whose patches would alias the cube) the SG lobe products. */
     const bool env_specular = m.ks > 0.0f && brdf.sharpness >= env_sharpness;
+    /* Inside an occluder every shadowed lobe's V is 0 (pn_isg_mark would find it per lobe). */
+    const bool inside = pn_isg_inside(p, n, id, self_occlusion, spheres, owners, sphere_count, nodes, &tree);
     float3 diffuse = (float3)(0.0f), specular = (float3)(0.0f);
-    if (env_specular)
+    if (env_specular && !(inside && specular_shadows))
         specular = pn_isg_env_specular(brdf, p, n, id, specular_shadows ? self_occlusion : 0, spheres, owners,
                                        specular_shadows ? sphere_count : 0, nodes, &tree, grid, table, cube, n_cube);
     for (int k = 0; k < lobe_count; ++k) {
         const pn_sg g = pn_sg_load(lobes, k);
         const float3 e = pn_sg_irradiance(g, n);
         if (e.x > 0.0f || e.y > 0.0f || e.z > 0.0f)
-            diffuse += e * pn_isg_visibility(pn_sg_product(g, cosine), p, n, id, self_occlusion, spheres, owners,
-                                             sphere_count, nodes, &tree, grid, table);
+            diffuse += e * (inside ? 0.0f
+                                   : pn_isg_visibility(pn_sg_product(g, cosine), p, n, id, self_occlusion, spheres,
+                                                       owners, sphere_count, nodes, &tree, grid, table));
         if (m.ks > 0.0f && !env_specular) {
             const pn_sg gb = pn_sg_product(g, brdf);
             const float3 s = pn_sg_reflected(g, brdf, n);
             if (s.x > 0.0f || s.y > 0.0f || s.z > 0.0f)
-                specular += s * (specular_shadows ? pn_isg_visibility(gb, p, n, id, self_occlusion, spheres, owners,
-                                                                      sphere_count, nodes, &tree, grid, table)
-                                                  : 1.0f);
+                specular += s * (!specular_shadows ? 1.0f
+                                 : inside          ? 0.0f
+                                                   : pn_isg_visibility(gb, p, n, id, self_occlusion, spheres, owners,
+                                                                       sphere_count, nodes, &tree, grid, table));
         }
     }
     const float3 c = m.albedo * PN_INV_PI * diffuse + m.ks * specular;

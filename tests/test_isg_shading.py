@@ -222,6 +222,87 @@ def test_sphere_tree_gives_the_flat_loops_image_on_random_scenes(cl_pair, build_
     assert (flat[lit, :3] < 0.9 * free[lit, :3]).any(axis=1).sum() > len(px) // 4  # and shadowed
 
 
+MARK_SOURCE = """#include "isg.cl"
+kernel void mark_test(global const float4 *position, global const float4 *normal, global const uint *ids,
+                      global const float4 *axis, int lobe_count, global const float4 *spheres,
+                      global const uint *owners, int sphere_count, global const float4 *nodes, int grid,
+                      int self_occlusion, global uint *out)
+{
+    const int gid = get_global_id(0), q = gid / lobe_count;
+    pn_sg g;
+    g.axis = axis[gid % lobe_count].xyz, g.sharpness = axis[gid % lobe_count].w, g.amplitude = (float3)(1.0f);
+    pn_isg_grid pg;
+    pn_isg_grid_init(g, grid, &pg);
+    pn_isg_tree tree;
+    pn_isg_tree_init(sphere_count, 1, &tree);
+    uint mask[PN_ISG_MAX_GRID];
+    const int m = pn_isg_mark(&pg, position[q].xyz, normal[q].xyz, ids[q], self_occlusion, spheres, owners,
+                              sphere_count, nodes, &tree, mask);
+    for (int i = 0; i < PN_ISG_MAX_GRID; ++i)
+        out[gid * (PN_ISG_MAX_GRID + 1) + i] = mask[i];
+    out[gid * (PN_ISG_MAX_GRID + 1) + PN_ISG_MAX_GRID] = (uint)m;
+}
+"""
+
+
+@pytest.mark.parametrize("grid", [2, 5, 16, 17, 24])
+def test_patch_marks_match_twin(cl_pair, build_test_kernel, grid):
+    """The kernel's patch marks (16 rows or columns per test, up to 24 of them) are the
+    twin's, patch by patch, except where a patch centre lies on a cap's edge to
+    rounding (|d.u - cos alpha| < 1e-5 in float64): random receivers, spheres from
+    tiny to holding the receiver, lobes from broad to lambda = 1e4."""
+    from isg_shading64 import patch_mask
+
+    ctx, queue = cl_pair
+    rng = np.random.default_rng(200 + grid)
+    c = rng.uniform(-3, 3, (60, 3))
+    spheres = np.c_[c, np.exp(rng.uniform(np.log(0.01), np.log(0.8), 60))]
+    owners = rng.integers(1, 4, 60)
+    lams = (0.5, 3.0, 30.0, 300.0, 1e4)
+    axes = np.array([[*unit(rng.normal(size=3)), lam] for lam in lams], np.float32)
+    pos = rng.uniform(-2, 2, (24, 3))
+    nrm = np.array([unit(rng.normal(size=3)) for _ in range(24)])
+    ids = rng.integers(0, 4, 24).astype(np.uint32)
+    sp, ow, nodes = sphere_tree(spheres.tolist(), owners.tolist())
+    mf = cl.mem_flags
+    ro = lambda a: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))  # noqa: E731
+    f4 = lambda a: np.c_[a, np.zeros(len(a))].astype(np.float32)  # noqa: E731
+    cases = len(pos) * len(lams)
+    out = np.empty((cases, 25), np.uint32)
+    obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
+    k = cl.Kernel(build_test_kernel(MARK_SOURCE), "mark_test")
+    k(queue, (cases,), None, ro(f4(pos)), ro(f4(nrm)), ro(ids), ro(axes), np.int32(len(lams)), ro(sp), ro(ow),
+      np.int32(len(sp)), ro(nodes), np.int32(grid), np.int32(1), obuf)
+    cl.enqueue_copy(queue, out, obuf)
+    bits = (out[:, :grid, None] >> np.arange(grid, dtype=np.uint32)) & 1
+    marked = ambiguous = 0
+    for case in range(cases):
+        q, li = divmod(case, len(lams))
+        axis, lam = axes[li, :3].astype(np.float64), float(axes[li, 3])
+        want, inside = patch_mask(axis, lam, pos[q], nrm[q], int(ids[q]), 1, spheres, owners, grid)
+        assert (int(out[case, 24]) == 0xFFFFFFFF) == inside  # -1: the receiver inside an occluder
+        if inside:
+            continue
+        from isg_shading64 import HALF_PI, frame, window
+        x, y = frame(axis)
+        w = window(lam)
+        cen = HALF_PI - w + (np.arange(grid) + 0.5) * (2.0 * w / grid)
+        th, ph = np.meshgrid(cen, cen, indexing="ij")
+        dirs = (np.sin(th) * np.cos(ph))[..., None] * x + np.cos(th)[..., None] * y + \
+            (np.sin(th) * np.sin(ph))[..., None] * axis
+        edge = np.zeros((grid, grid), bool)
+        for sph in spheres:
+            v = sph[:3] - pos[q]
+            d = np.linalg.norm(v)
+            if d > sph[3]:
+                edge |= np.abs(dirs @ (v / d) - math.sqrt(1.0 - (sph[3] / d) ** 2)) < 1e-5
+        got = bits[case].astype(bool)
+        assert (got == want)[~edge].all(), (case, np.argwhere((got != want) & ~edge))
+        marked += int(want.sum())
+        ambiguous += int(edge.sum())
+    assert marked > 10 * grid and ambiguous < marked // 20 + 2  # shadows found; few edge patches
+
+
 def test_sphere_tree_levels():
     """The Python twin of the host's tree: levels of ceil(previous / 8) nodes up to at
     most 8, each node's sphere holding its spheres (or child nodes)."""
