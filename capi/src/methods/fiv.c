@@ -25,7 +25,7 @@ static const pn_param_desc params[] = {
     {"cull_threshold", PN_PARAM_FLOAT, PN_PARAM_FRAME, 1e-3, 0, 1, "",
      "Skip occluders whose extrapolated contribution is below this share of the env's reference irradiance."},
     {"tile_cull", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
-     "1: per 16x16 screen tile, shade with only the occluders whose culling distance reaches it (same image)."},
+     "1: per 16x16 screen tile (2+ occluders), shade with only the occluders whose culling distance reaches it."},
 };
 
 typedef struct state {
@@ -274,7 +274,9 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     /* 16x16 tiles, a 32-bit word per 32 occluders each. */
     const size_t tiles = (size_t)((gb->width + 15) / 16) * ((gb->height + 15) / 16);
     const size_t mask_bytes = pn_mul_size(tiles, (occluder_count + 31u) / 32u, sizeof(cl_uint));
-    const cl_int binned = r->params[P_TILE_CULL] != 0 && occluder_count > 0;
+    /* One occluder: a tile's bit costs what the pixel's own distance test
+     * does, and the binning pass is pure overhead. */
+    const cl_int binned = r->params[P_TILE_CULL] != 0 && occluder_count > 1;
     if (mask_bytes == SIZE_MAX)
         return pn_fail(ctx, PN_ERROR_INVALID_SIZE,
                        "the per-tile occluder masks of %u occluders over %zu tiles overflow", occluder_count, tiles);
