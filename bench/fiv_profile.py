@@ -6,7 +6,9 @@ constant field), 2 = the lookup's angles, logarithm and weights but no sample
 fetched. With the floor kernel, unshadowed and fiv's own switches (overlap,
 trilinear, tile_cull) every phase is a difference of two times; all variants
 run round-robin on one G-buffer per build (the load of a shared machine hits
-them alike), median of the rounds after a warm-up round.
+them alike); the phases come from the fastest round of each variant after
+a warm-up round (the least disturbed on a shared machine), the medians are
+reported beside them.
 
     .venv/bin/python bench/fiv_profile.py [--counts 1,60] [--resolution 512] [--rounds 7]
 
@@ -74,7 +76,7 @@ def interleaved(builds: dict, rounds: int) -> dict:
             built.ctx.finish()
             if r:
                 times[k].append(1e3 * (time.perf_counter() - t0))
-    return {k: statistics.median(t) for k, t in times.items()}
+    return {k: statistics.median(t) for k, t in times.items()}, {k: min(t) for k, t in times.items()}
 
 
 def main() -> None:
@@ -108,7 +110,9 @@ def main() -> None:
         planes = {p: gb0.read(p) for p in ("position", "normal", "instance")}
         bins = tile_occluder_counts(planes, occluder_bounds(built0), args.resolution)
         load = os.getloadavg()[0]
-        ms = interleaved(builds, args.rounds)
+        # Phases from the fastest round of each variant: on a loaded machine
+        # the least disturbed one (the medians are kept beside them).
+        medians, ms = interleaved(builds, args.rounds)
         lookups = bins["lookups_per_pixel"] * bins["receiver_pixels"]
         pixels = args.resolution ** 2
         rows = []
@@ -127,11 +131,13 @@ def main() -> None:
         res = {"occluders": n, "resolution": args.resolution, "load_average_1min": [round(load, 2),
                                                                                      round(os.getloadavg()[0], 2)],
                "lookups_per_pixel": bins["lookups_per_pixel"], "receiver_pixels": bins["receiver_pixels"],
-               "per_tile_mean": bins["per_tile_mean"], "variants_ms": ms, "phases": rows}
+               "per_tile_mean": bins["per_tile_mean"], "variants_min_ms": ms, "variants_median_ms": medians,
+               "phases": rows}
         results.append(res)
         print(f"\n{n} occluders, {args.resolution}^2, {bins['lookups_per_pixel']:.2f} lookups per receiver pixel "
               f"({bins['receiver_pixels']} receivers), load {res['load_average_1min']}")
-        print("  variants ms: " + ", ".join(f"{k} {v:.2f}" for k, v in ms.items()))
+        print("  variants ms (min): " + ", ".join(f"{k} {v:.2f}" for k, v in ms.items()))
+        print("  variants ms (median): " + ", ".join(f"{k} {v:.2f}" for k, v in medians.items()))
         for r in rows:
             extra = "".join(f", {k} {v:.3g}" for k, v in r.items() if k not in ("phase", "ms", "ns_per_lookup"))
             nsl = f"{r['ns_per_lookup']:.2f} ns/lookup" if r["ns_per_lookup"] is not None else ""

@@ -23,7 +23,7 @@
  *   [0] centre xyz (world), bounding radius R (world)
  *   [1] object units per world unit, rho_min, ln(rho_max / rho_min), culling distance (world)
  *   [2] uint bits: byte offset of the samples in `fields`, n_theta, n_phi, n_rho
- *   [3] uint bits: instance id, precision (1 = half); value scale, 0 */
+ *   [3] uint bits: instance id, precision (1 = half); value scale, rho_max */
 #include "common/fiv_grid.cl"
 #include "common/sphere_maps.cl"
 
@@ -113,7 +113,7 @@ inline bool pn_fiv_lookup(global const float4 *occ, global const uchar *fields, 
     float fk = rho > 0.0f ? log(rho / rho_min) / log_ratio * (float)(n_rho - 1) : 0.0f;
     float falloff = 1.0f;
     if (fk > (float)(n_rho - 1)) {
-        float rho_max = rho_min * exp(log_ratio);
+        float rho_max = occ[3].w; /* from the record: no exp per lookup beyond the grid */
         falloff = (rho_max / rho) * (rho_max / rho);
         fk = (float)(n_rho - 1);
     }

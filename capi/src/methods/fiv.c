@@ -238,7 +238,7 @@ static pn_status build_records(pn_renderer r, pn_scene scene, uint32_t *count_ou
         memcpy(rec + 8, u, 4 * sizeof(uint32_t));
         memcpy(rec + 12, u + 4, 2 * sizeof(uint32_t));
         rec[14] = f->options.precision == PN_PRECISION_FLOAT16 ? f->value_scale : 1.0f;
-        rec[15] = 0.0f;
+        rec[15] = f->outer; /* rho_max, object units */
         ++count;
     }
     *count_out = count;
