@@ -95,9 +95,14 @@ def main() -> None:
     results = []
     for n in (int(x) for x in args.counts.split(",")):
         path = out / "scenes" / f"bunnies_{n}.toml"
-        path.write_text(scene_toml(fiv_scaling_scene(n, str(data / SCALING_MESH), str(data / SCALING_ENV),
+        def rel(q: Path) -> str:  # paths relative to the scene file, as penumbra bench writes them
+            return Path(os.path.relpath(q.resolve(), (out / "scenes").resolve())).as_posix()
+
+        # The field cache of penumbra bench --fiv-scaling: one bake serves both.
+        path.write_text(scene_toml(fiv_scaling_scene(n, rel(data / SCALING_MESH), rel(data / SCALING_ENV),
                                                      args.resolution, samples,
-                                                     cache=str(Path("bench/results/fiv_scaling/cache/fiv").resolve()))))
+                                                     cache=rel(out.parent / "fiv_scaling" / "cache" / "fiv")),
+                                   f"fiv phase profile: {n} bunnies (bench/fiv_profile.py)"))
         builds = {}
         for b, ctx in ctxs.items():
             built = build_scene(load_scene(path), ctx)
