@@ -239,7 +239,7 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     int discs = 0;
     int words = (occluder_count + 31) / 32;
     int tile = (gid / width / PN_FIV_TILE) * ((width + PN_FIV_TILE - 1) / PN_FIV_TILE) + (gid % width) / PN_FIV_TILE;
-    global const uint *mask = tile_masks + (size_t)tile * words;
+    global const uint *mask = binned ? tile_masks + (size_t)tile * words : tile_masks;
     for (int w = 0; w < words; ++w) {
         /* The occluders of this pixel's tile (all of them unbinned), in order. */
         int left = occluder_count - 32 * w;

@@ -294,8 +294,8 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     }
     if (binned) {
         cl_kernel kb;
-        size_t bsizes[] = {sizeof(cl_mem),   sizeof(cl_mem), sizeof width,  sizeof height,
-                           sizeof(cl_mem),   sizeof occluders, sizeof(cl_mem)};
+        size_t bsizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof width, sizeof height,
+                           sizeof(cl_mem), sizeof occluders, sizeof(cl_mem)};
         const void *bvals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_INSTANCE], &width, &height,
                                &s->device_records, &occluders, &s->tile_masks};
         if ((st = pn_context_kernel(ctx, "fiv", "bin_fiv_tiles", &kb)) ||
