@@ -180,7 +180,7 @@ inline bool pn_sphere_meets_box(float3 c, float r, float3 lo, float3 hi)
  * culling sphere reaches the box. A pixel culls an occluder farther than its
  * culling distance; the box holds the pixel, so the tile keeps every
  * occluder one of its pixels keeps (the radius is widened by 1e-5 against
- * rounding). An occluder's own pixels lie within R <= the culling distance. */
+ * rounding). Self-shadowing does not go by the masks (shade_fiv). */
 kernel void bin_fiv_tiles(global const float4 *position, global const uint *instance_id, int width, int height,
                           global const float4 *occluders, int occluder_count, global uint *tile_masks)
 {
@@ -237,6 +237,24 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     float3 occluded[PN_FIV_MAX_OVERLAP];
     float4 disc[PN_FIV_MAX_OVERLAP]; /* unit-sphere direction, radius */
     int discs = 0;
+    /* Self-shadowing: the pixel's own occluder, found by its id among all of
+     * them (a tile's mask may leave it out when a G-buffer puts the pixel
+     * beyond its culling distance). All unoccluded light is in the positive
+     * hemisphere. */
+    for (int o = 0; self_shadow && o < occluder_count; ++o) {
+        global const float4 *occ = occluders + PN_FIV_RECORD * o;
+        pn_fiv3 f;
+        if (as_uint(occ[3].x) != id)
+            continue;
+        if (pn_fiv_lookup(occ, fields, occ[0].xyz - p, trilinear, &f)) {
+            /* A sample off the surface also sees unoccluded light behind
+             * the receiver plane, which the fullsphere sum subtracts: the
+             * estimate errs low, never above the unoccluded irradiance. */
+            pn_fiv3 env = {env_x.xyz, env_y.xyz, env_z.xyz};
+            e_base = clamp(pn_fiv_dot(n, env) - pn_fiv_dot(n, f), 0.0f, e_tot);
+        }
+        break; /* one field per instance */
+    }
     int words = (occluder_count + 31) / 32;
     int tile = (gid / width / PN_FIV_TILE) * ((width + PN_FIV_TILE - 1) / PN_FIV_TILE) + (gid % width) / PN_FIV_TILE;
     global const uint *mask = binned ? tile_masks + (size_t)tile * words : tile_masks;
@@ -250,18 +268,8 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
             global const float4 *occ = occluders + PN_FIV_RECORD * o;
             float4 sphere = occ[0];
             float3 v = sphere.xyz - p;
-            if (as_uint(occ[3].x) == id) {
-                /* Self-shadowing: all unoccluded light is in the positive hemisphere. */
-                pn_fiv3 f;
-                if (self_shadow && pn_fiv_lookup(occ, fields, v, trilinear, &f)) {
-                    /* A sample off the surface also sees unoccluded light behind
-                     * the receiver plane, which the fullsphere sum subtracts: the
-                     * estimate errs low, never above the unoccluded irradiance. */
-                    pn_fiv3 env = {env_x.xyz, env_y.xyz, env_z.xyz};
-                    e_base = clamp(pn_fiv_dot(n, env) - pn_fiv_dot(n, f), 0.0f, e_tot);
-                }
+            if (as_uint(occ[3].x) == id) /* its own occluder: above */
                 continue;
-            }
             float r = sphere.w, dist_plane = dot(v, n);
             if (dist_plane <= -r) /* case C: fully behind the receiver plane */
                 continue;

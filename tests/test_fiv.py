@@ -390,7 +390,8 @@ def test_tile_culling_changes_no_pixel(ctx, env, meshes, fields):
     them, on receivers spread over 120 x 50 units where the spheres' culling
     distances (about 10 and 20 at cull_threshold 0.1) reach some 16x16 tiles
     and not others; with background pixels, a partial last tile row and
-    pixels on the occluders themselves (self-shadowing)."""
+    pixels on the occluders themselves (self-shadowing), some of them far
+    from it."""
     from penumbra.methods.fiv import tile_occluder_counts
 
     rng = np.random.default_rng(8)
@@ -408,6 +409,9 @@ def test_tile_culling_changes_no_pixel(ctx, env, meshes, fields):
     d = rng.normal(size=(on.sum(), 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     pos[on], nrm[on], inst[on] = np.array([0.0, 2.0, 0.0]) + 2.0 * d, d, ids[2]
+    # And a corner carrying that id on the floor, 60 units away: beyond its
+    # culling distance, out of that tile's mask, still self-shadowed.
+    inst[0:2, 88:96] = ids[2]
     s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
     for params in (dict(overlap=0), dict(overlap=1), dict(overlap=2), dict(overlap=1, self_shadow=1, partial=1)):
         culled = s.render(cull_threshold=0.1, tile_cull=1, **params)
