@@ -977,9 +977,11 @@ def tile_occluder_counts(gbuffer: dict, bounds: dict, width: int, tile: int = 16
     used = np.isfinite(lo).all(axis=1)
     d = np.maximum(np.maximum(lo[used, None, :] - c[None], c[None] - hi[used, None, :]), 0.0)
     per_tile = ((d ** 2).sum(-1) <= cull[None] ** 2).sum(1)
-    v = c[None] - pos[fg][:, None, :]
-    matter = (np.einsum("pok,pk->po", v, nrm[fg]) > -r[None]) & (np.linalg.norm(v, axis=-1) <= cull[None])
-    per_pixel = matter.sum(1)
+    p, n = pos[fg], nrm[fg]
+    per_pixel = np.zeros(len(p), np.int64)
+    for k in range(len(r)):  # one occluder at a time: memory linear in the pixels
+        v = c[k] - p
+        per_pixel += ((v * n).sum(1) > -r[k]) & (np.linalg.norm(v, axis=1) <= cull[k])
     return {"tiles": int(used.sum()), "per_tile_mean": float(per_tile.mean()) if per_tile.size else 0.0,
             "per_tile_median": float(np.median(per_tile)) if per_tile.size else 0.0,
             "per_tile_max": int(per_tile.max()) if per_tile.size else 0,
