@@ -11,15 +11,28 @@
  * Several occluders combine by a plain sum, the unit-bounding-disc overlap
  * correction, or multiplied visibilities (`overlap`).
  *
+ * Screen-space binning (`bin_fiv_tiles`, before `shade_fiv`): per 16x16
+ * tile, a bit mask of the occluders whose culling sphere reaches the tile's
+ * receivers; the shading loop visits only those, in the same order.
+ *
+ * PN_FIV_PROFILE (a build option, bench/fiv_profile.py) stops the work early
+ * to time the phases apart: 1 = no lookup (a constant field), 2 = the
+ * lookup's indices and weights but no sample fetched. 0 (default) = all.
+ *
  * Occluder record, 4 float4 (capi/src/fiv.c):
  *   [0] centre xyz (world), bounding radius R (world)
  *   [1] object units per world unit, rho_min, ln(rho_max / rho_min), culling distance (world)
  *   [2] uint bits: byte offset of the samples in `fields`, n_theta, n_phi, n_rho
- *   [3] uint bits: instance id, precision (1 = half); value scale, 0 */
+ *   [3] uint bits: instance id, precision (1 = half); value scale, rho_max */
 #include "common/fiv_grid.cl"
 #include "common/sphere_maps.cl"
 
+#ifndef PN_FIV_PROFILE
+#define PN_FIV_PROFILE 0
+#endif
+
 #define PN_FIV_RECORD 4
+#define PN_FIV_TILE 16
 #define PN_FIV_MAX_OVERLAP 32
 
 #define PN_OVERLAP_SUM 0
@@ -100,11 +113,15 @@ inline bool pn_fiv_lookup(global const float4 *occ, global const uchar *fields, 
     float fk = rho > 0.0f ? log(rho / rho_min) / log_ratio * (float)(n_rho - 1) : 0.0f;
     float falloff = 1.0f;
     if (fk > (float)(n_rho - 1)) {
-        float rho_max = rho_min * exp(log_ratio);
+        float rho_max = occ[3].w; /* from the record: no exp per lookup beyond the grid */
         falloff = (rho_max / rho) * (rho_max / rho);
         fk = (float)(n_rho - 1);
     }
     fk = fmax(fk, 0.0f);
+#if PN_FIV_PROFILE == 2
+    out->x = out->y = out->z = (float3)((fi + fj + fk) * falloff);
+    return true;
+#endif
     pn_fiv3 acc = {(float3)(0.0f), (float3)(0.0f), (float3)(0.0f)};
     float wsum = 0.0f;
     if (!trilinear) {
@@ -150,11 +167,59 @@ inline float pn_lens_area(float a, float b, float dist)
     return a * a * acos(ca) + b * b * acos(cb) - 0.5f * sqrt(fmax(k, 0.0f));
 }
 
+/* Whether a sphere (centre c, radius r) reaches the box [lo, hi]. */
+inline bool pn_sphere_meets_box(float3 c, float r, float3 lo, float3 hi)
+{
+    float3 d = fmax(fmax(lo - c, c - hi), 0.0f);
+    return dot(d, d) <= r * r;
+}
+
+/* One work-item per 16x16 tile: the world-space box of the tile's receivers
+ * (background and non-finite positions left out: no occluder shades them),
+ * then bit o of the tile's mask (words of 32) is set when occluder o's
+ * culling sphere reaches the box. A pixel culls an occluder farther than its
+ * culling distance; the box holds the pixel, so the tile keeps every
+ * occluder one of its pixels keeps (the radius is widened by 1e-5 against
+ * rounding). Self-shadowing does not go by the masks (shade_fiv). */
+kernel void bin_fiv_tiles(global const float4 *position, global const uint *instance_id, int width, int height,
+                          global const float4 *occluders, int occluder_count, global uint *tile_masks)
+{
+    int tiles_x = (width + PN_FIV_TILE - 1) / PN_FIV_TILE, tiles_y = (height + PN_FIV_TILE - 1) / PN_FIV_TILE;
+    int tile = get_global_id(0);
+    if (tile >= tiles_x * tiles_y)
+        return;
+    int x0 = (tile % tiles_x) * PN_FIV_TILE, y0 = (tile / tiles_x) * PN_FIV_TILE;
+    int x1 = min(x0 + PN_FIV_TILE, width), y1 = min(y0 + PN_FIV_TILE, height);
+    float3 lo = (float3)(INFINITY), hi = (float3)(-INFINITY);
+    for (int y = y0; y < y1; ++y)
+        for (int x = x0; x < x1; ++x) {
+            int i = y * width + x;
+            float3 p = position[i].xyz;
+            if (instance_id[i] != PN_BACKGROUND && all(isfinite(p))) {
+                lo = fmin(lo, p);
+                hi = fmax(hi, p);
+            }
+        }
+    bool empty = lo.x > hi.x;
+    int words = (occluder_count + 31) / 32;
+    global uint *mask = tile_masks + (size_t)tile * words;
+    for (int w = 0; w < words; ++w) {
+        uint bits = 0u;
+        for (int b = 0; b < 32 && 32 * w + b < occluder_count; ++b) {
+            global const float4 *occ = occluders + PN_FIV_RECORD * (32 * w + b);
+            if (!empty && pn_sphere_meets_box(occ[0].xyz, occ[1].w * 1.00001f, lo, hi))
+                bits |= 1u << b;
+        }
+        mask[w] = bits;
+    }
+}
+
 kernel void shade_fiv(global const float4 *position, global const float4 *normal, global const float4 *albedo,
                       global const uint *instance_id, int count, global const float4 *irradiance, int m,
                       global const float4 *occluders,
                       int occluder_count, global const uchar *fields, float4 env_x, float4 env_y, float4 env_z,
-                      int overlap, int partial, int self_shadow, int trilinear, global float4 *image)
+                      int overlap, int partial, int self_shadow, int trilinear, int width, int binned,
+                      global const uint *tile_masks, global float4 *image)
 {
     int gid = get_global_id(0);
     if (gid >= count)
@@ -172,43 +237,65 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     float3 occluded[PN_FIV_MAX_OVERLAP];
     float4 disc[PN_FIV_MAX_OVERLAP]; /* unit-sphere direction, radius */
     int discs = 0;
-    for (int o = 0; o < occluder_count; ++o) {
+    /* Self-shadowing: the pixel's own occluder, found by its id among all of
+     * them (a tile's mask may leave it out when a G-buffer puts the pixel
+     * beyond its culling distance). All unoccluded light is in the positive
+     * hemisphere. */
+    for (int o = 0; self_shadow && o < occluder_count; ++o) {
         global const float4 *occ = occluders + PN_FIV_RECORD * o;
-        float4 sphere = occ[0];
-        float3 v = sphere.xyz - p;
-        if (as_uint(occ[3].x) == id) {
-            /* Self-shadowing: all unoccluded light is in the positive hemisphere. */
-            pn_fiv3 f;
-            if (self_shadow && pn_fiv_lookup(occ, fields, v, trilinear, &f)) {
-                /* A sample off the surface also sees unoccluded light behind
-                 * the receiver plane, which the fullsphere sum subtracts: the
-                 * estimate errs low, never above the unoccluded irradiance. */
-                pn_fiv3 env = {env_x.xyz, env_y.xyz, env_z.xyz};
-                e_base = clamp(pn_fiv_dot(n, env) - pn_fiv_dot(n, f), 0.0f, e_tot);
-            }
-            continue;
-        }
-        float r = sphere.w, dist_plane = dot(v, n);
-        if (dist_plane <= -r) /* case C: fully behind the receiver plane */
-            continue;
-        float rho = length(v);
-        if (rho > occ[1].w) /* beyond the culling distance */
-            continue;
         pn_fiv3 f;
-        if (!pn_fiv_lookup(occ, fields, v, trilinear, &f))
+        if (as_uint(occ[3].x) != id)
             continue;
-        /* An occluder only removes light. */
-        float3 i_occ = fmax(pn_fiv_dot(n, f), 0.0f);
-        if (partial && dist_plane < r) /* case B: the share above the plane */
-            i_occ *= (dist_plane + r) / (2.0f * r);
-        sum += i_occ;
-        largest = fmax(largest, i_occ);
-        if (overlap == PN_OVERLAP_MULTIPLY)
-            visible *= clamp(1.0f - i_occ / fmax(e_tot, 1e-30f), 0.0f, 1.0f);
-        else if (overlap == PN_OVERLAP_DISC && discs < PN_FIV_MAX_OVERLAP) {
-            occluded[discs] = i_occ;
-            disc[discs] = (float4)(rho > 0.0f ? v / rho : n, fmin(r / fmax(rho, 1e-30f), 1.0f));
-            ++discs;
+        if (pn_fiv_lookup(occ, fields, occ[0].xyz - p, trilinear, &f)) {
+            /* A sample off the surface also sees unoccluded light behind
+             * the receiver plane, which the fullsphere sum subtracts: the
+             * estimate errs low, never above the unoccluded irradiance. */
+            pn_fiv3 env = {env_x.xyz, env_y.xyz, env_z.xyz};
+            e_base = clamp(pn_fiv_dot(n, env) - pn_fiv_dot(n, f), 0.0f, e_tot);
+        }
+        break; /* one field per instance */
+    }
+    int words = (occluder_count + 31) / 32;
+    int tile = (gid / width / PN_FIV_TILE) * ((width + PN_FIV_TILE - 1) / PN_FIV_TILE) + (gid % width) / PN_FIV_TILE;
+    global const uint *mask = binned ? tile_masks + (size_t)tile * words : tile_masks;
+    for (int w = 0; w < words; ++w) {
+        /* The occluders of this pixel's tile (all of them unbinned), in order. */
+        int left = occluder_count - 32 * w;
+        uint bits = binned ? mask[w] : left >= 32 ? 0xFFFFFFFFu : (1u << left) - 1u;
+        while (bits) {
+            int o = 32 * w + (31 - clz(bits & (0u - bits)));
+            bits &= bits - 1u;
+            global const float4 *occ = occluders + PN_FIV_RECORD * o;
+            float4 sphere = occ[0];
+            float3 v = sphere.xyz - p;
+            if (as_uint(occ[3].x) == id) /* its own occluder: above */
+                continue;
+            float r = sphere.w, dist_plane = dot(v, n);
+            if (dist_plane <= -r) /* case C: fully behind the receiver plane */
+                continue;
+            float rho = length(v);
+            if (rho > occ[1].w) /* beyond the culling distance */
+                continue;
+            pn_fiv3 f;
+#if PN_FIV_PROFILE == 1
+            f.x = f.y = f.z = (float3)(occ[3].z * 1e-3f);
+#else
+            if (!pn_fiv_lookup(occ, fields, v, trilinear, &f))
+                continue;
+#endif
+            /* An occluder only removes light. */
+            float3 i_occ = fmax(pn_fiv_dot(n, f), 0.0f);
+            if (partial && dist_plane < r) /* case B: the share above the plane */
+                i_occ *= (dist_plane + r) / (2.0f * r);
+            sum += i_occ;
+            largest = fmax(largest, i_occ);
+            if (overlap == PN_OVERLAP_MULTIPLY)
+                visible *= clamp(1.0f - i_occ / fmax(e_tot, 1e-30f), 0.0f, 1.0f);
+            else if (overlap == PN_OVERLAP_DISC && discs < PN_FIV_MAX_OVERLAP) {
+                occluded[discs] = i_occ;
+                disc[discs] = (float4)(rho > 0.0f ? v / rho : n, fmin(r / fmax(rho, 1e-30f), 1.0f));
+                ++discs;
+            }
         }
     }
     float3 e;
@@ -222,7 +309,12 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
             for (int a = 0; a < discs; ++a)
                 for (int b = a + 1; b < discs; ++b) {
                     float ra = disc[a].w, rb = disc[b].w;
-                    float lens = pn_lens_area(ra, rb, distance(disc[a].xyz, disc[b].xyz));
+                    float3 d = disc[a].xyz - disc[b].xyz;
+                    float d2 = dot(d, d);
+                    /* Most pairs are apart: no lens, and no sqrt or acos spent on it. */
+                    if (d2 >= (ra + rb) * (ra + rb))
+                        continue;
+                    float lens = pn_lens_area(ra, rb, sqrt(d2));
                     if (lens > 0.0f)
                         total -= lens / (PN_PI * (ra * ra + rb * rb)) * (occluded[a] + occluded[b]);
                 }

@@ -18,7 +18,7 @@ from penumbra.bench import (README_BEGIN, README_END, RESULT_KEYS, BenchOptions,
 from penumbra.cli import main
 from penumbra.errors import InputError
 from penumbra.scenefile import parse_scene
-from penumbra.methods.fiv import PAPER_FPS, fiv_scaling, fiv_scaling_scene
+from penumbra.methods.fiv import PAPER_FPS, fiv_scaling, fiv_scaling_scene, fiv_spread_scene
 
 README_FIV = methods.technique("fiv").readme_setting
 SWEEPS = default_sweeps()
@@ -159,22 +159,42 @@ def test_fiv_scaling_scene_nests_and_shares_one_mesh():
         fiv_scaling_scene(65, "m.obj", "e.hdr")
 
 
+def test_fiv_spread_scene_spreads_one_mesh():
+    sc = fiv_spread_scene(60, "m.obj", "e.hdr", spacing=100.0)
+    bunnies = [o for o in sc["object"] if o.get("mesh")]
+    assert len(bunnies) == 60 and {o["mesh"] for o in bunnies} == {"m.obj"}
+    assert sc["object"][0]["params"]["size"] == [800.0, 800.0]
+    xz = np.array([[o["translate"][0], o["translate"][2]] for o in bunnies])
+    assert np.abs(xz).max() <= 400 and (np.linalg.norm(xz[:, None] - xz[None], axis=-1) + np.eye(60) * 1e9).min() > 30
+    cam = sc["camera"]  # 6 units behind the first bunny, looking at it
+    assert cam["look_at"][0] == bunnies[0]["translate"][0] and cam["position"][2] - cam["look_at"][2] == 6.0
+    with pytest.raises(InputError, match="1 to 64"):
+        fiv_spread_scene(0, "m.obj", "e.hdr")
+
+
 def test_fiv_scaling_writes_results(tmp_path, shared_data):
     res = fiv_scaling(tmp_path, counts=(1, 3), samples=(8, 5, 4), resolution=24, frames=5, data_dir=shared_data,
                       mitsuba_count=None, overrides=["environment.face_size=16", "fiv.face_size=8"],
-                      log=lambda m: None)
+                      spread=4, spread_spacing=100.0, log=lambda m: None)
     data = json.loads((tmp_path / "results.json").read_text())
-    assert [r["occluders"] for r in data["results"]] == [1, 3]
+    assert [(r["occluders"], r["layout"]) for r in data["results"]] == [(1, "clustered"), (3, "clustered"),
+                                                                         (4, "spread")]
     for r in data["results"]:
         assert r["fields"] == 1  # every bunny shares the one field
-        assert r["fiv_shade_ms"] > 0 and r["floor_ms"] > 0
+        assert r["fiv_shade_ms"] > 0 and r["floor_ms"] > 0 and r["fiv_unculled_shade_ms"] > 0
         assert r["ratio_to_floor"] == pytest.approx(r["fiv_shade_ms"] / r["floor_ms"])
+        assert r["tile_cull_speedup"] == pytest.approx(r["fiv_unculled_shade_ms"] / r["fiv_shade_ms"])
         assert r["fps_shading"] == pytest.approx(1000 / r["fiv_shade_ms"])
+        assert 0 <= r["tiles_per_tile_min"] <= r["tiles_per_tile_max"] <= r["occluders"]
+        assert sum(r["tiles_per_tile_histogram"]) == r["tiles_tiles"] > 0
+    assert data["results"][0]["per_lookup_ratio"] == pytest.approx(1.0)
+    assert data["results"][2]["tiles_per_tile_mean"] < 4  # 100 units apart: no tile sees all four
     assert data["results"][0]["paper_fps"] == PAPER_FPS[1] == 112 and data["results"][1]["paper_fps"] is None
     assert data["summary"]["samples_phi_theta_radii"] == [8, 5, 4] and data["summary"]["bake"]["baked_now"]
     assert data["equal_error"] is None and res["results"] == data["results"]
     text = (tmp_path / "report.md").read_text()
-    assert "fiv / floor" in text and "paper fps" in text and "| 3 |" in text
+    assert "fiv / floor" in text and "paper fps" in text and "| 3 |" in text and "tile culling speed-up" in text
+    assert "## Goals (issue 15)" in text and "Tile culling, 4 bunnies over a 800 x 800 floor" in text
     # The scenes are real scene files (paths relative to them, the bake cache beside them).
     from penumbra.scenefile import load_scene
 

@@ -385,6 +385,48 @@ def test_culling_matches_twin_and_its_bound(ctx, env, meshes, fields, threshold)
         assert dropped > 0
 
 
+def test_tile_culling_changes_no_pixel(ctx, env, meshes, fields):
+    """Per-tile occluder masks (tile_cull = 1) give exactly the image without
+    them, on receivers spread over 120 x 50 units where the spheres' culling
+    distances (about 10 and 20 at cull_threshold 0.1) reach some 16x16 tiles
+    and not others; with background pixels, a partial last tile row and
+    pixels on the occluders themselves (self-shadowing), some of them far
+    from it."""
+    from penumbra.methods.fiv import tile_occluder_counts
+
+    rng = np.random.default_rng(8)
+    w, h = 96, 40
+    pos, nrm, inst = plane_receivers(rng, h=h, w=w, max_tilt_deg=30.0, extent=(60.0, 25.0))
+    placements = (((-50.0, 1.0, -20.0), 1.0), ((-40.0, 1.5, 18.0), 1.0), ((0.0, 2.0, 0.0), 2.0),
+                  ((50.0, 1.0, -8.0), 1.0), ((55.0, 1.0, -22.0), 1.0))
+    instances = [(fields["sphere"], meshes["sphere"][1], translate(t, k)) for t, k in placements]
+    inst[rng.random((h, w)) < 0.05] = BACKGROUND
+    s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
+    # Some pixels on the big sphere's surface, as that instance.
+    ids = [i for _, _, i in s.instances]
+    on = np.zeros((h, w), bool)
+    on[20:24, 40:48] = True
+    d = rng.normal(size=(on.sum(), 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    pos[on], nrm[on], inst[on] = np.array([0.0, 2.0, 0.0]) + 2.0 * d, d, ids[2]
+    # And a corner carrying that id on the floor, 60 units away: beyond its
+    # culling distance, out of that tile's mask, still self-shadowed.
+    inst[0:2, 88:96] = ids[2]
+    s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
+    for params in (dict(overlap=0), dict(overlap=1), dict(overlap=2), dict(overlap=1, self_shadow=1, partial=1)):
+        culled = s.render(cull_threshold=0.1, tile_cull=1, **params)
+        whole = s.render(cull_threshold=0.1, tile_cull=0, **params)
+        assert np.array_equal(culled, whole), params
+    # The masks are neither all full nor all empty here (the twin of the binning).
+    occ = s.occluders(0.1)
+    bounds = {"centre": np.array([o.centre for o in occ]), "radius": np.array([o.radius for o in occ]),
+              "cull": np.array([o.cull for o in occ])}
+    bins = tile_occluder_counts({"position": pos, "normal": nrm, "instance": inst}, bounds, w)
+    hist = bins["per_tile_histogram"]
+    assert bins["tiles"] == 18 and hist[0] > 0 and hist[1] > 0 and sum(hist[2:]) > 0, hist
+    assert 0 < bins["lookups_per_pixel"] < bins["per_tile_mean"]
+
+
 # --------------------------------------------------------------------------- the bake file
 
 

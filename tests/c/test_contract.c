@@ -2255,6 +2255,8 @@ static void test_fiv(pn_context ctx)
                          "overlap", NULL);
             expect_error("cull_threshold -1", pn_renderer_set_float(fivr, "cull_threshold", -1.0f),
                          PN_ERROR_INVALID_ARGUMENT, ctx, "cull_threshold", NULL);
+            expect_error("tile_cull 2", pn_renderer_set_int(fivr, "tile_cull", 2), PN_ERROR_INVALID_ARGUMENT, ctx,
+                         "tile_cull", NULL);
             expect_error("a bake option set on the renderer", pn_renderer_set_int(fivr, "theta", 17),
                          PN_ERROR_BAD_CONFIG, ctx, "bake option", NULL);
             expect_ok("fiv commit", pn_renderer_commit(fivr), ctx);

@@ -2,15 +2,15 @@
  * soft shadows from the occlusion fields attached to instances. Plan: the
  * attached fields concatenated on the device (when the attachments change)
  * and FIV(Env) from the env map (when it changes). Execute: one record per
- * occluder instance from its transform, uploaded without waiting, and the
- * shading kernel. */
+ * occluder instance from its transform, uploaded without waiting, the
+ * per-tile occluder masks (`tile_cull`) and the shading kernel. */
 #include "methods/method.h"
 
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
-enum { P_BACKGROUND, P_OVERLAP, P_PARTIAL, P_SELF_SHADOW, P_TRILINEAR, P_CULL_THRESHOLD };
+enum { P_BACKGROUND, P_OVERLAP, P_PARTIAL, P_SELF_SHADOW, P_TRILINEAR, P_CULL_THRESHOLD, P_TILE_CULL };
 
 static const pn_param_desc params[] = {
     PN_PARAM_BACKGROUND,
@@ -24,6 +24,8 @@ static const pn_param_desc params[] = {
      "1: trilinear interpolation of the 8 nearest samples, 0: the nearest sample."},
     {"cull_threshold", PN_PARAM_FLOAT, PN_PARAM_FRAME, 1e-3, 0, 1, "",
      "Skip occluders whose extrapolated contribution is below this share of the env's reference irradiance."},
+    {"tile_cull", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
+     "1: per 16x16 screen tile (2+ occluders), shade with only the occluders whose culling distance reaches it."},
 };
 
 typedef struct state {
@@ -38,6 +40,8 @@ typedef struct state {
     float *records;           /* host occluder records, 16 floats each */
     size_t records_capacity, device_capacity;
     cl_mem device_records;
+    cl_mem tile_masks;        /* per tile, one bit per occluder (bin_fiv_tiles) */
+    size_t tile_capacity;
 } state;
 
 static bool is_field(const pn_attachment *a)
@@ -234,7 +238,7 @@ static pn_status build_records(pn_renderer r, pn_scene scene, uint32_t *count_ou
         memcpy(rec + 8, u, 4 * sizeof(uint32_t));
         memcpy(rec + 12, u + 4, 2 * sizeof(uint32_t));
         rec[14] = f->options.precision == PN_PRECISION_FLOAT16 ? f->value_scale : 1.0f;
-        rec[15] = 0.0f;
+        rec[15] = f->outer; /* rho_max, object units */
         ++count;
     }
     *count_out = count;
@@ -266,6 +270,39 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const cl_int occluders = (cl_int)occluder_count;
     const cl_int overlap = (cl_int)r->params[P_OVERLAP], partial = (cl_int)r->params[P_PARTIAL];
     const cl_int self_shadow = (cl_int)r->params[P_SELF_SHADOW], trilinear = (cl_int)r->params[P_TRILINEAR];
+    const cl_int width = (cl_int)gb->width, height = (cl_int)gb->height;
+    /* 16x16 tiles, a 32-bit word per 32 occluders each. */
+    const size_t tiles = (size_t)((gb->width + 15) / 16) * ((gb->height + 15) / 16);
+    const size_t mask_bytes = pn_mul_size(tiles, (occluder_count + 31u) / 32u, sizeof(cl_uint));
+    /* One occluder: a tile's bit costs what the pixel's own distance test
+     * does, and the binning pass is pure overhead. */
+    const cl_int binned = r->params[P_TILE_CULL] != 0 && occluder_count > 1;
+    if (mask_bytes == SIZE_MAX)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE,
+                       "the per-tile occluder masks of %u occluders over %zu tiles overflow", occluder_count, tiles);
+    if (binned && mask_bytes > s->tile_capacity) {
+        pn_mem_release(&s->tile_masks);
+        s->tile_capacity = 0;
+        if ((st = pn_alloc(ctx, mask_bytes, CL_MEM_READ_WRITE, NULL, &s->tile_masks, "per-tile occluder masks")))
+            return st;
+        s->tile_capacity = mask_bytes;
+    }
+    if (!s->tile_masks) { /* a valid argument when unbinned; never read */
+        if ((st = pn_alloc(ctx, 16, CL_MEM_READ_WRITE, NULL, &s->tile_masks, "per-tile occluder masks")))
+            return st;
+        s->tile_capacity = 16;
+    }
+    if (binned) {
+        cl_kernel kb;
+        size_t bsizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof width, sizeof height,
+                           sizeof(cl_mem), sizeof occluders, sizeof(cl_mem)};
+        const void *bvals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_INSTANCE], &width, &height,
+                               &s->device_records, &occluders, &s->tile_masks};
+        if ((st = pn_context_kernel(ctx, "fiv", "bin_fiv_tiles", &kb)) ||
+            (st = pn_set_args(ctx, kb, "bin_fiv_tiles", 7, bsizes, bvals)) ||
+            (st = pn_enqueue_1d(ctx, kb, "bin_fiv_tiles", tiles, 16)))
+            return st;
+    }
     cl_float4 env_fiv[3];
     for (int a = 0; a < 3; ++a)
         for (int c = 0; c < 4; ++c)
@@ -273,12 +310,14 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count, sizeof(cl_mem),
                       sizeof m, sizeof(cl_mem), sizeof occluders, sizeof(cl_mem),
                       sizeof env_fiv[0], sizeof env_fiv[1], sizeof env_fiv[2], sizeof overlap, sizeof partial,
-                      sizeof self_shadow, sizeof trilinear, sizeof(cl_mem)};
+                      sizeof self_shadow, sizeof trilinear, sizeof width, sizeof binned, sizeof(cl_mem),
+                      sizeof(cl_mem)};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->irradiance,
                           &m, &s->device_records, &occluders, &s->data, &env_fiv[0],
-                          &env_fiv[1], &env_fiv[2], &overlap, &partial, &self_shadow, &trilinear, &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_fiv", 18, sizes, vals)))
+                          &env_fiv[1], &env_fiv[2], &overlap, &partial, &self_shadow, &trilinear, &width, &binned,
+                          &s->tile_masks, &image->buffer};
+    if ((st = pn_set_args(ctx, k, "shade_fiv", 21, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_fiv", (size_t)count, 64);
 }
@@ -295,6 +334,7 @@ static void destroy(pn_renderer r)
     state *s = r->state;
     pn_mem_release(&s->data);
     pn_mem_release(&s->device_records);
+    pn_mem_release(&s->tile_masks);
     free(s->records);
     free(s->offsets);
     free(s->fields);

@@ -22,6 +22,7 @@ import ctypes
 import json
 import os
 import signal
+import statistics
 import sys
 import time
 import warnings
@@ -669,6 +670,10 @@ class Fiv(Technique):
         b.add_argument("--fiv-samples", type=_samples_arg, default=(128, 65, 30), metavar="PHI,THETA,RADII",
                        help="the bunny's field (default 128,65,30 as the paper's Table 2)")
         b.add_argument("--fiv-resolution", type=int, default=512, help="image side in pixels (default 512)")
+        b.add_argument("--fiv-spread", type=int, default=60, metavar="N",
+                       help="also N bunnies spread over a large floor, for tile culling (0: skip; default 60)")
+        b.add_argument("--fiv-spread-spacing", type=float, default=120.0, metavar="UNITS",
+                       help="their grid spacing; the floor is 8 spacings on a side (default 120)")
         b.add_argument("--fiv-mitsuba-count", type=int, default=10,
                        help="also compare with Mitsuba at equal error on this many bunnies (0: skip; default 10)")
         b.add_argument("--fiv-mitsuba-resolution", type=int, default=128,
@@ -683,11 +688,15 @@ class Fiv(Technique):
         res = fiv_scaling(out, counts=args.fiv_counts, samples=args.fiv_samples, resolution=args.fiv_resolution,
                           frames=args.frames, mitsuba_count=args.fiv_mitsuba_count or None,
                           mitsuba_resolution=args.fiv_mitsuba_resolution, overrides=args.set,
+                          spread=args.fiv_spread or None, spread_spacing=args.fiv_spread_spacing,
                           log=lambda msg: print(msg, file=sys.stderr))
-        print(f"{'occluders':>9}{'fiv ms':>10}{'floor ms':>10}{'x floor':>9}{'fps':>8}{'paper fps':>11}")
+        print(f"{'scene':>10}{'occluders':>10}{'fiv ms':>10}{'floor ms':>10}{'x floor':>9}{'per lookup':>11}"
+              f"{'unculled':>10}{'per tile':>9}{'paper fps':>11}")
         for r in res["results"]:
-            print(f"{r['occluders']:>9}{r['fiv_shade_ms']:>10.2f}{r['floor_ms']:>10.3f}{r['ratio_to_floor']:>9.0f}"
-                  f"{r['fps_shading']:>8.1f}{r['paper_fps'] if r['paper_fps'] is not None else '-':>11}")
+            ratio = f"{r['per_lookup_ratio']:.2f}x" if r["per_lookup_ratio"] is not None else "-"
+            print(f"{r['layout']:>10}{r['occluders']:>10}{r['fiv_shade_ms']:>10.2f}{r['floor_ms']:>10.3f}"
+                  f"{r['ratio_to_floor']:>9.1f}{ratio:>11}{r['tile_cull_speedup']:>9.2f}x"
+                  f"{r['tiles_per_tile_mean']:>9.1f}{r['paper_fps'] if r['paper_fps'] is not None else '-':>11}")
         print(f"penumbra bench: wrote {out}/results.json, report.md")
         return 0
 
@@ -887,18 +896,153 @@ def fiv_scaling_scene(n: int, mesh: str, envmap: str, resolution: int = 512, sam
             "render": {"method": "fiv"}, "fiv": fiv, "object": objects}
 
 
+def fiv_spread_scene(n: int, mesh: str, envmap: str, resolution: int = 512, samples=(128, 65, 30),
+                     cache: str | None = None, seed: int = 11, spacing: float = 60.0) -> dict:
+    """The tile-culling scene: ``n`` bunnies (as fiv_scaling_scene) on a
+    jittered 8x8 grid of ``spacing`` world units over a floor 8 x spacing on
+    a side, seen from a low camera 6 units behind the first bunny, so that
+    most tiles lie farther than the occluders' culling distance (a few
+    hundred R under a hard sun) from most bunnies. Paths as given."""
+    if not 1 <= n <= 64:
+        raise InputError(f"the spread scene holds 1 to 64 bunnies, not {n}")
+    rng = np.random.default_rng(seed)
+    cells = rng.permutation(64)
+    jitter = rng.uniform(-0.3, 0.3, (64, 2)) * spacing
+    scales = rng.uniform(0.7, 0.85, 64)
+    side = 8 * spacing
+    objects = [{"name": "ground", "primitive": "plane", "params": {"size": [side, side]}, "albedo": 0.6}]
+    first = None
+    for k in range(n):
+        c = int(cells[k])
+        x = -3.5 * spacing + spacing * (c % 8) + jitter[c, 0]
+        z = -3.5 * spacing + spacing * (c // 8) + jitter[c, 1]
+        s = round(float(scales[c]), 3)
+        objects.append({"name": f"bunny{k}", "mesh": mesh, "translate": [round(x, 3), round(0.769 * s, 4), round(z, 3)],
+                        "scale": s, "albedo": [0.8, 0.78, 0.72]})
+        first = first or (round(x, 3), round(z, 3))
+    fiv = {"samples": list(samples)}
+    if cache:
+        fiv["cache"] = cache
+    return {"environment": {"map": envmap, "face_size": 128, "irradiance_face_size": 32},
+            "camera": {"position": [first[0], 2.5, first[1] + 6.0], "look_at": [first[0], 0.4, first[1]],
+                       "fov_deg": 62, "resolution": [resolution, resolution]},
+            "render": {"method": "fiv"}, "fiv": fiv, "object": objects}
+
+
+def occluder_bounds(built, cull_threshold: float = 1e-3) -> dict:
+    """Per occluder instance of a built scene (fields attached): world centre,
+    bounding radius R and culling distance, as capi/src/methods/fiv.c
+    build_records computes them (E_ref from the env's cube, the largest |FIV|
+    of a channel on the outermost sphere)."""
+    env = built.envmap
+    dirs, omega = env.cube_directions()
+    power = (env.cube_radiance().reshape(-1, 3).astype(np.float64) * omega.reshape(-1, 1)).sum(0).max()
+    env_ref = power / 4.0
+    objects = {o.name: o for o in built.desc.objects}
+    centres, radii, culls = [], [], []
+    for f, rec in zip(state(built).fields, state(built).records):
+        info = f.info()
+        outer_sphere = np.asarray(f.samples()[-1], np.float64)
+        norm = np.sqrt((outer_sphere ** 2).sum(axis=-2))
+        outer_max = float(np.nanmax(norm)) if np.isfinite(norm).any() else 0.0
+        cull = np.inf
+        if cull_threshold > 0:
+            cull = info["outer"] * np.sqrt(max(outer_max / max(cull_threshold * env_ref, 1e-30), 1.0))
+        for name in rec["objects"]:
+            m = objects[name].transform()
+            sc = uniform_scale(m)
+            centres.append(m[:3, :3] @ np.asarray(info["centre"], np.float64) + m[:3, 3])
+            radii.append(sc * info["radius"])
+            culls.append(sc * cull)
+    return {"centre": np.array(centres).reshape(-1, 3), "radius": np.array(radii), "cull": np.array(culls)}
+
+
+def tile_occluder_counts(gbuffer: dict, bounds: dict, width: int, tile: int = 16) -> dict:
+    """A float64 twin of kernels/fiv.cl bin_fiv_tiles: per tile with receivers,
+    how many occluders' culling spheres reach the box of its receivers, and per
+    receiver pixel how many occluders it looks up (not culled by distance,
+    not wholly behind its plane: the "occluders that matter")."""
+    pos = gbuffer["position"][..., :3].reshape(-1, 3).astype(np.float64)
+    nrm = gbuffer["normal"][..., :3].reshape(-1, 3).astype(np.float64)
+    fg = (gbuffer["instance"].ravel() != 0xFFFFFFFF) & np.isfinite(pos).all(axis=1)
+    height = pos.shape[0] // width
+    c, r, cull = bounds["centre"], bounds["radius"], bounds["cull"]
+    ty, tx = np.divmod(np.arange(pos.shape[0]), width)
+    tid = (ty // tile) * ((width + tile - 1) // tile) + tx // tile
+    tiles = ((width + tile - 1) // tile) * ((height + tile - 1) // tile)
+    lo = np.full((tiles, 3), np.inf)
+    hi = np.full((tiles, 3), -np.inf)
+    np.minimum.at(lo, tid[fg], pos[fg])
+    np.maximum.at(hi, tid[fg], pos[fg])
+    used = np.isfinite(lo).all(axis=1)
+    d = np.maximum(np.maximum(lo[used, None, :] - c[None], c[None] - hi[used, None, :]), 0.0)
+    per_tile = ((d ** 2).sum(-1) <= cull[None] ** 2).sum(1)
+    p, n = pos[fg], nrm[fg]
+    per_pixel = np.zeros(len(p), np.int64)
+    for k in range(len(r)):  # one occluder at a time: memory linear in the pixels
+        v = c[k] - p
+        per_pixel += ((v * n).sum(1) > -r[k]) & (np.linalg.norm(v, axis=1) <= cull[k])
+    return {"tiles": int(used.sum()), "per_tile_mean": float(per_tile.mean()) if per_tile.size else 0.0,
+            "per_tile_median": float(np.median(per_tile)) if per_tile.size else 0.0,
+            "per_tile_max": int(per_tile.max()) if per_tile.size else 0,
+            "per_tile_min": int(per_tile.min()) if per_tile.size else 0,
+            "per_tile_histogram": np.bincount(per_tile, minlength=len(r) + 1).tolist(),
+            "lookups_per_pixel": float(per_pixel.mean()) if per_pixel.size else 0.0,
+            "receiver_pixels": int(fg.sum())}
+
+
+# The shading variants timed against each other, round-robin on one G-buffer.
+SCALING_VARIANTS = {"floor": ("floor", {}), "unshadowed": ("unshadowed", {}), "fiv": ("fiv", {}),
+                    "fiv_sum": ("fiv", {"overlap": 0}), "fiv_unculled": ("fiv", {"tile_cull": 0})}
+
+
+def _interleaved_ms(built, variants: dict, frames: int) -> dict:
+    """Median shading ms of each variant on one G-buffer, the variants
+    executed in turn each round (so a change in the machine's load hits all
+    alike); warm-up rounds for WARMUP_SECONDS excluded."""
+    from ..core import GBuffer, Image, Renderer
+    from ..render import WARMUP_SECONDS, _timed
+
+    ctx = built.ctx
+    w, h = built.camera.resolution
+    gbuffer, image = GBuffer(ctx, w, h), Image(ctx, w, h)
+    gtimes = [_timed(lambda: built.scene.render_gbuffer(gbuffer), ctx)]
+    renderers = {k: Renderer(ctx, m, **kw) for k, (m, kw) in variants.items()}
+    times = {k: [] for k in variants}
+    warm_until = time.perf_counter() + WARMUP_SECONDS
+    rounds = 0
+    while rounds < frames + 1:
+        for k, r in renderers.items():
+            t = _timed(lambda: r.execute(built.scene, gbuffer, image), ctx)
+            if rounds >= 1:
+                times[k].append(t)
+        if rounds >= 1 or time.perf_counter() >= warm_until:
+            rounds += 1
+    for _ in range(frames - 1):
+        gtimes.append(_timed(lambda: built.scene.render_gbuffer(gbuffer), ctx))
+    planes = {p: gbuffer.read(p) for p in ("position", "normal", "instance")}
+    out = {k: statistics.median(t) for k, t in times.items()}
+    out["gbuffer"] = statistics.median(gtimes)
+    return out, planes, image.read()
+
+
 def fiv_scaling(out_dir: str | Path, counts=FIV_SCALING_COUNTS, samples=(128, 65, 30), resolution: int = 512,
                 frames: int = 5, data_dir: str | Path | None = None, mitsuba_count: int | None = 10,
                 mitsuba_resolution: int = 128, mitsuba_opts: BenchOptions | None = None, overrides=(),
-                log=print) -> dict:
+                spread: int | None = 60, spread_spacing: float = 120.0, log=print) -> dict:
     """Per-frame cost of ``fiv`` against the number of occluders: renders
     N = ``counts`` bunnies (one shared field of ``samples`` = (phi, theta,
-    radii)) at ``resolution`` x ``resolution`` pixels, timing fiv shading and the floor kernel in the
-    same run, next to the paper's frame rates. With ``mitsuba_count``, also
-    runs the speed-against-error benchmark (run()) on that scene at
-    ``mitsuba_resolution``² (fiv against the ground truth and Mitsuba 3).
-    ``overrides``: ``--set`` strings applied to every scene. Writes
-    ``scenes/*.toml``, results.json and report.md into ``out_dir``."""
+    radii)) at ``resolution`` x ``resolution`` pixels and, with ``spread``,
+    that many bunnies spread over a large floor (fiv_spread_scene). Per
+    scene, the floor kernel, unshadowed, fiv, fiv's plain sum (overlap 0)
+    and fiv without tile culling (tile_cull 0) are timed round-robin on one
+    G-buffer (_interleaved_ms): every ratio comes from one run. Also per scene:
+    the per-tile occluder list lengths and the occluder lookups per pixel
+    (tile_occluder_counts), hence the cost per occluder that matters. With
+    ``mitsuba_count``, also runs the speed-against-error benchmark (run())
+    on that scene at ``mitsuba_resolution``² (fiv against the ground truth
+    and Mitsuba 3). ``overrides``: ``--set`` strings applied to every scene.
+    Writes ``scenes/*.toml``, results.json and report.md into ``out_dir``."""
     from .. import __version__
     from ..bench import BenchOptions, _exposure, run, scene_toml
     from ..fileutil import atomic_write_text
@@ -929,12 +1073,21 @@ def fiv_scaling(out_dir: str | Path, counts=FIV_SCALING_COUNTS, samples=(128, 65
         atomic_write_text(path, scene_toml(data_n, f"fiv occluder-count benchmark: {n} bunnies (penumbra.methods."
                                                    "fiv.fiv_scaling_scene)"))
         scenes[n] = path
+    runs = [(n, "clustered", scenes[n]) for n in counts]
+    if spread:
+        data_s = fiv_spread_scene(spread, rel(data / SCALING_MESH), rel(data / SCALING_ENV), resolution, samples,
+                                  cache="../cache/fiv", spacing=spread_spacing)
+        path = out / "scenes" / f"spread_{spread}.toml"
+        atomic_write_text(path, scene_toml(data_s, f"fiv tile-culling benchmark: {spread} bunnies over a "
+                                                   f"{8 * spread_spacing:g} x {8 * spread_spacing:g} floor "
+                                                   "(penumbra.methods.fiv.fiv_spread_scene)"))
+        runs.append((spread, "spread", path))
 
     ctx = Context()
     load_start = os.getloadavg()[0]
     rows, bake = [], None
-    for n in counts:
-        desc = load_scene(scenes[n], list(overrides))
+    for n, layout, scene_path in runs:
+        desc = load_scene(scene_path, list(overrides))
         built = build_scene(desc, ctx)
         t0 = time.perf_counter()
         render(built, "fiv", frames=1, warmup=False,
@@ -944,27 +1097,36 @@ def fiv_scaling(out_dir: str | Path, counts=FIV_SCALING_COUNTS, samples=(128, 65
             bake = {"samples": rec["samples"], "baked_now": rec["baked"], "bake_s": rec["bake_s"] if rec["baked"]
                     else None, "rays": rec["rays"], "stored_bytes": rec["stored_bytes"],
                     "first_use_s": time.perf_counter() - t0}
-        floor = render(built, "floor", frames=frames)
-        unsh = render(built, "unshadowed", frames=frames)
-        fiv = render(built, "fiv", frames=frames)
-        plain = render(built, "fiv", frames=frames, overlap=0)  # plain sum: no pair correction
-        t = fiv.timings_ms
-        fg = float((fiv.gbuffer["instance"] != 0xFFFFFFFF).mean())
-        row = {"occluders": n, "fields": len(state(built).records), "fiv_shade_ms": t["shade_median"],
-               "fiv_shade_min_ms": t["shade_min"], "floor_ms": floor.timings_ms["shade_median"],
-               "ratio_to_floor": t["shade_median"] / floor.timings_ms["shade_median"],
-               "fiv_sum_shade_ms": plain.timings_ms["shade_median"],
-               "unshadowed_shade_ms": unsh.timings_ms["shade_median"], "gbuffer_ms": t["gbuffer_median"],
-               "frame_ms": t["frame_median"], "fps_shading": 1000.0 / t["shade_median"],
-               "fps_frame": 1000.0 / t["frame_median"], "paper_fps": PAPER_FPS.get(n), "geometry_fraction": fg}
+        ms, planes, image = _interleaved_ms(built, SCALING_VARIANTS, frames)
+        bins = tile_occluder_counts(planes, occluder_bounds(built), built.camera.resolution[0])
+        fg = float((planes["instance"] != 0xFFFFFFFF).mean())
+        row = {"occluders": n, "layout": layout, "fields": len(state(built).records), "fiv_shade_ms": ms["fiv"],
+               "floor_ms": ms["floor"], "ratio_to_floor": ms["fiv"] / ms["floor"],
+               "fiv_sum_shade_ms": ms["fiv_sum"], "fiv_unculled_shade_ms": ms["fiv_unculled"],
+               "tile_cull_speedup": ms["fiv_unculled"] / ms["fiv"],
+               "unshadowed_shade_ms": ms["unshadowed"], "gbuffer_ms": ms["gbuffer"],
+               "frame_ms": ms["gbuffer"] + ms["fiv"], "fps_shading": 1000.0 / ms["fiv"],
+               "fps_frame": 1000.0 / (ms["gbuffer"] + ms["fiv"]), "paper_fps": PAPER_FPS.get(n) if layout ==
+               "clustered" else None, "geometry_fraction": fg, **{f"tiles_{k}": v for k, v in bins.items()}}
+        # What one occluder lookup costs: the time above unshadowed over the
+        # (pixel, occluder) pairs that pass the per-pixel culling.
+        looked_up = bins["lookups_per_pixel"] * bins["receiver_pixels"]
+        for key, col in (("per_lookup_ns", "fiv_shade_ms"), ("per_lookup_sum_ns", "fiv_sum_shade_ms")):
+            row[key] = (row[col] - ms["unshadowed"]) * 1e6 / looked_up if looked_up else None
         rows.append(row)
-        log(f"{n} occluders: fiv {row['fiv_shade_ms']:.2f} ms ({row['ratio_to_floor']:.1f}x floor "
-            f"{row['floor_ms']:.3f} ms), {row['fps_shading']:.1f} fps shading, {row['fps_frame']:.1f} fps frame")
-        if n == max(counts):
+        log(f"{n} occluders ({layout}): fiv {row['fiv_shade_ms']:.2f} ms ({row['ratio_to_floor']:.1f}x floor "
+            f"{row['floor_ms']:.3f} ms), unculled {row['fiv_unculled_shade_ms']:.2f} ms, "
+            f"{bins['per_tile_mean']:.1f} occluders per tile, {bins['lookups_per_pixel']:.1f} lookups per pixel")
+        if layout == "spread" or (not spread and n == max(counts)):
             from ..imageio import write_png
 
-            write_png(out / f"fiv_{n}.png", fiv.image[..., :3], exposure=_exposure(fiv.image[..., :3],
-                                                                                   fiv.gbuffer["instance"] != 0xFFFFFFFF))
+            write_png(out / f"fiv_{layout}_{n}.png", image[..., :3],
+                      exposure=_exposure(image[..., :3], planes["instance"] != 0xFFFFFFFF))
+    single = next((r for r in rows if r["occluders"] == 1 and r["layout"] == "clustered"), None)
+    for r in rows:
+        for key in ("per_lookup_ns", "per_lookup_sum_ns"):
+            base = single[key] if single else None
+            r[key.replace("_ns", "_ratio")] = r[key] / base if base and r[key] is not None else None
 
     equal_error = None
     if mitsuba_count:
@@ -982,7 +1144,7 @@ def fiv_scaling(out_dir: str | Path, counts=FIV_SCALING_COUNTS, samples=(128, 65
                "overrides": list(overrides), "cpus": os.cpu_count(),
                "load_average_1min": [round(load_start, 2), round(os.getloadavg()[0], 2)],
                "resolution": [resolution, resolution], "frames": frames, "mesh": SCALING_MESH, "envmap": SCALING_ENV,
-               "samples_phi_theta_radii": list(samples), "bake": bake,
+               "samples_phi_theta_radii": list(samples), "bake": bake, "spread_spacing": spread_spacing,
                "paper": "Michael and Chrysanthou, Table 2: GeForce 8800, 512x512, fps with 1/10/30/60 occluders"}
     atomic_write_text(out / "results.json", json.dumps({"summary": summary, "results": rows,
                                                         "equal_error": equal_error}, indent=2) + "\n")
@@ -1003,20 +1165,57 @@ def scaling_markdown(summary: dict, rows: list[dict], equal_error: dict | None) 
              f"under {s['envmap']} (`scenes/bunnies_N.toml`), device {s['device']}, penumbra "
              f"{s['penumbra_version']}, {s['date']}. One occlusion field shared by every bunny: {phi}x{theta}x{radii} "
              f"(phi x theta x radii, as the paper's Table 2), {b.get('stored_bytes', 0) / 1024:.0f} KiB, {bake}. "
-             f"Times: kernel builds excluded, 0.3 s of warm-up frames, median of {s['frames']} frames. The floor kernel "
-             "(reads the G-buffer, writes the image) is timed in the same run; fps = 1000 / ms. System load "
+             f"Times: kernel builds excluded, 0.3 s of warm-up rounds, median of {s['frames']} rounds. The floor kernel "
+             "(reads the G-buffer, writes the image) is timed in the same rounds; fps = 1000 / ms. System load "
              f"average (1 min) at the start / end of the timings: {s['load_average_1min'][0]} / "
              f"{s['load_average_1min'][1]} on {s['cpus']} CPUs.", "",
-             "| occluders | fiv shading ms | floor ms | fiv / floor | fps (shading) | fps (G-buffer + shading) | "
-             "paper fps (GeForce 8800) | fiv overlap=0 ms | unshadowed ms | G-buffer ms |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "| scene | occluders | fiv shading ms | floor ms | fiv / floor | fps (shading) | fps (G-buffer + shading) | "
+             "paper fps (GeForce 8800) | fiv overlap=0 ms | unshadowed ms | fiv tile_cull=0 ms | tile culling speed-up | "
+             "occluders per tile (mean / median / max) | lookups per pixel | ns per lookup (overlap 1 / 0) | "
+             "per lookup / 1 occluder's (overlap 1 / 0) | G-buffer ms |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+
+    def f(x, fmt):
+        return "-" if x is None else format(x, fmt)
+
     for r in rows:
-        lines.append(f"| {r['occluders']} | {r['fiv_shade_ms']:.2f} | {r['floor_ms']:.3f} | {r['ratio_to_floor']:.0f} | "
-                     f"{r['fps_shading']:.1f} | {r['fps_frame']:.1f} | "
+        lines.append(f"| {r['layout']} | {r['occluders']} | {r['fiv_shade_ms']:.2f} | {r['floor_ms']:.3f} | "
+                     f"{r['ratio_to_floor']:.1f} | {r['fps_shading']:.1f} | {r['fps_frame']:.1f} | "
                      f"{r['paper_fps'] if r['paper_fps'] is not None else '-'} | {r['fiv_sum_shade_ms']:.2f} | "
-                     f"{r['unshadowed_shade_ms']:.2f} | {r['gbuffer_ms']:.1f} |")
-    lines += ["", "fiv uses its default overlap = 1 (the pairwise unit-bounding-disc correction, docs/fiv.md); "
-              "the overlap=0 column is the plain sum of the occluders' irradiance."]
+                     f"{r['unshadowed_shade_ms']:.2f} | {r['fiv_unculled_shade_ms']:.2f} | "
+                     f"{r['tile_cull_speedup']:.2f} | {r['tiles_per_tile_mean']:.1f} / {r['tiles_per_tile_median']:g} / "
+                     f"{r['tiles_per_tile_max']} | {r['tiles_lookups_per_pixel']:.2f} | "
+                     f"{f(r['per_lookup_ns'], '.1f')} / {f(r['per_lookup_sum_ns'], '.1f')} | "
+                     f"{f(r['per_lookup_ratio'], '.2f')} / {f(r['per_lookup_sum_ratio'], '.2f')} | "
+                     f"{r['gbuffer_ms']:.1f} |")
+    lines += ["", "Every time in a row comes from one run: the floor kernel, unshadowed, fiv, its plain sum and fiv "
+              "without tile culling are executed in turn on one G-buffer, the median of each taken "
+              "(penumbra.methods.fiv._interleaved_ms). fiv uses its defaults: overlap = 1 (the pairwise "
+              "unit-bounding-disc correction, docs/fiv.md) and tile_cull = 1 (per 16x16 tile, only the occluders "
+              "whose culling distance reaches the tile's receivers). Occluders per tile: over the tiles with "
+              "receivers. Lookups per pixel: the (pixel, occluder) pairs the kernel interpolates (not culled by "
+              "distance, not wholly behind the pixel's plane), per receiver pixel; ns per lookup = (fiv - "
+              "unshadowed) / those pairs, against the 1-occluder scene's."]
+    single = next((r for r in rows if r["occluders"] == 1 and r["layout"] == "clustered"), None)
+    spread = next((r for r in rows if r["layout"] == "spread"), None)
+    many = [r for r in rows if r["layout"] == "clustered" and r["occluders"] > 1 and r["per_lookup_ratio"]]
+    lines += ["", "## Goals (issue 15)", ""]
+    if single:
+        lines.append(f"* fiv / floor with one occluder: {single['ratio_to_floor']:.1f} (goal <= 5: "
+                     f"{'met' if single['ratio_to_floor'] <= 5 else 'missed'}).")
+    if many:
+        worst = max(many, key=lambda r: r["per_lookup_ratio"])
+        worst_sum = max(many, key=lambda r: r["per_lookup_sum_ratio"])
+        lines.append(f"* Cost per occluder that matters against one occluder's: at most {worst['per_lookup_ratio']:.2f} "
+                     f"({worst['occluders']} occluders, overlap 1), {worst_sum['per_lookup_sum_ratio']:.2f} with "
+                     f"overlap 0 (goal <= 2: {'met' if worst['per_lookup_ratio'] <= 2 else 'missed'}).")
+    if spread:
+        lines.append(f"* Tile culling, {spread['occluders']} bunnies over a {8 * s.get('spread_spacing', 0):g} x "
+                     f"{8 * s.get('spread_spacing', 0):g} floor: {spread['tiles_per_tile_mean']:.1f} occluders per "
+                     f"tile on average (median {spread['tiles_per_tile_median']:g}, "
+                     f"{spread['tiles_per_tile_min']}..{spread['tiles_per_tile_max']}) of {spread['occluders']}; "
+                     f"culled {spread['fiv_shade_ms']:.1f} ms against unculled {spread['fiv_unculled_shade_ms']:.1f} ms "
+                     f"({spread['tile_cull_speedup']:.2f}x).")
     lines += ["", "The paper's frame rates are for its whole frame (rasterisation and shading) on a 2007 GPU; "
               "penumbra ray-casts its G-buffer on the same device as the shading. The shading columns measure the "
               "method itself; the x floor ratio (fiv shading over the memory-bound floor, same run) does not depend "
@@ -1030,6 +1229,6 @@ def scaling_markdown(summary: dict, rows: list[dict], equal_error: dict | None) 
         for r in e["results"]:
             lines.append(f"| {r['method']} | {_fmt_params(r['params'])} | {r['time_ms']:.2f} | {r['nrmse']:.4f} | "
                          f"{r.get('mitsuba_speedup_bound') or ''}{r['mitsuba_speedup']:.3g}x |")
-    lines += ["", "Files: results.json, report.md, scenes/bunnies_N.toml, fiv_<N>.png (the largest count)"
+    lines += ["", "Files: results.json, report.md, scenes/bunnies_N.toml, scenes/spread_N.toml, fiv_spread_N.png"
               + (f", mitsuba_{equal_error['occluders']}/ (the equal-error run)" if equal_error else "") + ".", ""]
     return "\n".join(lines)
