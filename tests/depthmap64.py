@@ -571,10 +571,10 @@ def rasterise(frame, tris, res: int) -> np.ndarray:
 
 
 def map_bias(frame, cos_theta, bias: float, slope_bias: float, pcf: int):
-    """The depth bias of a lookup (world units): texel x (bias + slope_bias (pcf + 1) min(tan theta, 32))."""
+    """The depth bias of a lookup (world units): texel x (bias + slope_bias (sqrt(2) pcf + 1) min(tan theta, 32))."""
     c = np.asarray(cos_theta, np.float64)
     tan = np.minimum(np.sqrt(np.maximum(1.0 - c * c, 0.0)) / c, MAX_SLOPE)
-    return max(frame[12], frame[13]) * (bias + slope_bias * (pcf + 1.0) * tan)
+    return max(frame[12], frame[13]) * (bias + slope_bias * (math.sqrt(2.0) * pcf + 1.0) * tan)
 
 
 def visibility(frame, depth, p, b, pcf: int, margin: float = 0.0):

@@ -35,7 +35,7 @@ static const pn_param_desc params[] = {
     {"bias", PN_PARAM_FLOAT, PN_PARAM_FRAME, 1.0, 0, 64, "texels",
      "Constant depth bias, in texels of the map."},
     {"slope_bias", PN_PARAM_FLOAT, PN_PARAM_FRAME, 1.0, 0, 64, "texels",
-     "Depth bias per unit tan(angle to the normal), times pcf + 1, in texels (tan capped at 32)."},
+     "Depth bias per unit tan(angle to the normal), times sqrt(2) pcf + 1, in texels (tan capped at 32)."},
     {"pcf", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 4, "texels",
      "Percentage-closer filter radius: (2 pcf + 1)^2 depth comparisons per lookup."},
     {"specular", PN_PARAM_INT, PN_PARAM_FRAME, 2, 0, 2, "",
