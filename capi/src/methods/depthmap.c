@@ -28,7 +28,8 @@ static const pn_param_desc params[] = {
     {"directions", PN_PARAM_INT, PN_PARAM_PLAN, 64, 1, PN_ENV_DOMAINS_MAX, "domains",
      "N, the env map's directional domains, one depth map each (ignored when the caller gives its domains)."},
     {"seed", PN_PARAM_INT, PN_PARAM_PLAN, 1, 0, 4294967295.0, "", "Seed of the decomposition's initial draw."},
-    {"resolution", PN_PARAM_INT, PN_PARAM_PLAN, 256, 8, 4096, "texels", "Depth-map side (maps are square)."},
+    {"resolution", PN_PARAM_INT, PN_PARAM_PLAN, 128, 8, 4096, "texels",
+     "Depth-map side (maps are square; 128 with fit 1 is below 256 with fit 0 in error, docs/depthmap.md)."},
     {"map_renderer", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
      "How the maps are drawn: 0 compute rasteriser (atomic-min depth), 1 BVH ray caster (as fast or faster on "
      "CPUs, docs/depthmap.md)."},
