@@ -318,7 +318,8 @@ kernel void shade_depthmap(global const float4 *position, global const float4 *n
         if (use_maps && f[3].w != 0.0f) { /* a domain without a map (skip_power) is lit unshadowed */
             float tan_theta = fmin(sqrt(fmax(1.0f - c * c, 0.0f)) / c, DM_MAX_SLOPE);
             float texel = fmax(f[3].x, f[3].y);
-            float bias = texel * (bias_constant + bias_slope * ((float)pcf + 1.0f) * tan_theta);
+            /* a diagonal PCF tap is up to sqrt(2) pcf + 0.71 texels from p: the slope term covers it */
+            float bias = texel * (bias_constant + bias_slope * (M_SQRT2_F * (float)pcf + 1.0f) * tan_theta);
             size_t at = (size_t)i * res * res;
             vis = dm_visibility(f, depth + at, half_maps ? depth16 + at : (global const ushort *)0, res, p, bias,
                                 pcf);

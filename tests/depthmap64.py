@@ -431,6 +431,108 @@ def phong_energy(a, r: float, n: float, nodes: int = 400) -> float:
 # per-pixel sum. Frames are (16,) arrays: e1 | u_min, e2 | v_min, d | far,
 # du, dv, depth extent, 0.
 
+# The map fit (capi/src/methods/depthmap.c, fit_frames): instances are
+# (lo, hi, xf) — the object box and the 3 x 4 object-to-world transform.
+
+
+def complete_frame(d):
+    """(e1, e2) completing the unit d (Duff et al. 2017, as pn_frame)."""
+    sg = 1.0 if d[2] >= 0.0 else -1.0
+    a = -1.0 / (sg + d[2])
+    b = d[0] * d[1] * a
+    return (np.array([1.0 + sg * d[0] * d[0] * a, sg * b, -sg * d[0]]),
+            np.array([b, sg + d[1] * d[1] * a, -d[1]]))
+
+
+def box_corners(lo, hi, xf) -> np.ndarray:
+    """The 8 world corners of an object box (corner k: bit c = the high side on axis c)."""
+    k = np.arange(8)
+    o = np.stack([np.where((k >> c) & 1, hi[c], lo[c]) for c in range(3)], axis=1).astype(np.float64)
+    xf = np.asarray(xf, np.float64)
+    return o @ xf[:, :3].T + xf[:, 3]
+
+
+def flat_plane(lo, hi, corners):
+    """(unit normal, offset n.p) of a box with no thickness on one axis, else None."""
+    ext = np.asarray(hi, np.float64) - np.asarray(lo, np.float64)
+    size = ext.max()
+    thin = [c for c in range(3) if ext[c] <= 1e-6 * size]
+    if not thin or not size > 0.0:
+        return None
+    t = thin[-1]
+    a, b = (t + 1) % 3, (t + 2) % 3
+    n = np.cross(corners[1 << a] - corners[0], corners[1 << b] - corners[0])
+    if not np.linalg.norm(n) > 0.0:
+        return None
+    n = n / np.linalg.norm(n)
+    return n, float(n @ corners[0])
+
+
+def clipped_vertices(corners, h, c) -> np.ndarray:
+    """Vertices of the box (its corners) cut to p.h <= c: the corners inside
+    and the crossings of its 12 edges with the plane."""
+    side = corners @ h - c
+    pts = [corners[k] for k in range(8) if side[k] <= 0.0]
+    for k in range(8):
+        for b in range(3):
+            j = k | (1 << b)
+            if j != k and (side[k] <= 0.0) != (side[j] <= 0.0):
+                t = side[k] / (side[k] - side[j])
+                pts.append(corners[k] + t * (corners[j] - corners[k]))
+    return np.array(pts).reshape(-1, 3)
+
+
+def shadow_footprint(d, e1, e2, instances, tol):
+    """fit 1: the (u, v) range where a shadow can fall, or None (docs/depthmap.md)."""
+    axes = np.stack([e1, e2])
+    lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
+    any_ = False
+    boxes = [box_corners(*inst) for inst in instances]
+    for i, (inst, cc) in enumerate(zip(instances, boxes)):
+        plane = flat_plane(inst[0], inst[1], cc)
+        own = cc @ axes.T
+        if plane is None:  # can shadow itself: all of it
+            lo, hi, any_ = np.minimum(lo, own.min(0)), np.maximum(hi, own.max(0)), True
+            continue
+        n, offset = plane
+        nd = float(n @ d)
+        if abs(nd) < 1e-9:
+            continue
+        sg = 1.0 if nd > 0.0 else -1.0
+        for j, rc in enumerate(boxes):
+            if j == i:
+                continue
+            v = clipped_vertices(rc, sg * n, sg * offset - tol)
+            if not len(v):
+                continue
+            q = v @ axes.T
+            ilo, ihi = np.maximum(q.min(0), own.min(0)), np.minimum(q.max(0), own.max(0))
+            if (ilo > ihi).any():
+                continue
+            lo, hi, any_ = np.minimum(lo, ilo), np.maximum(hi, ihi), True
+    return (lo, hi) if any_ else None
+
+
+def fit_frame(d, instances, res: int, fit: int = 1) -> np.ndarray:
+    """The (16,) frame of the map along d (float64; the has-a-map flag 1)."""
+    d = np.asarray(d, np.float64)
+    d = d / np.linalg.norm(d)
+    e1, e2 = complete_frame(d)
+    corners = np.concatenate([box_corners(*inst) for inst in instances])
+    proj = corners @ np.stack([e1, e2, d]).T
+    lo, hi = proj.min(0), proj.max(0)
+    floor_size = 1e-6 * max(np.abs(lo).max(), np.abs(hi).max(), 1e-30)
+    if fit == 1:
+        fp = shadow_footprint(d, e1, e2, instances, floor_size)
+        if fp is not None:
+            lo[:2], hi[:2] = fp
+    du = max(hi[0] - lo[0], floor_size) / (res - 1)
+    dv = max(hi[1] - lo[1], floor_size) / (res - 1)
+    u0 = 0.5 * (lo[0] + hi[0]) - 0.5 * du * res
+    v0 = 0.5 * (lo[1] + hi[1]) - 0.5 * dv * res
+    return np.array([*e1, u0, *e2, v0, *d, hi[2], du, dv, max(hi[2] - lo[2], floor_size), 1.0])
+
+
 GOLDEN_ANGLE = 2.39996322972865332
 MAX_SLOPE = 32.0  # DM_MAX_SLOPE
 LOBE_CULL = 1e-3  # DM_LOBE_CULL
@@ -469,10 +571,10 @@ def rasterise(frame, tris, res: int) -> np.ndarray:
 
 
 def map_bias(frame, cos_theta, bias: float, slope_bias: float, pcf: int):
-    """The depth bias of a lookup (world units): texel x (bias + slope_bias (pcf + 1) min(tan theta, 32))."""
+    """The depth bias of a lookup (world units): texel x (bias + slope_bias (sqrt(2) pcf + 1) min(tan theta, 32))."""
     c = np.asarray(cos_theta, np.float64)
     tan = np.minimum(np.sqrt(np.maximum(1.0 - c * c, 0.0)) / c, MAX_SLOPE)
-    return max(frame[12], frame[13]) * (bias + slope_bias * (pcf + 1.0) * tan)
+    return max(frame[12], frame[13]) * (bias + slope_bias * (math.sqrt(2.0) * pcf + 1.0) * tan)
 
 
 def visibility(frame, depth, p, b, pcf: int, margin: float = 0.0):

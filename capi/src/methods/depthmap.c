@@ -21,21 +21,22 @@
 #define SKIP_POWER_DEFAULT 0.01      /* skip_power's default (docs/depthmap.md, measured) */
 
 enum { P_BACKGROUND, P_DIRECTIONS, P_SEED, P_RESOLUTION, P_MAP_RENDERER, P_BIAS, P_SLOPE_BIAS, P_PCF, P_SPECULAR,
-       P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS, P_SKIP_POWER, P_HALF_MAPS };
+       P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS, P_SKIP_POWER, P_HALF_MAPS, P_FIT };
 
 static const pn_param_desc params[] = {
     PN_PARAM_BACKGROUND,
     {"directions", PN_PARAM_INT, PN_PARAM_PLAN, 64, 1, PN_ENV_DOMAINS_MAX, "domains",
      "N, the env map's directional domains, one depth map each (ignored when the caller gives its domains)."},
     {"seed", PN_PARAM_INT, PN_PARAM_PLAN, 1, 0, 4294967295.0, "", "Seed of the decomposition's initial draw."},
-    {"resolution", PN_PARAM_INT, PN_PARAM_PLAN, 256, 8, 4096, "texels", "Depth-map side (maps are square)."},
+    {"resolution", PN_PARAM_INT, PN_PARAM_PLAN, 128, 8, 4096, "texels",
+     "Depth-map side (maps are square; 128 with fit 1 is below 256 with fit 0 in error, docs/depthmap.md)."},
     {"map_renderer", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
      "How the maps are drawn: 0 compute rasteriser (atomic-min depth), 1 BVH ray caster (as fast or faster on "
      "CPUs, docs/depthmap.md)."},
     {"bias", PN_PARAM_FLOAT, PN_PARAM_FRAME, 1.0, 0, 64, "texels",
      "Constant depth bias, in texels of the map."},
     {"slope_bias", PN_PARAM_FLOAT, PN_PARAM_FRAME, 1.0, 0, 64, "texels",
-     "Depth bias per unit tan(angle to the normal), times pcf + 1, in texels (tan capped at 32)."},
+     "Depth bias per unit tan(angle to the normal), times sqrt(2) pcf + 1, in texels (tan capped at 32)."},
     {"pcf", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 4, "texels",
      "Percentage-closer filter radius: (2 pcf + 1)^2 depth comparisons per lookup."},
     {"specular", PN_PARAM_INT, PN_PARAM_FRAME, 2, 0, 2, "",
@@ -51,6 +52,9 @@ static const pn_param_desc params[] = {
     {"half_maps", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
      "1: the shading looks up 16-bit copies of the maps (depth quantised to extent / 65534, the seed's storage); 0: "
      "32-bit floats."},
+    {"fit", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
+     "What a map's footprint covers: 0 every instance's box, 1 only where a shadow can fall (every non-flat "
+     "instance, and a flat one where something lies behind it; docs/depthmap.md)."},
 };
 
 enum { OUT_DOMAINS, OUT_FRAMES, OUT_DEPTH };
@@ -468,10 +472,153 @@ static void project_box(const pn_instance *inst, const double a[3], double *lo, 
     *hi = fmax(*hi, centre + radius);
 }
 
-/* Each map's frame: the tight range of every live instance's transformed box
- * along e1, e2 and d, padded by half a texel so that texel centres cover the
- * box edges; returns false for a scene without instances (no maps). */
-static bool fit_frames(state *s, pn_scene scene)
+/* The 8 world corners of an instance's object box (corner k: bit c set =
+ * the high side on object axis c). */
+static void box_corners(const pn_instance *inst, double out[8][3])
+{
+    const float *x = inst->object_to_world;
+    for (int k = 0; k < 8; ++k) {
+        double o[3];
+        for (int c = 0; c < 3; ++c)
+            o[c] = (k >> c) & 1 ? inst->mesh->bounds_hi[c] : inst->mesh->bounds_lo[c];
+        for (int r = 0; r < 3; ++r)
+            out[k][r] = x[4 * r] * o[0] + x[4 * r + 1] * o[1] + x[4 * r + 2] * o[2] + x[4 * r + 3];
+    }
+}
+
+static double dot3(const double a[3], const double b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+
+/* A flat instance (a plane, a quad: its object box has no thickness on one
+ * axis): its world normal n (unit) and plane offset n.p; false otherwise. */
+static bool flat_plane(const pn_instance *inst, const double corners[8][3], double n[3], double *offset)
+{
+    double size = 0.0;
+    int thin = -1;
+    for (int c = 0; c < 3; ++c)
+        size = fmax(size, (double)inst->mesh->bounds_hi[c] - inst->mesh->bounds_lo[c]);
+    for (int c = 0; c < 3; ++c)
+        if ((double)inst->mesh->bounds_hi[c] - inst->mesh->bounds_lo[c] <= 1e-6 * size)
+            thin = c;
+    if (thin < 0 || !(size > 0.0))
+        return false;
+    const int a = (thin + 1) % 3, b = (thin + 2) % 3; /* the box's edges along its two other axes */
+    double ea[3], eb[3];
+    for (int r = 0; r < 3; ++r) {
+        ea[r] = corners[1 << a][r] - corners[0][r];
+        eb[r] = corners[1 << b][r] - corners[0][r];
+    }
+    n[0] = ea[1] * eb[2] - ea[2] * eb[1];
+    n[1] = ea[2] * eb[0] - ea[0] * eb[2];
+    n[2] = ea[0] * eb[1] - ea[1] * eb[0];
+    const double len = sqrt(dot3(n, n));
+    if (!(len > 0.0))
+        return false;
+    for (int r = 0; r < 3; ++r)
+        n[r] /= len;
+    *offset = dot3(n, corners[0]);
+    return true;
+}
+
+/* Range of p.e1 and p.e2 over the part of a box (its corners) where
+ * p.h <= c: the extremes of a linear function over a convex polytope lie at
+ * its vertices, which are the corners inside the halfspace and the crossings
+ * of the box's 12 edges with its plane. Widens lo/hi; false when empty. */
+static bool clipped_range(const double corners[8][3], const double h[3], double c, const double *axes[2], double lo[2],
+                          double hi[2])
+{
+    bool any = false;
+    double side[8];
+    for (int k = 0; k < 8; ++k)
+        side[k] = dot3(corners[k], h) - c;
+    for (int k = 0; k < 8; ++k) {
+        double pts[4][3];
+        int count = 0;
+        if (side[k] <= 0.0) {
+            memcpy(pts[count++], corners[k], sizeof pts[0]);
+        }
+        for (int b = 0; b < 3; ++b) { /* edge k -> k | bit, once each */
+            const int j = k | (1 << b);
+            if (j == k || (side[k] <= 0.0) == (side[j] <= 0.0))
+                continue;
+            const double t = side[k] / (side[k] - side[j]);
+            for (int r = 0; r < 3; ++r)
+                pts[count][r] = corners[k][r] + t * (corners[j][r] - corners[k][r]);
+            ++count;
+        }
+        for (int q = 0; q < count; ++q) {
+            any = true;
+            for (int a = 0; a < 2; ++a) {
+                const double v = dot3(pts[q], axes[a]);
+                lo[a] = fmin(lo[a], v);
+                hi[a] = fmax(hi[a], v);
+            }
+        }
+    }
+    return any;
+}
+
+/* fit 1: the part of the map where a shadow can fall, as a (u, v) range.
+ * A non-flat instance can shadow itself: its whole box. A flat one shadows
+ * only what lies behind it as seen from the light: the other instances'
+ * boxes clipped to the far side of its plane (by more than tol: what rests
+ * on a floor is not under it), intersected with its own projection. Outside
+ * the range nothing stands between a scene point and the light, which is
+ * how the lookup treats it. False when no shadow can fall. */
+static bool shadow_footprint(pn_scene scene, const double d[3], const double *axes[2], double tol, double lo[2],
+                             double hi[2])
+{
+    bool any = false;
+    lo[0] = lo[1] = INFINITY;
+    hi[0] = hi[1] = -INFINITY;
+    for (uint32_t i = 0; i < scene->instance_count; ++i) {
+        const pn_instance *c = &scene->instances[i];
+        if (!c->mesh->triangle_count)
+            continue;
+        double cc[8][3], n[3], offset;
+        box_corners(c, cc);
+        if (!flat_plane(c, cc, n, &offset)) {
+            for (int a = 0; a < 2; ++a)
+                project_box(c, axes[a], &lo[a], &hi[a]);
+            any = true;
+            continue;
+        }
+        const double nd = dot3(n, d);
+        if (fabs(nd) < 1e-9)
+            continue; /* seen edge-on: it covers no area of the map */
+        const double sg = nd > 0.0 ? 1.0 : -1.0; /* n towards the light */
+        const double h[3] = {sg * n[0], sg * n[1], sg * n[2]};
+        double own_lo[2] = {INFINITY, INFINITY}, own_hi[2] = {-INFINITY, -INFINITY};
+        for (int a = 0; a < 2; ++a)
+            project_box(c, axes[a], &own_lo[a], &own_hi[a]);
+        for (uint32_t j = 0; j < scene->instance_count; ++j) {
+            const pn_instance *r = &scene->instances[j];
+            if (j == i || !r->mesh->triangle_count)
+                continue;
+            double rc[8][3], rlo[2] = {INFINITY, INFINITY}, rhi[2] = {-INFINITY, -INFINITY};
+            box_corners(r, rc);
+            if (!clipped_range(rc, h, sg * offset - tol, axes, rlo, rhi))
+                continue;
+            const double ilo[2] = {fmax(rlo[0], own_lo[0]), fmax(rlo[1], own_lo[1])};
+            const double ihi[2] = {fmin(rhi[0], own_hi[0]), fmin(rhi[1], own_hi[1])};
+            if (ilo[0] > ihi[0] || ilo[1] > ihi[1])
+                continue;
+            for (int a = 0; a < 2; ++a) {
+                lo[a] = fmin(lo[a], ilo[a]);
+                hi[a] = fmax(hi[a], ihi[a]);
+            }
+            any = true;
+        }
+    }
+    return any;
+}
+
+/* Each map's frame: along e1 and e2 the tight range of every live
+ * instance's transformed box (fit 0) or of where a shadow can fall (fit 1:
+ * shadow_footprint; the whole scene when nothing can be shadowed), along d
+ * always the whole scene; padded by half a texel so that texel centres
+ * cover the range's edges; returns false for a scene without instances (no
+ * maps). */
+static bool fit_frames(state *s, pn_scene scene, int fit)
 {
     const uint32_t res = s->res;
     bool any = false;
@@ -499,8 +646,14 @@ static bool fit_frames(state *s, pn_scene scene)
         for (int k = 0; k < 3; ++k)
             scale = fmax(scale, fmax(fabs(lo[k]), fabs(hi[k])));
         const double floor_size = 1e-6 * fmax(scale, 1e-30);
+        double flo[2], fhi[2];
+        if (fit == 1 && shadow_footprint(scene, d, axes, floor_size, flo, fhi))
+            for (int k = 0; k < 2; ++k) {
+                lo[k] = flo[k];
+                hi[k] = fhi[k];
+            }
         /* res texels of size du span the range plus one texel: the outermost
-         * texel centres lie on the box's outline. */
+         * texel centres lie on the range's outline. */
         const double du = fmax(hi[0] - lo[0], floor_size) / (res - 1), dv = fmax(hi[1] - lo[1], floor_size) / (res - 1);
         const double u0 = 0.5 * (lo[0] + hi[0]) - 0.5 * du * res, v0 = 0.5 * (lo[1] + hi[1]) - 0.5 * dv * res;
         const double extent = fmax(hi[2] - lo[2], floor_size);
@@ -657,7 +810,7 @@ static pn_status prepare_maps(pn_renderer r, pn_scene scene, bool *use_maps)
         *use_maps = !st && s->drawn;
         return st;
     }
-    if (!fit_frames(s, scene)) {
+    if (!fit_frames(s, scene, (int)r->params[P_FIT])) {
         s->maps_drawn = false;
         return PN_SUCCESS; /* no triangles: nothing casts a shadow */
     }

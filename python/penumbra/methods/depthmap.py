@@ -122,9 +122,12 @@ class Depthmap(Technique):
         raise InputError(f"method {NAME} has no output '{output}' (outputs: domains, map_frames, depth_map)")
 
     def sweep(self) -> list[dict]:
-        # Directions and map resolution from the cheapest up to the defaults and beyond (docs/depthmap.md).
-        return [{"directions": 16, "resolution": 128}, {"directions": 32, "resolution": 128}, {"directions": 32},
-                {}, {"pcf": 1}, {"resolution": 512}, {"directions": 128, "resolution": 512}]
+        # Directions and map resolution from the cheapest up to the defaults and beyond, and the defaults
+        # before the shadow-footprint fit (fit 0, 256^2) for comparison (docs/depthmap.md).
+        return [{"directions": 16, "resolution": 64}, {"directions": 32, "resolution": 64},
+                {"directions": 64, "resolution": 64}, {"directions": 128, "resolution": 64}, {"directions": 32},
+                {}, {"directions": 128}, {"directions": 128, "resolution": 256},
+                {"fit": 0, "resolution": 256}]
 
 
 TECHNIQUE = Depthmap(NAME)
