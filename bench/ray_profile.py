@@ -156,7 +156,11 @@ def main(argv=None) -> int:
     ap.add_argument("--layouts", default=",".join(LAYOUTS), help="subset of " + ",".join(LAYOUTS))
     ap.add_argument("--json", default="")
     args = ap.parse_args(argv)
-    layouts = {k: LAYOUTS[k] for k in args.layouts.split(",")}
+    layouts = {}
+    for k in args.layouts.split(","):
+        # name, or name=-DDEFINE... (the default layout built with extra options)
+        name, _, opts = k.partition("=")
+        layouts[name] = {"PENUMBRA_CL_BUILD_OPTIONS": opts} if opts else LAYOUTS[name]
     load = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
     print(f"load: {load}")
     out = {"load_before": load, "scenes": []}
