@@ -382,6 +382,32 @@ inline float4 pn_ray_box4(const pn_ray_slab *r, float tmin, float tmax, global c
  * (and PN_PUSH writes one past the top). */
 #define PN_BVH4_STACK (3 * PN_BVH_MAX_DEPTH + 1)
 
+/* Pushes the children of 4-wide node n whose entry distances te are finite:
+ * for closest hits sorted, farthest first, so the nearest is popped next;
+ * for any hit in slot order (slot 0 popped next). */
+inline void pn_push4(float4 te, global const float4 *n, bool any_hit, uint *stack, uint *stack_n, float *stack_t,
+                     int *top)
+{
+    uint4 child = as_uint4(n[6]), cnt = as_uint4(n[7]);
+    float t0 = te.s0, t1 = te.s1, t2 = te.s2, t3 = te.s3;
+    uint c0 = child.s0, c1 = child.s1, c2 = child.s2, c3 = child.s3;
+    uint n0 = cnt.s0, n1 = cnt.s1, n2 = cnt.s2, n3 = cnt.s3;
+    if (!any_hit) {
+        /* Sorting network: t0 <= t1 <= t2 <= t3 afterwards, misses (INFINITY) last. */
+        PN_CSWAP(t0, c0, n0, t1, c1, n1);
+        PN_CSWAP(t2, c2, n2, t3, c3, n3);
+        PN_CSWAP(t0, c0, n0, t2, c2, n2);
+        PN_CSWAP(t1, c1, n1, t3, c3, n3);
+        PN_CSWAP(t1, c1, n1, t2, c2, n2);
+    }
+    int sp = *top;
+    PN_PUSH(t3, c3, n3);
+    PN_PUSH(t2, c2, n2);
+    PN_PUSH(t1, c1, n1);
+    PN_PUSH(t0, c0, n0);
+    *top = sp;
+}
+
 /* Traverses one instance's 4-wide BLAS in object space (bvh.h, pn_bvh4_node).
  * any_hit: stop at the first hit. Returns true if hit->t was lowered.
  *
@@ -409,25 +435,9 @@ PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, f
     for (;;) {
         global const float4 *n = nodes + 8 * node;
         float4 te = pn_ray_box4(&ray, tmin, hit->t, n);
-        uint4 child = as_uint4(n[6]), cnt = as_uint4(n[7]);
         PN_STAT(hit, nodes, 1);
         PN_STAT(hit, boxes, 4);
-        float t0 = te.s0, t1 = te.s1, t2 = te.s2, t3 = te.s3;
-        uint c0 = child.s0, c1 = child.s1, c2 = child.s2, c3 = child.s3;
-        uint n0 = cnt.s0, n1 = cnt.s1, n2 = cnt.s2, n3 = cnt.s3;
-        if (!any_hit) {
-            /* Sorting network: t0 <= t1 <= t2 <= t3 afterwards, misses (INFINITY) last. */
-            PN_CSWAP(t0, c0, n0, t1, c1, n1);
-            PN_CSWAP(t2, c2, n2, t3, c3, n3);
-            PN_CSWAP(t0, c0, n0, t2, c2, n2);
-            PN_CSWAP(t1, c1, n1, t3, c3, n3);
-            PN_CSWAP(t1, c1, n1, t2, c2, n2);
-        }
-        /* Farthest first: the nearest (any hit: slot 0) is popped next. */
-        PN_PUSH(t3, c3, n3);
-        PN_PUSH(t2, c2, n2);
-        PN_PUSH(t1, c1, n1);
-        PN_PUSH(t0, c0, n0);
+        pn_push4(te, n, any_hit, stack, stack_n, stack_t, &sp);
         /* Next interior node; leaves on the way are tested here. */
         for (;;) {
             if (!pn_pop(stack_t, &sp, any_hit, hit->t))
@@ -461,6 +471,7 @@ PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, f
 }
 #endif
 
+#if PN_BVH_WIDTH == 2
 /* Closest (any_hit = false) or any (any_hit = true) intersection with the
  * scene in (tmin, tmax). hit->t is INFINITY-free only when true is returned. */
 PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float tmin, float tmax, pn_hit *hit, bool any_hit)
@@ -521,5 +532,55 @@ PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float
         node = stack[sp];
     }
 }
+
+#else
+/* Closest (any_hit = false) or any (any_hit = true) intersection with the
+ * scene in (tmin, tmax). hit->t is INFINITY-free only when true is returned.
+ * The TLAS is 4-wide like the BLAS (a scene of up to four instances is one
+ * node); its leaves hold instance records. */
+PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float tmin, float tmax, pn_hit *hit, bool any_hit)
+{
+    hit->t = tmax;
+    hit->slot = PN_BACKGROUND;
+    hit->tri = PN_BACKGROUND;
+    hit->u = hit->v = 0.0f;
+#ifdef PN_RAY_STATS
+    hit->nodes = hit->boxes = hit->tests = 0;
+#endif
+    if (scene.instance_count == 0)
+        return false;
+    /* One instance: its BLAS root node does the TLAS root's job. */
+    if (scene.instance_count == 1)
+        return pn_trace_blas(scene, 0, org, dir, tmin, hit, any_hit);
+    pn_ray_slab ray = pn_make_slab(org, dir);
+    bool found = false;
+    uint stack[PN_BVH4_STACK], stack_n[PN_BVH4_STACK];
+    float stack_t[PN_BVH4_STACK];
+    int sp = 0;
+    uint node = 0;
+    for (;;) {
+        global const float4 *n = scene.tlas + 8 * node;
+        PN_STAT(hit, nodes, 1);
+        PN_STAT(hit, boxes, 4);
+        pn_push4(pn_ray_box4(&ray, tmin, hit->t, n), n, any_hit, stack, stack_n, stack_t, &sp);
+        for (;;) {
+            if (!pn_pop(stack_t, &sp, any_hit, hit->t))
+                return found;
+            uint first = stack[sp], count = stack_n[sp];
+            if (count == 0) {
+                node = first;
+                break;
+            }
+            for (uint k = first; k < first + count; ++k) {
+                if (pn_trace_blas(scene, k, org, dir, tmin, hit, any_hit)) {
+                    found = true;
+                    if (any_hit)
+                        return true;
+                }
+            }
+        }
+    }
+}
+#endif
 
 #endif

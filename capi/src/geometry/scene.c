@@ -535,7 +535,11 @@ pn_status pn_scene_do_commit(pn_scene scene)
             scene->bounds_hi[c] = fmaxf(scene->bounds_hi[c], boxes[i].hi[c]);
         }
     }
+    pn_bvh4 wide_tlas = {0};
     if (!st && live && pn_bvh_build(boxes, live, 2, &tlas) != 0)
+        st = pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building the instance BVH");
+    /* The kernels walk the TLAS in the BLAS' layout. */
+    if (!st && live && ctx->bvh_width == 4 && pn_bvh4_collapse(&tlas, &wide_tlas) != 0)
         st = pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building the instance BVH");
     for (uint32_t slot = 0; !st && slot < live; ++slot) {
         const pn_instance *inst = &scene->instances[ids[tlas.order[slot]]];
@@ -553,13 +557,16 @@ pn_status pn_scene_do_commit(pn_scene scene)
         memcpy(r + 32, offs, sizeof offs);
     }
     if (!st) {
-        size_t tlas_bytes = live ? (size_t)tlas.node_count * sizeof(pn_bvh_node) : sizeof(pn_bvh_node);
+        const bool wide = ctx->bvh_width == 4;
+        const void *tlas_nodes = wide ? (const void *)wide_tlas.nodes : (const void *)tlas.nodes;
+        const size_t node_size = wide ? sizeof(pn_bvh4_node) : sizeof(pn_bvh_node);
+        size_t tlas_bytes = (live ? (size_t)(wide ? wide_tlas.node_count : tlas.node_count) : 1) * node_size;
         size_t rec_bytes = (size_t)(live ? live : 1) * RECORD_FLOATS * sizeof(float);
         if (!(st = ensure_buffer(ctx, &scene->tlas, &scene->tlas_capacity, tlas_bytes, "the instance BVH")) &&
             !(st = ensure_buffer(ctx, &scene->records, &scene->records_capacity, rec_bytes, "instance records"))) {
             cl_int err = CL_SUCCESS;
             if (live) {
-                err = clEnqueueWriteBuffer(ctx->queue, scene->tlas, CL_TRUE, 0, tlas_bytes, tlas.nodes, 0, NULL, NULL);
+                err = clEnqueueWriteBuffer(ctx->queue, scene->tlas, CL_TRUE, 0, tlas_bytes, tlas_nodes, 0, NULL, NULL);
                 if (err == CL_SUCCESS)
                     err = clEnqueueWriteBuffer(ctx->queue, scene->records, CL_TRUE, 0, rec_bytes, records, 0, NULL, NULL);
             }
@@ -568,6 +575,7 @@ pn_status pn_scene_do_commit(pn_scene scene)
         }
     }
     pn_bvh_free(&tlas);
+    pn_bvh4_free(&wide_tlas);
     free(boxes);
     free(ids);
     free(records);
