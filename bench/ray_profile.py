@@ -9,8 +9,9 @@ For every scene, in one process:
   of the hit ids);
 * time per ray: penumbra with each BVH layout (PENUMBRA_BVH_WIDTH=2, the
   binary BVH, and the default 4-wide one) and Embree (embreex, 1 thread) on
-  the same rays, in interleaved rounds (one timed call of each per round,
-  after an untimed one; order rotated; warm-up round excluded), medians; plus the fixed cost of a call (the same number
+  the same rays, in interleaved rounds (per round and query, one timed
+  call of each tracer back to back, each after an untimed one; order
+  rotated; warm-up round excluded), medians; plus the fixed cost of a call (the same number
   of rays, all missing the scene's bounds);
 * checks that every layout gives Embree's hit/miss answers and the binary
   layout's hit distances.
@@ -121,12 +122,18 @@ def profile_scene(name: str, rounds: int, layouts: dict) -> dict:
                    "shadow_miss": (lambda s=s, o=far(n_s), d=away(n_s): s.occluded(o, d))}
     times = {k: {q: [] for q in v} for k, v in jobs.items()}
     order = list(jobs)
+    queries = ["primary", "shadow", "primary_miss", "shadow_miss"]
     for r in range(rounds + 1):  # round 0 warms up
-        # Rotated each round, and each timed call right after an untimed one
-        # of the same job: the first call after another tracer ran pays for
-        # waking PoCL's threads (measured: up to 4x on a 2 ms call).
-        for k in order[r % len(order):] + order[:r % len(order)]:
-            for q, fn in jobs[k].items():
+        # One query at a time, its tracers back to back (so a change of load
+        # hits the samples that are compared alike), in an order rotated
+        # each round; each timed call right after an untimed one of the same
+        # job: the first call after another tracer ran pays for waking
+        # PoCL's threads (measured: up to 4x on a 2 ms call).
+        for q in queries:
+            for k in order[r % len(order):] + order[:r % len(order)]:
+                fn = jobs[k].get(q)
+                if fn is None:
+                    continue
                 fn()
                 # A primary call takes milliseconds: several per sample, so one
                 # descheduling of a PoCL thread does not decide the sample.
