@@ -67,6 +67,15 @@ kernel void intersect_rays(PN_SCENE_ARGS, global const float4 *rays, int count, 
     float4 o = rays[2 * gid], d = rays[2 * gid + 1];
     pn_scene_view scene = pn_make_scene_view(tlas, instances, blas, tris, instance_count);
     pn_hit hit;
+#ifdef PN_RAY_STATS
+    /* Profiling build: the ids carry the work counts instead; =2 profiles any-hit queries. */
+    bool found = pn_trace(scene, o.xyz, d.xyz, o.w, d.w, &hit, PN_RAY_STATS == 2);
+    t_out[gid] = (float)hit.nodes; /* hit or miss: see the non-profiling kernel */
+    (void)found;
+    instance_out[gid] = hit.boxes;
+    triangle_out[gid] = hit.tests;
+    return;
+#endif
     if (pn_trace(scene, o.xyz, d.xyz, o.w, d.w, &hit, false)) {
         t_out[gid] = hit.t;
         instance_out[gid] = as_uint4(instances[hit.slot * PN_INSTANCE_STRIDE + PN_INST_OFFSETS]).w;

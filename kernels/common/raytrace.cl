@@ -20,6 +20,16 @@
 
 #define PN_BVH_MAX_DEPTH 48
 
+/* BLAS node layout: 4-wide nodes (the default), or 2 for the binary BVH
+ * (PENUMBRA_BVH_WIDTH=2; the host sets the define for the library's builds). */
+#ifndef PN_BVH_WIDTH
+#define PN_BVH_WIDTH 4
+#endif
+
+/* The traversal functions are forced inline: each call site then compiles
+ * its own copy with any_hit constant (measured: 1.17x on shadow rays). */
+#define PN_TRACE_INLINE inline __attribute__((always_inline))
+
 #define PN_INSTANCE_STRIDE 9
 #define PN_INST_WORLD_TO_OBJECT 0 /* 3 rows, xyz | translation */
 #define PN_INST_OBJECT_TO_WORLD 3 /* 3 rows */
@@ -41,7 +51,18 @@ typedef struct {
     float u, v;     /* barycentric weights of v1 and v2 */
     uint slot;      /* instance record index (TLAS order) */
     uint tri;       /* triangle slot in `tris` (global, leaf order) */
+#ifdef PN_RAY_STATS
+    uint nodes, boxes, tests; /* profiling build only: nodes fetched, box and triangle tests of this query */
+#endif
 } pn_hit;
+
+/* Profiling builds (-DPN_RAY_STATS, see bench/ray_profile.py) count the
+ * work of each query; other builds compile these away. */
+#ifdef PN_RAY_STATS
+#define PN_STAT(hit, field, n) ((hit)->field += (n))
+#else
+#define PN_STAT(hit, field, n) ((void)0)
+#endif
 
 /* The six scene arguments every kernel that traces rays takes, in the order
  * pn_scene_set_kernel_args sets them. */
@@ -241,7 +262,8 @@ inline bool pn_pop(const float *stack_t, int *sp, bool any_hit, float t_hit)
  * beyond a hit found meanwhile is skipped: the same test its box would fail
  * against the lowered tmax (leave = min(far, tmax) * c passed at push time
  * for the far planes, so only tmax * c can have changed). */
-inline bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir, float tmin, pn_hit *hit,
+#if PN_BVH_WIDTH == 2
+PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir, float tmin, pn_hit *hit,
                           bool any_hit)
 {
     global const float4 *inst = scene.instances + slot * PN_INSTANCE_STRIDE;
@@ -255,12 +277,15 @@ inline bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir
     uint stack[PN_BVH_MAX_DEPTH];
     float stack_t[PN_BVH_MAX_DEPTH];
     int sp = 0;
+    PN_STAT(hit, nodes, 1);
+    PN_STAT(hit, boxes, 1);
     if (pn_ray_box(&ray, tmin, hit->t, nodes) == INFINITY)
         return false;
     pn_ray_shear shear = pn_make_shear(o, d);
     uint first = pn_load_w(nodes), count = pn_load_w(nodes + 1);
     for (;;) {
         if (count > 0) {
+            PN_STAT(hit, tests, count);
             for (uint k = first; k < first + count; ++k) {
                 float t, u, v;
                 if (pn_ray_triangle(&shear, tmin, hit->t, pn_load3(tris + 3 * k), pn_load3(tris + 3 * k + 1),
@@ -278,6 +303,8 @@ inline bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir
         } else {
             global const float4 *c = nodes + 2 * first;
             uint lf = pn_load_w(c), lc = pn_load_w(c + 1), rf = pn_load_w(c + 2), rc = pn_load_w(c + 3);
+            PN_STAT(hit, nodes, 1);
+            PN_STAT(hit, boxes, 2);
             float tl = pn_ray_box(&ray, tmin, hit->t, c);
             float tr = pn_ray_box(&ray, tmin, hit->t, c + 2);
             if (tl != INFINITY && tr != INFINITY) {
@@ -301,14 +328,161 @@ inline bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir
     }
 }
 
+#else /* PN_BVH_WIDTH == 4 */
+
+/* Larger (smaller) of acc and t per lane, acc where t is NaN: pn_max_acc /
+ * pn_min_acc on four lanes. */
+inline float4 pn_max_acc4(float4 acc, float4 t)
+{
+    return select(acc, t, t > acc);
+}
+
+inline float4 pn_min_acc4(float4 acc, float4 t)
+{
+    return select(acc, t, t < acc);
+}
+
+/* Entry distances into the four child boxes of a 4-wide node (bvh.h: lo_x,
+ * hi_x, lo_y, hi_y, lo_z, hi_z as float4), INFINITY where the ray misses:
+ * pn_ray_box lane by lane, the same operations in the same order, so each
+ * lane's answer is bit-identical to the binary layout's test of that box.
+ * Unused slots hold the empty box (lo = +inf, hi = -inf): for any finite
+ * origin every near plane gives +inf and every far plane -inf (a zero
+ * direction's inf reciprocal included), so they always miss. */
+inline float4 pn_ray_box4(const pn_ray_slab *r, float tmin, float tmax, global const float4 *node)
+{
+    float4 lx = node[0], hx = node[1], ly = node[2], hy = node[3], lz = node[4], hz = node[5];
+    float4 tnx = ((r->neg.x ? hx : lx) - r->org.x) * r->inv.x, tfx = ((r->neg.x ? lx : hx) - r->org.x) * r->inv.x;
+    float4 tny = ((r->neg.y ? hy : ly) - r->org.y) * r->inv.y, tfy = ((r->neg.y ? ly : hy) - r->org.y) * r->inv.y;
+    float4 tnz = ((r->neg.z ? hz : lz) - r->org.z) * r->inv.z, tfz = ((r->neg.z ? lz : hz) - r->org.z) * r->inv.z;
+    float4 enter = pn_max_acc4(pn_max_acc4(pn_max_acc4((float4)(tmin), tnx), tny), tnz);
+    float4 leave = pn_min_acc4(pn_min_acc4(pn_min_acc4((float4)(tmax), tfx), tfy), tfz) * 1.00000024f;
+    return select((float4)(INFINITY), enter, enter <= leave);
+}
+
+/* Orders child (ta, ca, na) before (tb, cb, nb) by entry distance, with
+ * selects rather than a branch. */
+#define PN_CSWAP(ta, ca, na, tb, cb, nb)                                                                       \
+    {                                                                                                        \
+        bool sw_ = tb < ta;                                                                                  \
+        float t_ = sw_ ? tb : ta; tb = sw_ ? ta : tb; ta = t_;                                               \
+        uint c_ = sw_ ? cb : ca; cb = sw_ ? ca : cb; ca = c_;                                                \
+        uint n_ = sw_ ? nb : na; nb = sw_ ? na : nb; na = n_;                                                \
+    }
+
+/* Defers a child the ray enters (t finite). Written unconditionally and
+ * kept only when entered: no branch to mispredict. */
+#define PN_PUSH(t, c, n)                                                                                     \
+    stack[sp] = (c);                                                                                         \
+    stack_n[sp] = (n);                                                                                       \
+    stack_t[sp] = (t);                                                                                       \
+    sp += (t) != INFINITY;
+
+/* Deferred children: a 4-wide node leaves at most three behind per level
+ * (and PN_PUSH writes one past the top). */
+#define PN_BVH4_STACK (3 * PN_BVH_MAX_DEPTH + 1)
+
+/* Pushes the children of 4-wide node n whose entry distances te are finite:
+ * for closest hits sorted, farthest first, so the nearest is popped next;
+ * for any hit in slot order (slot 0 popped next). */
+inline void pn_push4(float4 te, global const float4 *n, bool any_hit, uint *stack, uint *stack_n, float *stack_t,
+                     int *top)
+{
+    uint4 child = as_uint4(n[6]), cnt = as_uint4(n[7]);
+    float t0 = te.s0, t1 = te.s1, t2 = te.s2, t3 = te.s3;
+    uint c0 = child.s0, c1 = child.s1, c2 = child.s2, c3 = child.s3;
+    uint n0 = cnt.s0, n1 = cnt.s1, n2 = cnt.s2, n3 = cnt.s3;
+    if (!any_hit) {
+        /* Sorting network: t0 <= t1 <= t2 <= t3 afterwards, misses (INFINITY) last. */
+        PN_CSWAP(t0, c0, n0, t1, c1, n1);
+        PN_CSWAP(t2, c2, n2, t3, c3, n3);
+        PN_CSWAP(t0, c0, n0, t2, c2, n2);
+        PN_CSWAP(t1, c1, n1, t3, c3, n3);
+        PN_CSWAP(t1, c1, n1, t2, c2, n2);
+    }
+    int sp = *top;
+    PN_PUSH(t3, c3, n3);
+    PN_PUSH(t2, c2, n2);
+    PN_PUSH(t1, c1, n1);
+    PN_PUSH(t0, c0, n0);
+    *top = sp;
+}
+
+/* Traverses one instance's 4-wide BLAS in object space (bvh.h, pn_bvh4_node).
+ * any_hit: stop at the first hit. Returns true if hit->t was lowered.
+ *
+ * Each visited node tests its four child boxes at once and pushes the hit
+ * children (leaves included) on one stack; for closest hits they go
+ * farthest first, so the nearest is popped next, and a popped entry whose
+ * entry distance lies beyond a hit found meanwhile is dropped (as in the
+ * binary walk: only tmax can have changed since the test). */
+PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir, float tmin, pn_hit *hit,
+                          bool any_hit)
+{
+    global const float4 *inst = scene.instances + slot * PN_INSTANCE_STRIDE;
+    uint4 offs = as_uint4(inst[PN_INST_OFFSETS]);
+    global const float4 *nodes = scene.blas + 8 * offs.x;
+    global const float4 *tris = scene.tris + 3 * offs.y;
+    float3 o = pn_xform_point(inst + PN_INST_WORLD_TO_OBJECT, org);
+    float3 d = pn_xform_vector(inst + PN_INST_WORLD_TO_OBJECT, dir);
+    pn_ray_slab ray = pn_make_slab(o, d);
+    pn_ray_shear shear;
+    bool sheared = false, found = false;
+    uint stack[PN_BVH4_STACK], stack_n[PN_BVH4_STACK];
+    float stack_t[PN_BVH4_STACK];
+    int sp = 0;
+    uint node = 0;
+    for (;;) {
+        global const float4 *n = nodes + 8 * node;
+        float4 te = pn_ray_box4(&ray, tmin, hit->t, n);
+        PN_STAT(hit, nodes, 1);
+        PN_STAT(hit, boxes, 4);
+        pn_push4(te, n, any_hit, stack, stack_n, stack_t, &sp);
+        /* Next interior node; leaves on the way are tested here. */
+        for (;;) {
+            if (!pn_pop(stack_t, &sp, any_hit, hit->t))
+                return found;
+            uint first = stack[sp], count = stack_n[sp];
+            if (count == 0) {
+                node = first;
+                break;
+            }
+            if (!sheared) {
+                shear = pn_make_shear(o, d);
+                sheared = true;
+            }
+            PN_STAT(hit, tests, count);
+            for (uint k = first; k < first + count; ++k) {
+                float t, u, v;
+                if (pn_ray_triangle(&shear, tmin, hit->t, pn_load3(tris + 3 * k), pn_load3(tris + 3 * k + 1),
+                                    pn_load3(tris + 3 * k + 2), &t, &u, &v)) {
+                    hit->t = t;
+                    hit->u = u;
+                    hit->v = v;
+                    hit->slot = slot;
+                    hit->tri = offs.y + k;
+                    found = true;
+                    if (any_hit)
+                        return true;
+                }
+            }
+        }
+    }
+}
+#endif
+
+#if PN_BVH_WIDTH == 2
 /* Closest (any_hit = false) or any (any_hit = true) intersection with the
  * scene in (tmin, tmax). hit->t is INFINITY-free only when true is returned. */
-inline bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float tmin, float tmax, pn_hit *hit, bool any_hit)
+PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float tmin, float tmax, pn_hit *hit, bool any_hit)
 {
     hit->t = tmax;
     hit->slot = PN_BACKGROUND;
     hit->tri = PN_BACKGROUND;
     hit->u = hit->v = 0.0f;
+#ifdef PN_RAY_STATS
+    hit->nodes = hit->boxes = hit->tests = 0;
+#endif
     if (scene.instance_count == 0)
         return false;
     /* One instance: its BLAS root box test does the TLAS root's job. */
@@ -321,6 +495,8 @@ inline bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float tmin, fl
     int sp = 0;
     uint node = 0;
     global const float4 *nodes = scene.tlas;
+    PN_STAT(hit, nodes, 1);
+    PN_STAT(hit, boxes, 1);
     if (pn_ray_box(&ray, tmin, tmax, nodes) == INFINITY)
         return false;
     for (;;) {
@@ -335,6 +511,8 @@ inline bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float tmin, fl
             }
         } else {
             uint left = first, right = first + 1;
+            PN_STAT(hit, nodes, 1);
+            PN_STAT(hit, boxes, 2);
             float tl = pn_ray_box(&ray, tmin, hit->t, nodes + 2 * left);
             float tr = pn_ray_box(&ray, tmin, hit->t, nodes + 2 * right);
             if (tl != INFINITY && tr != INFINITY) {
@@ -354,5 +532,55 @@ inline bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float tmin, fl
         node = stack[sp];
     }
 }
+
+#else
+/* Closest (any_hit = false) or any (any_hit = true) intersection with the
+ * scene in (tmin, tmax). hit->t is INFINITY-free only when true is returned.
+ * The TLAS is 4-wide like the BLAS (a scene of up to four instances is one
+ * node); its leaves hold instance records. */
+PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float tmin, float tmax, pn_hit *hit, bool any_hit)
+{
+    hit->t = tmax;
+    hit->slot = PN_BACKGROUND;
+    hit->tri = PN_BACKGROUND;
+    hit->u = hit->v = 0.0f;
+#ifdef PN_RAY_STATS
+    hit->nodes = hit->boxes = hit->tests = 0;
+#endif
+    if (scene.instance_count == 0)
+        return false;
+    /* One instance: its BLAS root node does the TLAS root's job. */
+    if (scene.instance_count == 1)
+        return pn_trace_blas(scene, 0, org, dir, tmin, hit, any_hit);
+    pn_ray_slab ray = pn_make_slab(org, dir);
+    bool found = false;
+    uint stack[PN_BVH4_STACK], stack_n[PN_BVH4_STACK];
+    float stack_t[PN_BVH4_STACK];
+    int sp = 0;
+    uint node = 0;
+    for (;;) {
+        global const float4 *n = scene.tlas + 8 * node;
+        PN_STAT(hit, nodes, 1);
+        PN_STAT(hit, boxes, 4);
+        pn_push4(pn_ray_box4(&ray, tmin, hit->t, n), n, any_hit, stack, stack_n, stack_t, &sp);
+        for (;;) {
+            if (!pn_pop(stack_t, &sp, any_hit, hit->t))
+                return found;
+            uint first = stack[sp], count = stack_n[sp];
+            if (count == 0) {
+                node = first;
+                break;
+            }
+            for (uint k = first; k < first + count; ++k) {
+                if (pn_trace_blas(scene, k, org, dir, tmin, hit, any_hit)) {
+                    found = true;
+                    if (any_hit)
+                        return true;
+                }
+            }
+        }
+    }
+}
+#endif
 
 #endif

@@ -34,7 +34,7 @@ from .errors import InputError
 from .render import BuiltScene, object_geometry
 from .scenefile import SceneDescription
 
-__all__ = ["world_triangles", "primary_rays", "shadow_rays", "embree_scene", "measure"]
+__all__ = ["world_triangles", "primary_rays", "shadow_rays", "embree_scene", "workload", "measure"]
 
 # Shadow-ray origins are lifted off the surface by this fraction of the
 # diagonal of the scene's bounding box (measure's default offset).
@@ -206,6 +206,47 @@ def _throughput(rays: int, pn_s: float, em_s: float) -> dict:
             "embree_mrays_per_s": em, "ratio": pn / em}
 
 
+def _shadow_from_hits(tris, first, o, d, t, inst, tri, n_dirs, seed, offset):
+    """measure's shadow rays: n_dirs rays from every primary hit (t finite), over the hemisphere of
+    the hit triangle's geometric normal turned to face the viewer. Returns (origins, directions, points)."""
+    hit = np.flatnonzero(np.isfinite(t))
+    idx = first[inst[hit]] + tri[hit].astype(np.int64)
+    v = tris[idx].astype(np.float64)
+    normal = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    dirs = d[hit].astype(np.float64)
+    normal *= np.where(np.sum(normal * dirs, axis=1) > 0.0, -1.0, 1.0)[:, None]  # face the viewer (two-sided)
+    points = o[hit].astype(np.float64) + t[hit, None].astype(np.float64) * dirs
+    keep = np.linalg.norm(normal, axis=1) > 0.0  # a hit on a zero-area triangle cannot happen; be safe
+    so, sd = shadow_rays(points[keep], normal[keep], n_dirs, seed=seed, offset=offset)
+    return so, sd, int(keep.sum())
+
+
+def _first_triangles(desc, built, counts):
+    """instance id -> index of its object's first triangle in world_triangles(desc)."""
+    if set(built.instance_ids) != {obj.name for obj in desc.objects}:
+        raise InputError("built does not hold the objects of desc (pass render.build_scene(desc, ctx))")
+    first = np.zeros(max(built.instance_ids.values()) + 1, np.int64)
+    first[[built.instance_ids[obj.name] for obj in desc.objects]] = np.cumsum([0] + counts[:-1])
+    return first
+
+
+def workload(desc: SceneDescription, built: BuiltScene, n_dirs: int = 16, seed: int = 0,
+             offset: float | None = None) -> dict:
+    """The rays :func:`measure` times, without Embree: ``{"primary": (origins, directions),
+    "shadow": (origins, directions)}``, the shadow rays starting from penumbra's primary hits."""
+    tris, counts = _world_geometry(desc)
+    first = _first_triangles(desc, built, counts)
+    if offset is None:
+        lo, hi = tris.reshape(-1, 3).min(axis=0), tris.reshape(-1, 3).max(axis=0)
+        offset = OFFSET_FRACTION * float(np.linalg.norm(hi.astype(np.float64) - lo))
+    o, d = primary_rays(built.camera)
+    t, inst, tri = built.scene.intersect(o, d)
+    if not np.isfinite(t).any():
+        raise InputError("no primary ray hits the scene, so there are no shadow rays to trace")
+    so, sd, _ = _shadow_from_hits(tris, first, o, d, t, inst, tri, n_dirs, seed, offset)
+    return {"primary": (o, d), "shadow": (so, sd)}
+
+
 def measure(desc: SceneDescription, built: BuiltScene, repeats: int = 5, n_dirs: int = 16, seed: int = 0,
             offset: float | None = None) -> dict:
     """Times closest-hit primary rays and any-hit shadow rays in penumbra and
@@ -236,11 +277,7 @@ def measure(desc: SceneDescription, built: BuiltScene, repeats: int = 5, n_dirs:
     if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
         raise InputError(f"repeats must be a positive integer, got {repeats!r}")
     tris, counts = _world_geometry(desc)
-    if set(built.instance_ids) != {obj.name for obj in desc.objects}:
-        raise InputError("built does not hold the objects of desc (pass render.build_scene(desc, ctx))")
-    # instance id -> index of its object's first triangle in tris
-    first = np.zeros(max(built.instance_ids.values()) + 1, np.int64)
-    first[[built.instance_ids[obj.name] for obj in desc.objects]] = np.cumsum([0] + counts[:-1])
+    first = _first_triangles(desc, built, counts)
     lo, hi = tris.reshape(-1, 3).min(axis=0), tris.reshape(-1, 3).max(axis=0)
     if offset is None:
         offset = OFFSET_FRACTION * float(np.linalg.norm(hi.astype(np.float64) - lo))
@@ -271,17 +308,9 @@ def measure(desc: SceneDescription, built: BuiltScene, repeats: int = 5, n_dirs:
                    else 1.0)
 
     # ---- shadow rays from penumbra's primary hits: any hit
-    hit = np.flatnonzero(pn_hit)
-    if hit.size == 0:
+    if not pn_hit.any():
         raise InputError("no primary ray hits the scene, so there are no shadow rays to trace")
-    idx = first[inst[hit]] + tri[hit].astype(np.int64)
-    v = tris[idx].astype(np.float64)
-    normal = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-    dirs = d[hit].astype(np.float64)
-    normal *= np.where(np.sum(normal * dirs, axis=1) > 0.0, -1.0, 1.0)[:, None]  # face the viewer (two-sided)
-    points = o[hit].astype(np.float64) + t[hit, None].astype(np.float64) * dirs
-    keep = np.linalg.norm(normal, axis=1) > 0.0  # a hit on a zero-area triangle cannot happen; be safe
-    so, sd = shadow_rays(points[keep], normal[keep], n_dirs, seed=seed, offset=offset)
+    so, sd, n_points = _shadow_from_hits(tris, first, o, d, t, inst, tri, n_dirs, seed, offset)
     pn_s = _median_time(lambda: scene.occluded(so, sd), repeats)
     em_s = _median_time(lambda: em_scene.run(so, sd, query="OCCLUDED"), repeats)
     pn_occ = scene.occluded(so, sd)
@@ -289,7 +318,7 @@ def measure(desc: SceneDescription, built: BuiltScene, repeats: int = 5, n_dirs:
     mismatch = int((pn_occ != em_occ).sum())
     shadow = _throughput(len(so), pn_s, em_s)
     shadow.update(occluded_fraction=float(pn_occ.mean()), mismatch_count=mismatch,
-                  mismatch_fraction=mismatch / len(so), hits=int(keep.sum()),
+                  mismatch_fraction=mismatch / len(so), hits=n_points,
                   dirs_per_hit=n_dirs, offset=offset)
     return {"device": built.ctx.device_name, "embree_version": getattr(embreex, "__version__", "unknown"),
             "embree_threads": 1, "triangles": int(len(tris)), "repeats": repeats, "primary": primary,

@@ -454,6 +454,192 @@ static int check_rays(const pn_bvh *bvh, const tri *tris, uint32_t n, int nrays)
     return hits;
 }
 
+/* ---- the 4-wide collapse ---- */
+
+static void slot_box(const pn_bvh4_node *w, int k, float *lo, float *hi)
+{
+    lo[0] = w->lo_x[k];
+    lo[1] = w->lo_y[k];
+    lo[2] = w->lo_z[k];
+    hi[0] = w->hi_x[k];
+    hi[1] = w->hi_y[k];
+    hi[2] = w->hi_z[k];
+}
+
+/* The kernel's scheme (kernels/common/raytrace.cl): test the four child
+ * boxes, push every child hit (leaves too), pop; a stack of
+ * 3 * PN_BVH_MAX_DEPTH + 1 entries must never overflow. */
+static float bvh4_query(const pn_bvh4 *w, const pn_bvh *bvh, const ray *r, const tri *tris, uint32_t *prim,
+                        int *overflow)
+{
+    enum { STACK = 3 * PN_BVH_MAX_DEPTH + 1 };
+    uint32_t stack[STACK], stack_n[STACK];
+    int sp = 0;
+    float best = INFINITY;
+    *prim = UINT32_MAX;
+    uint32_t ni = 0;
+    for (;;) {
+        const pn_bvh4_node *n = &w->nodes[ni];
+        for (int k = 3; k >= 0; --k) {
+            float lo[3], hi[3];
+            slot_box(n, k, lo, hi);
+            if (!(lo[0] <= hi[0])) /* unused slot */
+                continue;
+            if (!ray_box(r, lo, hi, best))
+                continue;
+            if (sp == STACK) {
+                *overflow = 1;
+                return best;
+            }
+            stack[sp] = n->child[k];
+            stack_n[sp++] = n->count[k];
+        }
+        for (;;) {
+            if (sp == 0)
+                return best;
+            --sp;
+            if (stack_n[sp] == 0) {
+                ni = stack[sp];
+                break;
+            }
+            for (uint32_t k = stack[sp]; k < stack[sp] + stack_n[sp]; k++) {
+                uint32_t p = bvh->order[k];
+                float t = tri_hit(r, &tris[p]);
+                if (t < best) {
+                    best = t;
+                    *prim = p;
+                }
+            }
+        }
+    }
+}
+
+/* The 4-wide tree has exactly the binary tree's leaves (same ranges, same
+ * boxes), every interior box bounds its children, unused slots hold the empty
+ * box, every node is reached once, and the depth is reported right. */
+static void check_wide(const pn_bvh4 *w, const pn_bvh *bvh)
+{
+    CHECK(w->nodes && w->node_count >= 1 && w->node_count <= bvh->node_count / 2 + 1, "%u wide nodes for %u binary",
+          w->node_count, bvh->node_count);
+    CHECK(w->depth >= 1 && w->depth <= bvh->depth, "wide depth %u, binary %u", w->depth, bvh->depth);
+    if (!w->nodes)
+        return;
+    uint32_t *stack = malloc(sizeof(uint32_t) * (w->node_count + 1));
+    uint32_t *sdepth = malloc(sizeof(uint32_t) * (w->node_count + 1));
+    uint8_t *visited = calloc(w->node_count, 1);
+    uint8_t *leaf_seen = calloc(bvh->node_count, 1);
+    /* first primitive -> binary leaf, to match wide leaves to binary ones */
+    uint32_t *leaf_of = malloc(sizeof(uint32_t) * bvh->prim_count);
+    if (!stack || !sdepth || !visited || !leaf_seen || !leaf_of) {
+        fail("test out of memory");
+        goto out;
+    }
+    for (uint32_t i = 0; i < bvh->prim_count; i++)
+        leaf_of[i] = UINT32_MAX;
+    for (uint32_t b = 0; b < bvh->node_count; b++)
+        if (bvh->nodes[b].count > 0 && bvh->nodes[b].left_or_first < bvh->prim_count)
+            leaf_of[bvh->nodes[b].left_or_first] = b;
+    int errors = 0;
+    uint32_t sp = 0, max_depth = 0;
+    stack[sp] = 0;
+    sdepth[sp++] = 1;
+    visited[0] = 1;
+    while (sp > 0 && errors < 5) {
+        sp--;
+        uint32_t ni = stack[sp], d = sdepth[sp];
+        const pn_bvh4_node *n = &w->nodes[ni];
+        max_depth = d > max_depth ? d : max_depth;
+        for (int k = 0; k < 4; k++) {
+            float lo[3], hi[3];
+            slot_box(n, k, lo, hi);
+            if (lo[0] == INFINITY) {
+                int empty = n->count[k] == 0;
+                for (int a = 0; a < 3; a++)
+                    empty = empty && lo[a] == INFINITY && hi[a] == -INFINITY;
+                if (!empty && errors++ < 5)
+                    fail("node %u slot %d: unused slot is not the empty box", ni, k);
+                continue;
+            }
+            if (n->count[k] > 0) {
+                /* find the binary leaf with this range */
+                uint32_t b = n->child[k] < bvh->prim_count ? leaf_of[n->child[k]] : UINT32_MAX;
+                if (b == UINT32_MAX || bvh->nodes[b].count != n->count[k] || leaf_seen[b]++ ||
+                    memcmp(lo, bvh->nodes[b].lo, sizeof lo) || memcmp(hi, bvh->nodes[b].hi, sizeof hi)) {
+                    if (errors++ < 5)
+                        fail("node %u slot %d: leaf %u+%u is not a binary leaf, or seen twice, or its box differs", ni,
+                             k, n->child[k], n->count[k]);
+                }
+                continue;
+            }
+            uint32_t c = n->child[k];
+            if (c == 0 || c >= w->node_count || visited[c]++) {
+                if (errors++ < 5)
+                    fail("node %u slot %d: child %u out of range or reached twice", ni, k, c);
+                continue;
+            }
+            const pn_bvh4_node *cn = &w->nodes[c];
+            for (int j = 0; j < 4; j++) {
+                float clo[3], chi[3];
+                slot_box(cn, j, clo, chi);
+                if (clo[0] != INFINITY && !box_contains(lo, hi, clo, chi) && errors++ < 5)
+                    fail("node %u slot %d: box does not contain child %u's slot %d", ni, k, c, j);
+            }
+            stack[sp] = c;
+            sdepth[sp++] = d + 1;
+        }
+    }
+    uint32_t leaves = 0, unreached = 0, wide_leaves = 0;
+    for (uint32_t b = 0; b < bvh->node_count; b++) {
+        leaves += bvh->nodes[b].count > 0;
+        wide_leaves += leaf_seen[b];
+    }
+    for (uint32_t i = 0; i < w->node_count; i++)
+        unreached += !visited[i];
+    CHECK(errors == 0, "%d structural errors", errors);
+    CHECK(wide_leaves == leaves, "%u of %u binary leaves in the wide tree", wide_leaves, leaves);
+    CHECK(unreached == 0, "%u wide nodes unreachable", unreached);
+    CHECK(errors || max_depth == w->depth, "reported wide depth %u, actual %u", w->depth, max_depth);
+out:
+    free(stack);
+    free(sdepth);
+    free(visited);
+    free(leaf_seen);
+    free(leaf_of);
+}
+
+/* Collapses bvh, checks the structure and that wide queries give brute
+ * force's distances exactly. */
+static void check_collapse(const pn_bvh *bvh, const tri *tris, uint32_t n, int nrays)
+{
+    pn_bvh4 w;
+    int rc = pn_bvh4_collapse(bvh, &w);
+    CHECK(rc == 0, "collapse returned %d", rc);
+    if (rc == 0)
+        check_wide(&w, bvh);
+    if (rc == 0 && g_case_errors == 0 && tris) {
+        const pn_aabb scene = {{bvh->nodes[0].lo[0], bvh->nodes[0].lo[1], bvh->nodes[0].lo[2]},
+                               {bvh->nodes[0].hi[0], bvh->nodes[0].hi[1], bvh->nodes[0].hi[2]}};
+        int mismatches = 0, overflow = 0;
+        for (int i = 0; i < nrays; i++) {
+            ray r;
+            make_ray(&r, tris, n, &scene);
+            uint32_t pb, pq;
+            float tb = brute_force(&r, tris, n, &pb);
+            float tq = bvh4_query(&w, bvh, &r, tris, &pq, &overflow);
+            int ok = tb == tq || (tb != tb && tq != tq);
+            if (ok && pq != pb)
+                ok = pq < n && tri_hit(&r, &tris[pq]) == tb;
+            if (!ok && mismatches++ < 5)
+                fail("ray %d: brute force t=%.9g prim %u, 4-wide t=%.9g prim %u", i, tb, pb, tq, pq);
+        }
+        CHECK(mismatches == 0, "%d/%d rays disagree with brute force in the 4-wide tree", mismatches, nrays);
+        CHECK(!overflow, "4-wide traversal stack overflowed");
+        printf("  4-wide: %u nodes, depth %u\n", w.node_count, w.depth);
+    }
+    pn_bvh4_free(&w);
+    pn_bvh4_free(&w); /* safe twice */
+}
+
 /* Builds over tris, checks invariants and ray queries; expect_depth 0 means any. */
 static void run_tri_case(const char *name, const tri *tris, uint32_t n, uint32_t max_leaf, int nrays,
                          uint32_t expect_depth)
@@ -476,6 +662,8 @@ static void run_tri_case(const char *name, const tri *tris, uint32_t n, uint32_t
         /* queries over a malformed tree could read out of bounds */
         if (g_case_errors == 0)
             CHECK(check_rays(&bvh, tris, n, nrays) > 0, "no ray hit anything; the query check is vacuous");
+        if (g_case_errors == 0)
+            check_collapse(&bvh, tris, n, nrays);
     }
     pn_bvh_free(&bvh);
     free(boxes);
@@ -658,6 +846,19 @@ static void test_api_edges(void)
     pn_bvh_free(&bvh);
     pn_bvh_free(&bvh); /* freeing twice is harmless: free zeroes the struct */
     CHECK(bvh.nodes == NULL && bvh.order == NULL && bvh.node_count == 0, "free did not zero the struct");
+    pn_bvh4 w;
+    memset(&w, 0xAB, sizeof(w));
+    CHECK(pn_bvh4_collapse(&bvh, &w) == -1 && w.nodes == NULL, "collapse of an empty tree accepted");
+    pn_bvh4_free(&w);
+    /* a single leaf: a root with that leaf in slot 0 */
+    CHECK(pn_bvh_build(&b, 1, 4, &bvh) == 0 && pn_bvh4_collapse(&bvh, &w) == 0, "build or collapse failed");
+    if (w.nodes) {
+        CHECK(w.node_count == 1 && w.depth == 1 && w.nodes[0].count[0] == 1, "single leaf: %u nodes, depth %u", w.node_count,
+              w.depth);
+        check_wide(&w, &bvh);
+    }
+    pn_bvh4_free(&w);
+    pn_bvh_free(&bvh);
     case_end();
 }
 

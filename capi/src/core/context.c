@@ -147,6 +147,15 @@ pn_status pn_context_new(const char *config, cl_context cl_ctx, cl_command_queue
     pn_status st = parse_config(config, &req);
     if (st)
         return st;
+    /* PENUMBRA_BVH_WIDTH=2 selects the binary BVH layout in the kernels, to
+     * time it against the default 4-wide one (bench/ray_profile.py). */
+    int bvh_width = 4;
+    const char *width_env = getenv("PENUMBRA_BVH_WIDTH");
+    if (width_env && *width_env) {
+        if (strcmp(width_env, "2") && strcmp(width_env, "4"))
+            return pn_fail(NULL, PN_ERROR_BAD_CONFIG, "PENUMBRA_BVH_WIDTH='%s' must be 2 or 4", width_env);
+        bvh_width = width_env[0] - '0';
+    }
     pn_context ctx = calloc(1, sizeof *ctx);
     if (!ctx)
         return pn_fail(NULL, PN_ERROR_OUT_OF_MEMORY, "out of memory creating a context");
@@ -193,8 +202,9 @@ pn_status pn_context_new(const char *config, cl_context cl_ctx, cl_command_queue
         }
     }
     const char *extra = getenv("PENUMBRA_CL_BUILD_OPTIONS");
-    snprintf(ctx->build_options, sizeof ctx->build_options, "-cl-std=CL1.2 %s %s", req.build_options,
-             extra ? extra : "");
+    ctx->bvh_width = bvh_width;
+    snprintf(ctx->build_options, sizeof ctx->build_options, "-cl-std=CL1.2 -DPN_BVH_WIDTH=%d %s %s", bvh_width,
+             req.build_options, extra ? extra : "");
     /* Every call on the context's objects holds its lock; recursive, so that
      * callbacks run under it may call the library again. */
     pthread_mutexattr_t attr;

@@ -414,3 +414,117 @@ void pn_bvh_free(pn_bvh *bvh)
     free(bvh->order);
     memset(bvh, 0, sizeof(*bvh));
 }
+
+/* ---------------------------------------------------------- 4-wide collapse */
+
+static double node_half_area(const pn_bvh_node *n)
+{
+    pn_aabb b;
+    memcpy(b.lo, n->lo, sizeof b.lo);
+    memcpy(b.hi, n->hi, sizeof b.hi);
+    return half_area(&b);
+}
+
+/* Fills slot k of w from binary node n (interior: child = the 4-wide index to come). */
+static void set_slot(pn_bvh4_node *w, int k, const pn_bvh_node *n, uint32_t child, uint32_t count)
+{
+    w->lo_x[k] = n->lo[0];
+    w->lo_y[k] = n->lo[1];
+    w->lo_z[k] = n->lo[2];
+    w->hi_x[k] = n->hi[0];
+    w->hi_y[k] = n->hi[1];
+    w->hi_z[k] = n->hi[2];
+    w->child[k] = child;
+    w->count[k] = count;
+}
+
+int pn_bvh4_collapse(const pn_bvh *bvh, pn_bvh4 *out)
+{
+    memset(out, 0, sizeof(*out));
+    if (!bvh || !bvh->nodes || bvh->node_count == 0)
+        return -1;
+    /* Every 4-wide node expands its own binary interior node (or is a
+     * single-leaf root), so there are at most max(1, (node_count - 1) / 2);
+     * each level of 4-wide nodes is at least one binary level deeper, so the
+     * depth stays within the binary one. */
+    const uint32_t cap = bvh->node_count / 2 + 1;
+    pn_bvh4_node *nodes = malloc((size_t)cap * sizeof(pn_bvh4_node));
+    /* Work list: binary node to expand into the 4-wide node of the same position, and its depth. */
+    uint32_t *todo = malloc((size_t)cap * 2 * sizeof(uint32_t));
+    if (!nodes || !todo) {
+        free(nodes);
+        free(todo);
+        return -1;
+    }
+    uint32_t count = 1, depth = 1;
+    todo[0] = 0;
+    todo[1] = 1;
+    for (uint32_t w = 0; w < count; ++w) {
+        const pn_bvh_node *src = &bvh->nodes[todo[2 * w]];
+        const uint32_t wdepth = todo[2 * w + 1];
+        uint32_t kids[4];
+        int n = 0;
+        if (src->count > 0) {
+            kids[n++] = todo[2 * w]; /* the root is a leaf */
+        } else {
+            kids[n++] = src->left_or_first;
+            kids[n++] = src->left_or_first + 1;
+            while (n < 4) {
+                int best = -1;
+                double best_area = -1.0;
+                for (int k = 0; k < n; ++k) {
+                    const pn_bvh_node *c = &bvh->nodes[kids[k]];
+                    double a = node_half_area(c);
+                    if (c->count == 0 && a > best_area) {
+                        best_area = a;
+                        best = k;
+                    }
+                }
+                if (best < 0)
+                    break;
+                const uint32_t l = bvh->nodes[kids[best]].left_or_first;
+                kids[best] = l; /* keep the pair adjacent: left in place, right at the end */
+                kids[n++] = l + 1;
+            }
+        }
+        pn_bvh4_node *dst = &nodes[w];
+        for (int k = 0; k < 4; ++k) {
+            dst->lo_x[k] = dst->lo_y[k] = dst->lo_z[k] = INFINITY;
+            dst->hi_x[k] = dst->hi_y[k] = dst->hi_z[k] = -INFINITY;
+            dst->child[k] = 0;
+            dst->count[k] = 0;
+        }
+        for (int k = 0; k < n; ++k) {
+            const pn_bvh_node *c = &bvh->nodes[kids[k]];
+            if (c->count > 0) {
+                set_slot(dst, k, c, c->left_or_first, c->count);
+                continue;
+            }
+            if (count >= cap) { /* cannot happen by the bound above; never write past the array */
+                free(nodes);
+                free(todo);
+                return -1;
+            }
+            set_slot(dst, k, c, count, 0);
+            todo[2 * count] = kids[k];
+            todo[2 * count + 1] = wdepth + 1;
+            ++count;
+        }
+        if (wdepth > depth)
+            depth = wdepth;
+    }
+    free(todo);
+    pn_bvh4_node *shrunk = realloc(nodes, (size_t)count * sizeof(pn_bvh4_node));
+    out->nodes = shrunk ? shrunk : nodes;
+    out->node_count = count;
+    out->depth = depth;
+    return 0;
+}
+
+void pn_bvh4_free(pn_bvh4 *bvh)
+{
+    if (!bvh)
+        return;
+    free(bvh->nodes);
+    memset(bvh, 0, sizeof(*bvh));
+}

@@ -49,4 +49,31 @@ int pn_bvh_build(const pn_aabb *boxes, uint32_t count, uint32_t max_leaf_size, p
 /* Frees and zeroes *bvh; safe on a zeroed or already freed struct. */
 void pn_bvh_free(pn_bvh *bvh);
 
+/* 4-wide node, 128 bytes = eight float4 on the device: the boxes of up to
+ * four children as structure of arrays (one float4 per bound and axis, so a
+ * ray tests the four with vector arithmetic), then per child the node index
+ * (interior) or first primitive (leaf), and the primitive count (0 for an
+ * interior child). An unused slot has count 0 and the empty box lo = +inf,
+ * hi = -inf, which every ray misses. Node 0 is the root; a tree of a single
+ * leaf is a root with that leaf in slot 0. */
+typedef struct pn_bvh4_node {
+    float lo_x[4], hi_x[4], lo_y[4], hi_y[4], lo_z[4], hi_z[4];
+    uint32_t child[4];
+    uint32_t count[4];
+} pn_bvh4_node;
+
+typedef struct pn_bvh4 {
+    pn_bvh4_node *nodes; /* node_count entries, malloc'ed */
+    uint32_t node_count;
+    uint32_t depth;      /* longest root-to-leaf path in 4-wide nodes, <= the binary depth */
+} pn_bvh4;
+
+/* Collapses a binary BVH into a 4-wide one with the same leaves and boxes:
+ * each 4-wide node takes a binary node's two children and keeps opening the
+ * interior child of largest surface area until it has four. Leaves keep
+ * their primitive ranges of bvh->order, so per-primitive data in leaf order
+ * serves both layouts. Returns 0, or -1 on allocation failure (*out zeroed). */
+int pn_bvh4_collapse(const pn_bvh *bvh, pn_bvh4 *out);
+void pn_bvh4_free(pn_bvh4 *bvh);
+
 #endif

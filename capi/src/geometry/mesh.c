@@ -16,6 +16,7 @@ static void free_geometry(pn_mesh mesh)
     free(mesh->leaf_tris);
     free(mesh->leaf_normals);
     pn_bvh_free(&mesh->bvh);
+    pn_bvh4_free(&mesh->wide);
     mesh->positions = mesh->normals = mesh->leaf_tris = mesh->leaf_normals = NULL;
     mesh->indices = NULL;
 }
@@ -180,6 +181,15 @@ pn_status pn_mesh_do_commit(pn_mesh mesh)
         return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building the BVH of a %u-triangle mesh", nt);
     }
     free(boxes);
+    /* The kernels walk the 4-wide form; the binary one stays for host users
+     * (fiv_bake's winding tree) and the binary layout (PENUMBRA_BVH_WIDTH=2). */
+    pn_bvh4 wide = {0};
+    if (pn_bvh4_collapse(&bvh, &wide) != 0) {
+        pn_bvh_free(&bvh);
+        free(tris);
+        free(nrms);
+        return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building the BVH of a %u-triangle mesh", nt);
+    }
     for (uint32_t slot = 0; slot < nt; ++slot) {
         const uint32_t t = bvh.order[slot];
         const uint32_t *idx = mesh->indices + 3 * (size_t)t;
@@ -204,9 +214,11 @@ pn_status pn_mesh_do_commit(pn_mesh mesh)
         }
     }
     pn_bvh_free(&mesh->bvh);
+    pn_bvh4_free(&mesh->wide);
     free(mesh->leaf_tris);
     free(mesh->leaf_normals);
     mesh->bvh = bvh;
+    mesh->wide = wide;
     mesh->leaf_tris = tris;
     mesh->leaf_normals = nrms;
     mesh->content_hash = pn_hash_bytes(pn_hash_bytes(PN_HASH_SEED, mesh->positions, 12u * (size_t)mesh->vertex_count),

@@ -379,6 +379,8 @@ static pn_status gather_meshes(pn_scene scene)
         return PN_ERROR_OUT_OF_MEMORY;
     size_t nodes = 0, tris = 0;
     bool any_normals = false;
+    const bool wide = ctx->bvh_width == 4;
+    const size_t node_size = wide ? sizeof(pn_bvh4_node) : sizeof(pn_bvh_node);
     for (uint32_t i = 0; i < scene->instance_count; ++i) {
         pn_mesh m = scene->instances[i].mesh;
         if (!m)
@@ -397,7 +399,7 @@ static pn_status gather_meshes(pn_scene scene)
         slots[count].version = m->version;
         slots[count].node_offset = (uint32_t)nodes;
         slots[count].tri_offset = (uint32_t)tris;
-        nodes += m->bvh.node_count;
+        nodes += wide ? m->wide.node_count : m->bvh.node_count;
         tris += m->triangle_count;
         any_normals = any_normals || m->leaf_normals;
         ++count;
@@ -409,11 +411,11 @@ static pn_status gather_meshes(pn_scene scene)
         free(slots);
         return PN_SUCCESS;
     }
-    if (nodes > UINT32_MAX / 2 || tris > UINT32_MAX / 3) {
+    if (nodes > UINT32_MAX / (node_size / 16) || tris > UINT32_MAX / 3) { /* float4 offsets in the kernels are uint */
         free(slots);
         return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "scene has too many triangles (%zu)", tris);
     }
-    float *hnodes = pn_malloc(ctx, pn_mul_size(nodes ? nodes : 1, 1, sizeof(pn_bvh_node)), "scene BLAS nodes");
+    float *hnodes = pn_malloc(ctx, pn_mul_size(nodes ? nodes : 1, 1, node_size), "scene BLAS nodes");
     float *htris = pn_malloc(ctx, pn_mul_size(tris ? tris : 1, 12, sizeof(float)), "scene triangles");
     float *hnrm = any_normals ? pn_malloc(ctx, pn_mul_size(tris, 12, sizeof(float)), "scene normals") : NULL;
     pn_status st = PN_SUCCESS;
@@ -421,8 +423,9 @@ static pn_status gather_meshes(pn_scene scene)
         st = PN_ERROR_OUT_OF_MEMORY;
     for (uint32_t k = 0; !st && k < count; ++k) {
         pn_mesh m = slots[k].mesh;
-        memcpy((char *)hnodes + (size_t)slots[k].node_offset * sizeof(pn_bvh_node), m->bvh.nodes,
-               (size_t)m->bvh.node_count * sizeof(pn_bvh_node));
+        memcpy((char *)hnodes + (size_t)slots[k].node_offset * node_size,
+               wide ? (const void *)m->wide.nodes : (const void *)m->bvh.nodes,
+               (size_t)(wide ? m->wide.node_count : m->bvh.node_count) * node_size);
         memcpy(htris + 12 * (size_t)slots[k].tri_offset, m->leaf_tris, (size_t)m->triangle_count * 12 * sizeof(float));
         if (hnrm) {
             float *dst = hnrm + 12 * (size_t)slots[k].tri_offset;
@@ -433,7 +436,7 @@ static pn_status gather_meshes(pn_scene scene)
         }
     }
     cl_mem blas = NULL, dtris = NULL, dnrm = NULL;
-    if (!st && !(st = pn_alloc(ctx, nodes * sizeof(pn_bvh_node), CL_MEM_READ_ONLY, hnodes, &blas, "scene BLAS nodes")) &&
+    if (!st && !(st = pn_alloc(ctx, nodes * node_size, CL_MEM_READ_ONLY, hnodes, &blas, "scene BLAS nodes")) &&
         !(st = pn_alloc(ctx, tris * 12 * sizeof(float), CL_MEM_READ_ONLY, htris, &dtris, "scene triangles")))
         st = pn_alloc(ctx, hnrm ? tris * 12 * sizeof(float) : 16, CL_MEM_READ_ONLY, hnrm, &dnrm, "scene normals");
     free(hnodes);
@@ -532,7 +535,11 @@ pn_status pn_scene_do_commit(pn_scene scene)
             scene->bounds_hi[c] = fmaxf(scene->bounds_hi[c], boxes[i].hi[c]);
         }
     }
+    pn_bvh4 wide_tlas = {0};
     if (!st && live && pn_bvh_build(boxes, live, 2, &tlas) != 0)
+        st = pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building the instance BVH");
+    /* The kernels walk the TLAS in the BLAS' layout. */
+    if (!st && live && ctx->bvh_width == 4 && pn_bvh4_collapse(&tlas, &wide_tlas) != 0)
         st = pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building the instance BVH");
     for (uint32_t slot = 0; !st && slot < live; ++slot) {
         const pn_instance *inst = &scene->instances[ids[tlas.order[slot]]];
@@ -550,13 +557,16 @@ pn_status pn_scene_do_commit(pn_scene scene)
         memcpy(r + 32, offs, sizeof offs);
     }
     if (!st) {
-        size_t tlas_bytes = live ? (size_t)tlas.node_count * sizeof(pn_bvh_node) : sizeof(pn_bvh_node);
+        const bool wide = ctx->bvh_width == 4;
+        const void *tlas_nodes = wide ? (const void *)wide_tlas.nodes : (const void *)tlas.nodes;
+        const size_t node_size = wide ? sizeof(pn_bvh4_node) : sizeof(pn_bvh_node);
+        size_t tlas_bytes = (live ? (size_t)(wide ? wide_tlas.node_count : tlas.node_count) : 1) * node_size;
         size_t rec_bytes = (size_t)(live ? live : 1) * RECORD_FLOATS * sizeof(float);
         if (!(st = ensure_buffer(ctx, &scene->tlas, &scene->tlas_capacity, tlas_bytes, "the instance BVH")) &&
             !(st = ensure_buffer(ctx, &scene->records, &scene->records_capacity, rec_bytes, "instance records"))) {
             cl_int err = CL_SUCCESS;
             if (live) {
-                err = clEnqueueWriteBuffer(ctx->queue, scene->tlas, CL_TRUE, 0, tlas_bytes, tlas.nodes, 0, NULL, NULL);
+                err = clEnqueueWriteBuffer(ctx->queue, scene->tlas, CL_TRUE, 0, tlas_bytes, tlas_nodes, 0, NULL, NULL);
                 if (err == CL_SUCCESS)
                     err = clEnqueueWriteBuffer(ctx->queue, scene->records, CL_TRUE, 0, rec_bytes, records, 0, NULL, NULL);
             }
@@ -565,6 +575,7 @@ pn_status pn_scene_do_commit(pn_scene scene)
         }
     }
     pn_bvh_free(&tlas);
+    pn_bvh4_free(&wide_tlas);
     free(boxes);
     free(ids);
     free(records);
