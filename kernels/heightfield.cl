@@ -287,23 +287,29 @@ inline float3 hf_albedo(global const float *albedo, int has_albedo, int gid)
 
 /* The sun texels as directional lights: each is visible by the fraction of
  * its disc (angular radius r) above the horizon at its azimuth (linear
- * between the two nearest azimuths, as the wedges are), times N·s. */
+ * between the two nearest azimuths, as the wedges are), times N·s. Records of
+ * three float4: (direction, r), (radiance x solid angle, power), (azimuth in
+ * [0, 2π) in the SH frame, elevation, 0, 0) -- the angles do not depend on
+ * the vertex, so the host computes them once. */
 inline float3 hf_sun(const float *om, int n_phi, float3 n, global const float4 *sun, int suns)
 {
     float3 e = (float3)(0.0f);
     const float scale = (float)n_phi / (2.0f * M_PI_F);
     for (int i = 0; i < suns; ++i) {
-        const float4 d = sun[2 * i], p = sun[2 * i + 1];
+        const float4 d = sun[3 * i];
         const float c = dot(n, d.xyz);
         if (c <= 0.0f)
             continue;
-        /* SH frame: azimuth of (x, -z); elevation asin(y). */
-        float a = atan2(-d.z, d.x) * scale;
-        a = a < 0.0f ? a + (float)n_phi : a;
+        const float2 g = sun[3 * i + 2].xy;
+        const float a = g.x * scale;
         const int k = min((int)a, n_phi - 1);
         const float horizon = mix(om[k], om[(k + 1) % n_phi], a - (float)k);
-        const float vis = hf_disc_above(asin(clamp(d.y, -1.0f, 1.0f)), horizon, d.w);
-        e += p.xyz * (c * vis);
+        /* Fully below or fully above the horizon: no chord to integrate. */
+        const float x = (g.y - horizon) / fmax(d.w, 1e-6f);
+        if (x <= -1.0f)
+            continue;
+        const float vis = x >= 1.0f ? 1.0f : hf_disc_above(g.y, horizon, d.w);
+        e += sun[3 * i + 1].xyz * (c * vis);
     }
     return e;
 }
