@@ -15,7 +15,7 @@ DOCS_PIP := "sphinx>=7" "myst-parser>=2"
 export DRJIT_LIBLLVM_PATH ?= /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
 SOURCES := $(shell find capi kernels python cmake -type f) CMakeLists.txt pyproject.toml
 
-.PHONY: all deps venv install demo test test-c test-python fuzz fuzz-c fuzz-python docs bench bench-fiv-scaling clean
+.PHONY: all deps venv install demo test test-c test-python fuzz fuzz-c fuzz-python docs bench bench-fiv-scaling bench-heightfield-speed clean
 
 all: install
 
@@ -119,6 +119,13 @@ bench: install
 	else for s in $(BENCH_SCENES); do \
 	  $(VENV)/bin/penumbra bench $$s --out bench/results/$$(basename $$s .toml) --readme README.md || exit 1; \
 	done; fi
+	$(MAKE) bench-heightfield-speed
+
+# The heightfield passes against a pinned commit (HF_BASELINE, built once under build/bench-baseline/),
+# in alternating subprocess rounds on the terrain scenes: bench/results/heightfield_speed/.
+HF_BASELINE ?= 9b774a1
+bench-heightfield-speed: install
+	$(PY) bench/heightfield_speed.py --baseline $(HF_BASELINE)
 
 # fiv's per-frame cost against the number of occluders (1, 10, 30, 60 bunnies, 512x512),
 # next to the paper's Table 2: bench/results/fiv_scaling/.

@@ -27,7 +27,7 @@ static const pn_param_desc params[] = {
     {"level_offset", PN_PARAM_FLOAT, PN_PARAM_FRAME, 4, 0, 8, "octaves",
      "Pyramid level read, in octaves finer than the sample spacing."},
     {"azimuths", PN_PARAM_INT, PN_PARAM_PLAN, 32, 4, 256, "directions", "Horizon directions per vertex."},
-    {"bands", PN_PARAM_INT, PN_PARAM_PLAN, 4, 3, 6, "", "Spherical-harmonic bands."},
+    {"bands", PN_PARAM_INT, PN_PARAM_PLAN, 6, 3, 6, "", "Spherical-harmonic bands."},
     {"exact_horizon", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
      "1: horizons by marching the full-resolution field (for measuring)."},
     {"light_threshold", PN_PARAM_FLOAT, PN_PARAM_FRAME, 1e-4, 0, 1, "",
