@@ -12,6 +12,7 @@ rounds is reported and the ratio A / B.
 Phases per scene (defaults of the method unless --params), medians of
 --frames frames after one warm-up frame:
   frame      renderer.execute: every per-vertex pass (env, lights) + shading
+  frame_bands4  the same with 4 SH bands (the same settings on both sides: A's default)
   no_sun     the same with sun_threshold = 0 (the sun texels' share is the difference)
   horizons   the env horizons alone (hf_probe) with their read-back
   pyramid    new heights: upload, pyramid, normals (read-back of the normals subtracted)
@@ -34,7 +35,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_SCENES = ["bench/scenes/terrain_sunny.toml", "bench/scenes/terrain_overcast_light.toml"]
-PHASES = ("frame", "no_sun", "horizons", "pyramid", "floor")
+PHASES = ("frame", "frame_bands4", "no_sun", "horizons", "pyramid", "floor")
 
 
 def baseline_build(commit: str, cache: Path) -> Path:
@@ -92,6 +93,8 @@ def worker(scene_path: str, frames: int, params: dict) -> dict:
     out["floor"] = med(lambda: floor.execute(built.scene, gb, img), 5)
     r = Renderer(ctx, "heightfield", **params)
     out["frame"] = med(lambda: r.execute(built.scene, gb, img))
+    r4 = Renderer(ctx, "heightfield", **{**params, "bands": 4})
+    out["frame_bands4"] = med(lambda: r4.execute(built.scene, gb, img))
     r0 = Renderer(ctx, "heightfield", **{**params, "sun_threshold": 0})
     out["no_sun"] = med(lambda: r0.execute(built.scene, gb, img))
     out["horizons"] = med(lambda: r.read_output(built.scene, "env_horizons", instance))
@@ -180,7 +183,8 @@ def report(res: dict) -> str:
     for name, s in res["scenes"].items():
         for p in PHASES:
             L.append(f"| {name} | {p} | {s['A'][p]:.2f} | {s['B'][p]:.2f} | {s['ratio'][p]:.2f} |")
-    L += ["", "frame = every per-vertex pass + shading; no_sun = frame with sun_threshold 0; horizons = the env "
+    L += ["", "frame = every per-vertex pass + shading (each side's defaults); frame_bands4 = the same with 4 SH "
+          "bands on both sides (A's default, so the same settings); no_sun = frame with sun_threshold 0; horizons = the env "
           "horizons alone (hf_probe, read-back included); pyramid = new heights to normals; floor = the floor "
           "kernel.", ""]
     return "\n".join(L)

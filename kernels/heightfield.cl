@@ -248,32 +248,38 @@ inline hf_vf hf_level_sample_v(global const float *pyr, int4 lev, hf_vf u, hf_vf
     return wb0 * rows0 + wb1 * rows1 + wb2 * rows2 + wb3 * rows3;
 }
 
-/* hf_horizon_pyramid for HF_LANES directions (cu, cv) without a distance
- * limit (the environment). */
+/* hf_horizon_pyramid for HF_LANES directions (cu, cv): only samples with
+ * d_m < limit; -pi/2 without samples. */
 inline hf_vf hf_horizon_pyramid_v(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
-                                  const float *hp, float ref, float u0, float v0, hf_vf cu, hf_vf cv,
+                                  const float *hp, float ref, float u0, float v0, hf_vf cu, hf_vf cv, float limit,
                                   float inv_wm1, float inv_dm1)
 {
     hf_vf w0 = 0.0f, w1 = 0.0f, w2 = 0.0f, best = -M_PI_2_F;
+    int count = 0;
     const float sr = exp2(1.0f / geom.s5);
     float d = geom.s6;
     for (int m = 0; m < grid.z; ++m, d *= sr) {
+        if (!(d < limit))
+            break;
         const int k = clamp(m - grid.w, 0, grid.z - 1);
         const hf_vf h = hf_level_sample_v(pyr, levels[k], u0 + d * cu, v0 + d * cv, inv_wm1, inv_dm1, ref);
         const hf_vf w3 = hf_atan_v((h - hp[k]) / d);
-        if (m == 0)
+        if (count == 0)
             w0 = w1 = w2 = w3;
         else {
             best = fmax(best, (w1 + 4.0f * w2 + w3) / 6.0f);
-            if (m >= 2)
+            if (count >= 2)
                 best = fmax(best, (w0 + 23.0f * w1 + 23.0f * w2 + w3) / 48.0f);
         }
         w0 = w1;
         w1 = w2;
         w2 = w3;
+        ++count;
     }
+    if (count == 0)
+        return -M_PI_2_F;
     best = fmax(best, (w1 + 5.0f * w2) / 6.0f);
-    if (grid.z >= 2)
+    if (count >= 2)
         best = fmax(best, (w0 + 23.0f * w1 + 24.0f * w2) / 48.0f);
     return best;
 }
@@ -343,17 +349,19 @@ inline void hf_vertex_horizons(global const float *pyr, global const int4 *level
     if (!exact)
         hf_receiver_levels(pyr, levels, grid, gid, hp);
     const float dphi = 2.0f * M_PI_F / (float)n_phi;
-    if (!exact && env && !(limit < INFINITY)) {
-        /* The environment: HF_LANES azimuths per vector (the last lanes past
-         * n_phi repeat the last azimuth and are not stored). */
+    if (!exact) {
+        /* HF_LANES azimuths per vector (the last lanes past n_phi repeat
+         * the last azimuth and are not stored). */
         const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
         const float u0 = (float)(gid % grid.x), v0 = (float)(gid / grid.x);
         for (int k0 = 0; k0 < n_phi; k0 += HF_LANES) {
             const hf_vi kk = min(k0 + HF_LANE_IDS, n_phi - 1);
             hf_vf c;
             const hf_vf sn = sincos(dphi * HF_CONVERT_F(kk), &c);
-            const hf_vf h = fmax(hf_horizon_pyramid_v(pyr, levels, grid, geom, hp, pyr[gid], u0, v0, c / geom.s3,
-                                                      -sn / geom.s4, inv_wm1, inv_dm1), 0.0f);
+            hf_vf h = hf_horizon_pyramid_v(pyr, levels, grid, geom, hp, pyr[gid], u0, v0, c / geom.s3, -sn / geom.s4,
+                                           limit, inv_wm1, inv_dm1);
+            if (env)
+                h = fmax(h, 0.0f);
             if (k0 + HF_LANES <= n_phi)
                 hf_vstore(h, 0, om + k0);
             else {
@@ -539,9 +547,24 @@ inline float hf_light_horizon(global const float *pyr, global const int4 *levels
     /* The disc's azimuthal half-width, seen from p. */
     const float spread = fmin(alpha / fmax(cos(elev), 1e-3f), M_PI_F);
     float vis = 0.0f;
-    for (int q = -1; q <= 1; ++q) {
-        const float h = hf_horizon_at(pyr, levels, grid, geom, gid, hp, exact, phi + 0.5f * spread * (float)q, limit);
-        vis += hf_disc_above(elev, h, alpha);
+    if (exact) {
+        for (int q = -1; q <= 1; ++q) {
+            const float h = hf_horizon_at(pyr, levels, grid, geom, gid, hp, exact, phi + 0.5f * spread * (float)q, limit);
+            vis += hf_disc_above(elev, h, alpha);
+        }
+    } else {
+        /* The three azimuths in the lanes of one vector search (lanes past
+         * the third repeat it). */
+        const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
+        const hf_vf q = HF_CONVERT_F(min(HF_LANE_IDS, 2) - 1);
+        hf_vf c;
+        const hf_vf sn = sincos(phi + 0.5f * spread * q, &c);
+        float h[HF_LANES];
+        hf_vstore(hf_horizon_pyramid_v(pyr, levels, grid, geom, hp, pyr[gid], (float)(gid % grid.x),
+                                       (float)(gid / grid.x), c / geom.s3, -sn / geom.s4, limit, inv_wm1, inv_dm1),
+                  0, h);
+        for (int l = 0; l < 3; ++l)
+            vis += hf_disc_above(elev, h[l], alpha);
     }
     return irr * vis / 3.0f;
 }
