@@ -132,53 +132,14 @@ kernel void hf_normals(global const float *pyr, int4 grid, float8 geom, global f
     normals[gid] = (float4)(normalize((float3)(-dx, 1.0f, -dz)), 0.0f);
 }
 
-/* Elevations of one azimuth from the pyramid: samples at d_m = s0 sr^m (only
- * d_m < limit), level m - offset, B-spline maximum over knots and midpoints
- * with repeated ends. `hp` holds H_k at the receiver. -pi/2 without samples. */
-inline float hf_horizon_pyramid(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
-                                const float *hp, float ref, float u0, float v0, float cu, float cv, float limit,
-                                float inv_wm1, float inv_dm1)
-{
-    /* A window of four elevations slides along the samples: with w0..w3 =
-     * ω_{m-2}..ω_{m+1}, the knot at m-1 and the midpoint between m-2 and m-1
-     * are complete. Ends repeat (ω_{-1} = ω_0, ω_count = ω_{count-1}). */
-    float w0 = 0.0f, w1 = 0.0f, w2 = 0.0f, best = -M_PI_2_F;
-    int count = 0;
-    const float sr = exp2(1.0f / geom.s5); /* d_m = s0 sr^m, by products (relative error ~m ulp) */
-    float d = geom.s6;
-    for (int m = 0; m < grid.z; ++m, d *= sr) {
-        if (!(d < limit))
-            break;
-        const int k = clamp(m - grid.w, 0, grid.z - 1);
-        const float h = hf_level_sample(pyr, levels[k], u0 + d * cu, v0 + d * cv, inv_wm1, inv_dm1, ref);
-        const float w3 = pn_atan((h - hp[k]) / d);
-        if (count == 0)
-            w0 = w1 = w2 = w3; /* ω_{-1} = ω_0 */
-        else {
-            best = fmax(best, (w1 + 4.0f * w2 + w3) / 6.0f);                        /* knot m-1 */
-            if (count >= 2)
-                best = fmax(best, (w0 + 23.0f * w1 + 23.0f * w2 + w3) / 48.0f);     /* midpoint m-2 / m-1 */
-        }
-        w0 = w1;
-        w1 = w2;
-        w2 = w3;
-        ++count;
-    }
-    if (count == 0)
-        return -M_PI_2_F;
-    /* Close the end: ω_count = ω_{count-1} (= w2), one more slide. */
-    best = fmax(best, (w1 + 5.0f * w2) / 6.0f);                                     /* knot count-1 */
-    if (count >= 2)
-        best = fmax(best, (w0 + 23.0f * w1 + 24.0f * w2) / 48.0f);                  /* midpoint count-2 / count-1 */
-    return best;
-}
-
-/* The same search for HF_LANES azimuths at once, one per vector lane: the
- * sample loop is uniform over azimuths (same m, d and level), so the
- * B-spline weights, atan and the window run as vector arithmetic and only
- * the 16 taps per sample are per-lane loads. PoCL does not vectorise the
- * scalar loop across work-items (each has its own loop), so the lanes are
- * written out here: ~4x fewer instructions per sample on AVX2/AVX-512. */
+/* The pyramid horizon search (docs/heightfield.md): samples at d_m = s0 sr^m
+ * (only d_m < limit), level m - offset, B-spline maximum over knots and
+ * midpoints with repeated ends; -pi/2 without samples. HF_LANES azimuths at
+ * once, one per vector lane: the sample loop is uniform over azimuths (same
+ * m, d and level), so the B-spline weights, atan and the window run as
+ * vector arithmetic and only the 16 taps per sample are per-lane loads.
+ * PoCL does not vectorise a work-item's own loops, so the lanes are written
+ * out here: 5x less time per sample than one azimuth at a time. */
 #ifndef HF_LANES
 #define HF_LANES 8
 #endif
@@ -218,7 +179,7 @@ inline hf_vf hf_atan_v(hf_vf x)
     return copysign(select(r, M_PI_2_F - r, a > 1.0f), x);
 }
 
-/* hf_level_sample for HF_LANES points. */
+/* hf_level_sample for HF_LANES points (same formula, lane by lane). */
 inline hf_vf hf_level_sample_v(global const float *pyr, int4 lev, hf_vf u, hf_vf v, float inv_wm1, float inv_dm1,
                                float ref)
 {
@@ -248,8 +209,11 @@ inline hf_vf hf_level_sample_v(global const float *pyr, int4 lev, hf_vf u, hf_vf
     return wb0 * rows0 + wb1 * rows1 + wb2 * rows2 + wb3 * rows3;
 }
 
-/* hf_horizon_pyramid for HF_LANES directions (cu, cv): only samples with
- * d_m < limit; -pi/2 without samples. */
+/* Elevations along HF_LANES directions (cu, cv) in base units per world
+ * unit; `hp` holds H_k - H_0 at the receiver. A window of four elevations
+ * slides along the samples: with w0..w3 = ω_{m-2}..ω_{m+1}, the knot at m-1
+ * and the midpoint between m-2 and m-1 are complete. Ends repeat
+ * (ω_{-1} = ω_0, ω_count = ω_{count-1}). */
 inline hf_vf hf_horizon_pyramid_v(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
                                   const float *hp, float ref, float u0, float v0, hf_vf cu, hf_vf cv, float limit,
                                   float inv_wm1, float inv_dm1)
@@ -317,19 +281,14 @@ inline void hf_receiver_levels(global const float *pyr, global const int4 *level
         hp[k] = hf_level_sample(pyr, levels[k], u0, v0, inv_wm1, inv_dm1, pyr[gid]);
 }
 
-/* The horizon of vertex gid at azimuth phi (SH frame: world direction
- * (cos, 0, -sin)), by the pyramid (hp from hf_receiver_levels) or exactly. */
-inline float hf_horizon_at(global const float *pyr, global const int4 *levels, int4 grid, float8 geom, int gid,
-                           const float *hp, int exact, float phi, float limit)
+/* The exact horizon of vertex gid at azimuth phi (SH frame: world direction
+ * (cos, 0, -sin)). */
+inline float hf_horizon_exact_at(global const float *pyr, int4 grid, float8 geom, int gid, float phi, float limit)
 {
-    const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
     const float u0 = (float)(gid % grid.x), v0 = (float)(gid / grid.x);
     float s, c;
     s = sincos(phi, &c);
-    const float cu = c / geom.s3, cv = -s / geom.s4; /* base units per world unit */
-    return exact ? hf_horizon_exact(pyr, grid, geom, pyr[gid], u0, v0, cu, cv, limit)
-                 : hf_horizon_pyramid(pyr, levels, grid, geom, hp, pyr[gid], u0, v0, cu, cv, limit, inv_wm1,
-                                      inv_dm1);
+    return hf_horizon_exact(pyr, grid, geom, pyr[gid], u0, v0, c / geom.s3, -s / geom.s4, limit);
 }
 
 /* Share of a disc of angular radius r, centred at elevation e, above a
@@ -374,7 +333,7 @@ inline void hf_vertex_horizons(global const float *pyr, global const int4 *level
         return;
     }
     for (int k = 0; k < n_phi; ++k) {
-        const float h = hf_horizon_at(pyr, levels, grid, geom, gid, hp, exact, dphi * (float)k, limit);
+        const float h = hf_horizon_exact_at(pyr, grid, geom, gid, dphi * (float)k, limit);
         om[k] = env ? fmax(h, 0.0f) : h;
     }
 }
@@ -549,7 +508,7 @@ inline float hf_light_horizon(global const float *pyr, global const int4 *levels
     float vis = 0.0f;
     if (exact) {
         for (int q = -1; q <= 1; ++q) {
-            const float h = hf_horizon_at(pyr, levels, grid, geom, gid, hp, exact, phi + 0.5f * spread * (float)q, limit);
+            const float h = hf_horizon_exact_at(pyr, grid, geom, gid, phi + 0.5f * spread * (float)q, limit);
             vis += hf_disc_above(elev, h, alpha);
         }
     } else {
