@@ -15,7 +15,7 @@ DOCS_PIP := "sphinx>=7" "myst-parser>=2"
 export DRJIT_LIBLLVM_PATH ?= /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
 SOURCES := $(shell find capi kernels python cmake -type f) CMakeLists.txt pyproject.toml
 
-.PHONY: all deps venv install demo test test-c test-python fuzz fuzz-c fuzz-python docs bench bench-roofline bench-fiv-scaling clean
+.PHONY: all deps venv install demo test test-c test-python fuzz fuzz-c fuzz-python docs bench bench-roofline bench-fiv-scaling bench-heightfield-speed bench-rays clean
 
 all: install
 
@@ -119,12 +119,25 @@ bench: install bench-roofline
 	else for s in $(BENCH_SCENES); do \
 	  $(VENV)/bin/penumbra bench $$s --out bench/results/$$(basename $$s .toml) --readme README.md || exit 1; \
 	done; fi
+	$(MAKE) bench-heightfield-speed bench-fiv-scaling bench-rays
+
+# The heightfield passes against a pinned commit (HF_BASELINE, built once under build/bench-baseline/),
+# in alternating subprocess rounds on the terrain scenes: bench/results/heightfield_speed/.
+HF_BASELINE ?= 9b774a1
+bench-heightfield-speed: install
+	$(PY) bench/heightfield_speed.py --baseline $(HF_BASELINE)
 
 # The machine's peak FMA FLOP/s and memory bandwidth under the OpenCL runtime in use, the
 # roofline docs/performance.md measures every kernel against: bench/results/roofline/.
 bench-roofline: install
 	@mkdir -p bench/results/roofline
 	$(PY) bench/roofline.py --json bench/results/roofline/roofline.json
+
+# Ray throughput of the 4-wide and binary BVH walks against Embree on the same rays, in
+# interleaved rounds (docs/performance.md "Ray casting"): bench/results/rays/.
+bench-rays: install
+	@mkdir -p bench/results/rays
+	$(PY) bench/ray_profile.py --rounds 11 --json bench/results/rays/ray_profile.json | tee bench/results/rays/ray_profile.txt
 
 # fiv's per-frame cost against the number of occluders (1, 10, 30, 60 bunnies, 512x512),
 # next to the paper's Table 2: bench/results/fiv_scaling/.

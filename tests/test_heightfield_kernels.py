@@ -26,6 +26,7 @@ from penumbra.heightfield import make_terrain
 
 HORIZON_ATOL = 3e-5
 VIS_RTOL = 2e-5
+DEFAULT_BANDS = 6  # the renderer's default `bands` (capi/src/methods/heightfield.c)
 E_RTOL = 2e-4
 E_MAP_RTOL = 3e-3
 
@@ -145,8 +146,9 @@ def test_env_visibility(case, nb, n_phi):
 
 
 def test_light_visibility(case):
-    got = case.read("light_visibility", light=1)
-    want = hf64.visibility(case.twin_horizons(light=1), hf64.wedge_table(32, 4, "light"), 32, 4, "light")
+    got = case.read("light_visibility", light=1)  # the default bands
+    nb = DEFAULT_BANDS
+    want = hf64.visibility(case.twin_horizons(light=1), hf64.wedge_table(32, nb, "light"), 32, nb, "light")
     np.testing.assert_allclose(got, want, atol=VIS_RTOL * np.abs(want[..., 0]).max(), rtol=0)
 
 
@@ -180,7 +182,7 @@ def twin_env_split(c, sun_threshold):
     """E = clamp(E_paper + E_up(n) - H^T M C, 0, E_up(n)) + the sun texels
     (disc share above the horizon, linear between azimuths, times n.s), with
     E_up the exact sum over the non-sun texels above the horizontal plane."""
-    nb, n_phi = 4, 32
+    nb, n_phi = DEFAULT_BANDS, 32
     e_paper, V, normals, L, hz, (dirs, omega, rad, sun) = twin_env_paper(c, nb, n_phi, sun_threshold=sun_threshold)
     table = hf64.wedge_table(n_phi, nb, "env")
     Hup = hf64.zrotate(np.broadcast_to(table[0, 0], (n_phi, nb * nb)), 2 * np.pi * np.arange(n_phi) / n_phi,

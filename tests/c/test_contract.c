@@ -2372,7 +2372,11 @@ static void test_heightfield(pn_context ctx)
     for (int v = 0; v < 20; ++v)
         flat &= near(out[4 * v], 1.0f, 2e-3f) && near(out[4 * v + 2], 1.0f, 2e-3f);
     CHECK("flat field, constant env: outgoing radiance 1", flat);
-    /* The seed's all-SH product holds a constant env exactly (only l = 0). */
+    /* The seed's all-SH product holds a constant env exactly (only l = 0) at
+     * 4 bands: the face-8 cube's texel sums cancel every harmonic up to l = 3,
+     * but l = 4 has a cube-symmetric part, so at 5-6 bands (the default 6) the
+     * constant's projection carries a ~1e-3 l = 4 term. */
+    pn_renderer_set_int(hr, "bands", 4);
     pn_renderer_set_int(hr, "exact_unoccluded", 0);
     pn_renderer_commit(hr);
     expect_ok("read the env pass, all-SH", pn_renderer_read_output(hr, r.scene, "env", id, 0, out, sizeof out), ctx);

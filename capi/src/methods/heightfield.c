@@ -16,6 +16,7 @@
 #define HF_MAX_LEVELS 128   /* kernels/heightfield.cl */
 #define MAX_FIELDS 16
 #define MAX_SUN 256          /* sun texels lit as directional lights */
+#define SUN_FLOATS 12        /* per sun texel: 3 float4 (kernels/heightfield.cl, hf_sun) */
 
 enum { P_BACKGROUND, P_LEVEL_STEP, P_LEVEL_OFFSET, P_AZIMUTHS, P_BANDS, P_EXACT_HORIZON, P_LIGHT_THRESHOLD,
        P_EXACT_UNOCCLUDED, P_SUN_THRESHOLD, P_LIGHT_VISIBILITY, P_RECONSTRUCTION };
@@ -26,7 +27,7 @@ static const pn_param_desc params[] = {
     {"level_offset", PN_PARAM_FLOAT, PN_PARAM_FRAME, 4, 0, 8, "octaves",
      "Pyramid level read, in octaves finer than the sample spacing."},
     {"azimuths", PN_PARAM_INT, PN_PARAM_PLAN, 32, 4, 256, "directions", "Horizon directions per vertex."},
-    {"bands", PN_PARAM_INT, PN_PARAM_PLAN, 4, 3, 6, "", "Spherical-harmonic bands."},
+    {"bands", PN_PARAM_INT, PN_PARAM_PLAN, 6, 3, 6, "", "Spherical-harmonic bands."},
     {"exact_horizon", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
      "1: horizons by marching the full-resolution field (for measuring)."},
     {"light_threshold", PN_PARAM_FLOAT, PN_PARAM_FRAME, 1e-4, 0, 1, "",
@@ -86,7 +87,7 @@ typedef struct pn_hf_cache {
     uint64_t m_env_version;
     int m_nb, m_nphi;
     float m_sun;              /* sun_threshold the env data was split with */
-    cl_mem sun;               /* MAX_SUN at most: 2 float4 per sun texel */
+    cl_mem sun;               /* MAX_SUN at most: 3 float4 per sun texel */
     int sun_count;
     cl_mem m;                 /* 3 x nc x nc */
     float u[3 * PN_SH_MAX_BANDS * PN_SH_MAX_BANDS]; /* Hᵀ M per channel (exact_unoccluded) */
@@ -198,7 +199,9 @@ static int by_power_desc(const void *a, const void *b)
 /* Texels brighter than sun_threshold x the env's mean radiance (the sun) are
  * taken out of the env's texels (rad is changed: they become black there) and
  * kept as directional lights, at most MAX_SUN of the most powerful:
- * records (direction, angular radius | radiance x solid angle, power). Their
+ * records (direction, angular radius | radiance x solid angle, power |
+ * azimuth in the SH frame, elevation), the angles once here instead of per
+ * vertex. Their
  * visibility is then a test against the horizon instead of a low-order SH
  * product, which smears a sun over the whole sky. */
 static pn_status split_sun(pn_context ctx, pn_hf_cache *c, float *rad, const float *dirs, size_t texels,
@@ -220,15 +223,19 @@ static pn_status split_sun(pn_context ctx, pn_hf_cache *c, float *rad, const flo
             if (!(sun_threshold > 0.0f && mean > 0.0 && lum >= sun_threshold * mean))
                 continue;
             if (pass == 1) {
-                float *o = found + 8 * k;
+                float *o = found + SUN_FLOATS * k;
                 o[0] = d[0], o[1] = d[1], o[2] = d[2], o[3] = sqrtf(d[3] / (float)PI); /* disc of that solid angle */
                 o[4] = r[0] * d[3], o[5] = r[1] * d[3], o[6] = r[2] * d[3], o[7] = (float)(lum * d[3]);
+                /* SH frame: azimuth of (x, -z) in [0, 2π); elevation asin(y). */
+                double az = atan2(-(double)d[2], (double)d[0]);
+                az = az < 0.0 ? az + 2.0 * PI : az;
+                o[8] = (float)az, o[9] = (float)asin(fmax(-1.0, fmin(1.0, (double)d[1]))), o[10] = o[11] = 0.0f;
             }
             ++k;
         }
         if (pass == 0 && !(count = k))
             break;
-        if (pass == 0 && !(found = pn_malloc(ctx, count * 8 * sizeof(float), "the env's sun texels")))
+        if (pass == 0 && !(found = pn_malloc(ctx, count * SUN_FLOATS * sizeof(float), "the env's sun texels")))
             return PN_ERROR_OUT_OF_MEMORY;
     }
     c->sun_count = 0;
@@ -236,16 +243,17 @@ static pn_status split_sun(pn_context ctx, pn_hf_cache *c, float *rad, const flo
         free(found);
         return PN_SUCCESS;
     }
-    qsort(found, count, 8 * sizeof(float), by_power_desc);
+    qsort(found, count, SUN_FLOATS * sizeof(float), by_power_desc);
     if (count > MAX_SUN)
         count = MAX_SUN;
     /* Black where the kept ones were (matched by direction). */
     for (size_t t = 0; t < texels; ++t)
         for (size_t k = 0; k < count; ++k)
-            if (found[8 * k] == dirs[4 * t] && found[8 * k + 1] == dirs[4 * t + 1] && found[8 * k + 2] == dirs[4 * t + 2])
+            if (found[SUN_FLOATS * k] == dirs[4 * t] && found[SUN_FLOATS * k + 1] == dirs[4 * t + 1] &&
+                found[SUN_FLOATS * k + 2] == dirs[4 * t + 2])
                 rad[4 * t] = rad[4 * t + 1] = rad[4 * t + 2] = 0.0f;
     pn_mem_release(&c->sun);
-    pn_status st = pn_alloc(ctx, count * 8 * sizeof(float), CL_MEM_READ_ONLY, found, &c->sun, "the env's sun texels");
+    pn_status st = pn_alloc(ctx, count * SUN_FLOATS * sizeof(float), CL_MEM_READ_ONLY, found, &c->sun, "the env's sun texels");
     if (!st)
         c->sun_count = (int)count;
     free(found);

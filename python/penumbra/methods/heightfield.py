@@ -267,9 +267,9 @@ class Heightfield(Technique):
 
     def sweep(self) -> list[dict]:
         # Azimuths, pyramid level step and SH bands from the cheapest up to the
-        # defaults, then the seed's all-SH product (exact_unoccluded 0) and 6 bands.
+        # defaults (6 bands), then the seed's all-SH product (exact_unoccluded 0) and its 4 bands.
         return [{"azimuths": 8, "level_step": 1, "bands": 3}, {"azimuths": 8}, {"azimuths": 16, "level_step": 2},
-                {"azimuths": 16}, {}, {"exact_unoccluded": 0}, {"bands": 6}]
+                {"azimuths": 16}, {}, {"exact_unoccluded": 0}, {"bands": 4}]
 
 
 TECHNIQUE = Heightfield(NAME)
