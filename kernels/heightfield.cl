@@ -168,13 +168,8 @@ typedef int8 hf_vi;
 inline hf_vf hf_atan_v(hf_vf x)
 {
     const hf_vf a = fabs(x), t = select(a, 1.0f / a, a > 1.0f), t2 = t * t;
-    hf_vf p = 6.814212410e-03f;
-    p = p * t2 - 3.361149911e-02f;
-    p = p * t2 + 7.963201613e-02f;
-    p = p * t2 - 1.323379574e-01f;
-    p = p * t2 + 1.980793360e-01f;
-    p = p * t2 - 3.331738094e-01f;
-    p = p * t2 + 9.999961155e-01f;
+    hf_vf p;
+    PN_ATAN_POLY(p, t2);
     const hf_vf r = t * p;
     return copysign(select(r, M_PI_2_F - r, a > 1.0f), x);
 }

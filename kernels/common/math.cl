@@ -20,16 +20,22 @@ inline float3 pn_rotate_y(float3 d, float c, float s)
  * degree 13), atan(x) = pi/2 - atan(1/x) above. Per-sample angles (the
  * height-field horizon search, the FIV grid lookup) took a large part of
  * those kernels' time with the built-in atan/atan2/acos on CPUs. */
+/* The odd polynomial of atan on [0, 1] in t2 = t * t, without the factor t;
+ * a macro so that the scalar and the vector versions (heightfield.cl) share it. */
+#define PN_ATAN_POLY(p, t2)                 \
+    p = 6.814212410e-03f;                   \
+    p = p * (t2) - 3.361149911e-02f;        \
+    p = p * (t2) + 7.963201613e-02f;        \
+    p = p * (t2) - 1.323379574e-01f;        \
+    p = p * (t2) + 1.980793360e-01f;        \
+    p = p * (t2) - 3.331738094e-01f;        \
+    p = p * (t2) + 9.999961155e-01f
+
 inline float pn_atan(float x)
 {
     const float a = fabs(x), t = a > 1.0f ? 1.0f / a : a, t2 = t * t;
-    float p = 6.814212410e-03f;
-    p = p * t2 - 3.361149911e-02f;
-    p = p * t2 + 7.963201613e-02f;
-    p = p * t2 - 1.323379574e-01f;
-    p = p * t2 + 1.980793360e-01f;
-    p = p * t2 - 3.331738094e-01f;
-    p = p * t2 + 9.999961155e-01f;
+    float p;
+    PN_ATAN_POLY(p, t2);
     const float r = t * p;
     return copysign(a > 1.0f ? M_PI_2_F - r : r, x);
 }

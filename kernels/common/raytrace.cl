@@ -471,10 +471,8 @@ PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, f
 }
 #endif
 
-#if PN_BVH_WIDTH == 2
-/* Closest (any_hit = false) or any (any_hit = true) intersection with the
- * scene in (tmin, tmax). hit->t is INFINITY-free only when true is returned. */
-PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float tmin, float tmax, pn_hit *hit, bool any_hit)
+/* The hit both layouts' walks start from: nothing found before tmax. */
+PN_TRACE_INLINE void pn_clear_hit(pn_hit *hit, float tmax)
 {
     hit->t = tmax;
     hit->slot = PN_BACKGROUND;
@@ -483,6 +481,14 @@ PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float
 #ifdef PN_RAY_STATS
     hit->nodes = hit->boxes = hit->tests = 0;
 #endif
+}
+
+#if PN_BVH_WIDTH == 2
+/* Closest (any_hit = false) or any (any_hit = true) intersection with the
+ * scene in (tmin, tmax). hit->t is INFINITY-free only when true is returned. */
+PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float tmin, float tmax, pn_hit *hit, bool any_hit)
+{
+    pn_clear_hit(hit, tmax);
     if (scene.instance_count == 0)
         return false;
     /* One instance: its BLAS root box test does the TLAS root's job. */
@@ -540,13 +546,7 @@ PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float
  * node); its leaves hold instance records. */
 PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float tmin, float tmax, pn_hit *hit, bool any_hit)
 {
-    hit->t = tmax;
-    hit->slot = PN_BACKGROUND;
-    hit->tri = PN_BACKGROUND;
-    hit->u = hit->v = 0.0f;
-#ifdef PN_RAY_STATS
-    hit->nodes = hit->boxes = hit->tests = 0;
-#endif
+    pn_clear_hit(hit, tmax);
     if (scene.instance_count == 0)
         return false;
     /* One instance: its BLAS root node does the TLAS root's job. */
