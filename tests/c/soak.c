@@ -569,6 +569,40 @@ static void settle(soak *s)
     CHECK(s->ctx, pn_context_finish(s->ctx));
 }
 
+/* The height field's SH wedge tables are cached per (azimuths, bands) pair (a
+ * bounded cache, capi/src/methods/sh_tables.c): render every pair the frames
+ * can reach (the plan values and the default number of bands), so that no
+ * table is first computed after the warm-up. */
+static void prime_wedge_tables(soak *s)
+{
+    int az = -1, nb = -1;
+    for (int c = 0; c < PLAN_CHOICES; ++c) {
+        if (PLAN_VALUES[c].method == 2 && !strcmp(PLAN_VALUES[c].name, "azimuths"))
+            az = c;
+        if (PLAN_VALUES[c].method == 2 && !strcmp(PLAN_VALUES[c].name, "bands"))
+            nb = c;
+    }
+    pn_method_info mi;
+    double default_bands = NAN;
+    CHECK(NULL, pn_method_get_info(METHODS[2], &mi));
+    for (uint32_t i = 0; i < mi.param_count; ++i) {
+        pn_param_info p;
+        CHECK(NULL, pn_method_get_param(METHODS[2], i, &p));
+        if (!strcmp(p.name, "bands"))
+            default_bands = p.default_value;
+    }
+    if (az < 0 || nb < 0 || isnan(default_bands)) {
+        fprintf(stderr, "FAIL: the heightfield plan values or its bands parameter are missing\n");
+        exit(1);
+    }
+    for (int a = 0; a < PLAN_VALUES[az].count; ++a)
+        for (int b = 0; b <= PLAN_VALUES[nb].count; ++b) {
+            set_plan(s, az, PLAN_VALUES[az].values[a]);
+            set_plan(s, nb, b < PLAN_VALUES[nb].count ? PLAN_VALUES[nb].values[b] : default_bands);
+            render(s, 2);
+        }
+}
+
 /* Every sky, every cheap plan value and every integer frame-parameter value
  * (up to its cap) rendered once before the frames: first uses (stage builds,
  * cached kernels) happen here, not after the warm-up. */
@@ -607,6 +641,7 @@ static void prime(soak *s)
             CHECK(s->ctx, pn_renderer_commit(s->renderers[m]));
         }
     }
+    prime_wedge_tables(s);
     settle(s);
 }
 
