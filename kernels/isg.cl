@@ -268,6 +268,28 @@ inline bool pn_isg_inside(float3 p, float3 n, uint self_id, int self_occlusion, 
     return false;
 }
 
+/* pn_isg_mark_sphere_rows for spheres [s0, s1): -1 when the receiver is inside
+ * one, else the number that marked something; stops with *full set once every
+ * patch of the window is marked. */
+inline int pn_isg_mark_range(const pn_isg_grid *pg, float cos_cone, float sin_cone, float3 p, float3 n, uint self_id,
+                             int self_occlusion, global const float4 *spheres, global const uint *owners, int s0,
+                             int s1, uint *mask, bool *full)
+{
+    int any = 0;
+    for (int s = s0; s < s1; ++s) {
+        const int m = pn_isg_mark_sphere_rows(pg, cos_cone, sin_cone, p, n, spheres[s], owners[s] == self_id,
+                                              self_occlusion, mask);
+        if (m < 0)
+            return -1;
+        any += m;
+        if (m > 0 && pn_isg_all_marked(mask, pg->grid)) {
+            *full = true;
+            return any;
+        }
+    }
+    return any;
+}
+
 /* Marks in `mask` the patches whose centre direction meets a sphere seen from
  * (p, n): every sphere (tree->levels = 0) or those in the tree's nodes that
  * pn_isg_node_open keeps. Returns -1 when the receiver is inside an occluder,
@@ -286,18 +308,10 @@ inline int pn_isg_mark(const pn_isg_grid *pg, float3 p, float3 n, uint self_id, 
     int any = 0;
     if (sphere_count <= 0)
         return 0;
-    if (tree->levels == 0) {
-        for (int s = 0; s < sphere_count; ++s) {
-            const int m = pn_isg_mark_sphere_rows(pg, cos_cone, sin_cone, p, n, spheres[s], owners[s] == self_id,
-                                                  self_occlusion, mask);
-            if (m < 0)
-                return -1;
-            any += m;
-            if (m > 0 && pn_isg_all_marked(mask, pg->grid))
-                return any;
-        }
-        return any;
-    }
+    bool full = false;
+    if (tree->levels == 0)
+        return pn_isg_mark_range(pg, cos_cone, sin_cone, p, n, self_id, self_occlusion, spheres, owners, 0,
+                                 sphere_count, mask, &full);
     const int top = tree->levels;
     int l = top, i = 0;
     while (l < top || i < tree->count[top]) {
@@ -306,16 +320,14 @@ inline int pn_isg_mark(const pn_isg_grid *pg, float3 p, float3 n, uint self_id, 
                 --l, i *= PN_ISG_TREE_FANOUT;
                 continue;
             }
-            const int s1 = min((i + 1) * PN_ISG_TREE_FANOUT, sphere_count);
-            for (int s = i * PN_ISG_TREE_FANOUT; s < s1; ++s) {
-                const int m = pn_isg_mark_sphere_rows(pg, cos_cone, sin_cone, p, n, spheres[s], owners[s] == self_id,
-                                                 self_occlusion, mask);
-                if (m < 0)
-                    return -1;
-                any += m;
-                if (m > 0 && pn_isg_all_marked(mask, pg->grid))
-                    return any;
-            }
+            const int m = pn_isg_mark_range(pg, cos_cone, sin_cone, p, n, self_id, self_occlusion, spheres, owners,
+                                            i * PN_ISG_TREE_FANOUT, min((i + 1) * PN_ISG_TREE_FANOUT, sphere_count),
+                                            mask, &full);
+            if (m < 0)
+                return -1;
+            any += m;
+            if (full)
+                return any;
         }
         /* The next node: the next sibling, or up while this sibling group is done. */
         ++i;

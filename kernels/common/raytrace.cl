@@ -262,6 +262,31 @@ inline bool pn_pop(const float *stack_t, int *sp, bool any_hit, float t_hit)
  * beyond a hit found meanwhile is skipped: the same test its box would fail
  * against the lowered tmax (leave = min(far, tmax) * c passed at push time
  * for the far planes, so only tmax * c can have changed). */
+/* A leaf's triangles [first, first + count) of the instance in `slot` (its
+ * triangles from tri_base on): the closest hit before hit->t goes into *hit.
+ * Returns whether one was found; with any_hit it stops at the first. */
+PN_TRACE_INLINE bool pn_leaf_triangles(const pn_ray_shear *shear, float tmin, global const float4 *tris, uint first,
+                                       uint count, uint slot, uint tri_base, pn_hit *hit, bool any_hit)
+{
+    bool found = false;
+    PN_STAT(hit, tests, count);
+    for (uint k = first; k < first + count; ++k) {
+        float t, u, v;
+        if (pn_ray_triangle(shear, tmin, hit->t, pn_load3(tris + 3 * k), pn_load3(tris + 3 * k + 1),
+                            pn_load3(tris + 3 * k + 2), &t, &u, &v)) {
+            hit->t = t;
+            hit->u = u;
+            hit->v = v;
+            hit->slot = slot;
+            hit->tri = tri_base + k;
+            found = true;
+            if (any_hit)
+                return true;
+        }
+    }
+    return found;
+}
+
 #if PN_BVH_WIDTH == 2
 PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir, float tmin, pn_hit *hit,
                           bool any_hit)
@@ -285,20 +310,10 @@ PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, f
     uint first = pn_load_w(nodes), count = pn_load_w(nodes + 1);
     for (;;) {
         if (count > 0) {
-            PN_STAT(hit, tests, count);
-            for (uint k = first; k < first + count; ++k) {
-                float t, u, v;
-                if (pn_ray_triangle(&shear, tmin, hit->t, pn_load3(tris + 3 * k), pn_load3(tris + 3 * k + 1),
-                                    pn_load3(tris + 3 * k + 2), &t, &u, &v)) {
-                    hit->t = t;
-                    hit->u = u;
-                    hit->v = v;
-                    hit->slot = slot;
-                    hit->tri = offs.y + k;
-                    found = true;
-                    if (any_hit)
-                        return true;
-                }
+            if (pn_leaf_triangles(&shear, tmin, tris, first, count, slot, offs.y, hit, any_hit)) {
+                found = true;
+                if (any_hit)
+                    return true;
             }
         } else {
             global const float4 *c = nodes + 2 * first;
@@ -451,20 +466,10 @@ PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, f
                 shear = pn_make_shear(o, d);
                 sheared = true;
             }
-            PN_STAT(hit, tests, count);
-            for (uint k = first; k < first + count; ++k) {
-                float t, u, v;
-                if (pn_ray_triangle(&shear, tmin, hit->t, pn_load3(tris + 3 * k), pn_load3(tris + 3 * k + 1),
-                                    pn_load3(tris + 3 * k + 2), &t, &u, &v)) {
-                    hit->t = t;
-                    hit->u = u;
-                    hit->v = v;
-                    hit->slot = slot;
-                    hit->tri = offs.y + k;
-                    found = true;
-                    if (any_hit)
-                        return true;
-                }
+            if (pn_leaf_triangles(&shear, tmin, tris, first, count, slot, offs.y, hit, any_hit)) {
+                found = true;
+                if (any_hit)
+                    return true;
             }
         }
     }
