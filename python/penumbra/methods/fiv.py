@@ -932,7 +932,7 @@ def fiv_spread_scene(n: int, mesh: str, envmap: str, resolution: int = 512, samp
 def occluder_bounds(built, cull_threshold: float = 1e-3) -> dict:
     """Per occluder instance of a built scene (fields attached): world centre,
     bounding radius R and culling distance, as capi/src/methods/fiv.c
-    build_records computes them (E_ref from the env's cube, the largest |FIV|
+    build_records computes them (E_ref from the env's cube, the largest ``|FIV|``
     of a channel on the outermost sphere)."""
     env = built.envmap
     dirs, omega = env.cube_directions()
