@@ -163,6 +163,16 @@ def interleaved(built, gb, res, k, reps, old_kernels, **params):
     return (med(a, 0), med(a, 1)), (med(b, 0), med(b, 1)), img.read()
 
 
+
+def cases(ctx, a):
+    """(resolution, built, G-buffer, planes, spheres, owners, floor ms) for every
+    --sizes x --spheres pair, the scene built and the floor timed once each."""
+    for size in a.sizes.split(","):
+        res = tuple(int(x) for x in size.split("x"))
+        for n in (int(x) for x in a.spheres.split(",")):
+            built, gb, planes, sph, own = scene(ctx, res, n)
+            yield (res, built, gb, planes, sph, own, floor_ms(built, gb, res))
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default="100x100,160x120")
@@ -178,17 +188,13 @@ def main() -> None:
     rows = []
     if a.no_flat:
         print(f"load {os.getloadavg()[0]:.1f} at the start", flush=True)
-        for size in a.sizes.split(","):
-            res = tuple(int(x) for x in size.split("x"))
-            for n in (int(x) for x in a.spheres.split(",")):
-                built, gb, planes, sph, own = scene(ctx, res, n)
-                fl = floor_ms(built, gb, res)
-                k = Kernel(ctx, built, planes, sph, own)
-                (wa, ca), (wb, cb), img = interleaved(built, gb, res, k, a.reps, a.old_kernels)
-                surf = int((planes["instance"] != 0xFFFFFFFF).sum())
-                rows.append((res, len(sph), surf, ca, cb, wa, wb, fl))
-                print(f"{res} {len(sph)} spheres: old wall {wa:.0f} CPU {ca:.0f} | new wall {wb:.0f} CPU {cb:.0f} | "
-                      f"floor {fl:.3f} ms | load {os.getloadavg()[0]:.1f}", flush=True)
+        for res, built, gb, planes, sph, own, fl in cases(ctx, a):
+            k = Kernel(ctx, built, planes, sph, own)
+            (wa, ca), (wb, cb), img = interleaved(built, gb, res, k, a.reps, a.old_kernels)
+            surf = int((planes["instance"] != 0xFFFFFFFF).sum())
+            rows.append((res, len(sph), surf, ca, cb, wa, wb, fl))
+            print(f"{res} {len(sph)} spheres: old wall {wa:.0f} CPU {ca:.0f} | new wall {wb:.0f} CPU {cb:.0f} | "
+                  f"floor {fl:.3f} ms | load {os.getloadavg()[0]:.1f}", flush=True)
         print("\n| pixels | surface pixels | spheres | CPU ms: old | new | old / new | wall ms: new | floor ms | "
               "new x floor (wall) | new CPU us per surface pixel |")
         print("|---|---|---|---|---|---|---|---|---|---|")
@@ -196,23 +202,19 @@ def main() -> None:
             print(f"| {res[0]} x {res[1]} | {surf} | {n} | {ca:.0f} | {cb:.0f} | {ca / cb:.2f} | {wb:.0f} | {fl:.3f} | "
                   f"{wb / fl:.0f} | {1e3 * cb / surf:.1f} |")
         return
-    for size in a.sizes.split(","):
-        res = tuple(int(x) for x in size.split("x"))
-        for n in (int(x) for x in a.spheres.split(",")):
-            built, gb, planes, sph, own = scene(ctx, res, n)
-            fl = floor_ms(built, gb, res)
-            t_old = c_old = None
-            if a.old_kernels:
-                k = Kernel(ctx, built, planes, sph, own)
-                k.run(kernels=a.old_kernels)
-                runs = [k.run(kernels=a.old_kernels) for _ in range(a.reps)]
-                t_old, c_old = min(r[0] for r in runs), min(r[2] for r in runs)
-            flat, c_flat, img_flat = library_ms(built, gb, res, a.reps, sphere_tree=0)
-            tree, c_tree, img_tree = library_ms(built, gb, res, a.reps, sphere_tree=1)
-            same = bool(np.array_equal(img_flat, img_tree))
-            rows.append((res, len(sph), c_old, c_flat, c_tree, fl, tree, same))
-            print(f"{res} {len(sph)} spheres: wall old {t_old} flat {flat:.1f} tree {tree:.1f} floor {fl:.3f} ms; "
-                  f"CPU old {c_old} flat {c_flat:.1f} tree {c_tree:.1f} ms; same image {same}", flush=True)
+    for res, built, gb, planes, sph, own, fl in cases(ctx, a):
+        t_old = c_old = None
+        if a.old_kernels:
+            k = Kernel(ctx, built, planes, sph, own)
+            k.run(kernels=a.old_kernels)
+            runs = [k.run(kernels=a.old_kernels) for _ in range(a.reps)]
+            t_old, c_old = min(r[0] for r in runs), min(r[2] for r in runs)
+        flat, c_flat, img_flat = library_ms(built, gb, res, a.reps, sphere_tree=0)
+        tree, c_tree, img_tree = library_ms(built, gb, res, a.reps, sphere_tree=1)
+        same = bool(np.array_equal(img_flat, img_tree))
+        rows.append((res, len(sph), c_old, c_flat, c_tree, fl, tree, same))
+        print(f"{res} {len(sph)} spheres: wall old {t_old} flat {flat:.1f} tree {tree:.1f} floor {fl:.3f} ms; "
+              f"CPU old {c_old} flat {c_flat:.1f} tree {c_tree:.1f} ms; same image {same}", flush=True)
     print("\n| pixels | spheres | CPU ms: old kernel | flat | tree | old / tree | wall ms: tree | floor | "
           "tree x floor | same image |")
     print("|---|---|---|---|---|---|---|---|---|---|")
