@@ -1,6 +1,19 @@
 /* Ray casting stage: primary rays into the G-buffer, batched ray queries,
  * and validation of caller-supplied G-buffers (docs/gbuffer.md). */
 #include "common/raytrace.cl"
+#include "common/brdf.cl"
+
+/* A record's material as the G-buffer stores it: (n, alpha, lobe, 0), or for
+ * the Ashikhmin-Shirley lobe (n_u, n_v, 3, tangent angle) with the object's
+ * tangent axis carried to world space by the instance (a tangent vector: the
+ * linear part, not the normal matrix) and measured in the tangent plane of
+ * the stored normal (pn_tangent_angle, docs/brdf.md). */
+inline float4 pn_gbuffer_material(float4 rec, global const float4 *o2w, float3 axis, float3 n)
+{
+    if ((int)rec.z != PN_LOBE_ASHIKHMIN_SHIRLEY)
+        return (float4)(rec.xyz, 0.0f);
+    return (float4)(rec.x, rec.w, rec.z, pn_tangent_angle(n, pn_xform_vector(o2w, axis)));
+}
 
 kernel void gbuffer_primary(PN_SCENE_ARGS, float4 cam_origin, float4 cam_forward, float4 cam_right, float4 cam_up,
                             int width, int height, global float4 *position, global float4 *normal,
@@ -53,7 +66,8 @@ kernel void gbuffer_primary(PN_SCENE_ARGS, float4 cam_origin, float4 cam_forward
     position[idx] = (float4)(org + hit.t * dir, hit.t);
     normal[idx] = (float4)(ns, 0.0f);
     albedo[idx] = inst[PN_INST_ALBEDO];
-    material[idx] = inst[PN_INST_MATERIAL];
+    material[idx] = pn_gbuffer_material(inst[PN_INST_MATERIAL], inst + PN_INST_OBJECT_TO_WORLD,
+                                        inst[PN_INST_TANGENT].xyz, ns);
     instance_id[idx] = offs.w;
 }
 
@@ -102,7 +116,8 @@ kernel void occluded_rays(PN_SCENE_ARGS, global const float4 *rays, int count, g
  * position or normal that is not finite, or a zero normal; [1] an albedo that
  * is NaN, Inf or negative, or k_s outside [0, 1]; [2] a material whose
  * shininess is not finite and >= 0, roughness not in [0, 1], or lobe not one
- * of 0, 1, 2. bad_count[c] counts the pixels of class c, first_bad[c] gets
+ * of 0, 1, 2, 3 (for 3, Ashikhmin-Shirley: n_v in y finite and >= 0 instead
+ * of the roughness, and a finite tangent angle in w). bad_count[c] counts the pixels of class c, first_bad[c] gets
  * the smallest such pixel index (the host names the field from it). */
 kernel void gbuffer_validate(global const float4 *position, global const float4 *normal,
                              global const float4 *albedo, global const float4 *material,
@@ -126,8 +141,9 @@ kernel void gbuffer_validate(global const float4 *position, global const float4 
         atomic_inc(&bad_count[1]);
         atomic_min(&first_bad[1], gid);
     }
-    bool material_ok = m.x >= 0.0f && isfinite(m.x) && m.y >= 0.0f && m.y <= 1.0f &&
-                       (m.z == 0.0f || m.z == 1.0f || m.z == 2.0f);
+    bool aniso = m.z == 3.0f;
+    bool material_ok = m.x >= 0.0f && isfinite(m.x) && m.y >= 0.0f &&
+                       (aniso ? isfinite(m.y) && isfinite(m.w) : m.y <= 1.0f && (m.z == 0.0f || m.z == 1.0f || m.z == 2.0f));
     if (!material_ok) {
         atomic_inc(&bad_count[2]);
         atomic_min(&first_bad[2], gid);

@@ -643,11 +643,11 @@ SPECULAR_POINT, SPECULAR_SEED, SPECULAR_CAP = 0, 1, 2
 
 def specular_average(n, v, d, r, mat, specular: int, cap_samples: int) -> float:
     """a_i per unit k_s: the lobe times the cosine over domain (d, r) by the chosen rule."""
-    from penumbra.brdf import LOBES, lobe as brdf_lobe
+    from penumbra.brdf import lobe as brdf_lobe, lobe_args
 
-    name = LOBES[int(mat[2])]
-    shin, rough = float(mat[0]), float(np.clip(mat[1], 1e-3, 1.0))
-    f = lambda l: float(brdf_lobe(n, v, l, name, shin, rough))  # noqa: E731
+    args = lobe_args(n, mat)
+    name, shin = args["lobe"], args["shininess"]
+    f = lambda l: float(brdf_lobe(n, v, l, **args))  # noqa: E731
     c = float(n @ d)
     refl = 2.0 * (n @ v) * n - v
     if specular == SPECULAR_CAP:
@@ -656,7 +656,7 @@ def specular_average(n, v, d, r, mat, specular: int, cap_samples: int) -> float:
         pts = cap_points(d, r, cap_samples)
         nl = pts @ n
         up = nl > 0
-        vals = brdf_lobe(n, v, pts[up], name, shin, rough) * nl[up] if up.any() else np.zeros(0)
+        vals = brdf_lobe(n, v, pts[up], **args) * nl[up] if up.any() else np.zeros(0)
         return float(np.sum(vals)) / cap_samples
     if specular == SPECULAR_SEED and name == "phong":
         return (shin + 2.0) / (2.0 * math.pi) * float(seed_blend(refl @ d, r, shin)) * c

@@ -14,7 +14,7 @@ from tolerances import BRDF_RTOL, REFERENCE_RTOL
 
 from penumbra import (BACKGROUND, Camera, EnvMap, GBuffer, Image, InputError, Material, Mesh, Renderer, Scene,
                       procedural)
-from penumbra.brdf import brdf
+from penumbra.brdf import brdf, lobe_args
 from penumbra.imageio import read_envmap
 
 LOBE_NAMES = ("phong", "blinn_phong", "ggx")
@@ -177,14 +177,15 @@ def reference64(planes, camera, env, tris, offset=1e-5, lights=(), side=16):
             v = unit(cam - p)
             alb, mat = planes["albedo"][y, x].astype(np.float64), planes["material"][y, x]
             o = p + offset * (scale + np.linalg.norm(p - cam)) * n
-            lobe = LOBE_NAMES[int(mat[2])]
+            args = lobe_args(n, mat)
+            lobe = args.pop("lobe")
 
             def add(d, weight, tmax):
                 cos = d @ n
                 up = cos > 0
                 d, weight, cos = d[up], weight[up], cos[up]
                 t, _, _, _, near = cast(o, d, v0, v1, v2)
-                f = brdf(n, v, d, alb[:3], float(alb[3]), lobe, float(mat[0]), float(np.clip(mat[1], 1e-3, 1)))
+                f = brdf(n, v, d, alb[:3], float(alb[3]), lobe, **args)
                 c = f * weight * cos[:, None]
                 free = t >= tmax[up]
                 lo[y, x] += c[free & ~near].sum(0)

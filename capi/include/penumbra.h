@@ -357,7 +357,8 @@ PN_API pn_status pn_mesh_get_hash(pn_mesh mesh, uint64_t *hash);
 typedef enum pn_lobe {
     PN_LOBE_PHONG = 0,       /* k_s (n+2)/(2pi) cos^n(angle to mirror direction) */
     PN_LOBE_BLINN_PHONG = 1, /* k_s (n+8)/(8pi) cos^n(angle to half vector) */
-    PN_LOBE_GGX = 2          /* k_s * Cook-Torrance with GGX distribution, roughness alpha */
+    PN_LOBE_GGX = 2,         /* k_s * Cook-Torrance with GGX distribution, roughness alpha */
+    PN_LOBE_ASHIKHMIN_SHIRLEY = 3 /* k_s * anisotropic Ashikhmin-Shirley, exponents n_u (shininess), n_v, tangent */
 } pn_lobe;
 
 typedef struct pn_material {
@@ -366,12 +367,15 @@ typedef struct pn_material {
     float shininess;  /* Phong / Blinn-Phong exponent, >= 0 */
     float roughness;  /* GGX alpha in (0, 1] */
     uint32_t lobe;    /* pn_lobe */
+    float shininess_v; /* Ashikhmin-Shirley n_v (shininess is n_u), >= 0; other lobes ignore it */
+    float tangent[3];  /* Ashikhmin-Shirley u axis in the object's frame (transformed with the instance,
+                          projected onto each pixel's tangent plane; docs/brdf.md); nonzero for that lobe */
 } pn_material;
 
-/* "phong", "blinn_phong", "ggx" for the pn_lobe values, NULL beyond them. */
+/* "phong", "blinn_phong", "ggx", "ashikhmin_shirley" for the pn_lobe values, NULL beyond them. */
 PN_API const char *pn_lobe_name(uint32_t lobe);
 
-/* albedo 0.8 grey, no specular, shininess 100, roughness 0.3, Phong. */
+/* albedo 0.8 grey, no specular, shininess 100, roughness 0.3, Phong, shininess_v 100, tangent (1, 0, 0). */
 PN_API pn_material pn_material_default(void);
 
 typedef struct pn_camera {
@@ -452,7 +456,8 @@ PN_API pn_status pn_scene_occluded(pn_scene scene, const float *rays, uint32_t c
  *                     Background: xyz = unit view direction, w = +INFINITY.
  *   NORMAL    float4  unit shading normal facing the camera, w = 0
  *   ALBEDO    float4  diffuse albedo rgb, w = specular k_s
- *   MATERIAL  float4  shininess, roughness, lobe (as float), 0
+ *   MATERIAL  float4  shininess, roughness, lobe (as float), 0; for the Ashikhmin-Shirley lobe
+ *                     n_u, n_v, 3, tangent angle (radians from pn_frame's t towards b, docs/brdf.md)
  *   INSTANCE  uint32  instance id, PN_BACKGROUND for background pixels */
 typedef enum pn_gbuffer_plane {
     PN_GBUFFER_POSITION = 0,

@@ -104,7 +104,7 @@ pn_material pn_material_default(void)
 
 const char *pn_lobe_name(uint32_t lobe)
 {
-    static const char *const names[] = {"phong", "blinn_phong", "ggx"};
+    static const char *const names[] = {"phong", "blinn_phong", "ggx", "ashikhmin_shirley"};
     return lobe < sizeof names / sizeof names[0] ? names[lobe] : NULL;
 }
 

@@ -30,12 +30,13 @@
  * its own copy with any_hit constant (measured: 1.17x on shadow rays). */
 #define PN_TRACE_INLINE inline __attribute__((always_inline))
 
-#define PN_INSTANCE_STRIDE 9
+#define PN_INSTANCE_STRIDE 10
 #define PN_INST_WORLD_TO_OBJECT 0 /* 3 rows, xyz | translation */
 #define PN_INST_OBJECT_TO_WORLD 3 /* 3 rows */
 #define PN_INST_ALBEDO 6          /* rgb, k_s */
-#define PN_INST_MATERIAL 7        /* shininess, roughness, lobe, 0 */
+#define PN_INST_MATERIAL 7        /* shininess, roughness, lobe, shininess_v */
 #define PN_INST_OFFSETS 8         /* uint bits: blas node offset, triangle offset, flags, instance id */
+#define PN_INST_TANGENT 9         /* Ashikhmin-Shirley tangent axis in the object's frame, 0 */
 #define PN_INST_FLAG_NORMALS 1u
 
 typedef struct {

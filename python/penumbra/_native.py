@@ -75,7 +75,8 @@ class _Checked(ctypes.Structure):
 
 class Material(_Checked):
     _fields_ = [("albedo", ctypes.c_float * 3), ("specular", ctypes.c_float), ("shininess", ctypes.c_float),
-                ("roughness", ctypes.c_float), ("lobe", ctypes.c_uint32)]
+                ("roughness", ctypes.c_float), ("lobe", ctypes.c_uint32), ("shininess_v", ctypes.c_float),
+                ("tangent", ctypes.c_float * 3)]
 
 
 class Camera(_Checked):

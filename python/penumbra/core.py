@@ -342,13 +342,18 @@ class Material:
     shininess: float = 100.0
     roughness: float = 0.3
     lobe: str = "phong"
+    shininess_v: float = 100.0  # ashikhmin_shirley: n_v (shininess is n_u)
+    tangent: Sequence[float] = (1.0, 0.0, 0.0)  # ashikhmin_shirley: u axis in the object's frame (docs/brdf.md)
 
     def native(self) -> _native.Material:
         if self.lobe not in LOBES:
             raise InputError(f"unknown lobe '{self.lobe}' (one of {', '.join(LOBES)})")
         albedo = np.broadcast_to(np.asarray(self.albedo, dtype=np.float64), (3,))
+        tangent = np.asarray(self.tangent, dtype=np.float64)
+        if tangent.shape != (3,):
+            raise InputError(f"material tangent must be 3 numbers, got {self.tangent!r}")
         return _native.Material((ctypes.c_float * 3)(*albedo), self.specular, self.shininess, self.roughness,
-                                LOBES.index(self.lobe))
+                                LOBES.index(self.lobe), self.shininess_v, (ctypes.c_float * 3)(*tangent))
 
 
 @dataclass

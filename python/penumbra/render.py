@@ -103,7 +103,8 @@ def build_scene(desc: SceneDescription, ctx: Context) -> BuiltScene:
             cache[key] = Mesh(ctx, v, f, n)
             built.meshes.append(cache[key])
         material = Material(albedo=obj.albedo, specular=obj.specular, shininess=obj.shininess,
-                            roughness=obj.roughness, lobe=obj.lobe)
+                            roughness=obj.roughness, lobe=obj.lobe, shininess_v=obj.shininess_v,
+                            tangent=obj.tangent)
         built.instance_ids[obj.name] = scene.add(cache[key], obj.transform(), material)
         built.object_meshes[obj.name], built.materials[obj.name] = cache[key], material
     for technique in methods.techniques():

@@ -61,6 +61,8 @@ class ObjectDesc:
     shininess: float = 100.0
     roughness: float = 0.3
     lobe: str = "phong"
+    shininess_v: float = 100.0       # ashikhmin_shirley: n_v (shininess is n_u)
+    tangent: tuple[float, float, float] = (1.0, 0.0, 0.0)  # ashikhmin_shirley: u axis, object frame
     occluder: bool | None = None     # casts shadows in the methods that need occluders; None: True for a mesh file
     crease_angle_deg: float = DEFAULT_CREASE_ANGLE_DEG  # smooth normals of geometry that has none; 0: faceted
 
@@ -230,7 +232,7 @@ def _camera(d: dict) -> CameraDesc:
 
 
 _OBJECT_KEYS = {"name", "mesh", "primitive", "params", "translate", "rotate_deg", "scale", "albedo", "specular",
-                "shininess", "roughness", "lobe", "occluder", "crease_angle_deg"}
+                "shininess", "roughness", "lobe", "shininess_v", "tangent", "occluder", "crease_angle_deg"}
 
 
 def _named_entry(d: Any, index: int, array: str, keys: set[str]) -> tuple[str, str]:
@@ -280,6 +282,10 @@ def _object(d: dict, index: int, base: Path) -> ObjectDesc:
     o.shininess = _number(t, "shininess", d.get("shininess", o.shininess), lo=0.0)
     o.roughness = _number(t, "roughness", d.get("roughness", o.roughness), lo=0.0, hi=1.0, lo_open=True)
     o.lobe = _string(t, "lobe", d.get("lobe", o.lobe), LOBES)
+    o.shininess_v = _number(t, "shininess_v", d.get("shininess_v", o.shininess_v), lo=0.0)
+    o.tangent = _vector(t, "tangent", d.get("tangent", o.tangent))
+    if not any(o.tangent):
+        raise InputError(f"{_where(t, 'tangent')} must not be zero (it gives the anisotropic lobe's u direction)")
     o.occluder = _boolean(t, "occluder", d.get("occluder", o.mesh is not None))
     o.crease_angle_deg = _number(t, "crease_angle_deg", d.get("crease_angle_deg", o.crease_angle_deg), lo=0.0, hi=180.0)
     return o

@@ -898,9 +898,10 @@ static void test_scene(pn_context ctx)
     const pn_material def = pn_material_default();
     CHECK("pn_material_default", def.albedo[0] == 0.8f && def.albedo[1] == 0.8f && def.albedo[2] == 0.8f &&
                                      def.specular == 0.0f && def.shininess == 100.0f && def.roughness == 0.3f &&
-                                     def.lobe == PN_LOBE_PHONG);
-    struct { const char *name; pn_material m; } bad[10];
-    for (int i = 0; i < 10; ++i)
+                                     def.lobe == PN_LOBE_PHONG && def.shininess_v == 100.0f &&
+                                     def.tangent[0] == 1.0f && def.tangent[1] == 0.0f && def.tangent[2] == 0.0f);
+    struct { const char *name; pn_material m; } bad[13];
+    for (int i = 0; i < 13; ++i)
         bad[i].m = def;
     bad[0].name = "albedo 1.5";
     bad[0].m.albedo[1] = 1.5f;
@@ -920,9 +921,17 @@ static void test_scene(pn_context ctx)
     bad[7].m.roughness = 0.0f;
     bad[8].name = "roughness 1.5";
     bad[8].m.roughness = 1.5f;
-    bad[9].name = "lobe 3";
-    bad[9].m.lobe = 3;
-    for (int i = 0; i < 10; ++i) {
+    bad[9].name = "lobe 4";
+    bad[9].m.lobe = 4;
+    bad[10].name = "shininess_v -1";
+    bad[10].m.shininess_v = -1.0f;
+    bad[11].name = "Ashikhmin-Shirley tangent 0";
+    bad[11].m.lobe = PN_LOBE_ASHIKHMIN_SHIRLEY;
+    bad[11].m.tangent[0] = 0.0f;
+    bad[12].name = "Ashikhmin-Shirley tangent NaN";
+    bad[12].m.lobe = PN_LOBE_ASHIKHMIN_SHIRLEY;
+    bad[12].m.tangent[1] = NAN;
+    for (int i = 0; i < 13; ++i) {
         char name[96];
         snprintf(name, sizeof name, "material %s (add_instance)", bad[i].name);
         expect_error(name, pn_scene_add_instance(r.scene, r.mesh, NULL, &bad[i].m, &id), PN_ERROR_INVALID_ARGUMENT,
@@ -939,6 +948,11 @@ static void test_scene(pn_context ctx)
     edge.roughness = 1.0f;
     edge.lobe = PN_LOBE_GGX;
     expect_ok("material at the edges of its domain", pn_scene_set_instance_material(r.scene, r.instance, &edge), ctx);
+    edge.lobe = PN_LOBE_ASHIKHMIN_SHIRLEY;
+    edge.shininess_v = 0.0f;
+    edge.tangent[0] = 0.0f, edge.tangent[2] = -1e-10f;
+    expect_ok("Ashikhmin-Shirley with n_v 0 and a tiny tangent", pn_scene_set_instance_material(r.scene, r.instance, &edge),
+              ctx);
     expect_error("set_instance_material unknown id", pn_scene_set_instance_material(r.scene, 77, &def),
                  PN_ERROR_OUT_OF_RANGE, ctx, "77", NULL);
 
@@ -2522,7 +2536,9 @@ static void test_method_metadata(pn_context ctx)
     /* Small rules asked of the library. */
     CHECK("lobe names", !strcmp(pn_lobe_name(PN_LOBE_PHONG), "phong") &&
                             !strcmp(pn_lobe_name(PN_LOBE_BLINN_PHONG), "blinn_phong") &&
-                            !strcmp(pn_lobe_name(PN_LOBE_GGX), "ggx") && pn_lobe_name(3) == NULL);
+                            !strcmp(pn_lobe_name(PN_LOBE_GGX), "ggx") &&
+                            !strcmp(pn_lobe_name(PN_LOBE_ASHIKHMIN_SHIRLEY), "ashikhmin_shirley") &&
+                            pn_lobe_name(4) == NULL);
     const float scaled[12] = {2, 0, 0, 1, 0, 2, 0, 5, 0, 0, 2, -3};
     const float turned[12] = {0, -1, 0, 0, 1, 0, 0, 0, 0, 0, 1, 0};
     const float uneven[12] = {1, 0, 0, 0, 0, 2, 0, 0, 0, 0, 1, 0};

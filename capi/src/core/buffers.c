@@ -102,7 +102,7 @@ pn_status pn_gbuffer_transfer(pn_gbuffer gb, pn_gbuffer_plane plane, void *host,
 }
 
 /* The first field of a pixel's albedo (rgb, k_s) or material (shininess,
- * roughness, lobe) that the validation kernel's rules refuse. */
+ * roughness or n_v, lobe, tangent angle) that the validation kernel's rules refuse. */
 static const char *bad_field(int plane, const float v[4], char *buf, size_t size)
 {
     if (plane == 1) {
@@ -115,12 +115,17 @@ static const char *bad_field(int plane, const float v[4], char *buf, size_t size
         snprintf(buf, size, "specular k_s (albedo.w) = %g (must be in [0, 1])", (double)v[3]);
         return buf;
     }
+    const bool aniso = v[2] == 3.0f;
     if (!(v[0] >= 0.0f && isfinite(v[0])))
         snprintf(buf, size, "shininess (material.x) = %g (must be finite and >= 0)", (double)v[0]);
-    else if (!(v[1] >= 0.0f && v[1] <= 1.0f))
+    else if (aniso && !(v[1] >= 0.0f && isfinite(v[1])))
+        snprintf(buf, size, "shininess n_v (material.y, Ashikhmin-Shirley) = %g (must be finite and >= 0)", (double)v[1]);
+    else if (!aniso && !(v[1] >= 0.0f && v[1] <= 1.0f))
         snprintf(buf, size, "roughness (material.y) = %g (must be in [0, 1])", (double)v[1]);
+    else if (aniso)
+        snprintf(buf, size, "tangent angle (material.w, Ashikhmin-Shirley) = %g (must be finite)", (double)v[3]);
     else
-        snprintf(buf, size, "lobe (material.z) = %g (must be 0, 1 or 2)", (double)v[2]);
+        snprintf(buf, size, "lobe (material.z) = %g (must be 0, 1, 2 or 3)", (double)v[2]);
     return buf;
 }
 

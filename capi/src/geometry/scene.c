@@ -8,7 +8,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define RECORD_FLOATS (9 * 4)
+#define RECORD_FLOATS (10 * 4)
 
 static const float identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
 
@@ -58,7 +58,7 @@ pn_status pn_scene_do_set_envmap(pn_scene scene, pn_envmap env)
 
 pn_material pn_default_material(void)
 {
-    pn_material m = {{0.8f, 0.8f, 0.8f}, 0.0f, 100.0f, 0.3f, PN_LOBE_PHONG};
+    pn_material m = {{0.8f, 0.8f, 0.8f}, 0.0f, 100.0f, 0.3f, PN_LOBE_PHONG, 100.0f, {1.0f, 0.0f, 0.0f}};
     return m;
 }
 
@@ -75,9 +75,20 @@ pn_status pn_validate_material(pn_context ctx, const pn_material *m)
                        (double)m->shininess);
     if (!(m->roughness > 0.0f && m->roughness <= 1.0f))
         return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "material roughness = %g is outside (0, 1]", (double)m->roughness);
-    if (m->lobe > PN_LOBE_GGX)
-        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "material lobe %u is not a pn_lobe (0 Phong, 1 Blinn-Phong, 2 GGX)",
-                       m->lobe);
+    if (m->lobe > PN_LOBE_ASHIKHMIN_SHIRLEY)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                       "material lobe %u is not a pn_lobe (0 Phong, 1 Blinn-Phong, 2 GGX, 3 Ashikhmin-Shirley)", m->lobe);
+    if (!(m->shininess_v >= 0.0f && isfinite(m->shininess_v)))
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "material shininess_v = %g must be finite and >= 0",
+                       (double)m->shininess_v);
+    if (m->lobe == PN_LOBE_ASHIKHMIN_SHIRLEY) {
+        const float *t = m->tangent;
+        const float len2 = t[0] * t[0] + t[1] * t[1] + t[2] * t[2];
+        if (!(isfinite(len2) && len2 > 0.0f))
+            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                           "material tangent = (%g, %g, %g) must be finite and nonzero for the Ashikhmin-Shirley lobe",
+                           (double)t[0], (double)t[1], (double)t[2]);
+    }
     return PN_SUCCESS;
 }
 
@@ -552,9 +563,11 @@ pn_status pn_scene_do_commit(pn_scene scene)
         r[28] = inst->material.shininess;
         r[29] = inst->material.roughness;
         r[30] = (float)inst->material.lobe;
-        r[31] = 0.0f;
+        r[31] = inst->material.shininess_v;
         uint32_t offs[4] = {ms->node_offset, ms->tri_offset, inst->mesh->leaf_normals ? 1u : 0u, inst->id};
         memcpy(r + 32, offs, sizeof offs);
+        memcpy(r + 36, inst->material.tangent, 3 * sizeof(float));
+        r[39] = 0.0f;
     }
     if (!st) {
         const bool wide = ctx->bvh_width == 4;
