@@ -1,7 +1,8 @@
 """Cross-validation of the `reference` method against Mitsuba 3 on real
 scenes (the standard benchmark scenes of bench/scenes at 32x24 pixels, with
 env maps and meshes from ../shared/data): sunny, overcast and indoor light,
-the bunny, a glossy teapot (Phong and GGX through the penumbra BSDF plugin),
+the bunny, a glossy teapot (Phong, GGX and the anisotropic Ashikhmin-Shirley
+lobe through the penumbra BSDF plugin),
 contact shadows, and a spherical light. The requirement is NRMSE <= 0.01
 against a converged Mitsuba render, over the pixels that see geometry."""
 
@@ -35,6 +36,12 @@ CASES = {
     "teapot_overcast_phong": ("teapot_overcast", [], {"face_size": 64}),
     "teapot_overcast_ggx": ("teapot_overcast", ["object.teapot.lobe=ggx", "object.teapot.roughness=0.3",
                                                 "object.teapot.specular=0.4"], {"face_size": 64}),
+    # The anisotropic lobe, stretched across the teapot's vertical axis (its tangent), through the plugin.
+    "teapot_overcast_ashikhmin_shirley": ("teapot_overcast", ["object.teapot.lobe=ashikhmin_shirley",
+                                                              "object.teapot.shininess=8",
+                                                              "object.teapot.shininess_v=120",
+                                                              "object.teapot.tangent=[0,1,0]",
+                                                              "object.teapot.specular=0.4"], {"face_size": 64}),
     "indoor_contact": ("indoor_contact", [], {"face_size": 64, "sun_supersampling": 4}),
     "bunny_blinn_phong_sunny": ("bunny_sunny", ["object.bunny.specular=0.3", "object.bunny.shininess=30",
                                                 "object.bunny.lobe=blinn_phong"],

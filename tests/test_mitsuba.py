@@ -76,20 +76,47 @@ def nrmse(image, ref, mask):
 # --------------------------------------------------------------------------- plugin BSDF
 
 
+def _eval_plugin(props, v, l, frame=None):
+    """The plugin's eval (f N.L) for local directions v, l (N = +z), one at a time."""
+    bsdf = mi.load_dict({"type": pm.PLUGIN_NAME, **props})
+    ctx = mi.BSDFContext()
+    got = np.empty((len(v), 3))
+    for i in range(len(v)):
+        si = mi.SurfaceInteraction3f()
+        if frame is not None:
+            si.sh_frame = frame
+        si.wi = mi.Vector3f(v[i])
+        got[i] = np.array(bsdf.eval(ctx, si, mi.Vector3f(l[i])))
+    return got
+
+
 def _directions(rng, n):
     v = rng.normal(size=(n, 3))
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
-@pytest.mark.parametrize("lobe,shininess,roughness", [("phong", 100.0, 0.3), ("phong", 0.0, 0.3),
-                                                      ("blinn_phong", 50.0, 0.3), ("ggx", 100.0, 0.3),
-                                                      ("ggx", 100.0, 0.05)])
-def test_plugin_eval_matches_numpy_brdf(lobe, shininess, roughness):
+AS_WORLD_TANGENT = np.array([1.0, 0.5, 0.2])
+AS_FRAME_TURN = 0.4  # the shading frame's s axis turned about N: the tangent goes through to_local
+
+
+@pytest.mark.parametrize("lobe,shininess,roughness,shininess_v", [
+    ("phong", 100.0, 0.3, None), ("phong", 0.0, 0.3, None), ("blinn_phong", 50.0, 0.3, None),
+    ("ggx", 100.0, 0.3, None), ("ggx", 100.0, 0.05, None), ("ashikhmin_shirley", 10.0, 0.3, 200.0),
+    ("ashikhmin_shirley", 300.0, 0.3, 3.0), ("ashikhmin_shirley", 0.0, 0.3, 0.0)])
+def test_plugin_eval_matches_numpy_brdf(lobe, shininess, roughness, shininess_v):
     pm.select_variant("scalar_rgb")
     pm.register_plugin()
     albedo, ks = [0.2, 0.5, 0.7], 0.6
-    bsdf = mi.load_dict({"type": pm.PLUGIN_NAME, "albedo": {"type": "rgb", "value": albedo}, "specular": ks,
-                         "lobe": lobe, "shininess": shininess, "roughness": roughness})
+    props = {"albedo": {"type": "rgb", "value": albedo}, "specular": ks, "lobe": lobe, "shininess": shininess,
+             "roughness": roughness}
+    frame, aniso = None, {}
+    if shininess_v is not None:
+        c, s = math.cos(AS_FRAME_TURN), math.sin(AS_FRAME_TURN)
+        frame = mi.Frame3f(mi.Vector3f(c, s, 0.0), mi.Vector3f(-s, c, 0.0), mi.Vector3f(0.0, 0.0, 1.0))
+        props.update(shininess_v=shininess_v, tangent=AS_WORLD_TANGENT.tolist())
+        a = AS_WORLD_TANGENT
+        u = np.array([a[0] * c + a[1] * s, -a[0] * s + a[1] * c, 0.0])  # to local, projected
+        aniso = dict(shininess_v=shininess_v, tangent=u / np.linalg.norm(u))
     rng = np.random.default_rng(7)
     n = 160
     v = _directions(rng, n)  # both hemispheres: the back side must mirror
@@ -97,15 +124,10 @@ def test_plugin_eval_matches_numpy_brdf(lobe, shininess, roughness):
     near = mirror + 0.15 * rng.normal(size=(n, 3)) * rng.random((n, 1))  # around the lobe peaks
     l = np.concatenate([_directions(rng, n // 2), (near / np.linalg.norm(near, axis=1, keepdims=True))[n // 2:]])
     v, l = (x.astype(np.float32).astype(np.float64) for x in (v, l))  # what the plugin sees
-    ctx = mi.BSDFContext()
-    got = np.empty((n, 3))
-    for i in range(n):
-        si = mi.SurfaceInteraction3f()
-        si.wi = mi.Vector3f(v[i])
-        got[i] = np.array(bsdf.eval(ctx, si, mi.Vector3f(l[i])))
+    got = _eval_plugin(props, v, l, frame)
     normal = np.where(v[:, 2:3] < 0, [0.0, 0.0, -1.0], [0.0, 0.0, 1.0])  # the normal faces the viewer
     cos_l = np.maximum(np.sum(normal * l, axis=1), 0.0)[:, None]
-    ref = brdf(normal, v, l, albedo, ks, lobe, shininess, roughness) * cos_l  # Mitsuba's eval includes N.L
+    ref = brdf(normal, v, l, albedo, ks, lobe, shininess, roughness, **aniso) * cos_l  # Mitsuba's eval has N.L
     lit = cos_l[:, 0] > 0
     assert lit.sum() > n // 4 and (~lit).sum() > n // 8
     np.testing.assert_allclose(got[lit], ref[lit], rtol=BSDF_RTOL, atol=0)
@@ -212,7 +234,9 @@ def export_scene(shared_data, **render_extra):
              "specular": 0.4, "lobe": "ggx", "roughness": 0.2, "albedo": [0.3, 0.5, 0.8]},
             {"name": "mirrored ball", "primitive": "sphere", "translate": [1.2, 0.3, 1.0],
              "scale": [-0.3, 0.3, 0.3], "specular": 0.5, "lobe": "phong", "shininess": 40.0},
-            {"name": "bunny", "mesh": str(shared_data / BUNNY), "translate": [0.0, 0.5, 1.2], "scale": 0.5},
+            {"name": "bunny", "mesh": str(shared_data / BUNNY), "translate": [0.0, 0.5, 1.2], "scale": 0.5,
+             "rotate_deg": [0.0, 30.0, 0.0], "specular": 0.3, "lobe": "ashikhmin_shirley", "shininess": 10.0,
+             "shininess_v": 200.0, "tangent": [1.0, 1.0, 0.0]},
         ],
     })
 
@@ -230,6 +254,10 @@ def test_export_loads_and_renders_like_scene_dict(shared_data, tmp_path):
     assert not [p for p in out.rglob("*") if p.name.startswith(".")]  # no temporary files left
     text = (out / "scene.xml").read_text()
     assert 'type="penumbra"' in text and 'name="fov_axis" value="x"' in text
+    # The anisotropic lobe's tangent goes out in world space (the bunny's axis turned by its rotation).
+    bunny = desc.objects[-1]
+    world = bunny.transform()[:3, :3] @ np.array([1.0, 1.0, 0.0])
+    assert f'<vector name="tangent" value="{pm._vec(world)}"/>' in text and 'name="shininess_v"' in text
 
     scene = pm.load_file(out / "scene.xml")
     # Every exported triangle is in the loaded scene. (Not a count of shapes:

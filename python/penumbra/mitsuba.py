@@ -44,6 +44,7 @@ import numpy as np
 from .errors import InputError
 from .fileutil import atomic_write, atomic_write_text
 from .imageio import write_exr
+from .brdf import LOBES
 from .render import environment_latlong, object_geometry
 from .scenefile import CameraDesc, ObjectDesc, SceneDescription
 
@@ -157,7 +158,10 @@ def _make_bsdf_class(variant: str) -> type:
         """f(V, L) = albedo / pi + k_s f_lobe(V, L) for N.L > 0 (docs/brdf.md).
 
         Properties: ``albedo`` (rgb), ``specular`` (float), ``lobe`` (string:
-        phong, blinn_phong, ggx), ``shininess`` (float), ``roughness`` (float).
+        phong, blinn_phong, ggx, ashikhmin_shirley), ``shininess`` (float),
+        ``roughness`` (float), and for ashikhmin_shirley ``shininess_v`` (n_v;
+        ``shininess`` is n_u) and ``tangent`` (vector: the u axis in world
+        space, projected onto the shading frame's tangent plane at each hit).
         """
 
         def __init__(self, props):
@@ -168,26 +172,55 @@ def _make_bsdf_class(variant: str) -> type:
             self.lobe = str(props["lobe"]) if "lobe" in props else "phong"
             self.shininess = float(props["shininess"]) if "shininess" in props else 100.0
             self.roughness = float(props["roughness"]) if "roughness" in props else 0.3
-            if self.lobe not in ("phong", "blinn_phong", "ggx"):
-                raise ValueError(f"penumbra BSDF: unknown lobe {self.lobe!r} (phong, blinn_phong, ggx)")
+            self.shininess_v = float(props["shininess_v"]) if "shininess_v" in props else 100.0
+            tangent = props["tangent"] if "tangent" in props else (1.0, 0.0, 0.0)
+            self.tangent = tuple(float(tangent[i]) for i in range(3))
+            if self.lobe not in LOBES:
+                raise ValueError(f"penumbra BSDF: unknown lobe {self.lobe!r} ({', '.join(LOBES)})")
             if not (all(0.0 <= a <= 1.0 for a in self.albedo_rgb) and 0.0 <= self.specular <= 1.0
-                    and self.shininess >= 0.0 and 0.0 < self.roughness <= 1.0):
+                    and self.shininess >= 0.0 and 0.0 < self.roughness <= 1.0 and self.shininess_v >= 0.0
+                    and all(math.isfinite(t) for t in self.tangent) and any(self.tangent)):
                 raise ValueError(f"penumbra BSDF: parameters out of range: {self.to_string()}")
             self.m_components = [flags_all]
             self.m_flags = flags_all
 
         # f(V, L) (N.L) for local directions (N = +z). A viewer below the
         # surface mirrors both directions: the surface has no back face.
-        def _f_cos(self, wi, wo):
+        def _f_cos(self, si, wo):
+            wi = si.wi
             flip = wi.z < 0.0
             vz = dr.select(flip, -wi.z, wi.z)
             lz = dr.select(flip, -wo.z, wo.z)
             value = mv.Color3f(self.albedo_rgb) * (dr.inv_pi * lz)
             if self.specular > 0.0:  # specular = 0 skips the lobe entirely (docs/brdf.md)
-                value += self.specular * self._lobe_cos(wi.x, wi.y, vz, wo.x, wo.y, lz)
+                value += self.specular * self._lobe_cos(si, wi.x, wi.y, vz, wo.x, wo.y, lz)
             return dr.select(lz > 0.0, value, 0.0)
 
-        def _lobe_cos(self, vx, vy, vz, lx, ly, lz):
+        def _local_tangent(self, si):
+            """(u_x, u_y): the world tangent axis projected onto the shading
+            frame's tangent plane, unit; along the normal, the frame's s axis."""
+            a = si.sh_frame.to_local(mv.Vector3f(self.tangent))
+            length = dr.sqrt(a.x * a.x + a.y * a.y)
+            ok = length > 0.0
+            inv = 1.0 / dr.select(ok, length, 1.0)
+            return dr.select(ok, a.x * inv, 1.0), dr.select(ok, a.y * inv, 0.0)
+
+        def _ashikhmin_shirley_cos(self, si, hx, hy, hz, hn, lx, ly, vz, lz):
+            """docs/brdf.md: sqrt((n_u+1)(n_v+1))/(8 pi) (N.H)^e / ((H.L) max(N.L, N.V)), times N.L."""
+            n_u, n_v = self.shininess, self.shininess_v
+            ux, uy = self._local_tangent(si)
+            inv = 1.0 / dr.select(hn > 0.0, hn, 1.0)
+            hu = dr.select(hn > 0.0, (hx * ux + hy * uy) * inv, 0.0)  # H = N when V + L = 0
+            hw = dr.select(hn > 0.0, (hy * ux - hx * uy) * inv, 0.0)  # w = N x u = (-u_y, u_x, 0)
+            nh = dr.maximum(dr.select(hn > 0.0, hz * inv, 1.0), 0.0)
+            hl = dr.maximum(dr.select(hn > 0.0, (hx * lx + hy * ly + hz * lz) * inv, lz), MIN_COS_VIEW)
+            den = hu * hu + hw * hw
+            e = dr.select(den > 0.0, (n_u * hu * hu + n_v * hw * hw) / dr.select(den > 0.0, den, 1.0), n_u)
+            power = dr.select(e == 0.0, 1.0, dr.power(nh, e))
+            norm = math.sqrt((n_u + 1.0) * (n_v + 1.0)) / (8.0 * math.pi)
+            return norm * power / (hl * dr.maximum(lz, dr.maximum(vz, MIN_COS_VIEW))) * lz
+
+        def _lobe_cos(self, si, vx, vy, vz, lx, ly, lz):
             """f_lobe(V, L) (N.L), with V, L already on the viewer's side."""
             n = self.shininess
             if self.lobe == "phong":
@@ -197,6 +230,8 @@ def _make_bsdf_class(variant: str) -> type:
                 return (n + 2.0) / (2.0 * math.pi) * dr.power(dr.maximum(rl, 0.0), n) * lz
             hx, hy, hz = vx + lx, vy + ly, vz + lz
             hn = dr.sqrt(hx * hx + hy * hy + hz * hz)
+            if self.lobe == "ashikhmin_shirley":
+                return self._ashikhmin_shirley_cos(si, hx, hy, hz, hn, lx, ly, vz, lz)
             nh = dr.maximum(dr.select(hn > 0.0, hz / dr.select(hn > 0.0, hn, 1.0), 1.0), 0.0)
             if self.lobe == "blinn_phong":
                 if n == 0.0:
@@ -235,11 +270,11 @@ def _make_bsdf_class(variant: str) -> type:
                                           else mv.BSDFFlags.DiffuseReflection))
             bs.sampled_component = mv.UInt32(0)
             ok = active & (pdf > 0.0) & self._enabled(ctx)
-            weight = self._f_cos(wi, wo) / dr.select(pdf > 0.0, pdf, 1.0)
+            weight = self._f_cos(si, wo) / dr.select(pdf > 0.0, pdf, 1.0)
             return bs, dr.select(ok, weight, 0.0)
 
         def eval(self, ctx, si, wo, active=True):
-            return dr.select(active & self._enabled(ctx), self._f_cos(si.wi, wo), 0.0)
+            return dr.select(active & self._enabled(ctx), self._f_cos(si, wo), 0.0)
 
         def pdf(self, ctx, si, wo, active=True):
             return dr.select(active & self._enabled(ctx), self._pdf(si.wi, wo), 0.0)
@@ -249,7 +284,8 @@ def _make_bsdf_class(variant: str) -> type:
 
         def to_string(self):
             return (f"PenumbraBSDF[albedo={list(self.albedo_rgb)}, specular={self.specular}, lobe={self.lobe}, "
-                    f"shininess={self.shininess}, roughness={self.roughness}]")
+                    f"shininess={self.shininess}, roughness={self.roughness}, shininess_v={self.shininess_v}, "
+                    f"tangent={list(self.tangent)}]")
 
     return PenumbraBSDF
 
@@ -363,12 +399,22 @@ def _is_plugin_material(obj: ObjectDesc) -> bool:
     return obj.specular > 0.0
 
 
+def _world_tangent(obj: ObjectDesc) -> list[float]:
+    """The anisotropic lobe's tangent axis in world space: the object's axis
+    through the linear part of its transform (a tangent vector), as penumbra's
+    G-buffer carries it (docs/brdf.md)."""
+    return (obj.transform()[:3, :3] @ np.asarray(obj.tangent, np.float64)).tolist()
+
+
 def _bsdf_dict(obj: ObjectDesc) -> dict:
     if not _is_plugin_material(obj):
         return {"type": "twosided", "material": {"type": "diffuse",
                                                  "reflectance": {"type": "rgb", "value": list(obj.albedo)}}}
-    return {"type": PLUGIN_NAME, "albedo": {"type": "rgb", "value": list(obj.albedo)}, "specular": obj.specular,
-            "lobe": obj.lobe, "shininess": obj.shininess, "roughness": obj.roughness}
+    d = {"type": PLUGIN_NAME, "albedo": {"type": "rgb", "value": list(obj.albedo)}, "specular": obj.specular,
+         "lobe": obj.lobe, "shininess": obj.shininess, "roughness": obj.roughness}
+    if obj.lobe == "ashikhmin_shirley":
+        d.update(shininess_v=obj.shininess_v, tangent=_world_tangent(obj))
+    return d
 
 
 @dataclass
@@ -762,6 +808,9 @@ def _bsdf_xml(obj: ObjectDesc) -> list[str]:
             f'            <string name="lobe" value="{obj.lobe}"/>',
             f'            <float name="shininess" value="{_fmt(obj.shininess)}"/>',
             f'            <float name="roughness" value="{_fmt(obj.roughness)}"/>',
+            *([f'            <float name="shininess_v" value="{_fmt(obj.shininess_v)}"/>',
+               f'            <vector name="tangent" value="{_vec(_world_tangent(obj))}"/>']
+              if obj.lobe == "ashikhmin_shirley" else []),
             '        </bsdf>']
 
 
