@@ -264,6 +264,10 @@ inline float dm_cap_lobe(pn_material m, float3 n, float3 v, float3 d, float one_
  * nearest to the reflection direction R against its value at R. */
 inline bool dm_lobe_reaches(pn_material m, float3 n, float3 v, float3 refl, float3 d, float cos_r)
 {
+    /* The anisotropic lobe does not fall off with the distance to R alike in
+     * every direction: the nearest point bounds nothing, sample. */
+    if (m.lobe == PN_LOBE_ASHIKHMIN_SHIRLEY)
+        return true;
     float c = dot(refl, d);
     if (c >= cos_r)
         return true; /* R inside the cap */

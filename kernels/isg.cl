@@ -10,7 +10,8 @@
  * integrated over the BRDF lobe's visible patches (pn_isg_env_specular),
  * where G_cos = G(n, 2.133, 1.170) (the seed's cosine lobe: it only locates
  * the visibility, the unshadowed value is the accurate closed form) and G_brdf
- * is the BRDF lobe as an SG around the mirror direction (pn_brdf_sg, common/sg.cl). V(G) is the visible
+ * is the BRDF lobe as an SG around the mirror direction (pn_brdf_sg, common/sg.cl; the anisotropic
+ * lobe is 7 such SGs, each with its own product, pn_brdf_sgs). V(G) is the visible
  * share of the product lobe: its front hemisphere in the ISG frame, cut to a
  * window of +-PN_ISG_WINDOW_SIGMAS / sqrt(lambda) around the axis (all of it
  * for broad lobes), divided into M x M patches; a patch whose centre direction
@@ -449,18 +450,20 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
     cosine.axis = n;
     cosine.sharpness = PN_ISG_COS_SHARPNESS;
     cosine.amplitude = (float3)(PN_ISG_COS_AMPLITUDE);
-    pn_sg brdf;
-    brdf.sharpness = 0.0f;
+    /* The BRDF as SGs: one, or 7 for the anisotropic lobe (pn_brdf_sgs). */
+    pn_sg brdf[PN_BRDF_MAX_SGS];
+    int brdf_count = 0;
+    brdf[0].sharpness = 0.0f;
     if (m.ks > 0.0f)
-        brdf = pn_brdf_sg(m, n, normalize(camera.xyz - p));
+        brdf_count = pn_brdf_sgs(m, n, normalize(camera.xyz - p), brdf);
     /* A sharp BRDF lobe integrates the env cube on its own patches; a broad one
-     * (whose patches would alias the cube) the SG lobe products. */
-    const bool env_specular = m.ks > 0.0f && brdf.sharpness >= env_sharpness;
+     * (whose patches would alias the cube) the SG lobe products, as do the 7. */
+    const bool env_specular = brdf_count == 1 && brdf[0].sharpness >= env_sharpness;
     /* Inside an occluder every shadowed lobe's V is 0 (pn_isg_mark would find it per lobe). */
     const bool inside = pn_isg_inside(p, n, id, self_occlusion, spheres, owners, sphere_count, nodes, &tree);
     float3 diffuse = (float3)(0.0f), specular = (float3)(0.0f);
     if (env_specular && !(inside && specular_shadows))
-        specular = pn_isg_env_specular(brdf, p, n, id, specular_shadows ? self_occlusion : 0, spheres, owners,
+        specular = pn_isg_env_specular(brdf[0], p, n, id, specular_shadows ? self_occlusion : 0, spheres, owners,
                                        specular_shadows ? sphere_count : 0, nodes, &tree, grid, table, cube, n_cube);
     for (int k = 0; k < lobe_count; ++k) {
         const pn_sg g = pn_sg_load(lobes, k);
@@ -469,9 +472,9 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
             diffuse += e * (inside ? 0.0f
                                    : pn_isg_visibility(pn_sg_product(g, cosine), p, n, id, self_occlusion, spheres,
                                                        owners, sphere_count, nodes, &tree, grid, table));
-        if (m.ks > 0.0f && !env_specular) {
-            const pn_sg gb = pn_sg_product(g, brdf);
-            const float3 s = pn_sg_reflected(g, brdf, n);
+        for (int j = 0; j < (env_specular ? 0 : brdf_count); ++j) {
+            const pn_sg gb = pn_sg_product(g, brdf[j]);
+            const float3 s = pn_sg_reflected(g, brdf[j], n);
             if (s.x > 0.0f || s.y > 0.0f || s.z > 0.0f)
                 specular += s * (!specular_shadows ? 1.0f
                                  : inside          ? 0.0f

@@ -651,7 +651,7 @@ def specular_average(n, v, d, r, mat, specular: int, cap_samples: int) -> float:
     c = float(n @ d)
     refl = 2.0 * (n @ v) * n - v
     if specular == SPECULAR_CAP:
-        if not lobe_reaches(n, v, refl, d, r, f):
+        if name != "ashikhmin_shirley" and not lobe_reaches(n, v, refl, d, r, f):  # anisotropic: always sampled
             return 0.0
         pts = cap_points(d, r, cap_samples)
         nl = pts @ n

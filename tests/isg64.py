@@ -501,6 +501,50 @@ def brdf_sg(n, v, lobe: str, shininess: float = 100.0, roughness: float = 0.3):
     raise ValueError(f"unknown lobe '{lobe}'")
 
 
+# ashikhmin_shirley: 7 SGs (pn_as_sgs, docs/isg.md 6): the half-vector lobe ~ the anisotropic Gaussian
+#                 exp(-(n_u x^2 + n_v y^2) / 2), a row of isotropic SGs along its long axis
+#                 with Gaussian weights, each warped to l like Blinn-Phong, times the lobe's other factors.
+AS_MAX_SGS = 7
+AS_MIN_EXPONENT = 1.0
+
+
+def as_sgs(n, v, n_u: float, n_v: float, tangent):
+    """The SGs [(axis, lam, mu), ...] (7, or 1 for a nearly isotropic lobe) of the
+    Ashikhmin-Shirley f_lobe(v, .) for unit n, v and unit tangent u (3,)."""
+    n, v, u = (np.asarray(x, np.float64) for x in (n, v, tangent))
+    nv = float(n @ v)
+    cv = max(nv, MIN_COS_VIEW)
+    nu, nw = max(n_u, AS_MIN_EXPONENT), max(n_v, AS_MIN_EXPONENT)
+    a = u if nu <= nw else np.cross(n, u)
+    var_t, var_s = 1.0 / min(nu, nw), 1.0 / max(nu, nw)
+    r = math.sqrt(var_t / var_s)
+    var_c = var_s * max(1.0, r / 4.3)
+    s_c, s_w = math.sqrt(var_c), math.sqrt(max(var_t - var_c, 0.0))
+    count = AS_MAX_SGS if s_w > 0.05 * s_c else 1
+    d = min(0.8 * s_w, 2.4 * s_c)
+    x = (np.arange(count) - 0.5 * (count - 1)) * d
+    w = np.exp(-0.5 * x * x / (s_w * s_w)) if count > 1 else np.ones(1)
+    norm = math.sqrt((n_u + 1.0) * (n_v + 1.0)) / (8.0 * math.pi)
+    scale = norm * math.sqrt(var_t * var_s) / (var_c * float(w.sum()))
+    out = []
+    for xk, wk in zip(x, w):
+        h = math.cos(xk) * n + math.sin(xk) * a
+        hv_raw = float(h @ v)
+        hv = max(hv_raw, MIN_COS_VIEW)
+        axis = 2.0 * hv_raw * h - v
+        axis = axis / np.linalg.norm(axis)
+        out.append((axis, 1.0 / var_c / (4.0 * hv), scale * wk / (hv * max(float(n @ axis), cv))))
+    return out
+
+
+def brdf_sgs(n, v, lobe: str, shininess: float = 100.0, roughness: float = 0.3, shininess_v: float = 100.0,
+             tangent=None):
+    """pn_brdf_sgs: the lobe as a list of SGs (one, or the Ashikhmin-Shirley seven)."""
+    if lobe == "ashikhmin_shirley":
+        return as_sgs(n, v, shininess, shininess_v, tangent)
+    return [brdf_sg(n, v, lobe, shininess, roughness)]
+
+
 def sg_reflected(light_axis, light_lam, n, brdf_lobe) -> float:
     """int G_light(l) G_f(l) max(n.l, 0) dl for a unit-amplitude light lobe: the product lobe's
     clamped-cosine integral by the closed form (what the shading does per light lobe)."""
@@ -510,12 +554,16 @@ def sg_reflected(light_axis, light_lam, n, brdf_lobe) -> float:
 
 
 def reflected_exact(light_axis, light_lam, n, v, lobe: str, shininess=100.0, roughness=0.3, nodes=24,
-                    n_beta=512) -> float:
+                    n_beta=512, shininess_v=100.0, tangent=None) -> float:
     """int G_light(l) f_lobe(v, l) max(n.l, 0) dl by quadrature (f_lobe: penumbra.brdf, docs/brdf.md),
-    on a rule graded around the axis of the light x SG-lobe product (where the integrand lives)."""
+    on a rule graded around the axis of the light x SG-lobe product (where the integrand lives; for
+    the Ashikhmin-Shirley lobe its widest component and the light, at the width of the sharper)."""
     from penumbra import brdf as b
 
-    axis, lam, _ = brdf_sg(n, v, lobe, shininess, roughness)
+    lobes = brdf_sgs(n, v, lobe, shininess, roughness, shininess_v, tangent)
+    axis, lam, _ = lobes[len(lobes) // 2]
+    if len(lobes) > 1:
+        lam = min(x[1] for x in lobes) / 9.0  # the row spans several widths: grade around a wider lobe
     pa, pl, _ = sg_product(np.asarray(light_axis, np.float64), light_lam, 1.0, axis, lam, 1.0)
     pa = pa / np.linalg.norm(pa)
     width = 1.0 / max(float(pl), 1e-3)
@@ -529,6 +577,7 @@ def reflected_exact(light_axis, light_lam, n, v, lobe: str, shininess=100.0, rou
     d = (u[:, None, None] * pa + (s[:, None] * np.cos(beta))[..., None] * e1
          + (s[:, None] * np.sin(beta))[..., None] * e2).reshape(-1, 3)
     w = (wu[:, None] * np.full(n_beta, TWO_PI / n_beta)).ravel()
-    f = b.lobe(np.asarray(n, np.float64), np.asarray(v, np.float64), d, lobe, shininess, roughness)
+    f = b.lobe(np.asarray(n, np.float64), np.asarray(v, np.float64), d, lobe, shininess, roughness, shininess_v,
+               tangent)
     g = sg(d, light_axis, light_lam)
     return float(np.sum(w * g * f * np.maximum(d @ np.asarray(n, np.float64), 0.0)))

@@ -14,12 +14,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from isg64 import HALF_PI, isg_exact_grid, sg_cosine_exact, sg_hemisphere_integral, sg_product
+from isg64 import HALF_PI, as_sgs, isg_exact_grid, sg_cosine_exact, sg_hemisphere_integral, sg_product
 
 WINDOW_SIGMAS = 3.0
 TOUCH = 1e-3
 COS_SHARPNESS, COS_AMPLITUDE = 2.133, 1.170
-LOBE_PHONG, LOBE_BLINN_PHONG, LOBE_GGX = 0, 1, 2
+LOBE_PHONG, LOBE_BLINN_PHONG, LOBE_GGX, LOBE_ASHIKHMIN_SHIRLEY = 0, 1, 2, 3
 MIN_COS_VIEW = 1e-4
 
 
@@ -106,6 +106,15 @@ def brdf_sg(n, view, shininess, roughness, lobe):
     return r, 2.0 / (a2 * 4.0 * nv), g1c(nv) * g1c(nl) * 0.25 / (math.pi * a2)
 
 
+def brdf_sgs(n, view, material):
+    """pn_brdf_sgs: [(axis, sharpness, amplitude)], material (shininess, roughness, lobe) or the
+    G-buffer's (n_u, n_v, 3, tangent angle) for the anisotropic lobe's 7 SGs."""
+    if int(material[2]) == LOBE_ASHIKHMIN_SHIRLEY:
+        from penumbra.brdf import tangent_from_angle
+        return as_sgs(n, view, material[0], material[1], tangent_from_angle(n, material[3]))
+    return [brdf_sg(n, view, *material[:3])]
+
+
 def cube_face(d) -> int:
     """The face pn_dir_to_cube picks for direction d (+x, -x, +y, -y, +z, -z)."""
     ax, ay, az = abs(d[0]), abs(d[1]), abs(d[2])
@@ -151,8 +160,9 @@ def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, g
     env_path = False
     if ks > 0:
         view = np.asarray(camera, np.float64) - p
-        b_axis, b_lam, b_mu = brdf_sg(n, view / np.linalg.norm(view), *material)
-        env_path = b_lam >= env_sharpness
+        sgs = brdf_sgs(n, view / np.linalg.norm(view), material)
+        b_axis, b_lam, b_mu = sgs[0]
+        env_path = len(sgs) == 1 and b_lam >= env_sharpness
         if env_path:
             specular = env_specular(b_axis, b_lam, b_mu, p, n, self_id, self_occlusion if specular_shadows else 0,
                                     spheres if specular_shadows else [], owners, grid, face_rgb)
@@ -162,7 +172,7 @@ def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, g
         if (e > 0).any():
             m_axis, m_lam, _ = sg_product(axis, lam, 1.0, n, COS_SHARPNESS, COS_AMPLITUDE)
             diffuse += e * visibility(m_axis, float(m_lam), p, n, self_id, self_occlusion, spheres, owners, grid)
-        if ks > 0 and not env_path:
+        for b_axis, b_lam, b_mu in (sgs if ks > 0 and not env_path else []):
             g_axis, g_lam, g_mu = sg_product(axis, lam, 1.0, b_axis, b_lam, b_mu)
             s = irradiance(g_axis, float(g_lam), mu * g_mu, n)
             if (s > 0).any():

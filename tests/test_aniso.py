@@ -308,3 +308,37 @@ def test_white_furnace_matches_quadrature(ctx, n_u, n_v):
         assert got[y, x] == pytest.approx(want, rel=0.01), (y, x, theta, phi)
         checked += 1
     assert checked == 5
+
+
+# --------------------------------------------------------------------------- depthmap with the lobe
+
+
+@pytest.mark.parametrize("specular", [0, 2])
+def test_depthmap_shades_the_lobe_like_float64(ctx, specular):
+    """`depthmap` evaluates the lobe through pn_brdf_lobe (point or cap quadrature,
+    every cap sampled: the anisotropic lobe is never culled by its distance to R)."""
+    import depthmap64 as d64
+    from test_depthmap import domains_of, render as dm_render
+    from tolerances import DEPTHMAP_DEPTH_ATOL, DEPTHMAP_SHADE_RTOL
+
+    sky = procedural.sky(64, 32)
+    env = EnvMap(ctx, sky, face_size=16)
+    objects = [
+        (procedural.plane((4.0, 4.0)), xform(), _as_material(shininess=5.0, shininess_v=300.0, tangent=(1.0, 0.0, 1.0))),
+        (procedural.box((0.8, 0.8, 0.8)), xform(rotation((0, 1, 0), 0.5), (0.0, 0.4, 0.0)), _as_material()),
+    ]
+    camera = Camera(position=(1.5, 2.5, 4.0), look_at=(0.0, 0.3, 0.0), fov_deg=50.0, resolution=(24, 18))
+    scene, tris, keep = make_scene(ctx, objects, env, camera)
+    gb, planes = gbuffer_of(ctx, scene, camera)
+    domains = domains_of(sky, 16)
+    got, r = dm_render(ctx, scene, gb, domains, resolution=64, specular=specular)
+    frames = r.read_output(scene, "map_frames", 0).astype(np.float64)
+    maps = np.stack([r.read_output(scene, "depth_map", 0, i) for i in range(len(domains))]).astype(np.float64)
+    lo, hi = d64.shade(planes, camera.position, domains, frames, maps,
+                       margin=DEPTHMAP_DEPTH_ATOL * frames[:, 14].max(), bias=1.0, slope_bias=1.0, pcf=0,
+                       specular=specular, cap_samples=16)
+    fg = planes["instance"] != BACKGROUND
+    scale = np.maximum(hi, 1e-3)
+    got = got[..., :3]
+    ok = (got >= lo - DEPTHMAP_SHADE_RTOL * scale) & (got <= hi + DEPTHMAP_SHADE_RTOL * scale)
+    assert ok[fg].all(), f"{(~ok[fg]).sum()} values off"

@@ -64,7 +64,7 @@ def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=
     pos = f4([[*q["p"], 1.0] for q in pixels])
     nrm = f4([[*unit(q["n"]), 0.0] for q in pixels])
     alb = f4([[*q["albedo"], q["ks"]] for q in pixels])
-    mat = f4([[*q["material"], 0.0] for q in pixels])
+    mat = f4([[*q["material"], 0.0][:4] for q in pixels])  # (n_u, n_v, 3, tangent angle) is 4 long already
     ids = np.array([q["id"] for q in pixels], np.uint32)
     mf = cl.mem_flags
     ro = lambda a: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a)  # noqa: E731

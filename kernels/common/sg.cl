@@ -46,6 +46,8 @@
  *   pn_sg  pn_brdf_sg(pn_material m, float3 n, float3 v)   the specular lobe f_lobe(v, l) ~ G(l), without
  *          k_s, white amplitude (Phong: axis R, lambda = n; Blinn-Phong and GGX: the half-vector lobe warped
  *          to l as in Wang et al. 2009, GGX with its masking and 1 / (4 n.l n.v) at the warped axis)
+ *   int    pn_brdf_sgs(pn_material m, float3 n, float3 v, pn_sg *out)   the lobe as 1 SG (pn_brdf_sg) or,
+ *          Ashikhmin-Shirley, as up to PN_BRDF_MAX_SGS = 7 SGs (pn_as_sgs; docs/isg.md 6): returns the count
  *   float3 pn_sg_reflected(pn_sg light, pn_sg lobe, float3 n)  int light(l) lobe(l) max(n.l, 0) dl
  *          (the product lobe's clamped-cosine integral); the diffuse term is pn_sg_irradiance * albedo / pi
  */
@@ -232,6 +234,67 @@ inline pn_sg pn_brdf_sg(pn_material m, float3 n, float3 v)
         g.amplitude = (float3)(PN_INV_PI / a2 * pn_ggx_g1_over_c(cv, a2) * pn_ggx_g1_over_c(nl, a2) * 0.25f);
     }
     return g;
+}
+
+/* The anisotropic Ashikhmin-Shirley lobe as 7 SGs (docs/isg.md 6). Its
+ * half-vector distribution (N.H)^e is, to second order at H = N, the
+ * anisotropic Gaussian exp(-(n_u x^2 + n_v y^2) / 2) in the tangent-plane
+ * coordinates x = H.u, y = H.w: widths s_t = 1/sqrt(n_long) along the long
+ * axis a (u when n_u <= n_v, else w) and s_s = 1/sqrt(n_short) across it.
+ * Seven isotropic SGs of width s_c >= s_s on a row along a, spaced by d,
+ * weighted by a Gaussian of variance s_t^2 - s_c^2 (the convolution of the
+ * two has variance s_t^2), sum to it; the scale keeps its integral
+ * 2 pi s_t s_s. s_c = s_s max(1, sqrt(r / 4.3)) and d = min(0.8 s_w, 2.4 s_c),
+ * r = s_t / s_s, are the fitted rules of docs/isg.md 6. Each half-vector SG
+ * is warped to l like Blinn-Phong's (axis the mirror of v about its centre
+ * h_k, sharpness / (4 h_k.v)), times the lobe's other factors
+ * sqrt((n_u+1)(n_v+1)) / (8 pi (H.L) max(N.L, N.V)) at h_k. A nearly
+ * isotropic lobe (s_w <= 0.05 s_c) is one SG. Exponents below
+ * PN_AS_SG_MIN_EXPONENT are taken as it: the Gaussian model needs a peak. */
+#define PN_BRDF_MAX_SGS 7
+#define PN_AS_SG_MIN_EXPONENT 1.0f
+
+inline int pn_as_sgs(pn_material m, float3 n, float3 v, pn_sg *out)
+{
+    const float nv = dot(n, v), cv = fmax(nv, PN_MIN_COS_VIEW);
+    float3 t, b;
+    pn_frame(n, &t, &b);
+    const float3 u = m.tangent.x * t + m.tangent.y * b;
+    const float nu = fmax(m.shininess, PN_AS_SG_MIN_EXPONENT), nw = fmax(m.shininess_v, PN_AS_SG_MIN_EXPONENT);
+    const float3 a = nu <= nw ? u : cross(n, u);
+    const float var_t = 1.0f / fmin(nu, nw), var_s = 1.0f / fmax(nu, nw);
+    const float r = sqrt(var_t / var_s);
+    const float var_c = var_s * fmax(1.0f, r / 4.3f);
+    const float s_c = sqrt(var_c), s_w = sqrt(fmax(var_t - var_c, 0.0f));
+    const int count = s_w > 0.05f * s_c ? PN_BRDF_MAX_SGS : 1;
+    const float d = fmin(0.8f * s_w, 2.4f * s_c);
+    const float norm = sqrt((m.shininess + 1.0f) * (m.shininess_v + 1.0f)) * (0.125f * PN_INV_PI);
+    float weights[PN_BRDF_MAX_SGS], total = 0.0f;
+    for (int k = 0; k < count; ++k) {
+        const float x = (k - 0.5f * (count - 1)) * d;
+        weights[k] = count == 1 ? 1.0f : exp(-0.5f * x * x / (s_w * s_w));
+        total += weights[k];
+    }
+    const float scale = norm * sqrt(var_t * var_s) / (var_c * total);
+    for (int k = 0; k < count; ++k) {
+        const float x = (k - 0.5f * (count - 1)) * d;
+        float cx;
+        const float sx = sincos(x, &cx);
+        const float3 h = cx * n + sx * a;
+        const float hv_raw = dot(h, v), hv = fmax(hv_raw, PN_MIN_COS_VIEW);
+        out[k].axis = normalize(2.0f * hv_raw * h - v);
+        out[k].sharpness = 1.0f / var_c / (4.0f * hv);
+        out[k].amplitude = (float3)(scale * weights[k] / (hv * fmax(dot(n, out[k].axis), cv)));
+    }
+    return count;
+}
+
+inline int pn_brdf_sgs(pn_material m, float3 n, float3 v, pn_sg *out)
+{
+    if (m.lobe == PN_LOBE_ASHIKHMIN_SHIRLEY)
+        return pn_as_sgs(m, n, v, out);
+    out[0] = pn_brdf_sg(m, n, v);
+    return 1;
 }
 
 inline float3 pn_sg_reflected(pn_sg light, pn_sg lobe, float3 n)
