@@ -342,3 +342,19 @@ def test_depthmap_shades_the_lobe_like_float64(ctx, specular):
     got = got[..., :3]
     ok = (got >= lo - DEPTHMAP_SHADE_RTOL * scale) & (got <= hi + DEPTHMAP_SHADE_RTOL * scale)
     assert ok[fg].all(), f"{(~ok[fg]).sum()} values off"
+
+
+# --------------------------------------------------------------------------- scene files
+
+
+def test_scene_file_keys_of_the_lobe():
+    from penumbra.scenefile import parse_scene
+    base = {"name": "pot", "primitive": "sphere", "specular": 0.5, "lobe": AS, "shininess": 8.0}
+    desc = parse_scene({"object": [dict(base, shininess_v=120.0, tangent=[0.0, 2.0, 0.0])]})
+    o = desc.objects[0]
+    assert (o.lobe, o.shininess, o.shininess_v, o.tangent) == (AS, 8.0, 120.0, (0.0, 2.0, 0.0))
+    assert parse_scene({"object": [base]}).objects[0].tangent == (1.0, 0.0, 0.0)
+    with pytest.raises(InputError, match="tangent.*must not be zero"):
+        parse_scene({"object": [dict(base, tangent=[0, 0, 0])]})
+    with pytest.raises(InputError, match="shininess_v"):
+        parse_scene({"object": [dict(base, shininess_v=-2.0)]})
