@@ -133,7 +133,9 @@ def test_fiv_options_come_from_the_metadata():
 
 
 def test_lobe_names_are_the_librarys():
-    assert LOBES == _native.lobes() == ("phong", "blinn_phong", "ggx")
+    assert LOBES == _native.lobes() == ("phong", "blinn_phong", "ggx", "ashikhmin_shirley")
+    from penumbra.brdf import LOBES as FLOAT64_LOBES
+    assert FLOAT64_LOBES == LOBES  # the float64 model knows every lobe, in the same order
 
 
 def test_uniform_scale_is_the_librarys_test():
