@@ -10,36 +10,24 @@ import numpy as np
 import pyopencl as cl
 import pytest
 from geometry64 import rotation, unit
-from test_reference import gbuffer_of, make_scene, reference64, shade, xform
+from test_reference import BRDF_SOURCE, gbuffer_of, make_scene, random_unit, reference64, shade, xform
 from tolerances import BRDF_RTOL, REFERENCE_RTOL
 
 from penumbra import BACKGROUND, Camera, EnvMap, GBuffer, InputError, Material, procedural
-from penumbra.brdf import (ashikhmin_shirley, brdf, frame, lobe_args, tangent_angle,
-                           tangent_from_angle)
+from penumbra.brdf import ashikhmin_shirley, brdf, frame, tangent_angle, tangent_from_angle
 
 AS = "ashikhmin_shirley"
 AS_INDEX = 3
 EXPONENTS = [(1.0, 1.0), (10.0, 100.0), (100.0, 10.0), (0.0, 50.0), (1000.0, 50.0), (0.0, 0.0)]
 
-KERNEL_SOURCE = """
-#include "common/brdf.cl"
-kernel void eval(global const float4 *n, global const float4 *v, global const float4 *l,
-                 global const float4 *albedo, global const float4 *material, global float4 *out)
-{
-    int i = get_global_id(0);
-    pn_material m = pn_material_from_gbuffer(albedo[i], material[i]);
-    out[i] = (float4)(pn_brdf(m, n[i].xyz, v[i].xyz, l[i].xyz), 0.0f);
-}
+# The BRDF kernel of test_reference, and the tangent angle.
+KERNEL_SOURCE = BRDF_SOURCE + """
 kernel void angle(global const float4 *n, global const float4 *a, global float *out)
 {
     int i = get_global_id(0);
     out[i] = pn_tangent_angle(n[i].xyz, a[i].xyz);
 }
 """
-
-
-def random_unit(rng, count):
-    return unit(rng.normal(size=(count, 3)))
 
 
 def _buffers(ctx, *arrays):
@@ -324,7 +312,8 @@ def test_depthmap_shades_the_lobe_like_float64(ctx, specular):
     sky = procedural.sky(64, 32)
     env = EnvMap(ctx, sky, face_size=16)
     objects = [
-        (procedural.plane((4.0, 4.0)), xform(), _as_material(shininess=5.0, shininess_v=300.0, tangent=(1.0, 0.0, 1.0))),
+        (procedural.plane((4.0, 4.0)), xform(),
+         _as_material(shininess=5.0, shininess_v=300.0, tangent=(1.0, 0.0, 1.0))),
         (procedural.box((0.8, 0.8, 0.8)), xform(rotation((0, 1, 0), 0.5), (0.0, 0.4, 0.0)), _as_material()),
     ]
     camera = Camera(position=(1.5, 2.5, 4.0), look_at=(0.0, 0.3, 0.0), fov_deg=50.0, resolution=(24, 18))
