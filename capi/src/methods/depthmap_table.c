@@ -1,9 +1,9 @@
 /* The tabulated exact cap average of the `depthmap` method (docs/depthmap.md,
  * "Tabulated exact cap averages"), built once per context in float64 on the
  * host and read by kernels/depthmap.cl's dm_cap_ratio (specular 3). Its
- * float64 twin is tests/depthmap64.py's cap_table() (the same grid, built
- * independently with numpy; tests/test_depthmap.py compares both with the
- * exact average).
+ * float64 twin is tests/depthmap64.py's cap_ratio() (the exact average by the
+ * twin's own quadrature, no table); tests/test_depthmap.py compares the
+ * renderer's interpolated values with it.
  *
  * For a cap of angular radius r whose centre is psi_c from the lobe's axis R
  * and the lobe max(0, cos psi)^n (psi from R), the table holds
