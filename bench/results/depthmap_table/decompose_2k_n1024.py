@@ -1,0 +1,13 @@
+import os, sys, time
+sys.path.insert(0, "bench")
+import env_domains_experiments as e
+import numpy as np, penumbra
+ctx = penumbra.Context()
+base = e.load(e.TIME_MAP, False)
+big = np.repeat(np.repeat(base, 2, axis=0), 2, axis=1)
+e.timed_decompose(ctx, base, 4, 1)
+print("load", os.getloadavg(), flush=True)
+one = e.timed_decompose(ctx, big, 1024, 1)
+print(f"2k N=1024 one iteration {one:.2f} s load {os.getloadavg()}", flush=True)
+full = e.timed_decompose(ctx, big, 1024)
+print(f"2k N=1024 full {full:.2f} s load {os.getloadavg()}", flush=True)
