@@ -1,7 +1,13 @@
-import os, sys, time
+"""2k (the 1k map repeated 2 x 2) at N = 1024 alone, as env_domains_experiments.py `time` does it (run from the repo root)."""
+import os
+import sys
+
 sys.path.insert(0, "bench")
-import env_domains_experiments as e
-import numpy as np, penumbra
+import env_domains_experiments as e  # noqa: E402
+import numpy as np  # noqa: E402
+
+import penumbra  # noqa: E402
+
 ctx = penumbra.Context()
 base = e.load(e.TIME_MAP, False)
 big = np.repeat(np.repeat(base, 2, axis=0), 2, axis=1)
