@@ -4,7 +4,8 @@
  * map along d_i, rendered every frame, and a pixel's outgoing radiance is
  *   L_o = sum_i v_i L~_i (rho/pi max(0, n.d_i) + k_s a_i)
  * with v_i the depth-map visibility and a_i the lobe's average over the
- * domain (a point sample, the seed's Phong blend, or a cap quadrature).
+ * domain (a point sample, the seed's Phong blend, a cap quadrature or the
+ * table of exact cap averages).
  * float64 twin: tests/depthmap64.py (shade, rasterise).
  *
  * A map's frame is DM_FRAME float4 (host: methods/depthmap.c, fit_frames):
@@ -26,6 +27,14 @@
 #define DM_SPECULAR_POINT 0
 #define DM_SPECULAR_SEED 1
 #define DM_SPECULAR_CAP 2
+#define DM_SPECULAR_TABLE 3
+
+/* The table of exact cap averages (capi/src/methods/depthmap_table.[ch], PN_DM_TABLE_*). */
+#define DM_TABLE_R 48
+#define DM_TABLE_D 64
+#define DM_TABLE_N 32
+#define DM_TABLE_N_MAX 1e6f
+#define DM_TABLE_SPREAD 4.0f
 
 /* Clears every map to empty and the rasteriser's list of large triangles. */
 kernel void depthmap_clear(global uint *depth, int count, global uint *large_count)
@@ -260,6 +269,64 @@ inline float dm_cap_lobe(pn_material m, float3 n, float3 v, float3 d, float one_
     return sum / (float)samples;
 }
 
+inline float dm_edge_t(float delta) { return delta / (fabs(delta) + DM_TABLE_SPREAD); }
+
+/* H(r, psi_c, n): the exact average of max(0, cos psi)^n (psi from the
+ * lobe's axis R) over a cap of radius r whose centre is psi_c from R, over
+ * its value at the cap's point nearest R; trilinear in the table's grid
+ * (depthmap_table.c: x from r / sigma, y from the signed distance to the
+ * cap's edge in lobe widths sigma = 1 / sqrt(n + 1), z = log n). */
+inline float dm_cap_ratio(global const float *table, float r, float psi_c, float n)
+{
+    float sigma = rsqrt(n + 1.0f);
+    float t0 = dm_edge_t(-r / sigma), t1 = dm_edge_t(M_PI_2_F / sigma);
+    float x = clamp(log1p(r / sigma) / log1p(M_PI_F / sigma), 0.0f, 1.0f) * (float)(DM_TABLE_R - 1);
+    float y = clamp((dm_edge_t((psi_c - r) / sigma) - t0) / (t1 - t0), 0.0f, 1.0f) * (float)(DM_TABLE_D - 1);
+    float z = clamp(log(n) / log(DM_TABLE_N_MAX), 0.0f, 1.0f) * (float)(DM_TABLE_N - 1);
+    int i = min((int)x, DM_TABLE_R - 2), j = min((int)y, DM_TABLE_D - 2), k = min((int)z, DM_TABLE_N - 2);
+    float ax = x - (float)i, ay = y - (float)j, az = z - (float)k;
+    float w = 0.0f;
+    for (int dk = 0; dk < 2; ++dk)
+        for (int dj = 0; dj < 2; ++dj) {
+            global const float *row = table + ((k + dk) * DM_TABLE_D + j + dj) * DM_TABLE_R + i;
+            w += (dk ? az : 1.0f - az) * (dj ? ay : 1.0f - ay) * mix(row[0], row[1], ax);
+        }
+    float s = sin(0.5f * r);
+    return w / (1.0f + (n + 1.0f) * 2.0f * s * s); /* the table stores H (1 + (n + 1)(1 - cos r)) */
+}
+
+/* The lobe times the cosine averaged over the cap (d, r) by the table: the
+ * lobe as a Phong lobe around R of the equivalent exponent n_eq (Phong: n;
+ * Blinn-Phong: n / 4, the half angle; GGX: 1 / (2 alpha^2), the Gaussian of
+ * the same integral), its cap average over its value at the cap's point l
+ * nearest R (R itself when inside) times the true lobe and cosine at l.
+ * Exact for Phong but for the cosine, taken at l. Returns -1 for the
+ * anisotropic lobe and when n_eq is below min_n (at least 1, the table's range): the caller uses the quadrature. */
+inline float dm_table_lobe(global const float *table, pn_material m, float3 n, float3 v, float3 refl, float3 d,
+                           float r, float min_n)
+{
+    /* The anisotropic lobe has no equivalent exponent: the quadrature samples it. */
+    if (m.lobe == PN_LOBE_ASHIKHMIN_SHIRLEY)
+        return -1.0f;
+    float n_eq = m.lobe == PN_LOBE_PHONG         ? m.shininess
+                 : m.lobe == PN_LOBE_BLINN_PHONG ? 0.25f * m.shininess
+                                                 : 0.5f / (m.roughness * m.roughness);
+    if (!(n_eq >= fmax(min_n, 1.0f)))
+        return -1.0f;
+    float c = dot(refl, d);
+    float3 side = refl - c * d;
+    float sl = length(side);
+    float psi_c = atan2(sl, c); /* accurate near 0, unlike acos */
+    float3 l = refl;
+    if (psi_c > r)
+        l = cos(r) * d + sin(r) * (side / sl); /* psi_c > r >= 0: sl > 0 */
+    float nl = dot(n, l);
+    if (!(nl > 0.0f))
+        return 0.0f;
+    float f = pn_brdf_lobe(m, n, v, l, nl) * nl;
+    return f > 0.0f ? f * dm_cap_ratio(table, r, psi_c, n_eq) : 0.0f;
+}
+
 /* Whether any of the lobe can reach the cap: the lobe at the cap's point
  * nearest to the reflection direction R against its value at R. */
 inline bool dm_lobe_reaches(pn_material m, float3 n, float3 v, float3 refl, float3 d, float cos_r)
@@ -295,7 +362,8 @@ kernel void shade_depthmap(global const float4 *position, global const float4 *n
                            global const float4 *domains, int domain_count, global const float4 *frames,
                            global const uint *depth, int res, int use_maps, float bias_constant, float bias_slope,
                            int pcf, int specular, int cap_samples, global float4 *image,
-                           global const ushort *depth16, int half_maps)
+                           global const ushort *depth16, int half_maps, global const float *cap_table,
+                           float table_min_n)
 {
     int gid = get_global_id(0);
     if (gid >= count)
@@ -332,8 +400,12 @@ kernel void shade_depthmap(global const float4 *position, global const float4 *n
         }
         float a = 0.0f; /* the lobe's average times the cosine, per unit k_s */
         if (spec) {
-            if (specular == DM_SPECULAR_CAP) {
+            a = specular == DM_SPECULAR_TABLE ? dm_table_lobe(cap_table, m, n, v, refl, d, rad.w, table_min_n) : -1.0f;
+            if (a >= 0.0f) {
+                /* the table's value */
+            } else if (specular >= DM_SPECULAR_CAP) { /* the quadrature, and the table's broad lobes */
                 float cos_r = cos(rad.w);
+                a = 0.0f;
                 if (dm_lobe_reaches(m, n, v, refl, d, cos_r))
                     a = dm_cap_lobe(m, n, v, d, 1.0f - cos_r, cap_samples);
             } else if (specular == DM_SPECULAR_SEED && m.lobe == PN_LOBE_PHONG) {

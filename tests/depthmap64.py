@@ -42,6 +42,7 @@ weighted squared chord distance).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -346,10 +347,15 @@ def irradiance_error(tex: Texels, dom: Domains, normals: np.ndarray, cap: bool =
 # --------------------------------------------------------------------------- Phong average reflectivity
 
 
+@functools.lru_cache(maxsize=None)
+def _leggauss(nodes: int):
+    return np.polynomial.legendre.leggauss(nodes)  # an eigenproblem: tens of ms at 400 nodes
+
+
 def _gl_mapped(a: float, b: float, nodes: int):
     """Gauss-Legendre nodes/weights on [a, b] after x = a + (b - a)(1 - cos(pi s))/2,
     which turns sqrt-type end-point behaviour into smooth behaviour in s."""
-    t, w = np.polynomial.legendre.leggauss(nodes)
+    t, w = _leggauss(nodes)
     s = 0.5 * (t + 1.0)
     x = a + (b - a) * 0.5 * (1.0 - np.cos(np.pi * s))
     return x, w * 0.5 * (b - a) * 0.5 * np.pi * np.sin(np.pi * s)
@@ -638,10 +644,60 @@ def lobe_reaches(n, v, refl, d, r, lobe_fn) -> bool:
     return lobe_fn(near) * nl >= LOBE_CULL * lobe_fn(refl) * nr
 
 
-SPECULAR_POINT, SPECULAR_SEED, SPECULAR_CAP = 0, 1, 2
+SPECULAR_POINT, SPECULAR_SEED, SPECULAR_CAP, SPECULAR_TABLE = 0, 1, 2, 3
+TABLE_MIN_EXPONENT = 32.0  # the renderer's table_min_exponent default
 
 
-def specular_average(n, v, d, r, mat, specular: int, cap_samples: int) -> float:
+def equivalent_exponent(name: str, shininess: float, roughness: float) -> float:
+    """dm_table_lobe's n_eq: the Phong exponent standing for the lobe around R."""
+    if name == "phong":
+        return shininess
+    if name == "blinn_phong":
+        return 0.25 * shininess  # cos^n of the half angle ~ cos^(n/4) of the angle to R
+    return 0.5 / roughness ** 2  # the Gaussian with GGX's integral (its peak's curvature gives 1 / alpha^2)
+
+
+def nearest_cap_point(refl, d, r: float):
+    """(psi_c, l): R's angle to the cap centre and the cap's point nearest R (R when inside)."""
+    c = float(refl @ d)
+    side = refl - c * d
+    sl = float(np.linalg.norm(side))
+    psi_c = math.atan2(sl, c)
+    if psi_c <= r:
+        return psi_c, refl
+    return psi_c, math.cos(r) * d + math.sin(r) * side / sl
+
+
+def cap_ratio(psi_c: float, r: float, n: float, nodes: int = 400) -> float:
+    """The table's H (capi/src/methods/depthmap_table.c) by the exact cap average:
+    A(psi_c, r, n) over cos^n of the angle from R to the cap's nearest point."""
+    if r <= 0.0:
+        return 1.0
+    g = max(psi_c - r, 0.0)
+    if g >= 0.5 * math.pi:
+        return 0.0
+    return phong_cap_average(math.cos(psi_c), r, n, nodes) / math.cos(g) ** n
+
+
+def table_average(n, v, d, r, name, shin, rough, f, nodes: int = 400,
+                  min_n: float = TABLE_MIN_EXPONENT) -> float | None:
+    """The float64 value the table approximates (dm_table_lobe with the exact
+    H instead of the interpolated one); None when n_eq is below the table's range."""
+    if name == "ashikhmin_shirley":
+        return None  # anisotropic: no equivalent exponent, the quadrature samples it
+    n_eq = equivalent_exponent(name, shin, rough)
+    if not n_eq >= max(min_n, 1.0):
+        return None
+    refl = 2.0 * (n @ v) * n - v
+    psi_c, l = nearest_cap_point(refl, d, r)
+    nl = float(n @ l)
+    if not nl > 0:
+        return 0.0
+    return f(l) * nl * cap_ratio(psi_c, r, n_eq, nodes)
+
+
+def specular_average(n, v, d, r, mat, specular: int, cap_samples: int,
+                     table_min_exponent: float = TABLE_MIN_EXPONENT) -> float:
     """a_i per unit k_s: the lobe times the cosine over domain (d, r) by the chosen rule."""
     from penumbra.brdf import lobe as brdf_lobe, lobe_args
 
@@ -650,7 +706,11 @@ def specular_average(n, v, d, r, mat, specular: int, cap_samples: int) -> float:
     f = lambda l: float(brdf_lobe(n, v, l, **args))  # noqa: E731
     c = float(n @ d)
     refl = 2.0 * (n @ v) * n - v
-    if specular == SPECULAR_CAP:
+    if specular == SPECULAR_TABLE:
+        a = table_average(n, v, d, r, name, shin, args.get("roughness", 1.0), f, min_n=table_min_exponent)
+        if a is not None:
+            return a
+    if specular >= SPECULAR_CAP:
         if name != "ashikhmin_shirley" and not lobe_reaches(n, v, refl, d, r, f):  # anisotropic: always sampled
             return 0.0
         pts = cap_points(d, r, cap_samples)

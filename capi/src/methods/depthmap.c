@@ -8,6 +8,7 @@
  * domains change) and the map buffers sized. Execute: the map frames from
  * the instances' boxes (host, uploaded without waiting), the maps (clear and
  * rasterise, or ray cast) and the shading kernel, all enqueued. */
+#include "methods/depthmap_table.h"
 #include "methods/method.h"
 
 #include <math.h>
@@ -19,9 +20,11 @@
 #define DM_LARGE_CAPACITY (1u << 20) /* (map, triangle) entries of the rasteriser's large-triangle list */
 #define DM_LARGE_GROUPS 256          /* work-groups of depthmap_raster_large */
 #define SKIP_POWER_DEFAULT 0.01      /* skip_power's default (docs/depthmap.md, measured) */
+#define TABLE_MIN_EXPONENT_DEFAULT 32 /* below it the cap quadrature is closer (docs/depthmap.md, measured) */
 
 enum { P_BACKGROUND, P_DIRECTIONS, P_SEED, P_RESOLUTION, P_MAP_RENDERER, P_BIAS, P_SLOPE_BIAS, P_PCF, P_SPECULAR,
-       P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS, P_SKIP_POWER, P_HALF_MAPS, P_FIT };
+       P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS, P_SKIP_POWER, P_HALF_MAPS, P_FIT,
+       P_TABLE_MIN_EXPONENT };
 
 static const pn_param_desc params[] = {
     PN_PARAM_BACKGROUND,
@@ -39,10 +42,11 @@ static const pn_param_desc params[] = {
      "Depth bias per unit tan(angle to the normal), times sqrt(2) pcf + 1, in texels (tan capped at 32)."},
     {"pcf", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 4, "texels",
      "Percentage-closer filter radius: (2 pcf + 1)^2 depth comparisons per lookup."},
-    {"specular", PN_PARAM_INT, PN_PARAM_FRAME, 2, 0, 2, "",
+    {"specular", PN_PARAM_INT, PN_PARAM_FRAME, 3, 0, 3, "",
      "Lobe over a domain: 0 point sample at its centre, 1 the seed's average-reflectivity blend (Phong; others "
-     "point), 2 cap quadrature (every lobe)."},
-    {"cap_samples", PN_PARAM_INT, PN_PARAM_FRAME, 16, 1, 256, "", "Points of the cap quadrature (specular 2)."},
+     "point), 2 cap quadrature (every lobe), 3 the table of exact cap averages (every lobe; docs/depthmap.md)."},
+    {"cap_samples", PN_PARAM_INT, PN_PARAM_FRAME, 16, 1, 256, "",
+     "Points of the cap quadrature (specular 2; with 3, for lobes broader than the table's)."},
     {"visibility", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "", "1: depth-map shadows, 0: every domain unoccluded."},
     {"reuse_maps", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
      "1: keep the maps of the previous frame (nothing moved); the first frame draws them anyway."},
@@ -55,6 +59,9 @@ static const pn_param_desc params[] = {
     {"fit", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
      "What a map's footprint covers: 0 every instance's box, 1 only where a shadow can fall (every non-flat "
      "instance, and a flat one where something lies behind it; docs/depthmap.md)."},
+    {"table_min_exponent", PN_PARAM_FLOAT, PN_PARAM_FRAME, TABLE_MIN_EXPONENT_DEFAULT, 1, 1e6, "",
+     "specular 3: lobes of this equivalent Phong exponent and sharper use the table, broader ones the cap "
+     "quadrature (docs/depthmap.md, measured)."},
 };
 
 enum { OUT_DOMAINS, OUT_FRAMES, OUT_DEPTH };
@@ -843,24 +850,31 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
             !(st = pn_enqueue_1d(ctx, k, "depthmap_pack16", (size_t)drawn * s->res * s->res, 64)))
             s->packed = true;
     }
+    cl_mem table = NULL; /* the kernel reads it only with specular 3; any buffer stands in otherwise */
+    if (!st && (int)r->params[P_SPECULAR] == 3)
+        st = pn_depthmap_cap_table(ctx, &table);
     if (st || (st = pn_context_kernel(ctx, "depthmap", "shade_depthmap", &k)))
         return st;
+    if (!table)
+        table = s->device_domains;
     const cl_int count = (cl_int)(gb->width * gb->height), domains = (cl_int)s->domain_count;
     const cl_int res = (cl_int)s->res, use_maps = maps ? 1 : 0, pcf = (cl_int)r->params[P_PCF];
     const cl_float bias = (cl_float)r->params[P_BIAS], slope = (cl_float)r->params[P_SLOPE_BIAS];
     const cl_int specular = (cl_int)r->params[P_SPECULAR], samples = (cl_int)r->params[P_CAP_SAMPLES];
+    const cl_float table_min = (cl_float)r->params[P_TABLE_MIN_EXPONENT];
     const cl_float4 camera = pn_scene_camera_position(scene);
     const size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem),
                             sizeof count, sizeof camera, sizeof(cl_mem), sizeof domains, sizeof(cl_mem),
                             sizeof(cl_mem), sizeof res, sizeof use_maps, sizeof bias, sizeof slope, sizeof pcf,
-                            sizeof specular, sizeof samples, sizeof(cl_mem), sizeof(cl_mem), sizeof half};
+                            sizeof specular, sizeof samples, sizeof(cl_mem), sizeof(cl_mem), sizeof half,
+                            sizeof(cl_mem), sizeof table_min};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &camera, &s->device_domains, &domains,
                           &s->frames, s->supplied_count ? &s->supplied_depth : &s->depth, &res, &use_maps,
                           &bias, &slope, &pcf, &specular, &samples, &image->buffer,
-                          half ? &s->depth16 : &s->depth, &half};
-    if ((st = pn_set_args(ctx, k, "shade_depthmap", 21, sizes, vals)))
+                          half ? &s->depth16 : &s->depth, &half, &table, &table_min};
+    if ((st = pn_set_args(ctx, k, "shade_depthmap", 23, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_depthmap", (size_t)count, 64);
 }

@@ -122,12 +122,13 @@ class Depthmap(Technique):
         raise InputError(f"method {NAME} has no output '{output}' (outputs: domains, map_frames, depth_map)")
 
     def sweep(self) -> list[dict]:
-        # Directions and map resolution from the cheapest up to the defaults and beyond, and the defaults
-        # before the shadow-footprint fit (fit 0, 256^2) for comparison (docs/depthmap.md).
+        # Directions and map resolution from the cheapest up to the defaults and beyond; the cap quadrature
+        # (specular 2, the default before the table of cap averages) at 64^2 and at the defaults, for
+        # comparison (docs/depthmap.md).
         return [{"directions": 16, "resolution": 64}, {"directions": 32, "resolution": 64},
                 {"directions": 64, "resolution": 64}, {"directions": 128, "resolution": 64}, {"directions": 32},
-                {}, {"directions": 128}, {"directions": 128, "resolution": 256},
-                {"fit": 0, "resolution": 256}]
+                {}, {"directions": 128}, {"directions": 32, "resolution": 64, "specular": 2},
+                {"directions": 64, "resolution": 64, "specular": 2}, {"specular": 2}]
 
 
 TECHNIQUE = Depthmap(NAME)
