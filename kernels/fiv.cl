@@ -63,6 +63,31 @@ inline bool pn_fiv_sample(global const uchar *fields, uint offset, int half_prec
     return !isnan(a.s0); /* samples inside the geometry are NaN */
 }
 
+/* ln x for finite x > 0, to 3 ulp (float64 check: tests/test_fiv.py).
+ * The built-in log, a library call PoCL does not inline, was half the time
+ * of a lookup's index math (docs/performance.md, FIV); this is a handful of
+ * FMAs and one divide: x = m 2^e with m in [sqrt(1/2), sqrt(2)),
+ * ln m = 2 atanh(s), s = (m - 1) / (m + 1), |s| < 0.172, by its series to s^9
+ * (truncation below 1e-9). Subnormal x read as ~ -87.3 + ln of their
+ * mantissa bits: far below any radius of a field, so clamped like them. */
+inline float pn_fiv_ln(float x)
+{
+    int bits = as_int(x);
+    int e = (bits >> 23) - 127;
+    float m = as_float((bits & 0x007fffff) | 0x3f800000); /* [1, 2) */
+    bool big = m > 1.41421356f;
+    m = big ? 0.5f * m : m;
+    e = big ? e + 1 : e;
+    float f = m - 1.0f;
+    float s = f / (2.0f + f), s2 = s * s;
+    float p = 0.11111111f;
+    p = p * s2 + 0.14285715f;
+    p = p * s2 + 0.2f;
+    p = p * s2 + 0.33333334f;
+    p = p * s2 + 1.0f;
+    return (float)e * 0.693147180559945f + 2.0f * s * p;
+}
+
 /* Adds weight w times sample (k, i, j) to acc when the sample is valid. */
 inline void pn_fiv_add(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k, int i, int j,
                        float w, pn_fiv3 *acc, float *wsum)
@@ -110,7 +135,7 @@ inline bool pn_fiv_lookup(global const float4 *occ, global const uchar *fields, 
         phi += PN_TWO_PI;
     float fi = theta * (float)(n_theta - 1) * PN_INV_PI;
     float fj = phi * (float)n_phi * PN_INV_TWO_PI;
-    float fk = rho > 0.0f ? log(rho / rho_min) / log_ratio * (float)(n_rho - 1) : 0.0f;
+    float fk = rho > 0.0f ? pn_fiv_ln(rho / rho_min) / log_ratio * (float)(n_rho - 1) : 0.0f;
     float falloff = 1.0f;
     if (fk > (float)(n_rho - 1)) {
         float rho_max = occ[3].w; /* from the record: no exp per lookup beyond the grid */
