@@ -30,7 +30,8 @@ from pathlib import Path
 
 VARIANTS = {"floor": ("floor", {}),
             "unshadowed": ("unshadowed", {}), "unshadowed_nobg": ("unshadowed", {"background": 0}),
-            "fiv": ("fiv", {}), "fiv_nobg": ("fiv", {"background": 0})}
+            "fiv": ("fiv", {}), "fiv_nobg": ("fiv", {"background": 0}),
+            "fiv_sum_nobg": ("fiv", {"overlap": 0, "background": 0})}
 
 
 def measure(occluders: int, resolution: int, rounds: int, out: Path) -> dict:
