@@ -34,8 +34,10 @@ VARIANTS = {"floor": ("floor", {}),
             "fiv_sum_nobg": ("fiv", {"overlap": 0, "background": 0})}
 
 
-def measure(occluders: int, resolution: int, rounds: int, out: Path) -> dict:
-    """ms of every variant, per round (round-robin, first round dropped)."""
+def measure(occluders: int, resolution: int, rounds: int, out: Path, build_options=("",)) -> dict:
+    """ms of every variant, per round (round-robin, first round dropped); with
+    several ``build_options`` (kernel build switches, e.g. -DPN_FIV_PROFILE=1)
+    every variant runs under each of them in turn, keyed "variant[options]"."""
     from penumbra import data as test_data
     from penumbra.bench import scene_toml
     from penumbra.core import Context, GBuffer, Image, Renderer
@@ -54,24 +56,27 @@ def measure(occluders: int, resolution: int, rounds: int, out: Path) -> dict:
     path.write_text(scene_toml(fiv_scaling_scene(occluders, rel(data / SCALING_MESH), rel(data / SCALING_ENV),
                                                  resolution, cache=rel(out.parent / "fiv_scaling" / "cache" / "fiv")),
                                f"fiv speed: {occluders} bunnies (bench/fiv_speed.py)"))
-    built = build_scene(load_scene(path), Context())
-    attach_fields(built)
-    ctx = built.ctx
-    gb, img = GBuffer(ctx, resolution, resolution), Image(ctx, resolution, resolution)
-    built.scene.render_gbuffer(gb)
-    ctx.finish()
-    renderers = {k: Renderer(ctx, m, **kw) for k, (m, kw) in VARIANTS.items()}
-    times = {k: [] for k in VARIANTS}
+    runs = {}
+    for opts in build_options:
+        built = build_scene(load_scene(path), Context(f"build_options={opts}") if opts else Context())
+        attach_fields(built)
+        ctx = built.ctx
+        gb, img = GBuffer(ctx, resolution, resolution), Image(ctx, resolution, resolution)
+        built.scene.render_gbuffer(gb)
+        ctx.finish()
+        for k, (m, kw) in VARIANTS.items():
+            runs[f"{k}[{opts}]" if len(build_options) > 1 else k] = (built, gb, img, Renderer(ctx, m, **kw))
+    times = {k: [] for k in runs}
     for r in range(rounds + 1):
-        for k, rd in renderers.items():
-            t = _timed(lambda: rd.execute(built.scene, gb, img), ctx)
+        for k, (built, gb, img, rd) in runs.items():
+            t = _timed(lambda: rd.execute(built.scene, gb, img), built.ctx)
             if r:
                 times[k].append(t)
     return times
 
 
 def table(times: dict) -> list[str]:
-    floor = statistics.median(times["floor"])
+    floor = statistics.median(next(t for k, t in times.items() if k.startswith("floor")))
     return [f"  {k:<16} {statistics.median(t):8.3f} ms  {statistics.median(t) / floor:6.2f}x floor" for k, t in
             times.items()]
 
@@ -84,15 +89,21 @@ def main() -> None:
     ap.add_argument("--against", help="folder holding another build's penumbra package (A/B by subprocesses)")
     ap.add_argument("--out", default="bench/results/fiv_speed")
     ap.add_argument("--json", help="write the results here")
+    ap.add_argument("--variants", help="comma-separated subset of " + ", ".join(VARIANTS))
+    ap.add_argument("--build-options", action="append", default=None,
+                    help="kernel build switches; give it twice or more to time the builds against each other")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     out = Path(args.out)
+    if args.variants:
+        for k in set(VARIANTS) - set(args.variants.split(",")):
+            del VARIANTS[k]
     if args.child:
         print(json.dumps(measure(args.occluders, args.resolution, args.rounds, out)))
         return
     load = [round(os.getloadavg()[0], 2)]
     if not args.against:
-        times = measure(args.occluders, args.resolution, args.rounds, out)
+        times = measure(args.occluders, args.resolution, args.rounds, out, tuple(args.build_options or ("",)))
         load.append(round(os.getloadavg()[0], 2))
         print(f"{args.occluders} occluder(s), {args.resolution}^2, median of {args.rounds} rounds, load {load}")
         print("\n".join(table(times)))

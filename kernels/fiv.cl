@@ -39,11 +39,15 @@
 #define PN_OVERLAP_DISC 1
 #define PN_OVERLAP_MULTIPLY 2
 
+/* The lookup's helpers are forced inline: PoCL left pn_fiv_lookup and
+ * pn_fiv_shell as calls, passing the accumulators through the stack. */
+#define PN_FIV_INLINE inline __attribute__((always_inline))
+
 typedef struct {
     float3 x, y, z;
 } pn_fiv3;
 
-inline bool pn_fiv_sample(global const uchar *fields, uint offset, int half_precision, int index, pn_fiv3 *s)
+PN_FIV_INLINE bool pn_fiv_sample(global const uchar *fields, uint offset, int half_precision, int index, pn_fiv3 *s)
 {
     /* One 8-wide load and one scalar: X rgb, Y rgb, Z rg | Z b. */
     float8 a;
@@ -89,7 +93,7 @@ inline float pn_fiv_ln(float x)
 }
 
 /* Adds weight w times sample (k, i, j) to acc when the sample is valid. */
-inline void pn_fiv_add(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k, int i, int j,
+PN_FIV_INLINE void pn_fiv_add(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k, int i, int j,
                        float w, pn_fiv3 *acc, float *wsum)
 {
     pn_fiv3 s;
@@ -102,7 +106,7 @@ inline void pn_fiv_add(global const uchar *fields, uint offset, int hp, int n_th
 }
 
 /* Bilinear (theta, phi) interpolation on sphere k with total weight wk. */
-inline void pn_fiv_shell(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k, float wk,
+PN_FIV_INLINE void pn_fiv_shell(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k, float wk,
                          int i0, float ti, int j0, int j1, float tj, pn_fiv3 *acc, float *wsum)
 {
     pn_fiv_add(fields, offset, hp, n_theta, n_phi, k, i0, j0, wk * (1.0f - ti) * (1.0f - tj), acc, wsum);
@@ -117,8 +121,8 @@ inline void pn_fiv_shell(global const uchar *fields, uint offset, int hp, int n_
  * renormalised; with none valid, the nearest sphere farther out that has
  * one. Inside rho_min: the innermost sphere. Beyond rho_max: the outermost
  * sphere times the solid-angle fall-off (rho_max / rho)^2. */
-inline bool pn_fiv_lookup(global const float4 *occ, global const uchar *fields, float3 v_world, int trilinear,
-                          pn_fiv3 *out)
+PN_FIV_INLINE bool pn_fiv_lookup(global const float4 *occ, global const uchar *fields, float3 v_world, int trilinear,
+                                 float cull_floor, pn_fiv3 *out)
 {
     float inv_scale = occ[1].x, rho_min = occ[1].y, log_ratio = occ[1].z;
     uint offset = as_uint(occ[2].x);
@@ -141,6 +145,16 @@ inline bool pn_fiv_lookup(global const float4 *occ, global const uchar *fields, 
         float rho_max = occ[3].w; /* from the record: no exp per lookup beyond the grid */
         falloff = (rho_max / rho) * (rho_max / rho);
         fk = (float)(n_rho - 1);
+        /* Culling per direction: beyond the grid only the 4 outer-sphere
+         * samples of this (theta, phi) cell take part; their largest |FIV|
+         * (capi/src/methods/fiv.c, cell_bounds, stored after the samples)
+         * times the fall-off bounds N . FIV. Under a sun that bound is large
+         * only in the cells between the occluder and the sun. */
+        size_t samples = (size_t)n_rho * n_theta * n_phi * PN_FIV_FLOATS * (hp ? 2 : 4);
+        global const float *bound = (global const float *)(fields + offset + ((samples + 15) & ~(size_t)15));
+        int ci = min((int)fi, n_theta - 2), cj = min((int)fj, n_phi - 1);
+        if (bound[ci * n_phi + cj] * falloff < cull_floor)
+            return false;
     }
     fk = fmax(fk, 0.0f);
 #if PN_FIV_PROFILE == 2
@@ -242,7 +256,8 @@ kernel void bin_fiv_tiles(global const float4 *position, global const uint *inst
 kernel void shade_fiv(global const float4 *position, global const float4 *normal, global const float4 *albedo,
                       global const uint *instance_id, int count, global const float4 *irradiance, int m,
                       global const float4 *occluders,
-                      int occluder_count, global const uchar *fields, float4 env_x, float4 env_y, float4 env_z,
+                      int occluder_count, global const uchar *fields, float cull_floor, float4 env_x, float4 env_y,
+                      float4 env_z,
                       int overlap, int partial, int self_shadow, int trilinear, int width, int binned,
                       global const uint *tile_masks, global float4 *image)
 {
@@ -271,7 +286,7 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
         pn_fiv3 f;
         if (as_uint(occ[3].x) != id)
             continue;
-        if (pn_fiv_lookup(occ, fields, occ[0].xyz - p, trilinear, &f)) {
+        if (pn_fiv_lookup(occ, fields, occ[0].xyz - p, trilinear, 0.0f, &f)) {
             /* A sample off the surface also sees unoccluded light behind
              * the receiver plane, which the fullsphere sum subtracts: the
              * estimate errs low, never above the unoccluded irradiance. */
@@ -281,8 +296,12 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
         break; /* one field per instance */
     }
     int words = (occluder_count + 31) / 32;
-    int tile = (gid / width / PN_FIV_TILE) * ((width + PN_FIV_TILE - 1) / PN_FIV_TILE) + (gid % width) / PN_FIV_TILE;
-    global const uint *mask = binned ? tile_masks + (size_t)tile * words : tile_masks;
+    global const uint *mask = tile_masks;
+    if (binned) { /* one integer division, and none unbinned: three cost a third of unshadowed */
+        int y = gid / width, x = gid - y * width;
+        int tile = (y / PN_FIV_TILE) * ((width + PN_FIV_TILE - 1) / PN_FIV_TILE) + x / PN_FIV_TILE;
+        mask += (size_t)tile * words;
+    }
     for (int w = 0; w < words; ++w) {
         /* The occluders of this pixel's tile (all of them unbinned), in order. */
         int left = occluder_count - 32 * w;
@@ -305,7 +324,7 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
 #if PN_FIV_PROFILE == 1
             f.x = f.y = f.z = (float3)(occ[3].z * 1e-3f);
 #else
-            if (!pn_fiv_lookup(occ, fields, v, trilinear, &f))
+            if (!pn_fiv_lookup(occ, fields, v, trilinear, cull_floor, &f))
                 continue;
 #endif
             /* An occluder only removes light. */

@@ -19,8 +19,8 @@ import struct
 
 import numpy as np
 import pytest
-from fiv64 import (bake_samples, direction, distance_to_mesh, env_records, env_vectors, grid_points, make_occluder,
-                   shade, traced_rays, winding_number)
+from fiv64 import (bake_samples, direction, distance_to_mesh, env_records, env_vectors, grid_points, lookup,
+                   make_occluder, shade, traced_rays, winding_number)
 from geometry64 import cast, unit
 from tolerances import (FIV_BAKE_ATOL, FIV_CONTINUITY_ATOL, FIV_FALLOFF_RTOL, FIV_MONOTONE_ATOL,
                         FIV_OVERLAP_INCREASE_MAX, FIV_SCALED_INSTANCE_ATOL, FIV_SHADE_ATOL, IRRADIANCE_RTOL)
@@ -361,8 +361,9 @@ def test_self_shadow_never_brightens(shade_scene):
 @pytest.mark.parametrize("threshold", [1e-3, 1e-2, 0.1])
 def test_culling_matches_twin_and_its_bound(ctx, env, meshes, fields, threshold):
     """Spheres 1 to 64 units (2 to 130 radii) from the receivers: the kernel
-    culls exactly where the twin does, and what culling drops is below
-    threshold x E_ref per culled occluder (in irradiance)."""
+    culls exactly where the twin does (by distance and per direction), and
+    what culling drops at a pixel is below threshold x E_ref per occluder
+    culled there (in irradiance)."""
     rng = np.random.default_rng(5)
     pos, nrm, inst = plane_receivers(rng, max_tilt_deg=30.0, extent=(1.0, 1.0))
     placements = (((0.0, 1.0, 0.0), 1.0), ((15.0, 2.0, 5.0), 1.0), ((-30.0, 3.0, 10.0), 2.0), ((20.0, 5.0, -60.0), 1.0))
@@ -374,15 +375,30 @@ def test_culling_matches_twin_and_its_bound(ctx, env, meshes, fields, threshold)
     err = np.abs(got - want).max(axis=1)
     assert not ((err > FIV_SHADE_ATOL * scale) & ~fragile).any()
     full = s.render(overlap=0, cull_threshold=0.0)[s.fg][:, :3]
-    dropped = (got - full).max()
+    dropped = (got - full).max(axis=1)
     assert (got - full).min() >= 0
-    culled = sum(1 for o in s.occluders(threshold) if np.linalg.norm(o.centre) > o.cull)
-    assert dropped * np.pi <= culled * threshold * s.env_ref * (1 + 1e-5) + 1e-6
+    # Occluders culled at each pixel: beyond the culling distance, or beyond
+    # the grid in a direction whose cell bound is below the floor.
+    p = s.pos[s.fg][:, :3]
+    per_pixel = np.zeros(len(p), int)
+    by_direction = 0
+    for o in s.occluders(threshold):
+        v = o.centre[None, :] - p
+        far = np.linalg.norm(v, axis=1) > o.cull
+        _, ok_all, _ = lookup(o, v, cull=False)
+        _, ok, _ = lookup(o, v)
+        per_pixel += far | (ok_all & ~ok)
+        by_direction += (~far & ok_all & ~ok).sum()
+    assert (dropped * np.pi <= per_pixel * threshold * s.env_ref * (1 + 1e-5) + 1e-6).all()
     # The sun makes the outer spheres' largest |FIV| large: cull distances are
-    # about 130, 41 and 13 here, so 0, 1 and 3 occluders are culled.
+    # about 130, 41 and 13 here, so 0, 1 and 3 occluders are culled by distance.
+    culled = sum(1 for o in s.occluders(threshold) if np.linalg.norm(o.centre) > o.cull)
     assert culled == {1e-3: 0, 1e-2: 1, 0.1: 3}[threshold]
-    if culled:
-        assert dropped > 0
+    # Away from the sun's direction the bound is far smaller: per direction,
+    # occluders within their culling distance are culled too (at 0.1 only
+    # the nearest sphere is left, all of its pixels inside its grid).
+    assert (by_direction > 0) == (threshold < 0.1)
+    assert dropped.max() > 0
 
 
 def test_tile_culling_changes_no_pixel(ctx, env, meshes, fields):

@@ -74,8 +74,39 @@ static pn_status collect_fields(state *s, pn_scene scene)
     return PN_SUCCESS;
 }
 
+/* Cells of the outermost sphere's (theta, phi) grid: (n_theta - 1) x n_phi. */
+static size_t cell_bound_count(const struct pn_fiv_impl *f)
+{
+    return (size_t)(f->options.theta - 1) * f->options.phi;
+}
+
+/* The culling bound per direction: for each cell of the outermost sphere,
+ * the largest |FIV| of a channel over its 4 corner samples (NaN ones left
+ * out), widened by 1e-5 against rounding. Beyond the grid a lookup
+ * interpolates only those 4 samples (renormalised), so its N . FIV is at
+ * most this times the fall-off (kernels/fiv.cl, pn_fiv_lookup). */
+static void cell_bounds(const struct pn_fiv_impl *f, float *out)
+{
+    const uint32_t nt = f->options.theta, np = f->options.phi;
+    const float *outer = f->samples + (size_t)(f->options.radii - 1) * nt * np * 9u;
+    for (uint32_t i = 0; i + 1 < nt; ++i)
+        for (uint32_t j = 0; j < np; ++j) {
+            float largest = 0.0f;
+            for (uint32_t c = 0; c < 4; ++c) {
+                const float *v = outer + ((size_t)(i + c / 2) * np + (j + c % 2) % np) * 9u;
+                for (int ch = 0; ch < 3; ++ch) {
+                    float norm = sqrtf(v[ch] * v[ch] + v[3 + ch] * v[3 + ch] + v[6 + ch] * v[6 + ch]);
+                    if (norm > largest) /* NaN (inside) never compares greater */
+                        largest = norm;
+                }
+            }
+            out[(size_t)i * np + j] = largest * 1.00001f;
+        }
+}
+
 /* Concatenates the scene's fields as stored on the device (half or float),
- * each at a 16-byte aligned offset; rebuilt when the list changes. */
+ * each at a 16-byte aligned offset and followed by its cell bounds (float,
+ * 16-byte aligned); rebuilt when the list changes. */
 static pn_status upload_fields(state *cache, pn_scene scene)
 {
     pn_context ctx = scene->obj.ctx;
@@ -89,6 +120,7 @@ static pn_status upload_fields(state *cache, pn_scene scene)
         const pn_fiv f = cache->fields[i];
         size_t elem = f->options.precision == PN_PRECISION_FLOAT16 ? 2u : 4u;
         total += ((size_t)pn_fiv_sample_count(&f->options) * 9u * elem + 15u) & ~(size_t)15u;
+        total += (cell_bound_count(f) * sizeof(float) + 15u) & ~(size_t)15u;
     }
     unsigned char *host = pn_malloc(ctx, total ? total : 16, "the occlusion fields");
     if (!host)
@@ -115,6 +147,8 @@ static pn_status upload_fields(state *cache, pn_scene scene)
             memcpy(host + at, f->samples, n * 4u);
             at += (n * 4u + 15u) & ~(size_t)15u;
         }
+        cell_bounds(f, (float *)(void *)(host + at));
+        at += (cell_bound_count(f) * sizeof(float) + 15u) & ~(size_t)15u;
     }
     if (total > UINT32_MAX) {
         free(host);
@@ -303,21 +337,23 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
             (st = pn_enqueue_1d(ctx, kb, "bin_fiv_tiles", tiles, 16)))
             return st;
     }
+    /* Per-direction culling floor (pn_fiv_lookup): 0 culls nothing. */
+    const cl_float cull_floor = (cl_float)(r->params[P_CULL_THRESHOLD] * s->env_ref);
     cl_float4 env_fiv[3];
     for (int a = 0; a < 3; ++a)
         for (int c = 0; c < 4; ++c)
             env_fiv[a].s[c] = c < 3 ? s->env_fiv[3 * a + c] : 0.0f;
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count, sizeof(cl_mem),
-                      sizeof m, sizeof(cl_mem), sizeof occluders, sizeof(cl_mem),
+                      sizeof m, sizeof(cl_mem), sizeof occluders, sizeof(cl_mem), sizeof cull_floor,
                       sizeof env_fiv[0], sizeof env_fiv[1], sizeof env_fiv[2], sizeof overlap, sizeof partial,
                       sizeof self_shadow, sizeof trilinear, sizeof width, sizeof binned, sizeof(cl_mem),
                       sizeof(cl_mem)};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->irradiance,
-                          &m, &s->device_records, &occluders, &s->data, &env_fiv[0],
+                          &m, &s->device_records, &occluders, &s->data, &cull_floor, &env_fiv[0],
                           &env_fiv[1], &env_fiv[2], &overlap, &partial, &self_shadow, &trilinear, &width, &binned,
                           &s->tile_masks, &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_fiv", 21, sizes, vals)))
+    if ((st = pn_set_args(ctx, k, "shade_fiv", 22, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_fiv", (size_t)count, 64);
 }
