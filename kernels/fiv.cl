@@ -23,7 +23,9 @@
  *   [0] centre xyz (world), bounding radius R (world)
  *   [1] object units per world unit, rho_min, ln(rho_max / rho_min), culling distance (world)
  *   [2] uint bits: byte offset of the samples in `fields`, n_theta, n_phi, n_rho
- *   [3] uint bits: instance id, precision (1 = half); value scale, rho_max */
+ *   [3] uint bits: instance id, precision (1 = half); value scale, rho_max
+ * `fields`: per field its samples, then (16-byte aligned) its per-direction
+ * culling bounds, (n_theta - 1) x n_phi floats (pn_fiv_lookup). */
 #include "common/fiv_grid.cl"
 #include "common/sphere_maps.cl"
 
@@ -297,7 +299,7 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     }
     int words = (occluder_count + 31) / 32;
     global const uint *mask = tile_masks;
-    if (binned) { /* one integer division, and none unbinned: three cost a third of unshadowed */
+    if (binned) { /* one integer division (a slow scalar instruction), none unbinned */
         int y = gid / width, x = gid - y * width;
         int tile = (y / PN_FIV_TILE) * ((width + PN_FIV_TILE - 1) / PN_FIV_TILE) + x / PN_FIV_TILE;
         mask += (size_t)tile * words;
