@@ -95,8 +95,8 @@ inline float pn_fiv_ln(float x)
 }
 
 /* Adds weight w times sample (k, i, j) to acc when the sample is valid. */
-PN_FIV_INLINE void pn_fiv_add(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k, int i, int j,
-                       float w, pn_fiv3 *acc, float *wsum)
+PN_FIV_INLINE void pn_fiv_add(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k, int i,
+                              int j, float w, pn_fiv3 *acc, float *wsum)
 {
     pn_fiv3 s;
     if (w <= 0.0f || !pn_fiv_sample(fields, offset, hp, (k * n_theta + i) * n_phi + j, &s))
@@ -108,8 +108,8 @@ PN_FIV_INLINE void pn_fiv_add(global const uchar *fields, uint offset, int hp, i
 }
 
 /* Bilinear (theta, phi) interpolation on sphere k with total weight wk. */
-PN_FIV_INLINE void pn_fiv_shell(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k, float wk,
-                         int i0, float ti, int j0, int j1, float tj, pn_fiv3 *acc, float *wsum)
+PN_FIV_INLINE void pn_fiv_shell(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k,
+                                float wk, int i0, float ti, int j0, int j1, float tj, pn_fiv3 *acc, float *wsum)
 {
     pn_fiv_add(fields, offset, hp, n_theta, n_phi, k, i0, j0, wk * (1.0f - ti) * (1.0f - tj), acc, wsum);
     pn_fiv_add(fields, offset, hp, n_theta, n_phi, k, i0, j1, wk * (1.0f - ti) * tj, acc, wsum);

@@ -1197,7 +1197,8 @@ def scaling_markdown(summary: dict, rows: list[dict], equal_error: dict | None) 
              f"{s['load_average_1min'][1]} on {s['cpus']} CPUs.", "",
              "| scene | occluders | fiv shading ms | floor ms | fiv / floor | fps (shading) | fps (G-buffer + shading) | "
              "paper fps (GeForce 8800) | fiv overlap=0 ms | unshadowed ms | fiv tile_cull=0 ms | tile culling speed-up | "
-             "occluders per tile (mean / median / max) | lookups per pixel (fetching samples) | ns per lookup (overlap 1 / 0) | "
+             "occluders per tile (mean / median / max) | lookups per pixel (fetching samples) | "
+             "ns per lookup (overlap 1 / 0) | "
              "per lookup / 1 occluder's (overlap 1 / 0) | G-buffer ms |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
@@ -1210,7 +1211,8 @@ def scaling_markdown(summary: dict, rows: list[dict], equal_error: dict | None) 
                      f"{r['paper_fps'] if r['paper_fps'] is not None else '-'} | {r['fiv_sum_shade_ms']:.2f} | "
                      f"{r['unshadowed_shade_ms']:.2f} | {r['fiv_unculled_shade_ms']:.2f} | "
                      f"{r['tile_cull_speedup']:.2f} | {r['tiles_per_tile_mean']:.1f} / {r['tiles_per_tile_median']:g} / "
-                     f"{r['tiles_per_tile_max']} | {r['tiles_lookups_per_pixel']:.2f} ({r['tiles_fetches_per_pixel']:.2f}) | "
+                     f"{r['tiles_per_tile_max']} | {r['tiles_lookups_per_pixel']:.2f} "
+                     f"({r['tiles_fetches_per_pixel']:.2f}) | "
                      f"{f(r['per_lookup_ns'], '.1f')} / {f(r['per_lookup_sum_ns'], '.1f')} | "
                      f"{f(r['per_lookup_ratio'], '.2f')} / {f(r['per_lookup_sum_ratio'], '.2f')} | "
                      f"{r['gbuffer_ms']:.1f} |")
@@ -1220,8 +1222,8 @@ def scaling_markdown(summary: dict, rows: list[dict], equal_error: dict | None) 
               "unit-bounding-disc correction, docs/fiv.md) and tile_cull = 1 (per 16x16 tile, only the occluders "
               "whose culling distance reaches the tile's receivers). Occluders per tile: over the tiles with "
               "receivers. Lookups per pixel: the (pixel, occluder) pairs the kernel interpolates (not culled by "
-              "distance, not wholly behind the pixel's plane), per receiver pixel, and in brackets those that also pass "
-              "the per-direction bound and fetch samples; ns per lookup = (fiv - "
+              "distance, not wholly behind the pixel's plane), per receiver pixel, and in brackets those that "
+              "also pass the per-direction bound and fetch samples; ns per lookup = (fiv - "
               "unshadowed) / those pairs, against the 1-occluder scene's."]
     single = next((r for r in rows if r["occluders"] == 1 and r["layout"] == "clustered"), None)
     spread = next((r for r in rows if r["layout"] == "spread"), None)
