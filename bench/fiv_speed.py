@@ -34,27 +34,28 @@ VARIANTS = {"floor": ("floor", {}),
             "fiv_sum_nobg": ("fiv", {"overlap": 0, "background": 0})}
 
 
-def measure(occluders: int, resolution: int, rounds: int, out: Path, build_options=("",)) -> dict:
+def measure(occluders: int, resolution: int, rounds: int, out: Path, build_options=("",), spread: bool = False) -> dict:
     """ms of every variant, per round (round-robin, first round dropped); with
     several ``build_options`` (kernel build switches, e.g. -DPN_FIV_PROFILE=1)
     every variant runs under each of them in turn, keyed "variant[options]"."""
     from penumbra import data as test_data
     from penumbra.bench import scene_toml
     from penumbra.core import Context, GBuffer, Image, Renderer
-    from penumbra.methods.fiv import SCALING_ENV, SCALING_MESH, attach_fields, fiv_scaling_scene
+    from penumbra.methods.fiv import SCALING_ENV, SCALING_MESH, attach_fields, fiv_scaling_scene, fiv_spread_scene
     from penumbra.render import _timed, build_scene
     from penumbra.scenefile import load_scene
 
     data = test_data.data_dir()
     (out / "scenes").mkdir(parents=True, exist_ok=True)
-    path = out / "scenes" / f"bunnies_{occluders}.toml"
+    path = out / "scenes" / f"{'spread' if spread else 'bunnies'}_{occluders}.toml"
 
     def rel(q: Path) -> str:
         return Path(os.path.relpath(q.resolve(), (out / "scenes").resolve())).as_posix()
 
-    # The field cache of penumbra bench --fiv-scaling: one bake serves both.
-    path.write_text(scene_toml(fiv_scaling_scene(occluders, rel(data / SCALING_MESH), rel(data / SCALING_ENV),
-                                                 resolution, cache=rel(out.parent / "fiv_scaling" / "cache" / "fiv")),
+    # The scenes and field cache of penumbra bench --fiv-scaling (spread: its 120-unit spacing).
+    make = (lambda *a, **k: fiv_spread_scene(*a, spacing=120.0, **k)) if spread else fiv_scaling_scene
+    path.write_text(scene_toml(make(occluders, rel(data / SCALING_MESH), rel(data / SCALING_ENV), resolution,
+                                    cache=rel(out.parent / "fiv_scaling" / "cache" / "fiv")),
                                f"fiv speed: {occluders} bunnies (bench/fiv_speed.py)"))
     runs = {}
     for opts in build_options:
@@ -84,6 +85,7 @@ def table(times: dict) -> list[str]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--occluders", type=int, default=1)
+    ap.add_argument("--spread", action="store_true", help="the scaling benchmark's spread scene")
     ap.add_argument("--resolution", type=int, default=512)
     ap.add_argument("--rounds", type=int, default=9)
     ap.add_argument("--against", help="folder holding another build's penumbra package (A/B by subprocesses)")
@@ -103,7 +105,8 @@ def main() -> None:
         return
     load = [round(os.getloadavg()[0], 2)]
     if not args.against:
-        times = measure(args.occluders, args.resolution, args.rounds, out, tuple(args.build_options or ("",)))
+        times = measure(args.occluders, args.resolution, args.rounds, out, tuple(args.build_options or ("",)),
+                        args.spread)
         load.append(round(os.getloadavg()[0], 2))
         print(f"{args.occluders} occluder(s), {args.resolution}^2, median of {args.rounds} rounds, load {load}")
         print("\n".join(table(times)))

@@ -25,7 +25,8 @@
  *   [2] uint bits: byte offset of the samples in `fields`, n_theta, n_phi, n_rho
  *   [3] uint bits: instance id, precision (1 = half); value scale, rho_max
  * `fields`: per field its samples, then (16-byte aligned) its per-direction
- * culling bounds, (n_theta - 1) x n_phi floats (pn_fiv_lookup). */
+ * culling bounds, (n_theta - 1) x n_phi floats per cell and (16-byte
+ * aligned) 16 x 32 per direction bin (pn_fiv_lookup). */
 #include "common/fiv_grid.cl"
 #include "common/sphere_maps.cl"
 
@@ -94,6 +95,26 @@ inline float pn_fiv_ln(float x)
     return (float)e * 0.693147180559945f + 2.0f * s * p;
 }
 
+/* Direction bins of the coarse culling test: 16 in cos theta (v.y / rho) by
+ * 32 in a pseudo-angle p in [0, 8] of phi, increasing with phi, that needs
+ * one divide instead of an atan: per quadrant of (v.x, v.z), p' = t or
+ * 2 - t (t = the smaller over the larger of |v.x|, |v.z|) and p = p', 4 - p',
+ * 4 + p', 8 - p'. capi/src/methods/fiv.c (bin_bounds) inverts the bin edges
+ * exactly; keep the counts in step with it. */
+#define PN_FIV_BINS_Z 16
+#define PN_FIV_BINS_P 32
+
+PN_FIV_INLINE int pn_fiv_dir_bin(float3 v, float rho)
+{
+    float ax = fabs(v.x), az = fabs(v.z), hi = fmax(ax, az);
+    float t = hi > 0.0f ? fmin(ax, az) / hi : 0.0f;
+    float q = az > ax ? 2.0f - t : t; /* p in the first quadrant */
+    float p = v.x < 0.0f ? (v.z < 0.0f ? 4.0f + q : 4.0f - q) : (v.z < 0.0f ? 8.0f - q : q);
+    int bz = clamp((int)((v.y / rho + 1.0f) * (0.5f * PN_FIV_BINS_Z)), 0, PN_FIV_BINS_Z - 1);
+    int bp = min((int)(p * (PN_FIV_BINS_P / 8.0f)), PN_FIV_BINS_P - 1);
+    return bz * PN_FIV_BINS_P + bp;
+}
+
 /* Adds weight w times sample (k, i, j) to acc when the sample is valid. */
 PN_FIV_INLINE void pn_fiv_add(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k, int i,
                               int j, float w, pn_fiv3 *acc, float *wsum)
@@ -134,6 +155,19 @@ PN_FIV_INLINE bool pn_fiv_lookup(global const float4 *occ, global const uchar *f
     float rho = length(v);
     if (!isfinite(rho)) /* a NaN/Inf position in an unvalidated G-buffer: no index from it */
         return false;
+    /* Beyond the grid: per-direction bounds after the samples (cell_bounds,
+     * bin_bounds in capi/src/methods/fiv.c). First the coarse direction bin,
+     * before any angle: it bounds every cell the direction can fall in, so
+     * it culls only what the cell test below would (rho_max widened by 1e-4
+     * so that the cell test, too, sees the pair beyond the grid). */
+    size_t samples = (size_t)n_rho * n_theta * n_phi * PN_FIV_FLOATS * (hp ? 2 : 4);
+    global const float *cell_bound = (global const float *)(fields + offset + ((samples + 15) & ~(size_t)15));
+    float rho_max = occ[3].w; /* from the record: no exp per lookup beyond the grid */
+    if (cull_floor > 0.0f && rho > rho_max * 1.0001f) {
+        global const float *bin_bound = cell_bound + (((size_t)(n_theta - 1) * n_phi + 3) & ~(size_t)3);
+        if (bin_bound[pn_fiv_dir_bin(v, rho)] * ((rho_max / rho) * (rho_max / rho)) < cull_floor)
+            return false;
+    }
     /* theta = acos(v.y / rho), phi = atan2(v.z, v.x), by the polynomial atan */
     float theta = pn_atan2(sqrt(v.x * v.x + v.z * v.z), v.y);
     float phi = pn_atan2(v.z, v.x);
@@ -144,18 +178,14 @@ PN_FIV_INLINE bool pn_fiv_lookup(global const float4 *occ, global const uchar *f
     float fk = rho > 0.0f ? pn_fiv_ln(rho / rho_min) / log_ratio * (float)(n_rho - 1) : 0.0f;
     float falloff = 1.0f;
     if (fk > (float)(n_rho - 1)) {
-        float rho_max = occ[3].w; /* from the record: no exp per lookup beyond the grid */
         falloff = (rho_max / rho) * (rho_max / rho);
         fk = (float)(n_rho - 1);
         /* Culling per direction: beyond the grid only the 4 outer-sphere
          * samples of this (theta, phi) cell take part; their largest |FIV|
-         * (capi/src/methods/fiv.c, cell_bounds, stored after the samples)
          * times the fall-off bounds N . FIV. Under a sun that bound is large
          * only in the cells between the occluder and the sun. */
-        size_t samples = (size_t)n_rho * n_theta * n_phi * PN_FIV_FLOATS * (hp ? 2 : 4);
-        global const float *bound = (global const float *)(fields + offset + ((samples + 15) & ~(size_t)15));
         int ci = min((int)fi, n_theta - 2), cj = min((int)fj, n_phi - 1);
-        if (bound[ci * n_phi + cj] * falloff < cull_floor)
+        if (cell_bound[ci * n_phi + cj] * falloff < cull_floor)
             return false;
     }
     fk = fmax(fk, 0.0f);

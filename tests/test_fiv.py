@@ -1116,3 +1116,37 @@ def test_fiv_ln_matches_float64(cl_pair, build_test_kernel):
     ulps = np.abs(out - exact) / np.spacing(np.maximum(np.abs(exact), 1e-30).astype(np.float32))
     assert out[x == 1.0][0] == 0.0
     assert ulps.max() <= 3.0, f"worst {ulps.max():.2f} ulp at x = {x[np.argmax(ulps)]!r}"
+
+
+def test_direction_bins_cull_only_what_cells_do(ctx, meshes):
+    """The coarse direction-bin test (before the lookup's angles) culls only
+    pairs the per-cell test culls too: receivers all around a sphere under a
+    1e3:1 sun, 1 to 6 outer radii away and facing it, shade as the twin
+    (which has only the cell test), with pairs culled per direction and pairs
+    kept beyond the grid both present."""
+    sky = np.ones((32, 64, 3), np.float32)
+    i, j = procedural.direction_to_pixel(unit([0.3, 1.0, 0.2]), 64, 32)
+    sky[j, i] = 1e3
+    env = EnvMap(ctx, sky, face_size=8, irradiance_face_size=8)
+    _, m = meshes["sphere"]
+    field = FivField.bake(env, m, FivOptions(samples=(17, 32, 12), face_size=8))
+    xf = translate((0.0, 0.0, 0.0))
+    w, h = 64, 48
+    u = fibonacci_directions(w * h)
+    rho = field.info()["outer"] * np.random.default_rng(3).uniform(1.0, 6.0, w * h)
+    c = np.asarray(field.info()["centre"], np.float64)
+    pos = (c - rho[:, None] * u).reshape(h, w, 3)
+    s = FivScene(ctx, env, {"sphere": field}, [(field, m, xf)], (pos, u.reshape(h, w, 3), np.full((h, w), 7,
+                                                                                                  np.uint32)))
+    threshold = 1e-3
+    got = s.render(overlap=0, cull_threshold=threshold)[s.fg][:, :3]
+    want, _, fragile = s.twin(cull_threshold=threshold, overlap=0)
+    scale = s.e0.max() / np.pi
+    err = np.abs(got - want).max(axis=1)
+    assert not ((err > FIV_SHADE_ATOL * scale) & ~fragile).any(), f"worst {err[~fragile].max() / scale:.3g}"
+    (occ,) = s.occluders(threshold)
+    v = occ.centre[None, :] - s.pos[s.fg][:, :3]
+    _, ok_all, _ = lookup(occ, v, cull=False)
+    _, ok, _ = lookup(occ, v)
+    beyond = np.linalg.norm(v, axis=1) > occ.outer
+    assert (ok_all & ~ok).sum() > 100 and (beyond & ok).sum() > 100

@@ -104,9 +104,54 @@ static void cell_bounds(const struct pn_fiv_impl *f, float *out)
         }
 }
 
+/* Direction bins of the coarse culling test (kernels/fiv.cl, pn_fiv_dir_bin):
+ * PN_FIV_BINS_Z in cos theta (= d.y) by PN_FIV_BINS_P in a pseudo-angle p of
+ * phi in [0, 8] that needs no atan (p = t, 2 - t, ... by octant, t the ratio
+ * of the smaller to the larger of |d.x|, |d.z|). Keep in step with fiv.cl. */
+#define PN_FIV_BINS_Z 16
+#define PN_FIV_BINS_P 32
+#define PN_FIV_PI 3.14159265358979323846
+
+/* phi of the pseudo-angle p in [0, 8] (the inverse of the kernel's p). */
+static double pseudo_to_phi(double p)
+{
+    const int q = p >= 8.0 ? 3 : (int)(p / 2.0);
+    double local = q % 2 == 0 ? p - 2.0 * q : 2.0 * (q + 1) - p; /* [0, 2], increasing away from the axis */
+    double f = local <= 1.0 ? atan(local) : PN_FIV_PI / 2.0 - atan(2.0 - local);
+    return q == 0 ? f : q == 1 ? PN_FIV_PI - f : q == 2 ? PN_FIV_PI + f : 2.0 * PN_FIV_PI - f;
+}
+
+/* Per direction bin, the largest cell bound (cell_bounds) over the cells its
+ * theta and phi ranges overlap, widened by one cell on every side against
+ * rounding of the kernel's bin and cell indices, and by 1e-4 in value. A
+ * pair beyond the grid whose bin bound x fall-off is below the floor would
+ * be culled by its cell's bound too: the test only saves the angles. */
+static void bin_bounds(const struct pn_fiv_impl *f, const float *cells, float *out)
+{
+    const int nt = (int)f->options.theta, np = (int)f->options.phi;
+    for (int bz = 0; bz < PN_FIV_BINS_Z; ++bz) {
+        /* theta decreases with cos theta */
+        const double th_lo = acos(fmin(1.0, -1.0 + 2.0 * (bz + 1) / PN_FIV_BINS_Z));
+        const double th_hi = acos(fmax(-1.0, -1.0 + 2.0 * bz / PN_FIV_BINS_Z));
+        const int i0 = (int)fmax(0.0, floor(th_lo * (nt - 1) / PN_FIV_PI) - 1.0);
+        const int i1 = (int)fmin(nt - 2.0, floor(th_hi * (nt - 1) / PN_FIV_PI) + 1.0);
+        for (int bp = 0; bp < PN_FIV_BINS_P; ++bp) {
+            const double ph_lo = pseudo_to_phi(8.0 * bp / PN_FIV_BINS_P);
+            const double ph_hi = pseudo_to_phi(8.0 * (bp + 1) / PN_FIV_BINS_P);
+            const int j0 = (int)floor(ph_lo * np / (2.0 * PN_FIV_PI)) - 1, j1 = (int)floor(ph_hi * np / (2.0 * PN_FIV_PI)) + 1;
+            float largest = 0.0f;
+            for (int i = i0; i <= i1; ++i)
+                for (int j = j0; j <= j1; ++j)
+                    largest = fmaxf(largest, cells[(size_t)i * np + (size_t)((j % np + np) % np)]);
+            out[bz * PN_FIV_BINS_P + bp] = largest * 1.0001f;
+        }
+    }
+}
+
 /* Concatenates the scene's fields as stored on the device (half or float),
- * each at a 16-byte aligned offset and followed by its cell bounds (float,
- * 16-byte aligned); rebuilt when the list changes. */
+ * each at a 16-byte aligned offset and followed by its cell bounds and its
+ * direction-bin bounds (float, 16-byte aligned); rebuilt when the list
+ * changes. */
 static pn_status upload_fields(state *cache, pn_scene scene)
 {
     pn_context ctx = scene->obj.ctx;
@@ -121,6 +166,7 @@ static pn_status upload_fields(state *cache, pn_scene scene)
         size_t elem = f->options.precision == PN_PRECISION_FLOAT16 ? 2u : 4u;
         total += ((size_t)pn_fiv_sample_count(&f->options) * 9u * elem + 15u) & ~(size_t)15u;
         total += (cell_bound_count(f) * sizeof(float) + 15u) & ~(size_t)15u;
+        total += PN_FIV_BINS_Z * PN_FIV_BINS_P * sizeof(float);
     }
     unsigned char *host = pn_malloc(ctx, total ? total : 16, "the occlusion fields");
     if (!host)
@@ -147,8 +193,11 @@ static pn_status upload_fields(state *cache, pn_scene scene)
             memcpy(host + at, f->samples, n * 4u);
             at += (n * 4u + 15u) & ~(size_t)15u;
         }
-        cell_bounds(f, (float *)(void *)(host + at));
+        float *cells = (float *)(void *)(host + at);
+        cell_bounds(f, cells);
         at += (cell_bound_count(f) * sizeof(float) + 15u) & ~(size_t)15u;
+        bin_bounds(f, cells, (float *)(void *)(host + at));
+        at += PN_FIV_BINS_Z * PN_FIV_BINS_P * sizeof(float);
     }
     if (total > UINT32_MAX) {
         free(host);
