@@ -138,7 +138,8 @@ static void bin_bounds(const struct pn_fiv_impl *f, const float *cells, float *o
         for (int bp = 0; bp < PN_FIV_BINS_P; ++bp) {
             const double ph_lo = pseudo_to_phi(8.0 * bp / PN_FIV_BINS_P);
             const double ph_hi = pseudo_to_phi(8.0 * (bp + 1) / PN_FIV_BINS_P);
-            const int j0 = (int)floor(ph_lo * np / (2.0 * PN_FIV_PI)) - 1, j1 = (int)floor(ph_hi * np / (2.0 * PN_FIV_PI)) + 1;
+            const int j0 = (int)floor(ph_lo * np / (2.0 * PN_FIV_PI)) - 1;
+            const int j1 = (int)floor(ph_hi * np / (2.0 * PN_FIV_PI)) + 1;
             float largest = 0.0f;
             for (int i = i0; i <= i1; ++i)
                 for (int j = j0; j <= j1; ++j)
