@@ -2,9 +2,12 @@
 
 The kernel is built three times (build option PN_FIV_PROFILE, kernels/fiv.cl):
 0 = all, 1 = no lookup (the occluder loop, its culling tests and the sum of a
-constant field), 2 = the lookup's angles, logarithm and weights but no sample
-fetched. With the floor kernel, unshadowed and fiv's own switches (overlap,
-trilinear, tile_cull) every phase is a difference of two times; all variants
+constant field), 2 = the lookup's angles, logarithm, per-direction culling
+test and weights but no sample fetched. With the floor kernel, unshadowed
+(with and without the env-map background pass, which every method with the
+`background` parameter runs after its kernel and the floor kernel does not;
+the other variants leave it out) and fiv's own switches (overlap, trilinear,
+tile_cull) every phase is a difference of two times; all variants
 run round-robin on one G-buffer per build (the load of a shared machine hits
 them alike); the phases come from the fastest round of each variant after
 a warm-up round (the least disturbed on a shared machine), the medians are
@@ -33,22 +36,27 @@ from penumbra.methods.fiv import (SCALING_ENV, SCALING_MESH, attach_fields, fiv_
 from penumbra.render import build_scene
 from penumbra.scenefile import load_scene
 
-# (build, method, params): the timed variants.
+# (build, method, params): the timed variants. All but "background" leave
+# the env-map background pass out (background = 0): the floor kernel draws
+# none, and it is its own phase.
+NO_BG = {"background": 0}
 VARIANTS = {
     "floor": (0, "floor", {}),
-    "unshadowed": (0, "unshadowed", {}),
-    "loop": (1, "fiv", {"overlap": 0}),
-    "indices": (2, "fiv", {"overlap": 0}),
-    "nearest": (0, "fiv", {"overlap": 0, "trilinear": 0}),
-    "sum": (0, "fiv", {"overlap": 0}),
-    "fiv": (0, "fiv", {}),
-    "unculled": (0, "fiv", {"tile_cull": 0}),
+    "unshadowed": (0, "unshadowed", NO_BG),
+    "background": (0, "unshadowed", {}),
+    "loop": (1, "fiv", {"overlap": 0, **NO_BG}),
+    "indices": (2, "fiv", {"overlap": 0, **NO_BG}),
+    "nearest": (0, "fiv", {"overlap": 0, "trilinear": 0, **NO_BG}),
+    "sum": (0, "fiv", {"overlap": 0, **NO_BG}),
+    "fiv": (0, "fiv", NO_BG),
+    "unculled": (0, "fiv", {"tile_cull": 0, **NO_BG}),
 }
 # Phase = later variant minus earlier one.
 PHASES = [("G-buffer read, image write (floor)", None, "floor"),
+          ("env-map background pass (unshadowed with - without it)", "unshadowed", "background"),
           ("irradiance cube lookup (unshadowed - floor)", "floor", "unshadowed"),
           ("occluder loop: masks, case C and distance tests, sum (loop - unshadowed)", "unshadowed", "loop"),
-          ("lookup indices: 2 atan2, log, weights (indices - loop)", "loop", "indices"),
+          ("lookup indices: 2 atan2, ln, weights, per-direction cull (indices - loop)", "loop", "indices"),
           ("sample fetch + trilinear, 8 taps (sum - indices)", "indices", "sum"),
           ("  of which 7 of the 8 taps (sum - nearest)", "nearest", "sum"),
           ("overlap correction, disc pairs (fiv - sum)", "sum", "fiv"),

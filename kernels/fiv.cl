@@ -23,7 +23,10 @@
  *   [0] centre xyz (world), bounding radius R (world)
  *   [1] object units per world unit, rho_min, ln(rho_max / rho_min), culling distance (world)
  *   [2] uint bits: byte offset of the samples in `fields`, n_theta, n_phi, n_rho
- *   [3] uint bits: instance id, precision (1 = half); value scale, rho_max */
+ *   [3] uint bits: instance id, precision (1 = half); value scale, rho_max
+ * `fields`: per field its samples, then (16-byte aligned) its per-direction
+ * culling bounds, (n_theta - 1) x n_phi floats per cell and (16-byte
+ * aligned) 16 x 32 per direction bin (pn_fiv_lookup). */
 #include "common/fiv_grid.cl"
 #include "common/sphere_maps.cl"
 
@@ -39,11 +42,15 @@
 #define PN_OVERLAP_DISC 1
 #define PN_OVERLAP_MULTIPLY 2
 
+/* The lookup's helpers are forced inline: PoCL left pn_fiv_lookup and
+ * pn_fiv_shell as calls, passing the accumulators through the stack. */
+#define PN_FIV_INLINE inline __attribute__((always_inline))
+
 typedef struct {
     float3 x, y, z;
 } pn_fiv3;
 
-inline bool pn_fiv_sample(global const uchar *fields, uint offset, int half_precision, int index, pn_fiv3 *s)
+PN_FIV_INLINE bool pn_fiv_sample(global const uchar *fields, uint offset, int half_precision, int index, pn_fiv3 *s)
 {
     /* One 8-wide load and one scalar: X rgb, Y rgb, Z rg | Z b. */
     float8 a;
@@ -63,9 +70,54 @@ inline bool pn_fiv_sample(global const uchar *fields, uint offset, int half_prec
     return !isnan(a.s0); /* samples inside the geometry are NaN */
 }
 
+/* ln x for finite x > 0, to 3 ulp (float64 check: tests/test_fiv.py).
+ * The built-in log, a library call PoCL does not inline, was half the time
+ * of a lookup's index math (docs/performance.md, FIV); this is a handful of
+ * FMAs and one divide: x = m 2^e with m in [sqrt(1/2), sqrt(2)),
+ * ln m = 2 atanh(s), s = (m - 1) / (m + 1), |s| < 0.172, by its series to s^9
+ * (truncation below 1e-9). Subnormal x read as ~ -87.3 + ln of their
+ * mantissa bits: far below any radius of a field, so clamped like them. */
+inline float pn_fiv_ln(float x)
+{
+    int bits = as_int(x);
+    int e = (bits >> 23) - 127;
+    float m = as_float((bits & 0x007fffff) | 0x3f800000); /* [1, 2) */
+    bool big = m > 1.41421356f;
+    m = big ? 0.5f * m : m;
+    e = big ? e + 1 : e;
+    float f = m - 1.0f;
+    float s = f / (2.0f + f), s2 = s * s;
+    float p = 0.11111111f;
+    p = p * s2 + 0.14285715f;
+    p = p * s2 + 0.2f;
+    p = p * s2 + 0.33333334f;
+    p = p * s2 + 1.0f;
+    return (float)e * 0.693147180559945f + 2.0f * s * p;
+}
+
+/* Direction bins of the coarse culling test: 16 in cos theta (v.y / rho) by
+ * 32 in a pseudo-angle p in [0, 8] of phi, increasing with phi, that needs
+ * one divide instead of an atan: per quadrant of (v.x, v.z), p' = t or
+ * 2 - t (t = the smaller over the larger of |v.x|, |v.z|) and p = p', 4 - p',
+ * 4 + p', 8 - p'. capi/src/methods/fiv.c (bin_bounds) inverts the bin edges
+ * exactly; keep the counts in step with it. */
+#define PN_FIV_BINS_Z 16
+#define PN_FIV_BINS_P 32
+
+PN_FIV_INLINE int pn_fiv_dir_bin(float3 v, float rho)
+{
+    float ax = fabs(v.x), az = fabs(v.z), hi = fmax(ax, az);
+    float t = hi > 0.0f ? fmin(ax, az) / hi : 0.0f;
+    float q = az > ax ? 2.0f - t : t; /* p in the first quadrant */
+    float p = v.x < 0.0f ? (v.z < 0.0f ? 4.0f + q : 4.0f - q) : (v.z < 0.0f ? 8.0f - q : q);
+    int bz = clamp((int)((v.y / rho + 1.0f) * (0.5f * PN_FIV_BINS_Z)), 0, PN_FIV_BINS_Z - 1);
+    int bp = min((int)(p * (PN_FIV_BINS_P / 8.0f)), PN_FIV_BINS_P - 1);
+    return bz * PN_FIV_BINS_P + bp;
+}
+
 /* Adds weight w times sample (k, i, j) to acc when the sample is valid. */
-inline void pn_fiv_add(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k, int i, int j,
-                       float w, pn_fiv3 *acc, float *wsum)
+PN_FIV_INLINE void pn_fiv_add(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k, int i,
+                              int j, float w, pn_fiv3 *acc, float *wsum)
 {
     pn_fiv3 s;
     if (w <= 0.0f || !pn_fiv_sample(fields, offset, hp, (k * n_theta + i) * n_phi + j, &s))
@@ -77,8 +129,8 @@ inline void pn_fiv_add(global const uchar *fields, uint offset, int hp, int n_th
 }
 
 /* Bilinear (theta, phi) interpolation on sphere k with total weight wk. */
-inline void pn_fiv_shell(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k, float wk,
-                         int i0, float ti, int j0, int j1, float tj, pn_fiv3 *acc, float *wsum)
+PN_FIV_INLINE void pn_fiv_shell(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k,
+                                float wk, int i0, float ti, int j0, int j1, float tj, pn_fiv3 *acc, float *wsum)
 {
     pn_fiv_add(fields, offset, hp, n_theta, n_phi, k, i0, j0, wk * (1.0f - ti) * (1.0f - tj), acc, wsum);
     pn_fiv_add(fields, offset, hp, n_theta, n_phi, k, i0, j1, wk * (1.0f - ti) * tj, acc, wsum);
@@ -92,8 +144,8 @@ inline void pn_fiv_shell(global const uchar *fields, uint offset, int hp, int n_
  * renormalised; with none valid, the nearest sphere farther out that has
  * one. Inside rho_min: the innermost sphere. Beyond rho_max: the outermost
  * sphere times the solid-angle fall-off (rho_max / rho)^2. */
-inline bool pn_fiv_lookup(global const float4 *occ, global const uchar *fields, float3 v_world, int trilinear,
-                          pn_fiv3 *out)
+PN_FIV_INLINE bool pn_fiv_lookup(global const float4 *occ, global const uchar *fields, float3 v_world, int trilinear,
+                                 float cull_floor, pn_fiv3 *out)
 {
     float inv_scale = occ[1].x, rho_min = occ[1].y, log_ratio = occ[1].z;
     uint offset = as_uint(occ[2].x);
@@ -103,6 +155,19 @@ inline bool pn_fiv_lookup(global const float4 *occ, global const uchar *fields, 
     float rho = length(v);
     if (!isfinite(rho)) /* a NaN/Inf position in an unvalidated G-buffer: no index from it */
         return false;
+    /* Beyond the grid: per-direction bounds after the samples (cell_bounds,
+     * bin_bounds in capi/src/methods/fiv.c). First the coarse direction bin,
+     * before any angle: it bounds every cell the direction can fall in, so
+     * it culls only what the cell test below would (rho_max widened by 1e-4
+     * so that the cell test, too, sees the pair beyond the grid). */
+    size_t samples = (size_t)n_rho * n_theta * n_phi * PN_FIV_FLOATS * (hp ? 2 : 4);
+    global const float *cell_bound = (global const float *)(fields + offset + ((samples + 15) & ~(size_t)15));
+    float rho_max = occ[3].w; /* from the record: no exp per lookup beyond the grid */
+    if (cull_floor > 0.0f && rho > rho_max * 1.0001f) {
+        global const float *bin_bound = cell_bound + (((size_t)(n_theta - 1) * n_phi + 3) & ~(size_t)3);
+        if (bin_bound[pn_fiv_dir_bin(v, rho)] * ((rho_max / rho) * (rho_max / rho)) < cull_floor)
+            return false;
+    }
     /* theta = acos(v.y / rho), phi = atan2(v.z, v.x), by the polynomial atan */
     float theta = pn_atan2(sqrt(v.x * v.x + v.z * v.z), v.y);
     float phi = pn_atan2(v.z, v.x);
@@ -110,12 +175,18 @@ inline bool pn_fiv_lookup(global const float4 *occ, global const uchar *fields, 
         phi += PN_TWO_PI;
     float fi = theta * (float)(n_theta - 1) * PN_INV_PI;
     float fj = phi * (float)n_phi * PN_INV_TWO_PI;
-    float fk = rho > 0.0f ? log(rho / rho_min) / log_ratio * (float)(n_rho - 1) : 0.0f;
+    float fk = rho > 0.0f ? pn_fiv_ln(rho / rho_min) / log_ratio * (float)(n_rho - 1) : 0.0f;
     float falloff = 1.0f;
     if (fk > (float)(n_rho - 1)) {
-        float rho_max = occ[3].w; /* from the record: no exp per lookup beyond the grid */
         falloff = (rho_max / rho) * (rho_max / rho);
         fk = (float)(n_rho - 1);
+        /* Culling per direction: beyond the grid only the 4 outer-sphere
+         * samples of this (theta, phi) cell take part; their largest |FIV|
+         * times the fall-off bounds N . FIV. Under a sun that bound is large
+         * only in the cells between the occluder and the sun. */
+        int ci = min((int)fi, n_theta - 2), cj = min((int)fj, n_phi - 1);
+        if (cell_bound[ci * n_phi + cj] * falloff < cull_floor)
+            return false;
     }
     fk = fmax(fk, 0.0f);
 #if PN_FIV_PROFILE == 2
@@ -217,7 +288,8 @@ kernel void bin_fiv_tiles(global const float4 *position, global const uint *inst
 kernel void shade_fiv(global const float4 *position, global const float4 *normal, global const float4 *albedo,
                       global const uint *instance_id, int count, global const float4 *irradiance, int m,
                       global const float4 *occluders,
-                      int occluder_count, global const uchar *fields, float4 env_x, float4 env_y, float4 env_z,
+                      int occluder_count, global const uchar *fields, float cull_floor, float4 env_x, float4 env_y,
+                      float4 env_z,
                       int overlap, int partial, int self_shadow, int trilinear, int width, int binned,
                       global const uint *tile_masks, global float4 *image)
 {
@@ -246,7 +318,7 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
         pn_fiv3 f;
         if (as_uint(occ[3].x) != id)
             continue;
-        if (pn_fiv_lookup(occ, fields, occ[0].xyz - p, trilinear, &f)) {
+        if (pn_fiv_lookup(occ, fields, occ[0].xyz - p, trilinear, 0.0f, &f)) {
             /* A sample off the surface also sees unoccluded light behind
              * the receiver plane, which the fullsphere sum subtracts: the
              * estimate errs low, never above the unoccluded irradiance. */
@@ -256,8 +328,12 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
         break; /* one field per instance */
     }
     int words = (occluder_count + 31) / 32;
-    int tile = (gid / width / PN_FIV_TILE) * ((width + PN_FIV_TILE - 1) / PN_FIV_TILE) + (gid % width) / PN_FIV_TILE;
-    global const uint *mask = binned ? tile_masks + (size_t)tile * words : tile_masks;
+    global const uint *mask = tile_masks;
+    if (binned) { /* one integer division (a slow scalar instruction), none unbinned */
+        int y = gid / width, x = gid - y * width;
+        int tile = (y / PN_FIV_TILE) * ((width + PN_FIV_TILE - 1) / PN_FIV_TILE) + x / PN_FIV_TILE;
+        mask += (size_t)tile * words;
+    }
     for (int w = 0; w < words; ++w) {
         /* The occluders of this pixel's tile (all of them unbinned), in order. */
         int left = occluder_count - 32 * w;
@@ -280,7 +356,7 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
 #if PN_FIV_PROFILE == 1
             f.x = f.y = f.z = (float3)(occ[3].z * 1e-3f);
 #else
-            if (!pn_fiv_lookup(occ, fields, v, trilinear, &f))
+            if (!pn_fiv_lookup(occ, fields, v, trilinear, cull_floor, &f))
                 continue;
 #endif
             /* An occluder only removes light. */

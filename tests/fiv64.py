@@ -189,6 +189,8 @@ class Occluder:
     outer: float           # rho_max, object units
     instance: int          # instance id
     cull: float = np.inf   # culling distance, world
+    cull_floor: float = 0.0  # per-direction culling: bound x fall-off below this is skipped
+    cell_bound: np.ndarray | None = None  # (n_theta - 1, n_phi): largest |FIV| at a cell's outer corners
 
 
 def outer_max(samples) -> float:
@@ -198,18 +200,29 @@ def outer_max(samples) -> float:
     return float(np.nanmax(norm)) if np.isfinite(norm).any() else 0.0
 
 
+def cell_bounds(samples) -> np.ndarray:
+    """Per (theta, phi) cell of the outermost sphere, the largest |FIV| of a
+    channel over its 4 corner samples (NaN ones left out, 0 when all are)."""
+    s = np.asarray(samples[-1], np.float64)
+    norm = np.sqrt((s ** 2).sum(axis=-2)).max(axis=-1)  # (theta, phi), NaN inside
+    corners = np.stack([norm[:-1], np.roll(norm[:-1], -1, axis=1), norm[1:], np.roll(norm[1:], -1, axis=1)])
+    out = np.nanmax(np.where(np.isnan(corners), -np.inf, corners), axis=0)
+    return np.maximum(out, 0.0)
+
+
 def make_occluder(info: dict, samples, transform, instance: int, env_ref: float, cull_threshold: float) -> Occluder:
     """The record of an instance with object-to-world `transform` (3x4, s I | t)
     of the field described by FivField.info() / FivField.samples()."""
     m = f32(transform)
     s = m[0, 0]
     centre = m[:, :3] @ f32(info["centre"]) + m[:, 3]
-    cull = np.inf
+    cull, floor_e = np.inf, 0.0
     if cull_threshold > 0:
         floor_e = cull_threshold * env_ref
         cull = info["outer"] * np.sqrt(max(outer_max(samples) / max(floor_e, 1e-30), 1.0))
     return Occluder(centre=centre, radius=s * info["radius"], scale=s, samples=np.asarray(samples, np.float64),
-                    inner=float(info["inner"]), outer=float(info["outer"]), instance=int(instance), cull=s * cull)
+                    inner=float(info["inner"]), outer=float(info["outer"]), instance=int(instance), cull=s * cull,
+                    cull_floor=floor_e, cell_bound=cell_bounds(samples))
 
 
 def _round(x):
@@ -217,9 +230,11 @@ def _round(x):
     return np.floor(x + 0.5)
 
 
-def lookup(occ: Occluder, v_world, trilinear=True):
+def lookup(occ: Occluder, v_world, trilinear=True, cull=True):
     """pn_fiv_lookup for receiver-to-centre vectors v_world (n, 3): FIV (n, 3, 3),
-    valid (n,), fragile (n,) (near a discontinuity of the float32 lookup)."""
+    valid (n,), fragile (n,) (near a discontinuity of the float32 lookup).
+    With ``cull``, beyond the grid a direction whose cell bound times the
+    fall-off is below occ.cull_floor is culled (not valid)."""
     v = np.asarray(v_world, np.float64) / occ.scale
     n = len(v)
     rho = np.linalg.norm(v, axis=1)
@@ -238,6 +253,19 @@ def lookup(occ: Occluder, v_world, trilinear=True):
     beyond = fk > nr - 1
     falloff = np.where(beyond, (occ.outer / safe) ** 2, 1.0)
     fk = np.maximum(np.where(beyond, nr - 1.0, fk), 0.0)
+    culled = np.zeros(n, bool)
+    cull_fragile = np.zeros(n, bool)
+    if cull and occ.cull_floor > 0:
+        ci = np.minimum(np.floor(fi).astype(int), nt - 2)
+        cj = np.minimum(np.floor(fj).astype(int), nphi - 1)
+        bound = occ.cell_bound[ci, cj] * falloff
+        culled = beyond & (bound < occ.cull_floor)
+        # float32 rounding of the bound, the fall-off or the cell's edges
+        near_edge = np.zeros(n, bool)
+        for x in (fi, fj):
+            frac = x - np.floor(x)
+            near_edge |= (frac < FRAGILE_INDEX) | (frac > 1 - FRAGILE_INDEX)
+        cull_fragile = beyond & ((np.abs(bound - occ.cull_floor) <= 1e-4 * occ.cull_floor) | near_edge)
     if not trilinear:
         fragile = np.zeros(n, bool)
         for x in (fi, fj, fk):
@@ -275,13 +303,13 @@ def lookup(occ: Occluder, v_world, trilinear=True):
         if not mask.any():
             break
         shell(np.minimum(k, nr - 1), np.ones(n), mask)
-    valid = wsum > 0
-    f = np.where(valid[:, None, None], acc * (falloff / np.where(valid, wsum, 1.0))[:, None, None], 0.0)
+    valid = (wsum > 0) & ~culled
+    f = np.where(valid[:, None, None], acc * (falloff / np.where(wsum > 0, wsum, 1.0))[:, None, None], 0.0)
     if trilinear:
         # With invalid neighbours the set of samples used jumps when a weight reaches 0.
         t_all = np.stack([ti, 1 - ti, tj, 1 - tj, tk, 1 - tk], axis=1)
         fragile = any_nan & (np.abs(t_all).min(axis=1) < FRAGILE_INDEX)
-    return f, valid, fragile
+    return f, valid, fragile | cull_fragile
 
 
 def lens_area(a, b, dist):
@@ -327,7 +355,7 @@ def shade(position, normal, albedo, instance, e_unshadowed, occluders, env_fiv, 
         v = f32(occ.centre)[None, :] - p
         own = instance == occ.instance
         if self_shadow and own.any():
-            f, ok, frag = lookup(occ, v[own], trilinear)
+            f, ok, frag = lookup(occ, v[own], trilinear, cull=False)
             idx = np.flatnonzero(own)[ok]
             # The fullsphere estimate, clamped to [0, DifMap] (a sample off the
             # surface also sees light behind the receiver plane: it errs low).

@@ -19,8 +19,8 @@ import struct
 
 import numpy as np
 import pytest
-from fiv64 import (bake_samples, direction, distance_to_mesh, env_records, env_vectors, grid_points, make_occluder,
-                   shade, traced_rays, winding_number)
+from fiv64 import (bake_samples, direction, distance_to_mesh, env_records, env_vectors, grid_points, lookup,
+                   make_occluder, shade, traced_rays, winding_number)
 from geometry64 import cast, unit
 from tolerances import (FIV_BAKE_ATOL, FIV_CONTINUITY_ATOL, FIV_FALLOFF_RTOL, FIV_MONOTONE_ATOL,
                         FIV_OVERLAP_INCREASE_MAX, FIV_SCALED_INSTANCE_ATOL, FIV_SHADE_ATOL, IRRADIANCE_RTOL)
@@ -361,8 +361,9 @@ def test_self_shadow_never_brightens(shade_scene):
 @pytest.mark.parametrize("threshold", [1e-3, 1e-2, 0.1])
 def test_culling_matches_twin_and_its_bound(ctx, env, meshes, fields, threshold):
     """Spheres 1 to 64 units (2 to 130 radii) from the receivers: the kernel
-    culls exactly where the twin does, and what culling drops is below
-    threshold x E_ref per culled occluder (in irradiance)."""
+    culls exactly where the twin does (by distance and per direction), and
+    what culling drops at a pixel is below threshold x E_ref per occluder
+    culled there (in irradiance)."""
     rng = np.random.default_rng(5)
     pos, nrm, inst = plane_receivers(rng, max_tilt_deg=30.0, extent=(1.0, 1.0))
     placements = (((0.0, 1.0, 0.0), 1.0), ((15.0, 2.0, 5.0), 1.0), ((-30.0, 3.0, 10.0), 2.0), ((20.0, 5.0, -60.0), 1.0))
@@ -374,15 +375,30 @@ def test_culling_matches_twin_and_its_bound(ctx, env, meshes, fields, threshold)
     err = np.abs(got - want).max(axis=1)
     assert not ((err > FIV_SHADE_ATOL * scale) & ~fragile).any()
     full = s.render(overlap=0, cull_threshold=0.0)[s.fg][:, :3]
-    dropped = (got - full).max()
+    dropped = (got - full).max(axis=1)
     assert (got - full).min() >= 0
-    culled = sum(1 for o in s.occluders(threshold) if np.linalg.norm(o.centre) > o.cull)
-    assert dropped * np.pi <= culled * threshold * s.env_ref * (1 + 1e-5) + 1e-6
+    # Occluders culled at each pixel: beyond the culling distance, or beyond
+    # the grid in a direction whose cell bound is below the floor.
+    p = s.pos[s.fg][:, :3]
+    per_pixel = np.zeros(len(p), int)
+    by_direction = 0
+    for o in s.occluders(threshold):
+        v = o.centre[None, :] - p
+        far = np.linalg.norm(v, axis=1) > o.cull
+        _, ok_all, _ = lookup(o, v, cull=False)
+        _, ok, _ = lookup(o, v)
+        per_pixel += far | (ok_all & ~ok)
+        by_direction += (~far & ok_all & ~ok).sum()
+    assert (dropped * np.pi <= per_pixel * threshold * s.env_ref * (1 + 1e-5) + 1e-6).all()
     # The sun makes the outer spheres' largest |FIV| large: cull distances are
-    # about 130, 41 and 13 here, so 0, 1 and 3 occluders are culled.
+    # about 130, 41 and 13 here, so 0, 1 and 3 occluders are culled by distance.
+    culled = sum(1 for o in s.occluders(threshold) if np.linalg.norm(o.centre) > o.cull)
     assert culled == {1e-3: 0, 1e-2: 1, 0.1: 3}[threshold]
-    if culled:
-        assert dropped > 0
+    # Away from the sun's direction the bound is far smaller: per direction,
+    # occluders within their culling distance are culled too (at 0.1 only
+    # the nearest sphere is left, all of its pixels inside its grid).
+    assert (by_direction > 0) == (threshold < 0.1)
+    assert dropped.max() > 0
 
 
 def test_tile_culling_changes_no_pixel(ctx, env, meshes, fields):
@@ -1070,3 +1086,67 @@ def test_convex_occluder_shows_no_self_shadow_blotches(convex_scenes, name):
     assert darker <= free + 1e-6
     # Measured: box 0.468, sphere 0.057 of the range (shadow-free 0.0068, 0.0069).
     assert darker_self > 3 * free
+
+
+LN_SOURCE = """
+#include "fiv.cl"
+kernel void fiv_ln(global const float *x, global float *out)
+{ int i = get_global_id(0); out[i] = pn_fiv_ln(x[i]); }
+"""
+
+
+def test_fiv_ln_matches_float64(cl_pair, build_test_kernel):
+    """The lookup's logarithm (pn_fiv_ln, kernels/fiv.cl) to 3 ulp of the float64 ln
+    over every binade of normal floats and densely across [0.5, 2], where the
+    mantissa split at sqrt(2) lies."""
+    import pyopencl as cl
+
+    cl_ctx, queue = cl_pair
+    rng = np.random.default_rng(9)
+    x = np.concatenate([np.geomspace(np.finfo(np.float32).tiny, np.finfo(np.float32).max, 100_000),
+                        rng.uniform(0.5, 2.0, 100_000), [1.0, 2.0, 0.5, np.sqrt(2.0)],
+                        np.nextafter(np.float32(np.sqrt(2.0)), [0.0, 2.0])]).astype(np.float32)
+    mf = cl.mem_flags
+    bx = cl.Buffer(cl_ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+    out = np.empty_like(x)
+    bout = cl.Buffer(cl_ctx, mf.WRITE_ONLY, out.nbytes)
+    cl.Kernel(build_test_kernel(LN_SOURCE), "fiv_ln")(queue, (len(x),), None, bx, bout)
+    cl.enqueue_copy(queue, out, bout)
+    exact = np.log(x.astype(np.float64))
+    ulps = np.abs(out - exact) / np.spacing(np.maximum(np.abs(exact), 1e-30).astype(np.float32))
+    assert out[x == 1.0][0] == 0.0
+    assert ulps.max() <= 3.0, f"worst {ulps.max():.2f} ulp at x = {x[np.argmax(ulps)]!r}"
+
+
+def test_direction_bins_cull_only_what_cells_do(ctx, meshes):
+    """The coarse direction-bin test (before the lookup's angles) culls only
+    pairs the per-cell test culls too: receivers all around a sphere under a
+    1e3:1 sun, 1 to 6 outer radii away and facing it, shade as the twin
+    (which has only the cell test), with pairs culled per direction and pairs
+    kept beyond the grid both present."""
+    sky = np.ones((32, 64, 3), np.float32)
+    i, j = procedural.direction_to_pixel(unit([0.3, 1.0, 0.2]), 64, 32)
+    sky[j, i] = 1e3
+    env = EnvMap(ctx, sky, face_size=8, irradiance_face_size=8)
+    _, m = meshes["sphere"]
+    field = FivField.bake(env, m, FivOptions(samples=(17, 32, 12), face_size=8))
+    xf = translate((0.0, 0.0, 0.0))
+    w, h = 64, 48
+    u = fibonacci_directions(w * h)
+    rho = field.info()["outer"] * np.random.default_rng(3).uniform(1.0, 6.0, w * h)
+    c = np.asarray(field.info()["centre"], np.float64)
+    pos = (c - rho[:, None] * u).reshape(h, w, 3)
+    s = FivScene(ctx, env, {"sphere": field}, [(field, m, xf)], (pos, u.reshape(h, w, 3), np.full((h, w), 7,
+                                                                                                  np.uint32)))
+    threshold = 1e-3
+    got = s.render(overlap=0, cull_threshold=threshold)[s.fg][:, :3]
+    want, _, fragile = s.twin(cull_threshold=threshold, overlap=0)
+    scale = s.e0.max() / np.pi
+    err = np.abs(got - want).max(axis=1)
+    assert not ((err > FIV_SHADE_ATOL * scale) & ~fragile).any(), f"worst {err[~fragile].max() / scale:.3g}"
+    (occ,) = s.occluders(threshold)
+    v = occ.centre[None, :] - s.pos[s.fg][:, :3]
+    _, ok_all, _ = lookup(occ, v, cull=False)
+    _, ok, _ = lookup(occ, v)
+    beyond = np.linalg.norm(v, axis=1) > occ.outer
+    assert (ok_all & ~ok).sum() > 100 and (beyond & ok).sum() > 100

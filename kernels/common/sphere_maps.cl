@@ -35,22 +35,31 @@ inline float2 pn_dir_to_latlong(float3 d)
 /* Bilinear lookup of a lat-long RGB map (width x height, 3 floats a texel)
  * in direction d: texel (x, y) holds the radiance at its centre
  * ((x + 0.5) / width, (y + 0.5) / height); u wraps around the seam, v is
- * clamped at the poles (the first and last rows' values extend to them). */
+ * clamped at the poles (the first and last rows' values extend to them).
+ * The background of every image goes through here, one call per background
+ * pixel: u and v come from the polynomial pn_atan2 (2.5e-7 rad, below an ulp
+ * of the angle beyond 0.5 rad) instead of the library atan2 and acos, and
+ * the floor from an integer conversion (x, y > -1), which made the
+ * background pass 3-4x faster (docs/performance.md, FIV). v = atan2(|d.xz|,
+ * d.y) is also more accurate than acos(d.y) near the poles. */
 inline float3 pn_latlong_bilinear(global const float *latlong, int width, int height, float3 d)
 {
-    float2 uv = pn_dir_to_latlong(d);
-    float x = uv.x * (float)width - 0.5f, y = uv.y * (float)height - 0.5f;
-    float x_floor = floor(x), y_floor = floor(y);
-    float fx = x - x_floor, fy = y - y_floor;
-    int x0 = (int)x_floor, y0 = (int)y_floor; /* x0 in [-1, width - 1], y0 in [-1, height - 1] */
+    float u = pn_atan2(d.x, -d.z) * PN_INV_TWO_PI; /* [-1/2, 1/2] */
+    u = u < 0.0f ? u + 1.0f : u; /* u = 1 is the seam, as u = 0 */
+    /* atan2(+-0, -0) = +-pi (pn_atan2 returns 0 at the origin): the poles' u */
+    u = d.x == 0.0f && !signbit(d.z) ? 0.5f : u;
+    float v = pn_atan2(sqrt(d.x * d.x + d.z * d.z), d.y) * PN_INV_PI;
+    float x = u * (float)width - 0.5f, y = v * (float)height - 0.5f; /* >= -0.5 */
+    int x0 = (int)(x + 1.0f) - 1, y0 = (int)(y + 1.0f) - 1;          /* floor, in [-1, width - 1] */
+    float fx = clamp(x - (float)x0, 0.0f, 1.0f), fy = clamp(y - (float)y0, 0.0f, 1.0f);
     int x1 = x0 + 1 >= width ? x0 + 1 - width : x0 + 1;
     x0 = x0 < 0 ? x0 + width : x0;
     int y1 = min(y0 + 1, height - 1);
     y0 = max(y0, 0);
     global const float *p00 = latlong + 3 * (y0 * width + x0), *p10 = latlong + 3 * (y0 * width + x1);
     global const float *p01 = latlong + 3 * (y1 * width + x0), *p11 = latlong + 3 * (y1 * width + x1);
-    float3 top = mix((float3)(p00[0], p00[1], p00[2]), (float3)(p10[0], p10[1], p10[2]), fx);
-    float3 bottom = mix((float3)(p01[0], p01[1], p01[2]), (float3)(p11[0], p11[1], p11[2]), fx);
+    float3 top = mix(vload3(0, p00), vload3(0, p10), fx);
+    float3 bottom = mix(vload3(0, p01), vload3(0, p11), fx);
     return mix(top, bottom, fy);
 }
 

@@ -74,8 +74,85 @@ static pn_status collect_fields(state *s, pn_scene scene)
     return PN_SUCCESS;
 }
 
+/* Cells of the outermost sphere's (theta, phi) grid: (n_theta - 1) x n_phi. */
+static size_t cell_bound_count(const struct pn_fiv_impl *f)
+{
+    return (size_t)(f->options.theta - 1) * f->options.phi;
+}
+
+/* The culling bound per direction: for each cell of the outermost sphere,
+ * the largest |FIV| of a channel over its 4 corner samples (NaN ones left
+ * out), widened by 1e-5 against rounding. Beyond the grid a lookup
+ * interpolates only those 4 samples (renormalised), so its N . FIV is at
+ * most this times the fall-off (kernels/fiv.cl, pn_fiv_lookup). */
+static void cell_bounds(const struct pn_fiv_impl *f, float *out)
+{
+    const uint32_t nt = f->options.theta, np = f->options.phi;
+    const float *outer = f->samples + (size_t)(f->options.radii - 1) * nt * np * 9u;
+    for (uint32_t i = 0; i + 1 < nt; ++i)
+        for (uint32_t j = 0; j < np; ++j) {
+            float largest = 0.0f;
+            for (uint32_t c = 0; c < 4; ++c) {
+                const float *v = outer + ((size_t)(i + c / 2) * np + (j + c % 2) % np) * 9u;
+                for (int ch = 0; ch < 3; ++ch) {
+                    float norm = sqrtf(v[ch] * v[ch] + v[3 + ch] * v[3 + ch] + v[6 + ch] * v[6 + ch]);
+                    if (norm > largest) /* NaN (inside) never compares greater */
+                        largest = norm;
+                }
+            }
+            out[(size_t)i * np + j] = largest * 1.00001f;
+        }
+}
+
+/* Direction bins of the coarse culling test (kernels/fiv.cl, pn_fiv_dir_bin):
+ * PN_FIV_BINS_Z in cos theta (= d.y) by PN_FIV_BINS_P in a pseudo-angle p of
+ * phi in [0, 8] that needs no atan (p = t, 2 - t, ... by octant, t the ratio
+ * of the smaller to the larger of |d.x|, |d.z|). Keep in step with fiv.cl. */
+#define PN_FIV_BINS_Z 16
+#define PN_FIV_BINS_P 32
+#define PN_FIV_PI 3.14159265358979323846
+
+/* phi of the pseudo-angle p in [0, 8] (the inverse of the kernel's p). */
+static double pseudo_to_phi(double p)
+{
+    const int q = p >= 8.0 ? 3 : (int)(p / 2.0);
+    double local = q % 2 == 0 ? p - 2.0 * q : 2.0 * (q + 1) - p; /* [0, 2], increasing away from the axis */
+    double f = local <= 1.0 ? atan(local) : PN_FIV_PI / 2.0 - atan(2.0 - local);
+    return q == 0 ? f : q == 1 ? PN_FIV_PI - f : q == 2 ? PN_FIV_PI + f : 2.0 * PN_FIV_PI - f;
+}
+
+/* Per direction bin, the largest cell bound (cell_bounds) over the cells its
+ * theta and phi ranges overlap, widened by one cell on every side against
+ * rounding of the kernel's bin and cell indices, and by 1e-4 in value. A
+ * pair beyond the grid whose bin bound x fall-off is below the floor would
+ * be culled by its cell's bound too: the test only saves the angles. */
+static void bin_bounds(const struct pn_fiv_impl *f, const float *cells, float *out)
+{
+    const int nt = (int)f->options.theta, np = (int)f->options.phi;
+    for (int bz = 0; bz < PN_FIV_BINS_Z; ++bz) {
+        /* theta decreases with cos theta */
+        const double th_lo = acos(fmin(1.0, -1.0 + 2.0 * (bz + 1) / PN_FIV_BINS_Z));
+        const double th_hi = acos(fmax(-1.0, -1.0 + 2.0 * bz / PN_FIV_BINS_Z));
+        const int i0 = (int)fmax(0.0, floor(th_lo * (nt - 1) / PN_FIV_PI) - 1.0);
+        const int i1 = (int)fmin(nt - 2.0, floor(th_hi * (nt - 1) / PN_FIV_PI) + 1.0);
+        for (int bp = 0; bp < PN_FIV_BINS_P; ++bp) {
+            const double ph_lo = pseudo_to_phi(8.0 * bp / PN_FIV_BINS_P);
+            const double ph_hi = pseudo_to_phi(8.0 * (bp + 1) / PN_FIV_BINS_P);
+            const int j0 = (int)floor(ph_lo * np / (2.0 * PN_FIV_PI)) - 1;
+            const int j1 = (int)floor(ph_hi * np / (2.0 * PN_FIV_PI)) + 1;
+            float largest = 0.0f;
+            for (int i = i0; i <= i1; ++i)
+                for (int j = j0; j <= j1; ++j)
+                    largest = fmaxf(largest, cells[(size_t)i * np + (size_t)((j % np + np) % np)]);
+            out[bz * PN_FIV_BINS_P + bp] = largest * 1.0001f;
+        }
+    }
+}
+
 /* Concatenates the scene's fields as stored on the device (half or float),
- * each at a 16-byte aligned offset; rebuilt when the list changes. */
+ * each at a 16-byte aligned offset and followed by its cell bounds and its
+ * direction-bin bounds (float, 16-byte aligned); rebuilt when the list
+ * changes. */
 static pn_status upload_fields(state *cache, pn_scene scene)
 {
     pn_context ctx = scene->obj.ctx;
@@ -89,6 +166,8 @@ static pn_status upload_fields(state *cache, pn_scene scene)
         const pn_fiv f = cache->fields[i];
         size_t elem = f->options.precision == PN_PRECISION_FLOAT16 ? 2u : 4u;
         total += ((size_t)pn_fiv_sample_count(&f->options) * 9u * elem + 15u) & ~(size_t)15u;
+        total += (cell_bound_count(f) * sizeof(float) + 15u) & ~(size_t)15u;
+        total += PN_FIV_BINS_Z * PN_FIV_BINS_P * sizeof(float);
     }
     unsigned char *host = pn_malloc(ctx, total ? total : 16, "the occlusion fields");
     if (!host)
@@ -115,6 +194,11 @@ static pn_status upload_fields(state *cache, pn_scene scene)
             memcpy(host + at, f->samples, n * 4u);
             at += (n * 4u + 15u) & ~(size_t)15u;
         }
+        float *cells = (float *)(void *)(host + at);
+        cell_bounds(f, cells);
+        at += (cell_bound_count(f) * sizeof(float) + 15u) & ~(size_t)15u;
+        bin_bounds(f, cells, (float *)(void *)(host + at));
+        at += PN_FIV_BINS_Z * PN_FIV_BINS_P * sizeof(float);
     }
     if (total > UINT32_MAX) {
         free(host);
@@ -303,21 +387,23 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
             (st = pn_enqueue_1d(ctx, kb, "bin_fiv_tiles", tiles, 16)))
             return st;
     }
+    /* Per-direction culling floor (pn_fiv_lookup): 0 culls nothing. */
+    const cl_float cull_floor = (cl_float)(r->params[P_CULL_THRESHOLD] * s->env_ref);
     cl_float4 env_fiv[3];
     for (int a = 0; a < 3; ++a)
         for (int c = 0; c < 4; ++c)
             env_fiv[a].s[c] = c < 3 ? s->env_fiv[3 * a + c] : 0.0f;
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count, sizeof(cl_mem),
-                      sizeof m, sizeof(cl_mem), sizeof occluders, sizeof(cl_mem),
+                      sizeof m, sizeof(cl_mem), sizeof occluders, sizeof(cl_mem), sizeof cull_floor,
                       sizeof env_fiv[0], sizeof env_fiv[1], sizeof env_fiv[2], sizeof overlap, sizeof partial,
                       sizeof self_shadow, sizeof trilinear, sizeof width, sizeof binned, sizeof(cl_mem),
                       sizeof(cl_mem)};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->irradiance,
-                          &m, &s->device_records, &occluders, &s->data, &env_fiv[0],
+                          &m, &s->device_records, &occluders, &s->data, &cull_floor, &env_fiv[0],
                           &env_fiv[1], &env_fiv[2], &overlap, &partial, &self_shadow, &trilinear, &width, &binned,
                           &s->tile_masks, &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_fiv", 21, sizes, vals)))
+    if ((st = pn_set_args(ctx, k, "shade_fiv", 22, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_fiv", (size_t)count, 64);
 }

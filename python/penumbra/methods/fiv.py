@@ -939,7 +939,7 @@ def occluder_bounds(built, cull_threshold: float = 1e-3) -> dict:
     power = (env.cube_radiance().reshape(-1, 3).astype(np.float64) * omega.reshape(-1, 1)).sum(0).max()
     env_ref = power / 4.0
     objects = {o.name: o for o in built.desc.objects}
-    centres, radii, culls = [], [], []
+    centres, radii, culls, outers, cells = [], [], [], [], []
     for f, rec in zip(state(built).fields, state(built).records):
         info = f.info()
         outer_sphere = np.asarray(f.samples()[-1], np.float64)
@@ -948,20 +948,28 @@ def occluder_bounds(built, cull_threshold: float = 1e-3) -> dict:
         cull = np.inf
         if cull_threshold > 0:
             cull = info["outer"] * np.sqrt(max(outer_max / max(cull_threshold * env_ref, 1e-30), 1.0))
+        # The per-direction bound of capi/src/methods/fiv.c cell_bounds: per
+        # (theta, phi) cell of the outer sphere, its 4 corners' largest |FIV|.
+        top = np.where(np.isnan(norm), -np.inf, norm).max(axis=-1)
+        corners = np.stack([top[:-1], np.roll(top[:-1], -1, 1), top[1:], np.roll(top[1:], -1, 1)]).max(0)
         for name in rec["objects"]:
             m = objects[name].transform()
             sc = uniform_scale(m)
             centres.append(m[:3, :3] @ np.asarray(info["centre"], np.float64) + m[:3, 3])
             radii.append(sc * info["radius"])
             culls.append(sc * cull)
-    return {"centre": np.array(centres).reshape(-1, 3), "radius": np.array(radii), "cull": np.array(culls)}
+            outers.append(sc * info["outer"])
+            cells.append(np.maximum(corners, 0.0))
+    return {"centre": np.array(centres).reshape(-1, 3), "radius": np.array(radii), "cull": np.array(culls),
+            "outer": np.array(outers), "cell_bound": cells, "cull_floor": cull_threshold * env_ref}
 
 
 def tile_occluder_counts(gbuffer: dict, bounds: dict, width: int, tile: int = 16) -> dict:
     """A float64 twin of kernels/fiv.cl bin_fiv_tiles: per tile with receivers,
     how many occluders' culling spheres reach the box of its receivers, and per
     receiver pixel how many occluders it looks up (not culled by distance,
-    not wholly behind its plane: the "occluders that matter")."""
+    not wholly behind its plane: the "occluders that matter") and of those
+    how many it fetches samples of (not culled per direction either)."""
     pos = gbuffer["position"][..., :3].reshape(-1, 3).astype(np.float64)
     nrm = gbuffer["normal"][..., :3].reshape(-1, 3).astype(np.float64)
     fg = (gbuffer["instance"].ravel() != 0xFFFFFFFF) & np.isfinite(pos).all(axis=1)
@@ -979,15 +987,33 @@ def tile_occluder_counts(gbuffer: dict, bounds: dict, width: int, tile: int = 16
     per_tile = ((d ** 2).sum(-1) <= cull[None] ** 2).sum(1)
     p, n = pos[fg], nrm[fg]
     per_pixel = np.zeros(len(p), np.int64)
+    fetches = np.zeros(len(p), np.int64)
     for k in range(len(r)):  # one occluder at a time: memory linear in the pixels
         v = c[k] - p
-        per_pixel += ((v * n).sum(1) > -r[k]) & (np.linalg.norm(v, axis=1) <= cull[k])
+        rho = np.linalg.norm(v, axis=1)
+        looked_up = ((v * n).sum(1) > -r[k]) & (rho <= cull[k])
+        per_pixel += looked_up
+        if "cell_bound" in bounds and bounds["cull_floor"] > 0:
+            # Beyond the grid, the direction's cell bound times the fall-off
+            # (kernels/fiv.cl pn_fiv_lookup): below the floor, no fetch.
+            cb = bounds["cell_bound"][k]
+            nt, nphi = cb.shape[0] + 1, cb.shape[1]
+            d = v / np.where(rho > 0, rho, 1.0)[:, None]
+            phi = np.mod(np.arctan2(d[:, 2], d[:, 0]), 2 * np.pi)
+            ci = np.minimum((np.arccos(np.clip(d[:, 1], -1, 1)) * (nt - 1) / np.pi).astype(int), nt - 2)
+            cj = np.minimum((phi * nphi / (2 * np.pi)).astype(int), nphi - 1)
+            outer = bounds["outer"][k]
+            beyond = rho > outer
+            falloff = (outer / np.where(beyond, rho, outer)) ** 2
+            looked_up &= ~(beyond & (cb[ci, cj] * falloff < bounds["cull_floor"]))
+        fetches += looked_up
     return {"tiles": int(used.sum()), "per_tile_mean": float(per_tile.mean()) if per_tile.size else 0.0,
             "per_tile_median": float(np.median(per_tile)) if per_tile.size else 0.0,
             "per_tile_max": int(per_tile.max()) if per_tile.size else 0,
             "per_tile_min": int(per_tile.min()) if per_tile.size else 0,
             "per_tile_histogram": np.bincount(per_tile, minlength=len(r) + 1).tolist(),
             "lookups_per_pixel": float(per_pixel.mean()) if per_pixel.size else 0.0,
+            "fetches_per_pixel": float(fetches.mean()) if fetches.size else 0.0,
             "receiver_pixels": int(fg.sum())}
 
 
@@ -1171,7 +1197,8 @@ def scaling_markdown(summary: dict, rows: list[dict], equal_error: dict | None) 
              f"{s['load_average_1min'][1]} on {s['cpus']} CPUs.", "",
              "| scene | occluders | fiv shading ms | floor ms | fiv / floor | fps (shading) | fps (G-buffer + shading) | "
              "paper fps (GeForce 8800) | fiv overlap=0 ms | unshadowed ms | fiv tile_cull=0 ms | tile culling speed-up | "
-             "occluders per tile (mean / median / max) | lookups per pixel | ns per lookup (overlap 1 / 0) | "
+             "occluders per tile (mean / median / max) | lookups per pixel (fetching samples) | "
+             "ns per lookup (overlap 1 / 0) | "
              "per lookup / 1 occluder's (overlap 1 / 0) | G-buffer ms |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
@@ -1184,7 +1211,8 @@ def scaling_markdown(summary: dict, rows: list[dict], equal_error: dict | None) 
                      f"{r['paper_fps'] if r['paper_fps'] is not None else '-'} | {r['fiv_sum_shade_ms']:.2f} | "
                      f"{r['unshadowed_shade_ms']:.2f} | {r['fiv_unculled_shade_ms']:.2f} | "
                      f"{r['tile_cull_speedup']:.2f} | {r['tiles_per_tile_mean']:.1f} / {r['tiles_per_tile_median']:g} / "
-                     f"{r['tiles_per_tile_max']} | {r['tiles_lookups_per_pixel']:.2f} | "
+                     f"{r['tiles_per_tile_max']} | {r['tiles_lookups_per_pixel']:.2f} "
+                     f"({r['tiles_fetches_per_pixel']:.2f}) | "
                      f"{f(r['per_lookup_ns'], '.1f')} / {f(r['per_lookup_sum_ns'], '.1f')} | "
                      f"{f(r['per_lookup_ratio'], '.2f')} / {f(r['per_lookup_sum_ratio'], '.2f')} | "
                      f"{r['gbuffer_ms']:.1f} |")
@@ -1194,7 +1222,8 @@ def scaling_markdown(summary: dict, rows: list[dict], equal_error: dict | None) 
               "unit-bounding-disc correction, docs/fiv.md) and tile_cull = 1 (per 16x16 tile, only the occluders "
               "whose culling distance reaches the tile's receivers). Occluders per tile: over the tiles with "
               "receivers. Lookups per pixel: the (pixel, occluder) pairs the kernel interpolates (not culled by "
-              "distance, not wholly behind the pixel's plane), per receiver pixel; ns per lookup = (fiv - "
+              "distance, not wholly behind the pixel's plane), per receiver pixel, and in brackets those that "
+              "also pass the per-direction bound and fetch samples; ns per lookup = (fiv - "
               "unshadowed) / those pairs, against the 1-occluder scene's."]
     single = next((r for r in rows if r["occluders"] == 1 and r["layout"] == "clustered"), None)
     spread = next((r for r in rows if r["layout"] == "spread"), None)
