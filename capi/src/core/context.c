@@ -462,6 +462,48 @@ pn_status pn_context_set_cache(pn_context ctx, const void *key, void *data, void
     return PN_SUCCESS;
 }
 
+typedef struct table_cache {
+    cl_mem table;
+} table_cache;
+
+static void free_table_cache(void *data)
+{
+    table_cache *c = data;
+    pn_mem_release(&c->table);
+    free(c);
+}
+
+pn_status pn_context_table(pn_context ctx, const void *key, size_t floats, void (*fill)(float *out),
+                           const char *what, cl_mem *out)
+{
+    table_cache *c = pn_context_cache(ctx, key);
+    if (c) {
+        *out = c->table;
+        return PN_SUCCESS;
+    }
+    const size_t bytes = floats * sizeof(float);
+    float *host = pn_malloc(ctx, bytes, what);
+    if (!host)
+        return PN_ERROR_OUT_OF_MEMORY;
+    fill(host);
+    cl_mem buf;
+    pn_status st = pn_alloc(ctx, bytes, CL_MEM_READ_ONLY, host, &buf, what);
+    free(host);
+    if (st)
+        return st;
+    if (!(c = pn_malloc(ctx, sizeof *c, what))) {
+        pn_mem_release(&buf);
+        return PN_ERROR_OUT_OF_MEMORY;
+    }
+    c->table = buf;
+    if ((st = pn_context_set_cache(ctx, key, c, free_table_cache))) {
+        free_table_cache(c);
+        return st;
+    }
+    *out = buf;
+    return PN_SUCCESS;
+}
+
 static void CL_CALLBACK free_upload(cl_event event, cl_int status, void *copy)
 {
     (void)event;

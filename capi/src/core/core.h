@@ -192,6 +192,10 @@ pn_status pn_context_kernel(pn_context ctx, const char *stage, const char *name,
 void *pn_context_cache(pn_context ctx, const void *key);
 /* Stores `data` under `key`; the context frees it with free_data. */
 pn_status pn_context_set_cache(pn_context ctx, const void *key, void *data, void (*free_data)(void *data));
+/* A read-only table of `floats` floats that `fill` writes on the host, uploaded
+ * once per context and cached under `key` (the context owns it). */
+pn_status pn_context_table(pn_context ctx, const void *key, size_t floats, void (*fill)(float *out),
+                           const char *what, cl_mem *out);
 /* Sets kernel arguments from a list of (size, pointer) pairs. */
 pn_status pn_set_args(pn_context ctx, cl_kernel kernel, const char *name, int count, const size_t *sizes,
                       const void *const *values);

@@ -147,45 +147,9 @@ void pn_isg_table_fill(float *out)
     }
 }
 
-typedef struct isg_cache {
-    cl_mem table;
-} isg_cache;
-
 static const char cache_key = 0;
-
-static void free_cache(void *data)
-{
-    isg_cache *c = data;
-    pn_mem_release(&c->table);
-    free(c);
-}
 
 pn_status pn_isg_table_buffer(pn_context ctx, cl_mem *out)
 {
-    isg_cache *c = pn_context_cache(ctx, &cache_key);
-    if (c) {
-        *out = c->table;
-        return PN_SUCCESS;
-    }
-    const size_t bytes = PN_ISG_TABLE_FLOATS * sizeof(float);
-    float *host = pn_malloc(ctx, bytes, "the ISG table");
-    if (!host)
-        return PN_ERROR_OUT_OF_MEMORY;
-    pn_isg_table_fill(host);
-    cl_mem buf;
-    pn_status st = pn_alloc(ctx, bytes, CL_MEM_READ_ONLY, host, &buf, "the ISG table");
-    free(host);
-    if (st)
-        return st;
-    if (!(c = pn_malloc(ctx, sizeof *c, "the ISG table cache"))) {
-        pn_mem_release(&buf);
-        return PN_ERROR_OUT_OF_MEMORY;
-    }
-    c->table = buf;
-    if ((st = pn_context_set_cache(ctx, &cache_key, c, free_cache))) {
-        free_cache(c);
-        return st;
-    }
-    *out = buf;
-    return PN_SUCCESS;
+    return pn_context_table(ctx, &cache_key, PN_ISG_TABLE_FLOATS, pn_isg_table_fill, "the ISG table", out);
 }

@@ -107,45 +107,10 @@ void pn_depthmap_cap_table_fill(float *out)
     }
 }
 
-typedef struct table_cache {
-    cl_mem table;
-} table_cache;
-
 static const char cache_key = 0;
-
-static void free_cache(void *data)
-{
-    table_cache *c = data;
-    pn_mem_release(&c->table);
-    free(c);
-}
 
 pn_status pn_depthmap_cap_table(pn_context ctx, cl_mem *out)
 {
-    table_cache *c = pn_context_cache(ctx, &cache_key);
-    if (c) {
-        *out = c->table;
-        return PN_SUCCESS;
-    }
-    const size_t bytes = PN_DM_TABLE_FLOATS * sizeof(float);
-    float *host = pn_malloc(ctx, bytes, "the cap-average table");
-    if (!host)
-        return PN_ERROR_OUT_OF_MEMORY;
-    pn_depthmap_cap_table_fill(host);
-    cl_mem buf;
-    pn_status st = pn_alloc(ctx, bytes, CL_MEM_READ_ONLY, host, &buf, "the cap-average table");
-    free(host);
-    if (st)
-        return st;
-    if (!(c = pn_malloc(ctx, sizeof *c, "the cap-average table cache"))) {
-        pn_mem_release(&buf);
-        return PN_ERROR_OUT_OF_MEMORY;
-    }
-    c->table = buf;
-    if ((st = pn_context_set_cache(ctx, &cache_key, c, free_cache))) {
-        free_cache(c);
-        return st;
-    }
-    *out = buf;
-    return PN_SUCCESS;
+    return pn_context_table(ctx, &cache_key, PN_DM_TABLE_FLOATS, pn_depthmap_cap_table_fill, "the cap-average table",
+                            out);
 }
