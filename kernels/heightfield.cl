@@ -333,14 +333,54 @@ inline void hf_vertex_horizons(global const float *pyr, global const int4 *level
     }
 }
 
-/* V = sum over azimuths of the wedge table, bilinear at (ω_k, ω_k+1), turned to φ_k. */
+/* SH vectors in float16 chunks (coefficient q = 16 chunk + lane; 6 bands:
+ * 36 coefficients in 3 chunks, the last lanes zero). PoCL runs a work-item's
+ * loops as scalar code, so the coefficient loops of the visibility and the
+ * product are written out as chunk arithmetic. */
+#define HF_SH_CHUNKS ((PN_SH_MAX_COEFFS + 15) / 16)
+
+/* Chunk `chunk` of the nc floats at p (lanes past nc are 0, nothing past nc is read). */
+inline float16 hf_sh_chunk(global const float *p, int nc, int chunk)
+{
+    const int rest = nc - 16 * chunk;
+    if (rest >= 16)
+        return vload16(chunk, p);
+    float16 x = 0.0f;
+    if (rest == 4) {
+        x.s0123 = vload4(0, p + 16 * chunk);
+        return x;
+    }
+    float t[16];
+    for (int i = 0; i < 16; ++i)
+        t[i] = i < rest ? p[16 * chunk + i] : 0.0f;
+    return vload16(0, t);
+}
+
+inline float hf_hsum16(float16 x)
+{
+    const float8 y = x.lo + x.hi;
+    const float4 z = y.lo + y.hi;
+    return (z.x + z.y) + (z.z + z.w);
+}
+
+/* Per chunk lane: |m| of the coefficient (7 = a zero lane past 6 bands) and sign(m). */
+#define HF_ABS_M0 ((uint16)(0, 1, 0, 1, 2, 1, 0, 1, 2, 3, 2, 1, 0, 1, 2, 3))
+#define HF_ABS_M1 ((uint16)(4, 3, 2, 1, 0, 1, 2, 3, 4, 5, 4, 3, 2, 1, 0, 1))
+#define HF_ABS_M2 ((uint16)(2, 3, 4, 5, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7))
+#define HF_SIGN_M0 ((float16)(0, -1, 0, 1, -1, -1, 0, 1, 1, -1, -1, -1, 0, 1, 1, 1))
+#define HF_SIGN_M1 ((float16)(-1, -1, -1, -1, 0, 1, 1, 1, 1, -1, -1, -1, -1, -1, 0, 1))
+#define HF_SIGN_M2 ((float16)(1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0))
+
+/* V = sum over azimuths of the wedge table, bilinear at (ω_k, ω_k+1), turned
+ * to φ_k. The turn about z (pn_sh_zrotate) maps c to cos(mφ) c + S ∘ swap(c),
+ * swap exchanging (l, m) and (l, -m); since swap is fixed and linear, the sum
+ * over wedges is A + swap(B) with A = Σ cos(mφ_k) c_k and
+ * B = Σ sign(m) sin(|m| φ_k) c_k, both plain lane-wise chunk arithmetic. */
 inline void hf_visibility(const float *om, int n_phi, global const float *table, int nb, float lo, float *v)
 {
-    const int nc = nb * nb;
+    const int nc = nb * nb, nch = (nc + 15) / 16;
     const float scale = (float)(HF_TABLE - 1) / (0.5f * M_PI_F - lo), dphi = 2.0f * M_PI_F / (float)n_phi;
-    for (int q = 0; q < nc; ++q)
-        v[q] = 0.0f;
-    float c[PN_SH_MAX_COEFFS];
+    float16 a0 = 0.0f, a1 = 0.0f, a2 = 0.0f, b0 = 0.0f, b1 = 0.0f, b2 = 0.0f;
     for (int k = 0; k < n_phi; ++k) {
         const float fa = clamp((om[k] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
         const float fb = clamp((om[(k + 1) % n_phi] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
@@ -348,14 +388,39 @@ inline void hf_visibility(const float *om, int n_phi, global const float *table,
         const float ta = fa - (float)ia, tb = fb - (float)ib;
         global const float *t00 = table + (ia * HF_TABLE + ib) * nc, *t01 = t00 + nc;
         global const float *t10 = t00 + HF_TABLE * nc, *t11 = t10 + nc;
-        for (int q = 0; q < nc; ++q)
-            c[q] = mix(mix(t00[q], t01[q], tb), mix(t10[q], t11[q], tb), ta);
+        /* cos mφ, sin mφ for m = 0 .. 5 by the recurrence pn_sh_zrotate uses. */
         float sn, cs;
         sn = sincos(dphi * (float)k, &cs);
-        pn_sh_zrotate(c, nb, cs, sn);
-        for (int q = 0; q < nc; ++q)
-            v[q] += c[q];
+        float cm[8] = {1.0f, cs, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}, sm[8] = {0.0f, sn, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+        for (int m = 2; m < PN_SH_MAX_BANDS; ++m) {
+            cm[m] = cm[m - 1] * cs - sm[m - 1] * sn;
+            sm[m] = sm[m - 1] * cs + cm[m - 1] * sn;
+        }
+        const float8 c8 = vload8(0, cm), s8 = vload8(0, sm);
+#define HF_WEDGE_CHUNK(q, a, b, ABS_M, SIGN_M)                                                                  \
+    {                                                                                                           \
+        const float16 x = mix(mix(hf_sh_chunk(t00, nc, q), hf_sh_chunk(t01, nc, q), tb),                        \
+                              mix(hf_sh_chunk(t10, nc, q), hf_sh_chunk(t11, nc, q), tb), ta);                   \
+        a += shuffle(c8, ABS_M) * x;                                                                            \
+        b += shuffle(s8, ABS_M) * SIGN_M * x;                                                                   \
     }
+        HF_WEDGE_CHUNK(0, a0, b0, HF_ABS_M0, HF_SIGN_M0)
+        if (nch > 1)
+            HF_WEDGE_CHUNK(1, a1, b1, HF_ABS_M1, HF_SIGN_M1)
+        if (nch > 2)
+            HF_WEDGE_CHUNK(2, a2, b2, HF_ABS_M2, HF_SIGN_M2)
+#undef HF_WEDGE_CHUNK
+    }
+    float a[16 * HF_SH_CHUNKS], b[16 * HF_SH_CHUNKS];
+    vstore16(a0, 0, a);
+    vstore16(a1, 1, a);
+    vstore16(a2, 2, a);
+    vstore16(b0, 0, b);
+    vstore16(b1, 1, b);
+    vstore16(b2, 2, b);
+    for (int l = 0; l < nb; ++l)
+        for (int m = -l; m <= l; ++m)
+            v[l * l + l + m] = a[l * l + l + m] + b[l * l + l - m];
 }
 
 /* Clamped cosine about the world normal n, in SH: C_lm = A_l y_lm(n). */
@@ -426,15 +491,24 @@ kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid
     const float3 up = split ? pn_cube_grid_lookup(up_irradiance, up_size, n) : (float3)(0.0f);
     const float upv[3] = {up.x, up.y, up.z};
     float e[3];
+    /* V^T M C per channel as chunks: acc = Σ_j V_j M_j (rows of M), then acc · C. */
+    const int nch = (nc + 15) / 16;
+    float cpad[16 * HF_SH_CHUNKS];
+    for (int q = 0; q < 16 * HF_SH_CHUNKS; ++q)
+        cpad[q] = q < nc ? cvec[q] : 0.0f;
+    const float16 c0 = vload16(0, cpad), c1 = vload16(1, cpad), c2 = vload16(2, cpad);
     for (int ch = 0; ch < 3; ++ch) {
         global const float *mc = m + ch * nc * nc;
-        float sum = 0.0f;
+        float16 acc0 = 0.0f, acc1 = 0.0f, acc2 = 0.0f;
         for (int j = 0; j < nc; ++j) {
-            float row = 0.0f;
-            for (int k = 0; k < nc; ++k)
-                row += mc[j * nc + k] * cvec[k];
-            sum += v[j] * row;
+            global const float *row = mc + j * nc;
+            acc0 += v[j] * hf_sh_chunk(row, nc, 0);
+            if (nch > 1)
+                acc1 += v[j] * hf_sh_chunk(row, nc, 1);
+            if (nch > 2)
+                acc2 += v[j] * hf_sh_chunk(row, nc, 2);
         }
+        float sum = hf_hsum16(acc0 * c0 + acc1 * c1 + acc2 * c2);
         if (split) {
             float uc = 0.0f;
             for (int k = 0; k < nc; ++k)
