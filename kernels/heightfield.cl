@@ -160,19 +160,27 @@ typedef int8 hf_vi;
 #define HF_CONVERT_F convert_float8
 #define hf_vload vload8
 #define hf_vstore vstore8
-#define HF_GATHER(p, i) ((hf_vf)(p[i.s0], p[i.s1], p[i.s2], p[i.s3], p[i.s4], p[i.s5], p[i.s6], p[i.s7]))
+#define HF_GATHER(p, i) HF_GATHER8(p, i)
 #define HF_LANE_IDS ((hf_vi)(0, 1, 2, 3, 4, 5, 6, 7))
 #endif
+#define HF_GATHER8(p, i) ((float8)(p[i.s0], p[i.s1], p[i.s2], p[i.s3], p[i.s4], p[i.s5], p[i.s6], p[i.s7]))
 
 /* pn_atan (common/math.cl), lane by lane. */
-inline hf_vf hf_atan_v(hf_vf x)
-{
-    const hf_vf a = fabs(x), t = select(a, 1.0f / a, a > 1.0f), t2 = t * t;
-    hf_vf p;
-    PN_ATAN_POLY(p, t2);
-    const hf_vf r = t * p;
-    return copysign(select(r, M_PI_2_F - r, a > 1.0f), x);
-}
+#define HF_DEFINE_ATAN(name, T)                                                                                 \
+    inline T name(T x)                                                                                          \
+    {                                                                                                           \
+        const T a = fabs(x), t = select(a, 1.0f / a, a > 1.0f), t2 = t * t;                                     \
+        T p;                                                                                                    \
+        PN_ATAN_POLY(p, t2);                                                                                    \
+        const T r = t * p;                                                                                      \
+        return copysign(select(r, M_PI_2_F - r, a > 1.0f), x);                                                  \
+    }
+HF_DEFINE_ATAN(hf_atan_v, hf_vf)
+#if HF_LANES == 8
+#define hf_atan8 hf_atan_v
+#else
+HF_DEFINE_ATAN(hf_atan8, float8)
+#endif
 
 /* hf_level_sample for HF_LANES points (same formula, lane by lane). */
 inline hf_vf hf_level_sample_v(global const float *pyr, int4 lev, hf_vf u, hf_vf v, float inv_wm1, float inv_dm1,
@@ -209,6 +217,31 @@ inline hf_vf hf_level_sample_v(global const float *pyr, int4 lev, hf_vf u, hf_vf
  * slides along the samples: with w0..w3 = ω_{m-2}..ω_{m+1}, the knot at m-1
  * and the midpoint between m-2 and m-1 are complete. Ends repeat
  * (ω_{-1} = ω_0, ω_count = ω_{count-1}). */
+/* The sliding window over elevations: one new elevation w3, and the end. */
+#define HF_WINDOW_STEP(w0, w1, w2, w3, best, count)                                                             \
+    {                                                                                                           \
+        if (count == 0)                                                                                         \
+            w0 = w1 = w2 = w3;                                                                                  \
+        else {                                                                                                  \
+            best = fmax(best, (w1 + 4.0f * w2 + w3) / 6.0f);                                                    \
+            if (count >= 2)                                                                                     \
+                best = fmax(best, (w0 + 23.0f * w1 + 23.0f * w2 + w3) / 48.0f);                                 \
+        }                                                                                                       \
+        w0 = w1;                                                                                                \
+        w1 = w2;                                                                                                \
+        w2 = w3;                                                                                                \
+        ++count;                                                                                                \
+    }
+#define HF_WINDOW_END(w0, w1, w2, best, count)                                                                  \
+    {                                                                                                           \
+        if (count == 0)                                                                                         \
+            return -M_PI_2_F;                                                                                   \
+        best = fmax(best, (w1 + 5.0f * w2) / 6.0f);                                                             \
+        if (count >= 2)                                                                                         \
+            best = fmax(best, (w0 + 23.0f * w1 + 24.0f * w2) / 48.0f);                                          \
+        return best;                                                                                            \
+    }
+
 inline hf_vf hf_horizon_pyramid_v(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
                                   const float *hp, float ref, float u0, float v0, hf_vf cu, hf_vf cv, float limit,
                                   float inv_wm1, float inv_dm1)
@@ -223,24 +256,97 @@ inline hf_vf hf_horizon_pyramid_v(global const float *pyr, global const int4 *le
         const int k = clamp(m - grid.w, 0, grid.z - 1);
         const hf_vf h = hf_level_sample_v(pyr, levels[k], u0 + d * cu, v0 + d * cv, inv_wm1, inv_dm1, ref);
         const hf_vf w3 = hf_atan_v((h - hp[k]) / d);
-        if (count == 0)
-            w0 = w1 = w2 = w3;
-        else {
-            best = fmax(best, (w1 + 4.0f * w2 + w3) / 6.0f);
-            if (count >= 2)
-                best = fmax(best, (w0 + 23.0f * w1 + 23.0f * w2 + w3) / 48.0f);
-        }
-        w0 = w1;
-        w1 = w2;
-        w2 = w3;
-        ++count;
+        HF_WINDOW_STEP(w0, w1, w2, w3, best, count)
     }
-    if (count == 0)
-        return -M_PI_2_F;
-    best = fmax(best, (w1 + 5.0f * w2) / 6.0f);
-    if (count >= 2)
-        best = fmax(best, (w0 + 23.0f * w1 + 24.0f * w2) / 48.0f);
-    return best;
+    HF_WINDOW_END(w0, w1, w2, best, count)
+}
+
+/* Row groups: the environment's search also runs HF_ROW consecutive
+ * vertices of a row at once, one per lane, one azimuth at a time. Their
+ * samples then share d, the level and v, and their u differ by at most
+ * one base cell per lane, so the 4 x 4 taps of all lanes lie on the same 4
+ * rows, within a window of 16 values of each (7 cells of spread plus 3
+ * taps): the rows are combined over the window as 4 float16 FMAs, and each
+ * lane takes its 4 columns from the combined row -- 32 private loads
+ * instead of 128 per-lane global loads per sample. The same B-spline as
+ * hf_level_sample (rows first, columns second; `ref` is the group's first
+ * vertex, so a flat field still gives exactly 0). */
+#define HF_ROW 8
+inline float8 hf_level_sample_row(global const float *pyr, int4 lev, float8 u, float v, float inv_wm1,
+                                  float inv_dm1, float ref)
+{
+    const float8 a = u * (float)lev.y * inv_wm1, fa = floor(a), ta = a - fa, sa = 1.0f - ta, ta2 = ta * ta,
+                 ta3 = ta2 * ta;
+    const float8 wa0 = sa * sa * sa / 6.0f, wa1 = (3.0f * ta3 - 6.0f * ta2 + 4.0f) / 6.0f,
+                 wa2 = (-3.0f * ta3 + 3.0f * ta2 + 3.0f * ta + 1.0f) / 6.0f, wa3 = ta3 / 6.0f;
+    const float b = v * (float)lev.z * inv_dm1, fb = floor(b);
+    const float4 wb = hf_bspline(b - fb);
+    const int8 ia = convert_int8(fa) - 1;
+    const int ib = (int)fb - 1, row = lev.y + 1, c0 = ia.s0;
+    global const float *base = pyr + lev.x;
+    global const float *r0 = base + clamp(ib, 0, lev.z) * row, *r1 = base + clamp(ib + 1, 0, lev.z) * row,
+                       *r2 = base + clamp(ib + 2, 0, lev.z) * row, *r3 = base + clamp(ib + 3, 0, lev.z) * row;
+    float line[16];
+    if (c0 >= 0 && c0 + 15 <= lev.y) {
+        const float16 l = wb.x * (vload16(0, r0 + c0) - ref) + wb.y * (vload16(0, r1 + c0) - ref) +
+                          wb.z * (vload16(0, r2 + c0) - ref) + wb.w * (vload16(0, r3 + c0) - ref);
+        vstore16(l, 0, line);
+    } else { /* near the level's border (clamped columns) or a level narrower than the window */
+        for (int p = 0; p < 16; ++p) {
+            const int c = clamp(c0 + p, 0, lev.y);
+            line[p] = wb.x * (r0[c] - ref) + wb.y * (r1[c] - ref) + wb.z * (r2[c] - ref) + wb.w * (r3[c] - ref);
+        }
+    }
+    const int8 o0 = ia - c0, o1 = o0 + 1, o2 = o0 + 2, o3 = o0 + 3;
+    return wa0 * HF_GATHER8(line, o0) + wa1 * HF_GATHER8(line, o1) + wa2 * HF_GATHER8(line, o2) +
+           wa3 * HF_GATHER8(line, o3);
+}
+
+/* hf_horizon_pyramid_v for a row group along one direction (cu, cv); hp
+ * holds H_k - ref at each lane's vertex. The environment's search: no limit. */
+inline float8 hf_horizon_pyramid_row(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                                     const float8 *hp, float ref, float8 u0, float v0, float cu, float cv,
+                                     float inv_wm1, float inv_dm1)
+{
+    float8 w0 = 0.0f, w1 = 0.0f, w2 = 0.0f, best = -M_PI_2_F;
+    int count = 0;
+    const float sr = exp2(1.0f / geom.s5);
+    float d = geom.s6;
+    for (int m = 0; m < grid.z; ++m, d *= sr) {
+        const int k = clamp(m - grid.w, 0, grid.z - 1);
+        const float8 h = hf_level_sample_row(pyr, levels[k], u0 + d * cu, v0 + d * cv, inv_wm1, inv_dm1, ref);
+        const float8 w3 = hf_atan8((h - hp[k]) / d);
+        HF_WINDOW_STEP(w0, w1, w2, w3, best, count)
+    }
+    HF_WINDOW_END(w0, w1, w2, best, count)
+}
+
+/* Environment horizons (clamped at 0) of the row group starting at vertex
+ * gid: om[lane * n_phi + k] for the lanes inside the row (lanes past its
+ * end repeat its last vertex and are not stored). */
+inline void hf_row_env_horizons(global const float *pyr, global const int4 *levels, int4 grid, float8 geom, int gid,
+                                int n_phi, float *om)
+{
+    const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
+    const int i0 = gid % grid.x, lanes = min(HF_ROW, grid.x - i0);
+    const float8 u0 = convert_float8(min(i0 + (int8)(0, 1, 2, 3, 4, 5, 6, 7), grid.x - 1));
+    const float v0 = (float)(gid / grid.x), ref = pyr[gid];
+    float8 hp[HF_MAX_LEVELS];
+    const int top = max(grid.z - 1 - grid.w, 0);
+    for (int k = 0; k <= top; ++k)
+        hp[k] = hf_level_sample_row(pyr, levels[k], u0, v0, inv_wm1, inv_dm1, ref);
+    const float dphi = 2.0f * M_PI_F / (float)n_phi;
+    for (int k = 0; k < n_phi; ++k) {
+        float s, c;
+        s = sincos(dphi * (float)k, &c);
+        float h[HF_ROW];
+        vstore8(fmax(hf_horizon_pyramid_row(pyr, levels, grid, geom, hp, ref, u0, v0, c / geom.s3, -s / geom.s4,
+                                            inv_wm1, inv_dm1),
+                     0.0f),
+                0, h);
+        for (int l = 0; l < lanes; ++l)
+            om[l * n_phi + k] = h[l];
+    }
 }
 
 /* The exact-horizon mode: the base field (bilinear) marched in steps of s0 / 2
@@ -473,18 +579,14 @@ inline float3 hf_sun(const float *om, int n_phi, float3 n, global const float4 *
  * is replaced by the exact irradiance of the env's upper half, so SH carries
  * only what the terrain blocks: E = E_up(n) - (H - V)^T M C. Clamped at 0;
  * writes albedo / π E and starts the total with it. */
-kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
-                   global const float4 *normals, global const float *albedo, int has_albedo, int n_phi, int nb,
-                   int exact, global const float *table, global const float *m, float8 cosine_zh, int split,
-                   global const float4 *up_irradiance, int up_size, global const float *u,
-                   global const float4 *sun, int suns, global float4 *out_env, global float4 *out_total)
+inline void hf_env_vertex(int gid, const float *om, global const float4 *normals, global const float *albedo,
+                          int has_albedo, int n_phi, int nb, global const float *table, global const float *m,
+                          float8 cosine_zh, int split, global const float4 *up_irradiance, int up_size,
+                          global const float *u, global const float4 *sun, int suns, global float4 *out_env,
+                          global float4 *out_total)
 {
-    const int gid = get_global_id(0);
-    if (gid >= grid.x * grid.y)
-        return;
     const int nc = nb * nb;
-    float om[HF_MAX_AZIMUTHS], v[PN_SH_MAX_COEFFS], cvec[PN_SH_MAX_COEFFS];
-    hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, exact, INFINITY, 1, om);
+    float v[PN_SH_MAX_COEFFS], cvec[PN_SH_MAX_COEFFS];
     hf_visibility(om, n_phi, table, nb, 0.0f, v);
     const float3 n = normals[gid].xyz;
     hf_cosine(n, nb, cosine_zh, cvec);
@@ -526,6 +628,36 @@ kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid
     const float4 out = (float4)(hf_albedo(albedo, has_albedo, gid) * (float3)(e[0], e[1], e[2]) * M_1_PI_F, 1.0f);
     out_env[gid] = out;
     out_total[gid] = out;
+}
+
+/* Row groups (hf_row_env_horizons) with the pyramid search: the first
+ * work-item of each group of HF_ROW vertices in a row does the group, the
+ * others return at once. */
+inline bool hf_row_leader(int gid, int4 grid, int exact)
+{
+    return exact || (gid % grid.x) % HF_ROW == 0;
+}
+
+kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                   global const float4 *normals, global const float *albedo, int has_albedo, int n_phi, int nb,
+                   int exact, global const float *table, global const float *m, float8 cosine_zh, int split,
+                   global const float4 *up_irradiance, int up_size, global const float *u,
+                   global const float4 *sun, int suns, global float4 *out_env, global float4 *out_total)
+{
+    const int gid = get_global_id(0);
+    if (gid >= grid.x * grid.y || !hf_row_leader(gid, grid, exact))
+        return;
+    float om[HF_ROW * HF_MAX_AZIMUTHS];
+    int lanes = 1;
+    if (exact)
+        hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, exact, INFINITY, 1, om);
+    else {
+        hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, om);
+        lanes = min(HF_ROW, grid.x - gid % grid.x);
+    }
+    for (int l = 0; l < lanes; ++l)
+        hf_env_vertex(gid + l, om + l * n_phi, normals, albedo, has_albedo, n_phi, nb, table, m, cosine_zh, split,
+                      up_irradiance, up_size, u, sun, suns, out_env, out_total);
 }
 
 /* Cap of light (centre c, radius r) seen from p: s = 1 - cos α (2 inside the light). */
@@ -658,9 +790,10 @@ kernel void hf_probe(global const float *pyr, global const int4 *levels, int4 gr
                      int nb, int exact, global const float *table, float4 light, int what, global float *out)
 {
     const int gid = get_global_id(0);
-    if (gid >= grid.x * grid.y)
-        return;
     const bool env = light.w < 0.0f;
+    /* The environment's pyramid search runs in row groups (as in hf_env). */
+    if (gid >= grid.x * grid.y || (env && !hf_row_leader(gid, grid, exact)))
+        return;
     float limit = INFINITY;
     if (!env) {
         const int i = gid % grid.x, j = gid / grid.x;
@@ -668,17 +801,26 @@ kernel void hf_probe(global const float *pyr, global const int4 *levels, int4 gr
         const float3 rel = light.xyz - p;
         limit = sqrt(rel.x * rel.x + rel.z * rel.z);
     }
-    float om[HF_MAX_AZIMUTHS];
-    hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, exact, limit, env, om);
-    if (what == 0) {
-        for (int k = 0; k < n_phi; ++k)
-            out[(size_t)gid * n_phi + k] = om[k];
-        return;
+    float om[HF_ROW * HF_MAX_AZIMUTHS];
+    int lanes = 1;
+    if (env && !exact) {
+        hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, om);
+        lanes = min(HF_ROW, grid.x - gid % grid.x);
+    } else
+        hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, exact, limit, env, om);
+    for (int l = 0; l < lanes; ++l) {
+        const float *o = om + l * n_phi;
+        const size_t g = (size_t)gid + l;
+        if (what == 0) {
+            for (int k = 0; k < n_phi; ++k)
+                out[g * n_phi + k] = o[k];
+            continue;
+        }
+        float v[PN_SH_MAX_COEFFS];
+        hf_visibility(o, n_phi, table, nb, env ? 0.0f : -M_PI_2_F, v);
+        for (int q = 0; q < nb * nb; ++q)
+            out[g * nb * nb + q] = v[q];
     }
-    float v[PN_SH_MAX_COEFFS];
-    hf_visibility(om, n_phi, table, nb, env ? 0.0f : -M_PI_2_F, v);
-    for (int q = 0; q < nb * nb; ++q)
-        out[(size_t)gid * nb * nb + q] = v[q];
 }
 
 /* G-buffer pixels on the height field's instance: the per-vertex outgoing
