@@ -20,12 +20,17 @@
 #define HF_MAX_AZIMUTHS 256
 #define HF_TABLE 64
 
+/* Uniform cubic B-spline weights at t in [0, 1), times 6. */
+inline float4 hf_bspline6(float t)
+{
+    const float t2 = t * t, t3 = t2 * t, s = 1.0f - t;
+    return (float4)(s * s * s, 3.0f * t3 - 6.0f * t2 + 4.0f, -3.0f * t3 + 3.0f * t2 + 3.0f * t + 1.0f, t3);
+}
+
 /* Uniform cubic B-spline weights at t in [0, 1). */
 inline float4 hf_bspline(float t)
 {
-    const float t2 = t * t, t3 = t2 * t, s = 1.0f - t;
-    return (float4)(s * s * s, 3.0f * t3 - 6.0f * t2 + 4.0f, -3.0f * t3 + 3.0f * t2 + 3.0f * t + 1.0f, t3) /
-           6.0f;
+    return hf_bspline6(t) / 6.0f;
 }
 
 /* H_k - ref at base coordinates (u, v): the B-spline of level k's values,
@@ -270,34 +275,51 @@ inline hf_vf hf_horizon_pyramid_v(global const float *pyr, global const int4 *le
  * lane takes its 4 columns from the combined row -- 32 private loads
  * instead of 128 per-lane global loads per sample. The same B-spline as
  * hf_level_sample (rows first, columns second; `ref` is the group's first
- * vertex, so a flat field still gives exactly 0). */
+ * vertex, so a flat field still gives exactly 0), but times 36: the weights'
+ * two divisions by 6 are folded into the one reciprocal per sample that
+ * divides by d (no vector division but the atan's). */
 #define HF_ROW 8
-inline float8 hf_level_sample_row(global const float *pyr, int4 lev, float8 u, float v, float inv_wm1,
+inline float8 hf_level_sample_row(global const float *pyr, int4 lev, int wm1, float8 u, float v, float inv_wm1,
                                   float inv_dm1, float ref)
 {
-    const float8 a = u * (float)lev.y * inv_wm1, fa = floor(a), ta = a - fa, sa = 1.0f - ta, ta2 = ta * ta,
-                 ta3 = ta2 * ta;
-    const float8 wa0 = sa * sa * sa / 6.0f, wa1 = (3.0f * ta3 - 6.0f * ta2 + 4.0f) / 6.0f,
-                 wa2 = (-3.0f * ta3 + 3.0f * ta2 + 3.0f * ta + 1.0f) / 6.0f, wa3 = ta3 / 6.0f;
+    /* A level as wide as the base (the finest, about half the samples):
+     * the lanes lie whole cells apart, so they share lane 0's fractional
+     * offset, and away from the border the columns are 4 shifted loads of
+     * the combined row. */
+    const bool whole = lev.y == wm1;
+    const float a_first = u.s0 * (float)lev.y * inv_wm1, fa_first = floor(a_first);
     const float b = v * (float)lev.z * inv_dm1, fb = floor(b);
-    const float4 wb = hf_bspline(b - fb);
-    const int8 ia = convert_int8(fa) - 1;
-    const int ib = (int)fb - 1, row = lev.y + 1, c0 = ia.s0;
+    const float4 wb = hf_bspline6(b - fb);
+    const int ib = (int)fb - 1, row = lev.y + 1, c0 = (int)fa_first - 1; /* lane 0's first column */
     global const float *base = pyr + lev.x;
     global const float *r0 = base + clamp(ib, 0, lev.z) * row, *r1 = base + clamp(ib + 1, 0, lev.z) * row,
                        *r2 = base + clamp(ib + 2, 0, lev.z) * row, *r3 = base + clamp(ib + 3, 0, lev.z) * row;
+    /* The window starts at column cs, moved inside the level where the taps
+     * are clamped (past the border, or a sample outside the field): the
+     * clamped columns of every lane still lie in it. Levels narrower than 16
+     * values are combined column by column. */
     float line[16];
-    if (c0 >= 0 && c0 + 15 <= lev.y) {
-        const float16 l = wb.x * (vload16(0, r0 + c0) - ref) + wb.y * (vload16(0, r1 + c0) - ref) +
-                          wb.z * (vload16(0, r2 + c0) - ref) + wb.w * (vload16(0, r3 + c0) - ref);
+    const int cs = clamp(c0, 0, max(lev.y - 15, 0));
+    if (lev.y >= 15) {
+        const float16 l = wb.x * (vload16(0, r0 + cs) - ref) + wb.y * (vload16(0, r1 + cs) - ref) +
+                          wb.z * (vload16(0, r2 + cs) - ref) + wb.w * (vload16(0, r3 + cs) - ref);
         vstore16(l, 0, line);
-    } else { /* near the level's border (clamped columns) or a level narrower than the window */
-        for (int p = 0; p < 16; ++p) {
-            const int c = clamp(c0 + p, 0, lev.y);
-            line[p] = wb.x * (r0[c] - ref) + wb.y * (r1[c] - ref) + wb.z * (r2[c] - ref) + wb.w * (r3[c] - ref);
-        }
+    } else {
+        for (int p = 0; p <= lev.y; ++p)
+            line[p] = wb.x * (r0[p] - ref) + wb.y * (r1[p] - ref) + wb.z * (r2[p] - ref) + wb.w * (r3[p] - ref);
     }
-    const int8 o0 = ia - c0, o1 = o0 + 1, o2 = o0 + 2, o3 = o0 + 3;
+    if (whole && cs == c0 && c0 + 10 <= lev.y) {
+        const float4 wa = hf_bspline6(a_first - fa_first);
+        return wa.x * vload8(0, line) + wa.y * vload8(0, line + 1) + wa.z * vload8(0, line + 2) +
+               wa.w * vload8(0, line + 3);
+    }
+    const float8 a = u * (float)lev.y * inv_wm1, fa = floor(a), ta = a - fa, sa = 1.0f - ta, ta2 = ta * ta,
+                 ta3 = ta2 * ta;
+    const int8 ia = convert_int8(fa) - 1;
+    const float8 wa0 = sa * sa * sa, wa1 = 3.0f * ta3 - 6.0f * ta2 + 4.0f,
+                 wa2 = -3.0f * ta3 + 3.0f * ta2 + 3.0f * ta + 1.0f, wa3 = ta3;
+    const int8 o0 = clamp(ia, 0, lev.y) - cs, o1 = clamp(ia + 1, 0, lev.y) - cs, o2 = clamp(ia + 2, 0, lev.y) - cs,
+               o3 = clamp(ia + 3, 0, lev.y) - cs;
     return wa0 * HF_GATHER8(line, o0) + wa1 * HF_GATHER8(line, o1) + wa2 * HF_GATHER8(line, o2) +
            wa3 * HF_GATHER8(line, o3);
 }
@@ -314,8 +336,9 @@ inline float8 hf_horizon_pyramid_row(global const float *pyr, global const int4 
     float d = geom.s6;
     for (int m = 0; m < grid.z; ++m, d *= sr) {
         const int k = clamp(m - grid.w, 0, grid.z - 1);
-        const float8 h = hf_level_sample_row(pyr, levels[k], u0 + d * cu, v0 + d * cv, inv_wm1, inv_dm1, ref);
-        const float8 w3 = hf_atan8((h - hp[k]) / d);
+        const float8 h = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0 + d * cu, v0 + d * cv, inv_wm1,
+                                                   inv_dm1, ref);
+        const float8 w3 = hf_atan8((h - hp[k]) * (1.0f / (36.0f * d)));
         HF_WINDOW_STEP(w0, w1, w2, w3, best, count)
     }
     HF_WINDOW_END(w0, w1, w2, best, count)
@@ -334,7 +357,7 @@ inline void hf_row_env_horizons(global const float *pyr, global const int4 *leve
     float8 hp[HF_MAX_LEVELS];
     const int top = max(grid.z - 1 - grid.w, 0);
     for (int k = 0; k <= top; ++k)
-        hp[k] = hf_level_sample_row(pyr, levels[k], u0, v0, inv_wm1, inv_dm1, ref);
+        hp[k] = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0, v0, inv_wm1, inv_dm1, ref);
     const float dphi = 2.0f * M_PI_F / (float)n_phi;
     for (int k = 0; k < n_phi; ++k) {
         float s, c;
