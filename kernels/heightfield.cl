@@ -298,20 +298,25 @@ inline float8 hf_level_sample_row(global const float *pyr, int4 lev, int wm1, fl
      * are clamped (past the border, or a sample outside the field): the
      * clamped columns of every lane still lie in it. Levels narrower than 16
      * values are combined column by column. */
-    float line[16];
     const int cs = clamp(c0, 0, max(lev.y - 15, 0));
-    if (lev.y >= 15) {
-        const float16 l = wb.x * (vload16(0, r0 + cs) - ref) + wb.y * (vload16(0, r1 + cs) - ref) +
-                          wb.z * (vload16(0, r2 + cs) - ref) + wb.w * (vload16(0, r3 + cs) - ref);
-        vstore16(l, 0, line);
-    } else {
-        for (int p = 0; p <= lev.y; ++p)
-            line[p] = wb.x * (r0[p] - ref) + wb.y * (r1[p] - ref) + wb.z * (r2[p] - ref) + wb.w * (r3[p] - ref);
+    float16 l;
+    if (lev.y >= 15)
+        l = wb.x * (vload16(0, r0 + cs) - ref) + wb.y * (vload16(0, r1 + cs) - ref) +
+            wb.z * (vload16(0, r2 + cs) - ref) + wb.w * (vload16(0, r3 + cs) - ref);
+    else {
+        float t[16];
+        for (int p = 0; p < 16; ++p) {
+            const int c = min(p, lev.y);
+            t[p] = wb.x * (r0[c] - ref) + wb.y * (r1[c] - ref) + wb.z * (r2[c] - ref) + wb.w * (r3[c] - ref);
+        }
+        l = vload16(0, t);
     }
+    /* Base-wide levels pick the lanes' columns in registers (constant
+     * swizzles): unaligned loads from private memory right after the row's
+     * store stalled on store forwarding. */
     if (whole && cs == c0 && c0 + 10 <= lev.y) {
         const float4 wa = hf_bspline6(a_first - fa_first);
-        return wa.x * vload8(0, line) + wa.y * vload8(0, line + 1) + wa.z * vload8(0, line + 2) +
-               wa.w * vload8(0, line + 3);
+        return wa.x * l.s01234567 + wa.y * l.s12345678 + wa.z * l.s23456789 + wa.w * l.s3456789a;
     }
     const float8 a = u * (float)lev.y * inv_wm1, fa = floor(a), ta = a - fa, sa = 1.0f - ta, ta2 = ta * ta,
                  ta3 = ta2 * ta;
@@ -320,6 +325,8 @@ inline float8 hf_level_sample_row(global const float *pyr, int4 lev, int wm1, fl
                  wa2 = -3.0f * ta3 + 3.0f * ta2 + 3.0f * ta + 1.0f, wa3 = ta3;
     const int8 o0 = clamp(ia, 0, lev.y) - cs, o1 = clamp(ia + 1, 0, lev.y) - cs, o2 = clamp(ia + 2, 0, lev.y) - cs,
                o3 = clamp(ia + 3, 0, lev.y) - cs;
+    float line[16];
+    vstore16(l, 0, line);
     return wa0 * HF_GATHER8(line, o0) + wa1 * HF_GATHER8(line, o1) + wa2 * HF_GATHER8(line, o2) +
            wa3 * HF_GATHER8(line, o3);
 }
