@@ -36,6 +36,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_SCENES = ["bench/scenes/terrain_sunny.toml", "bench/scenes/terrain_overcast_light.toml"]
 PHASES = ("frame", "frame_bands4", "no_sun", "horizons", "pyramid", "floor")
+CPU_PHASES = ("frame", "frame_bands4", "no_sun", "horizons")
 
 
 def baseline_build(commit: str, cache: Path) -> Path:
@@ -77,27 +78,32 @@ def worker(scene_path: str, frames: int, params: dict) -> dict:
     ctx.finish()
     field, instance = next(iter(fields(built).values()))
 
-    def med(fn, n=frames):
+    cpu = {}
+
+    def med(fn, n=frames, phase=None):
         fn()
         ctx.finish()  # warm-up: kernel builds, tables, env SH
-        ts = []
+        ts, cs = [], []
         for _ in range(n):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             fn()
             ctx.finish()
             ts.append(1000.0 * (time.perf_counter() - t0))
+            cs.append(1000.0 * (time.process_time() - c0))
+        if phase:
+            cpu[phase] = statistics.median(cs)
         return statistics.median(ts)
 
     out = {}
     floor = Renderer(ctx, "floor")
     out["floor"] = med(lambda: floor.execute(built.scene, gb, img), 5)
     r = Renderer(ctx, "heightfield", **params)
-    out["frame"] = med(lambda: r.execute(built.scene, gb, img))
+    out["frame"] = med(lambda: r.execute(built.scene, gb, img), phase="frame")
     r4 = Renderer(ctx, "heightfield", **{**params, "bands": 4})
-    out["frame_bands4"] = med(lambda: r4.execute(built.scene, gb, img))
+    out["frame_bands4"] = med(lambda: r4.execute(built.scene, gb, img), phase="frame_bands4")
     r0 = Renderer(ctx, "heightfield", **{**params, "sun_threshold": 0})
-    out["no_sun"] = med(lambda: r0.execute(built.scene, gb, img))
-    out["horizons"] = med(lambda: r.read_output(built.scene, "env_horizons", instance))
+    out["no_sun"] = med(lambda: r0.execute(built.scene, gb, img), phase="no_sun")
+    out["horizons"] = med(lambda: r.read_output(built.scene, "env_horizons", instance), phase="horizons")
     h0 = field_heights = np.asarray(built.desc.heightfields[0].load().heights, np.float32)
     h1 = (field_heights * np.float32(0.999)).astype(np.float32)
     read = lambda: r.read_output(built.scene, "normals", instance)  # noqa: E731
@@ -112,6 +118,7 @@ def worker(scene_path: str, frames: int, params: dict) -> dict:
             ts.append(1000.0 * (time.perf_counter() - t0))
     out["pyramid"] = max(statistics.median(ts) - read_ms, 0.0)
     out["load"] = os.getloadavg()[0]
+    out["cpu"] = cpu  # CPU time of the process (every PoCL thread): what the work costs, less moved by load
     return out
 
 
@@ -160,8 +167,12 @@ def main() -> None:
                       ", ".join(f"{p} {runs[side][-1][p]:.1f}" for p in PHASES), flush=True)
         med = {s: {p: statistics.median(r[p] for r in runs[s]) for p in PHASES} for s in runs}
         loads = [r["load"] for s in runs for r in runs[s]]
+        cpu = {s: {p: statistics.median(r["cpu"][p] for r in runs[s]) for p in CPU_PHASES} for s in runs}
         results["scenes"][Path(scene).stem] = {"A": med["A"], "B": med["B"], "runs": runs,
                                                "ratio": {p: med["A"][p] / max(med["B"][p], 1e-9) for p in PHASES},
+                                               "cpu": cpu,
+                                               "cpu_ratio": {p: cpu["A"][p] / max(cpu["B"][p], 1e-9)
+                                                             for p in CPU_PHASES},
                                                "load": [min(loads), max(loads)]}
     results["load_end"] = os.getloadavg()[0]
     out = Path(args.out)
@@ -178,15 +189,18 @@ def report(res: dict) -> str:
          f"rounds of subprocesses, medians of {res['frames']} frames after a warm-up per round, medians over "
          f"rounds. Load average {res['load_start']:.1f} at the start, {res['load_end']:.1f} at the end "
          "(2 cores, shared).", ""]
-    L.append("| scene | phase | A ms | B ms | A / B |")
-    L.append("|---|---|---|---|---|")
+    L.append("| scene | phase | A ms | B ms | A / B | A CPU ms | B CPU ms | A / B (CPU) |")
+    L.append("|---|---|---|---|---|---|---|---|")
     for name, s in res["scenes"].items():
         for p in PHASES:
-            L.append(f"| {name} | {p} | {s['A'][p]:.2f} | {s['B'][p]:.2f} | {s['ratio'][p]:.2f} |")
+            c = (f"{s['cpu']['A'][p]:.1f} | {s['cpu']['B'][p]:.1f} | {s['cpu_ratio'][p]:.2f}" if p in CPU_PHASES
+                 else "– | – | –")
+            L.append(f"| {name} | {p} | {s['A'][p]:.2f} | {s['B'][p]:.2f} | {s['ratio'][p]:.2f} | {c} |")
     L += ["", "frame = every per-vertex pass + shading (each side's defaults); frame_bands4 = the same with 4 SH "
           "bands on both sides (A's default, so the same settings); no_sun = frame with sun_threshold 0; horizons = the env "
           "horizons alone (hf_probe, read-back included); pyramid = new heights to normals; floor = the floor "
-          "kernel.", ""]
+          "kernel. CPU ms = the process's CPU time over every PoCL thread (the work's cost; on a loaded machine "
+          "wall time also counts the waits for a core).", ""]
     return "\n".join(L)
 
 

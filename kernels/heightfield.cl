@@ -20,12 +20,17 @@
 #define HF_MAX_AZIMUTHS 256
 #define HF_TABLE 64
 
+/* Uniform cubic B-spline weights at t in [0, 1), times 6. */
+inline float4 hf_bspline6(float t)
+{
+    const float t2 = t * t, t3 = t2 * t, s = 1.0f - t;
+    return (float4)(s * s * s, 3.0f * t3 - 6.0f * t2 + 4.0f, -3.0f * t3 + 3.0f * t2 + 3.0f * t + 1.0f, t3);
+}
+
 /* Uniform cubic B-spline weights at t in [0, 1). */
 inline float4 hf_bspline(float t)
 {
-    const float t2 = t * t, t3 = t2 * t, s = 1.0f - t;
-    return (float4)(s * s * s, 3.0f * t3 - 6.0f * t2 + 4.0f, -3.0f * t3 + 3.0f * t2 + 3.0f * t + 1.0f, t3) /
-           6.0f;
+    return hf_bspline6(t) / 6.0f;
 }
 
 /* H_k - ref at base coordinates (u, v): the B-spline of level k's values,
@@ -160,19 +165,27 @@ typedef int8 hf_vi;
 #define HF_CONVERT_F convert_float8
 #define hf_vload vload8
 #define hf_vstore vstore8
-#define HF_GATHER(p, i) ((hf_vf)(p[i.s0], p[i.s1], p[i.s2], p[i.s3], p[i.s4], p[i.s5], p[i.s6], p[i.s7]))
+#define HF_GATHER(p, i) HF_GATHER8(p, i)
 #define HF_LANE_IDS ((hf_vi)(0, 1, 2, 3, 4, 5, 6, 7))
 #endif
+#define HF_GATHER8(p, i) ((float8)(p[i.s0], p[i.s1], p[i.s2], p[i.s3], p[i.s4], p[i.s5], p[i.s6], p[i.s7]))
 
 /* pn_atan (common/math.cl), lane by lane. */
-inline hf_vf hf_atan_v(hf_vf x)
-{
-    const hf_vf a = fabs(x), t = select(a, 1.0f / a, a > 1.0f), t2 = t * t;
-    hf_vf p;
-    PN_ATAN_POLY(p, t2);
-    const hf_vf r = t * p;
-    return copysign(select(r, M_PI_2_F - r, a > 1.0f), x);
-}
+#define HF_DEFINE_ATAN(name, T)                                                                                 \
+    inline T name(T x)                                                                                          \
+    {                                                                                                           \
+        const T a = fabs(x), t = select(a, 1.0f / a, a > 1.0f), t2 = t * t;                                     \
+        T p;                                                                                                    \
+        PN_ATAN_POLY(p, t2);                                                                                    \
+        const T r = t * p;                                                                                      \
+        return copysign(select(r, M_PI_2_F - r, a > 1.0f), x);                                                  \
+    }
+HF_DEFINE_ATAN(hf_atan_v, hf_vf)
+#if HF_LANES == 8
+#define hf_atan8 hf_atan_v
+#else
+HF_DEFINE_ATAN(hf_atan8, float8)
+#endif
 
 /* hf_level_sample for HF_LANES points (same formula, lane by lane). */
 inline hf_vf hf_level_sample_v(global const float *pyr, int4 lev, hf_vf u, hf_vf v, float inv_wm1, float inv_dm1,
@@ -209,6 +222,31 @@ inline hf_vf hf_level_sample_v(global const float *pyr, int4 lev, hf_vf u, hf_vf
  * slides along the samples: with w0..w3 = ω_{m-2}..ω_{m+1}, the knot at m-1
  * and the midpoint between m-2 and m-1 are complete. Ends repeat
  * (ω_{-1} = ω_0, ω_count = ω_{count-1}). */
+/* The sliding window over elevations: one new elevation w3, and the end. */
+#define HF_WINDOW_STEP(w0, w1, w2, w3, best, count)                                                             \
+    {                                                                                                           \
+        if (count == 0)                                                                                         \
+            w0 = w1 = w2 = w3;                                                                                  \
+        else {                                                                                                  \
+            best = fmax(best, (w1 + 4.0f * w2 + w3) / 6.0f);                                                    \
+            if (count >= 2)                                                                                     \
+                best = fmax(best, (w0 + 23.0f * w1 + 23.0f * w2 + w3) / 48.0f);                                 \
+        }                                                                                                       \
+        w0 = w1;                                                                                                \
+        w1 = w2;                                                                                                \
+        w2 = w3;                                                                                                \
+        ++count;                                                                                                \
+    }
+#define HF_WINDOW_END(w0, w1, w2, best, count)                                                                  \
+    {                                                                                                           \
+        if (count == 0)                                                                                         \
+            return -M_PI_2_F;                                                                                   \
+        best = fmax(best, (w1 + 5.0f * w2) / 6.0f);                                                             \
+        if (count >= 2)                                                                                         \
+            best = fmax(best, (w0 + 23.0f * w1 + 24.0f * w2) / 48.0f);                                          \
+        return best;                                                                                            \
+    }
+
 inline hf_vf hf_horizon_pyramid_v(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
                                   const float *hp, float ref, float u0, float v0, hf_vf cu, hf_vf cv, float limit,
                                   float inv_wm1, float inv_dm1)
@@ -223,24 +261,122 @@ inline hf_vf hf_horizon_pyramid_v(global const float *pyr, global const int4 *le
         const int k = clamp(m - grid.w, 0, grid.z - 1);
         const hf_vf h = hf_level_sample_v(pyr, levels[k], u0 + d * cu, v0 + d * cv, inv_wm1, inv_dm1, ref);
         const hf_vf w3 = hf_atan_v((h - hp[k]) / d);
-        if (count == 0)
-            w0 = w1 = w2 = w3;
-        else {
-            best = fmax(best, (w1 + 4.0f * w2 + w3) / 6.0f);
-            if (count >= 2)
-                best = fmax(best, (w0 + 23.0f * w1 + 23.0f * w2 + w3) / 48.0f);
-        }
-        w0 = w1;
-        w1 = w2;
-        w2 = w3;
-        ++count;
+        HF_WINDOW_STEP(w0, w1, w2, w3, best, count)
     }
-    if (count == 0)
-        return -M_PI_2_F;
-    best = fmax(best, (w1 + 5.0f * w2) / 6.0f);
-    if (count >= 2)
-        best = fmax(best, (w0 + 23.0f * w1 + 24.0f * w2) / 48.0f);
-    return best;
+    HF_WINDOW_END(w0, w1, w2, best, count)
+}
+
+/* Row groups: the environment's search also runs HF_ROW consecutive
+ * vertices of a row at once, one per lane, one azimuth at a time. Their
+ * samples then share d, the level and v, and their u differ by at most
+ * one base cell per lane, so the 4 x 4 taps of all lanes lie on the same 4
+ * rows, within a window of 16 values of each (7 cells of spread plus 3
+ * taps): the rows are combined over the window as 4 float16 FMAs, and each
+ * lane takes its 4 columns from the combined row -- 32 private loads
+ * instead of 128 per-lane global loads per sample. The same B-spline as
+ * hf_level_sample (rows first, columns second; `ref` is the group's first
+ * vertex, so a flat field still gives exactly 0), but times 36: the weights'
+ * two divisions by 6 are folded into the one reciprocal per sample that
+ * divides by d (no vector division but the atan's). */
+#define HF_ROW 8
+inline float8 hf_level_sample_row(global const float *pyr, int4 lev, int wm1, float8 u, float v, float inv_wm1,
+                                  float inv_dm1, float ref)
+{
+    /* A level as wide as the base (the finest, about half the samples):
+     * the lanes lie whole cells apart, so they share lane 0's fractional
+     * offset, and away from the border the columns are 4 shifted loads of
+     * the combined row. */
+    const bool whole = lev.y == wm1;
+    const float a_first = u.s0 * (float)lev.y * inv_wm1, fa_first = floor(a_first);
+    const float b = v * (float)lev.z * inv_dm1, fb = floor(b);
+    const float4 wb = hf_bspline6(b - fb);
+    const int ib = (int)fb - 1, row = lev.y + 1, c0 = (int)fa_first - 1; /* lane 0's first column */
+    global const float *base = pyr + lev.x;
+    global const float *r0 = base + clamp(ib, 0, lev.z) * row, *r1 = base + clamp(ib + 1, 0, lev.z) * row,
+                       *r2 = base + clamp(ib + 2, 0, lev.z) * row, *r3 = base + clamp(ib + 3, 0, lev.z) * row;
+    /* The window starts at column cs, moved inside the level where the taps
+     * are clamped (past the border, or a sample outside the field): the
+     * clamped columns of every lane still lie in it. Levels narrower than 16
+     * values are combined column by column. */
+    const int cs = clamp(c0, 0, max(lev.y - 15, 0));
+    float16 l;
+    if (lev.y >= 15)
+        l = wb.x * (vload16(0, r0 + cs) - ref) + wb.y * (vload16(0, r1 + cs) - ref) +
+            wb.z * (vload16(0, r2 + cs) - ref) + wb.w * (vload16(0, r3 + cs) - ref);
+    else {
+        float t[16];
+        for (int p = 0; p < 16; ++p) {
+            const int c = min(p, lev.y);
+            t[p] = wb.x * (r0[c] - ref) + wb.y * (r1[c] - ref) + wb.z * (r2[c] - ref) + wb.w * (r3[c] - ref);
+        }
+        l = vload16(0, t);
+    }
+    /* Base-wide levels pick the lanes' columns in registers (constant
+     * swizzles): unaligned loads from private memory right after the row's
+     * store stalled on store forwarding. */
+    if (whole && cs == c0 && c0 + 10 <= lev.y) {
+        const float4 wa = hf_bspline6(a_first - fa_first);
+        return wa.x * l.s01234567 + wa.y * l.s12345678 + wa.z * l.s23456789 + wa.w * l.s3456789a;
+    }
+    const float8 a = u * (float)lev.y * inv_wm1, fa = floor(a), ta = a - fa, sa = 1.0f - ta, ta2 = ta * ta,
+                 ta3 = ta2 * ta;
+    const int8 ia = convert_int8(fa) - 1;
+    const float8 wa0 = sa * sa * sa, wa1 = 3.0f * ta3 - 6.0f * ta2 + 4.0f,
+                 wa2 = -3.0f * ta3 + 3.0f * ta2 + 3.0f * ta + 1.0f, wa3 = ta3;
+    const int8 o0 = clamp(ia, 0, lev.y) - cs, o1 = clamp(ia + 1, 0, lev.y) - cs, o2 = clamp(ia + 2, 0, lev.y) - cs,
+               o3 = clamp(ia + 3, 0, lev.y) - cs;
+    float line[16];
+    vstore16(l, 0, line);
+    return wa0 * HF_GATHER8(line, o0) + wa1 * HF_GATHER8(line, o1) + wa2 * HF_GATHER8(line, o2) +
+           wa3 * HF_GATHER8(line, o3);
+}
+
+/* hf_horizon_pyramid_v for a row group along one direction (cu, cv); hp
+ * holds H_k - ref at each lane's vertex. The environment's search: no limit. */
+inline float8 hf_horizon_pyramid_row(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                                     const float8 *hp, float ref, float8 u0, float v0, float cu, float cv,
+                                     float inv_wm1, float inv_dm1)
+{
+    float8 w0 = 0.0f, w1 = 0.0f, w2 = 0.0f, best = -M_PI_2_F;
+    int count = 0;
+    const float sr = exp2(1.0f / geom.s5);
+    float d = geom.s6;
+    for (int m = 0; m < grid.z; ++m, d *= sr) {
+        const int k = clamp(m - grid.w, 0, grid.z - 1);
+        const float8 h = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0 + d * cu, v0 + d * cv, inv_wm1,
+                                                   inv_dm1, ref);
+        const float8 w3 = hf_atan8((h - hp[k]) * (1.0f / (36.0f * d)));
+        HF_WINDOW_STEP(w0, w1, w2, w3, best, count)
+    }
+    HF_WINDOW_END(w0, w1, w2, best, count)
+}
+
+/* Environment horizons (clamped at 0) of the row group starting at vertex
+ * gid: om[lane * n_phi + k] for the lanes inside the row (lanes past its
+ * end repeat its last vertex and are not stored). */
+inline void hf_row_env_horizons(global const float *pyr, global const int4 *levels, int4 grid, float8 geom, int gid,
+                                int n_phi, float *om)
+{
+    const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
+    const int i0 = gid % grid.x, lanes = min(HF_ROW, grid.x - i0);
+    const float8 u0 = convert_float8(min(i0 + (int8)(0, 1, 2, 3, 4, 5, 6, 7), grid.x - 1));
+    const float v0 = (float)(gid / grid.x), ref = pyr[gid];
+    float8 hp[HF_MAX_LEVELS];
+    const int top = max(grid.z - 1 - grid.w, 0);
+    for (int k = 0; k <= top; ++k)
+        hp[k] = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0, v0, inv_wm1, inv_dm1, ref);
+    const float dphi = 2.0f * M_PI_F / (float)n_phi;
+    for (int k = 0; k < n_phi; ++k) {
+        float s, c;
+        s = sincos(dphi * (float)k, &c);
+        float h[HF_ROW];
+        vstore8(fmax(hf_horizon_pyramid_row(pyr, levels, grid, geom, hp, ref, u0, v0, c / geom.s3, -s / geom.s4,
+                                            inv_wm1, inv_dm1),
+                     0.0f),
+                0, h);
+        for (int l = 0; l < lanes; ++l)
+            om[l * n_phi + k] = h[l];
+    }
 }
 
 /* The exact-horizon mode: the base field (bilinear) marched in steps of s0 / 2
@@ -333,14 +469,54 @@ inline void hf_vertex_horizons(global const float *pyr, global const int4 *level
     }
 }
 
-/* V = sum over azimuths of the wedge table, bilinear at (ω_k, ω_k+1), turned to φ_k. */
+/* SH vectors in float16 chunks (coefficient q = 16 chunk + lane; 6 bands:
+ * 36 coefficients in 3 chunks, the last lanes zero). PoCL runs a work-item's
+ * loops as scalar code, so the coefficient loops of the visibility and the
+ * product are written out as chunk arithmetic. */
+#define HF_SH_CHUNKS ((PN_SH_MAX_COEFFS + 15) / 16)
+
+/* Chunk `chunk` of the nc floats at p (lanes past nc are 0, nothing past nc is read). */
+inline float16 hf_sh_chunk(global const float *p, int nc, int chunk)
+{
+    const int rest = nc - 16 * chunk;
+    if (rest >= 16)
+        return vload16(chunk, p);
+    float16 x = 0.0f;
+    if (rest == 4) {
+        x.s0123 = vload4(0, p + 16 * chunk);
+        return x;
+    }
+    float t[16];
+    for (int i = 0; i < 16; ++i)
+        t[i] = i < rest ? p[16 * chunk + i] : 0.0f;
+    return vload16(0, t);
+}
+
+inline float hf_hsum16(float16 x)
+{
+    const float8 y = x.lo + x.hi;
+    const float4 z = y.lo + y.hi;
+    return (z.x + z.y) + (z.z + z.w);
+}
+
+/* Per chunk lane: |m| of the coefficient (7 = a zero lane past 6 bands) and sign(m). */
+#define HF_ABS_M0 ((uint16)(0, 1, 0, 1, 2, 1, 0, 1, 2, 3, 2, 1, 0, 1, 2, 3))
+#define HF_ABS_M1 ((uint16)(4, 3, 2, 1, 0, 1, 2, 3, 4, 5, 4, 3, 2, 1, 0, 1))
+#define HF_ABS_M2 ((uint16)(2, 3, 4, 5, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7))
+#define HF_SIGN_M0 ((float16)(0, -1, 0, 1, -1, -1, 0, 1, 1, -1, -1, -1, 0, 1, 1, 1))
+#define HF_SIGN_M1 ((float16)(-1, -1, -1, -1, 0, 1, 1, 1, 1, -1, -1, -1, -1, -1, 0, 1))
+#define HF_SIGN_M2 ((float16)(1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0))
+
+/* V = sum over azimuths of the wedge table, bilinear at (ω_k, ω_k+1), turned
+ * to φ_k. The turn about z (pn_sh_zrotate) maps c to cos(mφ) c + S ∘ swap(c),
+ * swap exchanging (l, m) and (l, -m); since swap is fixed and linear, the sum
+ * over wedges is A + swap(B) with A = Σ cos(mφ_k) c_k and
+ * B = Σ sign(m) sin(|m| φ_k) c_k, both plain lane-wise chunk arithmetic. */
 inline void hf_visibility(const float *om, int n_phi, global const float *table, int nb, float lo, float *v)
 {
-    const int nc = nb * nb;
+    const int nc = nb * nb, nch = (nc + 15) / 16;
     const float scale = (float)(HF_TABLE - 1) / (0.5f * M_PI_F - lo), dphi = 2.0f * M_PI_F / (float)n_phi;
-    for (int q = 0; q < nc; ++q)
-        v[q] = 0.0f;
-    float c[PN_SH_MAX_COEFFS];
+    float16 a0 = 0.0f, a1 = 0.0f, a2 = 0.0f, b0 = 0.0f, b1 = 0.0f, b2 = 0.0f;
     for (int k = 0; k < n_phi; ++k) {
         const float fa = clamp((om[k] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
         const float fb = clamp((om[(k + 1) % n_phi] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
@@ -348,14 +524,39 @@ inline void hf_visibility(const float *om, int n_phi, global const float *table,
         const float ta = fa - (float)ia, tb = fb - (float)ib;
         global const float *t00 = table + (ia * HF_TABLE + ib) * nc, *t01 = t00 + nc;
         global const float *t10 = t00 + HF_TABLE * nc, *t11 = t10 + nc;
-        for (int q = 0; q < nc; ++q)
-            c[q] = mix(mix(t00[q], t01[q], tb), mix(t10[q], t11[q], tb), ta);
+        /* cos mφ, sin mφ for m = 0 .. 5 by the recurrence pn_sh_zrotate uses. */
         float sn, cs;
         sn = sincos(dphi * (float)k, &cs);
-        pn_sh_zrotate(c, nb, cs, sn);
-        for (int q = 0; q < nc; ++q)
-            v[q] += c[q];
+        float cm[8] = {1.0f, cs, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}, sm[8] = {0.0f, sn, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+        for (int m = 2; m < PN_SH_MAX_BANDS; ++m) {
+            cm[m] = cm[m - 1] * cs - sm[m - 1] * sn;
+            sm[m] = sm[m - 1] * cs + cm[m - 1] * sn;
+        }
+        const float8 c8 = vload8(0, cm), s8 = vload8(0, sm);
+#define HF_WEDGE_CHUNK(q, a, b, ABS_M, SIGN_M)                                                                  \
+    {                                                                                                           \
+        const float16 x = mix(mix(hf_sh_chunk(t00, nc, q), hf_sh_chunk(t01, nc, q), tb),                        \
+                              mix(hf_sh_chunk(t10, nc, q), hf_sh_chunk(t11, nc, q), tb), ta);                   \
+        a += shuffle(c8, ABS_M) * x;                                                                            \
+        b += shuffle(s8, ABS_M) * SIGN_M * x;                                                                   \
     }
+        HF_WEDGE_CHUNK(0, a0, b0, HF_ABS_M0, HF_SIGN_M0)
+        if (nch > 1)
+            HF_WEDGE_CHUNK(1, a1, b1, HF_ABS_M1, HF_SIGN_M1)
+        if (nch > 2)
+            HF_WEDGE_CHUNK(2, a2, b2, HF_ABS_M2, HF_SIGN_M2)
+#undef HF_WEDGE_CHUNK
+    }
+    float a[16 * HF_SH_CHUNKS], b[16 * HF_SH_CHUNKS];
+    vstore16(a0, 0, a);
+    vstore16(a1, 1, a);
+    vstore16(a2, 2, a);
+    vstore16(b0, 0, b);
+    vstore16(b1, 1, b);
+    vstore16(b2, 2, b);
+    for (int l = 0; l < nb; ++l)
+        for (int m = -l; m <= l; ++m)
+            v[l * l + l + m] = a[l * l + l + m] + b[l * l + l - m];
 }
 
 /* Clamped cosine about the world normal n, in SH: C_lm = A_l y_lm(n). */
@@ -408,33 +609,38 @@ inline float3 hf_sun(const float *om, int n_phi, float3 n, global const float4 *
  * is replaced by the exact irradiance of the env's upper half, so SH carries
  * only what the terrain blocks: E = E_up(n) - (H - V)^T M C. Clamped at 0;
  * writes albedo / π E and starts the total with it. */
-kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
-                   global const float4 *normals, global const float *albedo, int has_albedo, int n_phi, int nb,
-                   int exact, global const float *table, global const float *m, float8 cosine_zh, int split,
-                   global const float4 *up_irradiance, int up_size, global const float *u,
-                   global const float4 *sun, int suns, global float4 *out_env, global float4 *out_total)
+inline void hf_env_vertex(int gid, const float *om, global const float4 *normals, global const float *albedo,
+                          int has_albedo, int n_phi, int nb, global const float *table, global const float *m,
+                          float8 cosine_zh, int split, global const float4 *up_irradiance, int up_size,
+                          global const float *u, global const float4 *sun, int suns, global float4 *out_env,
+                          global float4 *out_total)
 {
-    const int gid = get_global_id(0);
-    if (gid >= grid.x * grid.y)
-        return;
     const int nc = nb * nb;
-    float om[HF_MAX_AZIMUTHS], v[PN_SH_MAX_COEFFS], cvec[PN_SH_MAX_COEFFS];
-    hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, exact, INFINITY, 1, om);
+    float v[PN_SH_MAX_COEFFS], cvec[PN_SH_MAX_COEFFS];
     hf_visibility(om, n_phi, table, nb, 0.0f, v);
     const float3 n = normals[gid].xyz;
     hf_cosine(n, nb, cosine_zh, cvec);
     const float3 up = split ? pn_cube_grid_lookup(up_irradiance, up_size, n) : (float3)(0.0f);
     const float upv[3] = {up.x, up.y, up.z};
     float e[3];
+    /* V^T M C per channel as chunks: acc = Σ_j V_j M_j (rows of M), then acc · C. */
+    const int nch = (nc + 15) / 16;
+    float cpad[16 * HF_SH_CHUNKS];
+    for (int q = 0; q < 16 * HF_SH_CHUNKS; ++q)
+        cpad[q] = q < nc ? cvec[q] : 0.0f;
+    const float16 c0 = vload16(0, cpad), c1 = vload16(1, cpad), c2 = vload16(2, cpad);
     for (int ch = 0; ch < 3; ++ch) {
         global const float *mc = m + ch * nc * nc;
-        float sum = 0.0f;
+        float16 acc0 = 0.0f, acc1 = 0.0f, acc2 = 0.0f;
         for (int j = 0; j < nc; ++j) {
-            float row = 0.0f;
-            for (int k = 0; k < nc; ++k)
-                row += mc[j * nc + k] * cvec[k];
-            sum += v[j] * row;
+            global const float *row = mc + j * nc;
+            acc0 += v[j] * hf_sh_chunk(row, nc, 0);
+            if (nch > 1)
+                acc1 += v[j] * hf_sh_chunk(row, nc, 1);
+            if (nch > 2)
+                acc2 += v[j] * hf_sh_chunk(row, nc, 2);
         }
+        float sum = hf_hsum16(acc0 * c0 + acc1 * c1 + acc2 * c2);
         if (split) {
             float uc = 0.0f;
             for (int k = 0; k < nc; ++k)
@@ -452,6 +658,36 @@ kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid
     const float4 out = (float4)(hf_albedo(albedo, has_albedo, gid) * (float3)(e[0], e[1], e[2]) * M_1_PI_F, 1.0f);
     out_env[gid] = out;
     out_total[gid] = out;
+}
+
+/* Row groups (hf_row_env_horizons) with the pyramid search: the first
+ * work-item of each group of HF_ROW vertices in a row does the group, the
+ * others return at once. */
+inline bool hf_row_leader(int gid, int4 grid, int exact)
+{
+    return exact || (gid % grid.x) % HF_ROW == 0;
+}
+
+kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                   global const float4 *normals, global const float *albedo, int has_albedo, int n_phi, int nb,
+                   int exact, global const float *table, global const float *m, float8 cosine_zh, int split,
+                   global const float4 *up_irradiance, int up_size, global const float *u,
+                   global const float4 *sun, int suns, global float4 *out_env, global float4 *out_total)
+{
+    const int gid = get_global_id(0);
+    if (gid >= grid.x * grid.y || !hf_row_leader(gid, grid, exact))
+        return;
+    float om[HF_ROW * HF_MAX_AZIMUTHS];
+    int lanes = 1;
+    if (exact)
+        hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, exact, INFINITY, 1, om);
+    else {
+        hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, om);
+        lanes = min(HF_ROW, grid.x - gid % grid.x);
+    }
+    for (int l = 0; l < lanes; ++l)
+        hf_env_vertex(gid + l, om + l * n_phi, normals, albedo, has_albedo, n_phi, nb, table, m, cosine_zh, split,
+                      up_irradiance, up_size, u, sun, suns, out_env, out_total);
 }
 
 /* Cap of light (centre c, radius r) seen from p: s = 1 - cos α (2 inside the light). */
@@ -584,9 +820,10 @@ kernel void hf_probe(global const float *pyr, global const int4 *levels, int4 gr
                      int nb, int exact, global const float *table, float4 light, int what, global float *out)
 {
     const int gid = get_global_id(0);
-    if (gid >= grid.x * grid.y)
-        return;
     const bool env = light.w < 0.0f;
+    /* The environment's pyramid search runs in row groups (as in hf_env). */
+    if (gid >= grid.x * grid.y || (env && !hf_row_leader(gid, grid, exact)))
+        return;
     float limit = INFINITY;
     if (!env) {
         const int i = gid % grid.x, j = gid / grid.x;
@@ -594,17 +831,26 @@ kernel void hf_probe(global const float *pyr, global const int4 *levels, int4 gr
         const float3 rel = light.xyz - p;
         limit = sqrt(rel.x * rel.x + rel.z * rel.z);
     }
-    float om[HF_MAX_AZIMUTHS];
-    hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, exact, limit, env, om);
-    if (what == 0) {
-        for (int k = 0; k < n_phi; ++k)
-            out[(size_t)gid * n_phi + k] = om[k];
-        return;
+    float om[HF_ROW * HF_MAX_AZIMUTHS];
+    int lanes = 1;
+    if (env && !exact) {
+        hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, om);
+        lanes = min(HF_ROW, grid.x - gid % grid.x);
+    } else
+        hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, exact, limit, env, om);
+    for (int l = 0; l < lanes; ++l) {
+        const float *o = om + l * n_phi;
+        const size_t g = (size_t)gid + l;
+        if (what == 0) {
+            for (int k = 0; k < n_phi; ++k)
+                out[g * n_phi + k] = o[k];
+            continue;
+        }
+        float v[PN_SH_MAX_COEFFS];
+        hf_visibility(o, n_phi, table, nb, env ? 0.0f : -M_PI_2_F, v);
+        for (int q = 0; q < nb * nb; ++q)
+            out[g * nb * nb + q] = v[q];
     }
-    float v[PN_SH_MAX_COEFFS];
-    hf_visibility(om, n_phi, table, nb, env ? 0.0f : -M_PI_2_F, v);
-    for (int q = 0; q < nb * nb; ++q)
-        out[(size_t)gid * nb * nb + q] = v[q];
 }
 
 /* G-buffer pixels on the height field's instance: the per-vertex outgoing

@@ -106,6 +106,21 @@ def test_pyramid_horizons(case, ls, lo, n_phi, interp):
     assert want.max() > 0.2  # the terrain does shadow
 
 
+@pytest.mark.parametrize("interp", [0, 1])
+def test_pyramid_horizons_wide_field(ctx, sky, interp):
+    """The environment's search runs 8 vertices of a row per work-item and
+    loads each tap row as one 16-value window where the window lies inside
+    the level (column by column near its border): 61 columns (7 full groups
+    and one of 5) make most fine-level samples take the window path, which
+    the 19-column case above reaches only at its first columns."""
+    h = make_terrain("fbm", 61, 9, seed=3, frequency=3.0)
+    c = Case(ctx, sky, h, size=(6.0, 0.9), height_scale=0.6)
+    got = c.read("env_horizons", reconstruction=interp)
+    want = c.twin_horizons(interpolating=bool(interp))
+    np.testing.assert_allclose(got, want, atol=HORIZON_ATOL, rtol=0)
+    assert want.max() > 0.2
+
+
 @pytest.mark.parametrize("light", [0, 1])
 def test_pyramid_light_horizons(case, light):
     got = case.read("light_horizons", light=light)
