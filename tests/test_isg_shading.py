@@ -163,7 +163,7 @@ def test_env_specular_path_matches_twin(cl_pair, build_test_kernel, shininess, k
     assert np.abs(want - lobes_only).max() > 0.01 * want.max()  # the env path is not the lobe path
 
 
-def gamma_tables(face=8, sun=1e5, constant=None):
+def gamma_tables(face=16, sun=1e5, constant=None):
     """Gamma_L of the twin's test sky (a 1e5:1 sun) or of a constant env, as the kernel reads it."""
     rgb = sky_cube(face, sun) if constant is None else np.full((6 * face * face, 3), constant)
     levels = gamma_levels(face)
@@ -171,20 +171,23 @@ def gamma_tables(face=8, sun=1e5, constant=None):
                                                                                   levels)]
 
 
-@pytest.mark.parametrize("shininess,ks,shadows,lobe_kind", [(1000.0, 0.5, 1, 0), (1000.0, 0.5, 0, 0),
-                                                            (200.0, 0.3, 1, 0), (5000.0, 0.5, 1, 0),
-                                                            (0.02, 0.4, 1, 2)])
-def test_prefiltered_specular_matches_twin(cl_pair, build_test_kernel, shininess, ks, shadows, lobe_kind):
-    """specular_mode 1: Gamma_L at the lobe's axis times its visible patches' cosine-weighted share, with
-    lobes sharper than the table's last level (Phong 5000 > 64) and a GGX lobe."""
-    px = floor_pixels(ks=ks, material=(shininess, shininess, float(lobe_kind)))
+@pytest.mark.parametrize("shininess,ks,shadows,lobe_kind,sharp", [(1000.0, 0.5, 1, 0, 100.0), (1000.0, 0.5, 0, 0, 100.0),
+                                                                  (200.0, 0.3, 1, 0, 100.0), (40.0, 0.4, 1, 0, 10.0),
+                                                                  (5000.0, 0.5, 1, 0, 100.0), (0.02, 0.4, 1, 2, 100.0)])
+def test_prefiltered_specular_matches_twin(cl_pair, build_test_kernel, shininess, ks, shadows, lobe_kind, sharp):
+    """specular_mode 1: Gamma_L at the lobe's axis times its visible patches' cosine-weighted share; lobes
+    between the table's levels (Phong 40 and 200: levels 1 ... 256 of a face-16 cube), beyond its last
+    (Phong 1000, 5000) and a GGX lobe."""
+    mat = (shininess, shininess, float(lobe_kind))
+    # and pixels whose mirror direction from the camera meets the test sky's sun
+    px = floor_pixels(ks=ks, material=mat) + floor_pixels(ks=ks, material=mat, xs=(1.7, 1.94, 2.2), zs=(5.4, 5.6, 5.8))
     cam = (1.0, 2.5, 4.0)
     g = gamma_tables()
-    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES, OWNERS, camera=cam, env_sharpness=100.0,
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES, OWNERS, camera=cam, env_sharpness=sharp,
                      specular_shadows=shadows, gamma=g)
-    want = twin(px, LOBES, SPHERES, OWNERS, camera=cam, env_sharpness=100.0, specular_shadows=shadows, gamma=g)
+    want = twin(px, LOBES, SPHERES, OWNERS, camera=cam, env_sharpness=sharp, specular_shadows=shadows, gamma=g)
     check(got, want)
-    patches = twin(px, LOBES, SPHERES, OWNERS, camera=cam, env_sharpness=100.0, specular_shadows=shadows)
+    patches = twin(px, LOBES, SPHERES, OWNERS, camera=cam, env_sharpness=sharp, specular_shadows=shadows)
     assert np.abs(want - patches).max() > 0.01 * want.max()  # the prefiltered path is not the patch path
 
 
