@@ -440,9 +440,10 @@ kernel void isg_cube_halve(global const float4 *cube, global const float4 *dirs,
  * vertex-grid cube, from the source cube of face n_src. Sharp lobes visit on
  * each face only the texels whose centres can lie within the cut: for t on
  * face g and a projected onto g's plane (gnomonic, a_g = a / (a.e_g)),
- * |t_g - a_g| <= sin(angle) |t_g| |a_g| <= sqrt 3 sin(theta_cut) / (a.e_g), so
- * a box of that half-size around a_g (plus a texel: the halved sources'
- * directions are means, not centres) holds them all. */
+ * |t_g - a_g| <= |t_g x a_g| = sin(angle) |t_g| |a_g| <= |t_g| sin(theta_cut) / (a.e_g)
+ * with |t_g| <= sqrt 3, so a box of that half-size around a_g (plus a texel:
+ * the halved sources' directions are centroids, not centres) holds them all;
+ * then again with |t_g| bounded at that box's far corner on the face. */
 kernel void isg_prefilter(global const float4 *cube, global const float4 *dirs, int n_src, float lambda, int n_out,
                           int offset, global float4 *out)
 {
@@ -465,7 +466,10 @@ kernel void isg_prefilter(global const float4 *cube, global const float4 *dirs, 
                 continue;
             const float ag = dot(a, pn_cube_to_dir(g, 1.0f, 0.0f) - e) / de;
             const float bg = dot(a, pn_cube_to_dir(g, 0.0f, 1.0f) - e) / de;
-            const float h = fmin(1.73205081f * sin_cut / de, 4.0f), half_n = 0.5f * (float)n_src;
+            /* |t_g| <= sqrt 3 first, then sqrt(1 + a^2 + b^2) at the first box's far corner on the face. */
+            const float h0 = fmin(1.73205081f * sin_cut / de, 4.0f);
+            const float fa = fmin(fabs(ag) + h0, 1.0f), fb = fmin(fabs(bg) + h0, 1.0f);
+            const float h = fmin(sqrt(1.0f + fa * fa + fb * fb) * sin_cut / de, 4.0f), half_n = 0.5f * (float)n_src;
             i0 = max((int)floor((ag - h + 1.0f) * half_n) - 1, 0), i1 = min((int)floor((ag + h + 1.0f) * half_n) + 1, n_src - 1);
             j0 = max((int)floor((bg - h + 1.0f) * half_n) - 1, 0), j1 = min((int)floor((bg + h + 1.0f) * half_n) + 1, n_src - 1);
         }

@@ -2,8 +2,8 @@
  * spherical-Gaussian lobes, occluders as the sphere sets attached to
  * instances, diffuse and specular soft shadows by the Integral Spherical
  * Gaussian. Plan: the lobe fit (when the env map or K changed), the
- * prefiltered env Gamma_L (when the env map changed), the ISG table (once per
- * context). Execute: every attached sphere in world space
+ * prefiltered env Gamma_L (per context and env map, specular_mode 1), the ISG
+ * table (once per context). Execute: every attached sphere in world space
  * (from the instances' transforms, so moving objects cost nothing more),
  * uploaded without waiting, and the shading kernel. */
 #include "core/sg.h"
@@ -36,8 +36,8 @@ static const pn_param_desc params[] = {
     {"specular_shadows", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
      "1: the specular term is shadowed (patch by patch or by its product lobes' visibility), 0: unshadowed."},
     {"env_sharpness", PN_PARAM_FLOAT, PN_PARAM_FRAME, 100, 0, 1e9, "",
-     "BRDF lobes at least this sharp integrate the env cube on their own visible patches; broader ones use "
-     "the SG lobe products."},
+     "BRDF lobes at least this sharp take the specular_mode path (the env on their own visible patches); "
+     "broader ones use the SG lobe products."},
     {"sphere_tree", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
      "1: spheres culled per lobe through a tree of bounding spheres over them (rebuilt every frame in Morton "
      "order), 0: every sphere tested for every lobe (the same image, slower; kept for comparison)."},
@@ -62,9 +62,6 @@ typedef struct state {
     uint32_t *scratch;        /* host: Morton keys and order, sorted spheres (sphere_tree) */
     size_t capacity, device_capacity, node_capacity, device_node_capacity;
     cl_mem device_spheres, device_owners, device_nodes;
-    cl_mem gamma, gamma_levels; /* prefiltered Gamma_L: every level's vertex-grid cube; (offset, size) per level */
-    int gamma_count;            /* levels */
-    uint64_t gamma_version;     /* env map that `gamma` was built from */
 } state;
 
 static bool is_sphere_set(const pn_attachment *a)
@@ -97,10 +94,37 @@ static int gamma_level_size(int face, double lambda)
     return n < 8 ? 8 : n > 2 * face + 1 ? 2 * face + 1 : n;
 }
 
-static pn_status build_gamma(pn_renderer r, pn_envmap env)
+/* A built Gamma_L: every level's vertex-grid cube in `gamma`, (offset, size)
+ * per level in `levels`; made from the env map of content hash `hash` on a
+ * cube of face `face`. */
+typedef struct gamma_entry {
+    uint64_t hash, used;
+    int face, count;
+    cl_mem gamma, levels;
+} gamma_entry;
+
+/* The Gamma_L tables of a context, shared by its isg renderers: the last
+ * GAMMA_CACHED env maps' (a renderer made per frame, as penumbra.render does,
+ * or several on one env build it once). */
+enum { GAMMA_CACHED = 4 };
+typedef struct gamma_cache {
+    gamma_entry entry[GAMMA_CACHED];
+    uint64_t clock;
+} gamma_cache;
+static const int gamma_cache_key = 0;
+
+static void free_gamma_cache(void *data)
 {
-    state *s = r->state;
-    pn_context ctx = r->obj.ctx;
+    gamma_cache *c = data;
+    for (int i = 0; i < GAMMA_CACHED; ++i) {
+        pn_mem_release(&c->entry[i].gamma);
+        pn_mem_release(&c->entry[i].levels);
+    }
+    free(c);
+}
+
+static pn_status build_gamma(pn_context ctx, pn_envmap env, gamma_entry *e)
+{
     const int face = env->committed_face_size, count = gamma_level_count(face);
     int levels[2 * GAMMA_MAX_LEVELS];
     size_t total = 0;
@@ -114,11 +138,11 @@ static pn_status build_gamma(pn_renderer r, pn_envmap env)
     if ((st = pn_context_kernel(ctx, "isg", "isg_cube_halve", &halve)) ||
         (st = pn_context_kernel(ctx, "isg", "isg_prefilter", &prefilter)))
         return st;
-    pn_mem_release(&s->gamma);
-    pn_mem_release(&s->gamma_levels);
-    s->gamma_count = 0;
-    if ((st = pn_alloc(ctx, total * 16, CL_MEM_READ_WRITE, NULL, &s->gamma, "the prefiltered env (Gamma_L)")) ||
-        (st = pn_alloc(ctx, sizeof levels, CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, levels, &s->gamma_levels,
+    pn_mem_release(&e->gamma);
+    pn_mem_release(&e->levels);
+    e->count = 0;
+    if ((st = pn_alloc(ctx, total * 16, CL_MEM_READ_WRITE, NULL, &e->gamma, "the prefiltered env (Gamma_L)")) ||
+        (st = pn_alloc(ctx, sizeof levels, CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, levels, &e->levels,
                        "the prefiltered env's levels")))
         return st;
     /* The halved sources: mip m has face face >> m (the env cube itself at 0). */
@@ -144,7 +168,7 @@ static pn_status build_gamma(pn_renderer r, pn_envmap env)
         const cl_int n_src = face >> m, n_out = levels[2 * l + 1], offset = levels[2 * l];
         size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof n_src, sizeof lambda, sizeof n_out, sizeof offset,
                           sizeof(cl_mem)};
-        const void *vals[] = {&cube[m], &dirs[m], &n_src, &lambda, &n_out, &offset, &s->gamma};
+        const void *vals[] = {&cube[m], &dirs[m], &n_src, &lambda, &n_out, &offset, &e->gamma};
         if (!(st = pn_set_args(ctx, prefilter, "isg_prefilter", 7, sizes, vals)))
             st = pn_enqueue_1d(ctx, prefilter, "isg_prefilter", 6 * (size_t)n_out * (size_t)n_out, 64);
     }
@@ -153,8 +177,41 @@ static pn_status build_gamma(pn_renderer r, pn_envmap env)
         pn_mem_release(&dirs[m]);
     }
     if (!st)
-        s->gamma_count = count, s->gamma_version = env->version;
+        e->count = count, e->hash = env->content_hash, e->face = face;
     return st;
+}
+
+/* The context's Gamma_L of env (built now when it has none, in place of the
+ * least recently used). */
+static pn_status gamma_of(pn_context ctx, pn_envmap env, const gamma_entry **out)
+{
+    gamma_cache *c = pn_context_cache(ctx, &gamma_cache_key);
+    pn_status st;
+    if (!c) {
+        if (!(c = pn_malloc(ctx, sizeof *c, "the prefiltered env cache")))
+            return PN_ERROR_OUT_OF_MEMORY;
+        memset(c, 0, sizeof *c);
+        if ((st = pn_context_set_cache(ctx, &gamma_cache_key, c, free_gamma_cache))) {
+            free(c);
+            return st;
+        }
+    }
+    gamma_entry *oldest = &c->entry[0];
+    for (int i = 0; i < GAMMA_CACHED; ++i) {
+        gamma_entry *e = &c->entry[i];
+        if (e->count && e->hash == env->content_hash && e->face == env->committed_face_size) {
+            e->used = ++c->clock;
+            *out = e;
+            return PN_SUCCESS;
+        }
+        if (e->used < oldest->used)
+            oldest = e;
+    }
+    oldest->used = ++c->clock;
+    if ((st = build_gamma(ctx, env, oldest)))
+        return st;
+    *out = oldest;
+    return PN_SUCCESS;
 }
 
 static pn_status plan(pn_renderer r, pn_scene scene)
@@ -164,8 +221,8 @@ static pn_status plan(pn_renderer r, pn_scene scene)
     pn_envmap env = scene->env;
     const int k = (int)r->params[P_LOBES];
     pn_status st = PN_SUCCESS;
-    if (r->params[P_SPECULAR_MODE] == 1 && (!s->gamma || s->gamma_version != env->version) &&
-        (st = build_gamma(r, env)))
+    const gamma_entry *gamma;
+    if (r->params[P_SPECULAR_MODE] == 1 && (st = gamma_of(ctx, env, &gamma)))
         return st;
     if (s->lobes && s->lobe_count == k && s->env_version == env->version)
         return PN_SUCCESS;
@@ -412,9 +469,13 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const cl_float env_sharpness = (cl_float)r->params[P_ENV_SHARPNESS];
     const cl_float4 camera = pn_scene_camera_position(scene);
     /* specular_mode 0 never reads Gamma_L: any buffer stands in for it. */
-    const cl_int mode = (cl_int)r->params[P_SPECULAR_MODE], gamma_count = mode ? s->gamma_count : 1;
+    const cl_int mode = (cl_int)r->params[P_SPECULAR_MODE];
+    const gamma_entry *g = NULL;
+    if (mode && (st = gamma_of(ctx, env, &g))) /* built at plan: found */
+        return st;
+    const cl_int gamma_count = g ? g->count : 1;
     const cl_float lambda0 = GAMMA_LAMBDA0;
-    const cl_mem gamma = mode ? s->gamma : s->lobes, gamma_levels = mode ? s->gamma_levels : s->lobes;
+    const cl_mem gamma = g ? g->gamma : s->lobes, gamma_levels = g ? g->levels : s->lobes;
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count,
                       sizeof(cl_mem), sizeof n, sizeof(cl_mem), sizeof lobes, sizeof(cl_mem),
                       sizeof(cl_mem), sizeof spheres, sizeof(cl_mem), sizeof use_tree, sizeof grid, sizeof self, sizeof spec, sizeof env_sharpness, sizeof camera,
@@ -438,8 +499,6 @@ static void destroy(pn_renderer r)
     pn_mem_release(&s->device_spheres);
     pn_mem_release(&s->device_owners);
     pn_mem_release(&s->device_nodes);
-    pn_mem_release(&s->gamma);
-    pn_mem_release(&s->gamma_levels);
     free(s->spheres);
     free(s->owners);
     free(s->nodes);
