@@ -3,15 +3,16 @@
 and its two specular paths (`specular_mode` 0: the env cube on the BRDF lobe's
 visible patches; 1: Gamma_L at the lobe's axis times the patches' visible share).
 
-  a  the table: levels, memory, build time (the library's first frame with
-     specular_mode 1 against 0 on the same scene, interleaved; and the build
-     kernels alone through pyopencl), error of the lookup against the exact
-     convolution of the env cube by lambda (at the levels and half-way between
-     them in log lambda), on Pisa (smooth) and rooitou park (a sun)
+  a  the table: levels, memory, build time (the library's first frame after
+     an env change with specular_mode 1 against 0, interleaved; and the build
+     kernels alone through pyopencl), on Pisa (smooth) and rooitou park (a sun)
   b  images against `reference`: the seed's Fig. 12 (bunny and floor, Phong
      1000, k_s 0.5 on both; with --all-scenes also 0.01 on the bunny) and a
      GGX scene (roughness 0.05 and 0.15, k_s 0.5), both modes; frame times of both modes
      interleaved in one process (CPU ms of the process, minimum of 3)
+  c  error of the lookup against the exact convolution of the env cube by
+     lambda (at the levels and half-way between them in log lambda), on the
+     same two maps
 
 Run from the repository root (the same library as the package):
 
@@ -134,18 +135,41 @@ def first_frames(run, table: dict, reps: int = 3) -> dict:
     return {"build_wall_s": med(1, 0) - med(0, 0), "build_cpu_s": med(1, 1) - med(0, 1)}
 
 
+MAPS = (("pisa", PISA), ("rooitou", ROOITOU))
+
+
 def exp_a(run: PrefilterRunner) -> dict:
+    """The table's memory and build time, per map."""
+    out = {"load": load(), "maps": {}}
+    for name, path in MAPS:
+        table = env_scene(path)
+        built = run.build(table)
+        cube = built.envmap.cube_radiance()
+        face = cube.shape[1]
+        levels, _, kernel_s = device_gamma(run.ctx.cl_objects(), cube.reshape(-1, 3).astype(np.float64), face)
+        mem = sum(16 * 6 * n * n for _, n, _ in levels)
+        lib = first_frames(run, table)
+        out["maps"][name] = {"face": face, "levels": len(levels), "bytes": mem, "kernels_s": kernel_s, **lib}
+        log(f"  {name}: face {face}, {len(levels)} levels, {mem / 2**20:.2f} MiB, kernels {kernel_s:.2f} s, "
+            f"library +{lib['build_wall_s']:.2f} s wall, +{lib['build_cpu_s']:.2f} s CPU")
+    out["load_after"] = load()
+    return out
+
+
+def exp_c(run: PrefilterRunner) -> dict:
+    """The lookup's error against the exact convolution, by lambda, per map."""
     out = {"load": load(), "maps": {}}
     rng = np.random.default_rng(5)
     q = rng.normal(size=(1000 if run.quick else 3000, 3))
     q /= np.linalg.norm(q, axis=1, keepdims=True)
-    for name, path in (("pisa", PISA), ("rooitou", ROOITOU)):
-        table = env_scene(path)
-        built = run.build(table)
-        rgb = built.envmap.cube_radiance().reshape(-1, 3).astype(np.float64)
-        face = built.envmap.cube_radiance().shape[1]
+    lum = lambda x: x @ np.array([0.2126, 0.7152, 0.0722])  # noqa: E731
+    for name, path in MAPS:
+        built = run.build(env_scene(path))
+        cube = built.envmap.cube_radiance()
+        face = cube.shape[1]
+        rgb = cube.reshape(-1, 3).astype(np.float64)
         dirs = cube_directions(face)
-        levels, tables, kernel_s = device_gamma(run.ctx.cl_objects(), rgb, face)
+        levels, tables, _ = device_gamma(run.ctx.cl_objects(), rgb, face)
         rows = []
         for lam, n, n_src in levels:
             for at in (lam, lam * 2 ** 0.5):
@@ -153,17 +177,12 @@ def exp_a(run: PrefilterRunner) -> dict:
                     continue
                 want = prefilter(rgb, dirs, at, q, cut=None)
                 got = np.array([gamma_lookup(levels, tables, d, at) for d in q])
-                lum = lambda x: x @ np.array([0.2126, 0.7152, 0.0722])  # noqa: E731
                 err = np.sqrt(np.mean((got - want) ** 2)) / np.sqrt(np.mean(want ** 2))
                 rel = np.abs(lum(got) - lum(want)) / np.maximum(lum(want), 1e-30)
                 rows.append({"lambda": at, "level": at == lam, "vertices": n, "source": n_src, "rel_rms": err,
                              "p99_rel": float(np.quantile(rel, 0.99)), "max_rel": float(rel.max())})
-        mem = sum(16 * 6 * n * n for _, n, _ in levels)
-        lib = first_frames(run, table)
-        out["maps"][name] = {"face": face, "levels": len(levels), "bytes": mem, "kernels_s": kernel_s, **lib,
-                             "rows": rows}
-        log(f"  {name}: face {face}, {len(levels)} levels, {mem / 2**20:.2f} MiB, kernels {kernel_s:.2f} s, "
-            f"library +{lib['build_wall_s']:.2f} s wall, +{lib['build_cpu_s']:.2f} s CPU")
+        out["maps"][name] = {"face": face, "directions": len(q), "rows": rows}
+        log(f"  {name}: " + ", ".join(f"{r['lambda']:.4g}: {r['rel_rms']:.2e}" for r in rows))
     return out
 
 
@@ -220,11 +239,16 @@ def report(results: dict) -> str:
     lines = ["# isg prefiltered lighting", "", generated_by(meta, "bench/isg_prefilter.py", "2 shared cores") + ".", ""]
     ex = results["experiments"]
     if "a" in ex:
-        lines += ["## a. The table", "", f"load: {ex['a'].get('load')}", ""]
+        lines += ["## a. The table", "", f"load: {ex['a'].get('load')} before, {ex['a'].get('load_after')} after", ""]
         for name, m in ex["a"]["maps"].items():
-            lines += [f"### {name}: face {m['face']}, {m['levels']} levels, {m['bytes'] / 2**20:.2f} MiB; build "
-                      f"kernels {m['kernels_s']:.2f} s; library first frame +{m['build_wall_s']:.2f} s wall, "
-                      f"+{m['build_cpu_s']:.2f} s CPU", "",
+            lines += [f"* {name}: face {m['face']}, {m['levels']} levels, {m['bytes'] / 2**20:.2f} MiB; build "
+                      f"kernels {m['kernels_s']:.2f} s wall; library first frame +{m['build_wall_s']:.2f} s wall, "
+                      f"+{m['build_cpu_s']:.2f} s CPU"]
+        lines.append("")
+    if "c" in ex:
+        lines += ["## c. Lookup against the exact convolution", "", f"load: {ex['c'].get('load')}", ""]
+        for name, m in ex["c"]["maps"].items():
+            lines += [f"### {name}: face {m['face']}, {m['directions']} random directions", "",
                       "| lambda | at a level | vertices | source face | rel RMS | p99 rel (luminance) | max rel |",
                       "|---|---|---|---|---|---|---|"]
             for r in m["rows"]:
@@ -244,7 +268,9 @@ def report(results: dict) -> str:
 
 SUITE = Suite(
     script="bench/isg_prefilter.py", description=__doc__,
-    experiments=(Experiment("a", "the table", exp_a), Experiment("b", "images and frame times", exp_b)),
+    experiments=(Experiment("a", "the table: memory, build time", exp_a),
+                 Experiment("b", "images and frame times", exp_b),
+                 Experiment("c", "lookup error by lambda", exp_c)),
     runner=PrefilterRunner, report=report, default_out="bench/results/isg/prefilter",
     add_arguments=lambda ap: ap.add_argument("--all-scenes", action="store_true",
                                              help="also Fig. 12 with k_s 0.01 on the bunny"),

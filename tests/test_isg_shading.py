@@ -11,6 +11,7 @@ counts: the kernel is called directly with pyopencl.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -163,6 +164,7 @@ def test_env_specular_path_matches_twin(cl_pair, build_test_kernel, shininess, k
     assert np.abs(want - lobes_only).max() > 0.01 * want.max()  # the env path is not the lobe path
 
 
+@functools.lru_cache(maxsize=4)
 def gamma_tables(face=16, sun=1e5, constant=None):
     """Gamma_L of the twin's test sky (a 1e5:1 sun) or of a constant env, as the kernel reads it."""
     rgb = sky_cube(face, sun) if constant is None else np.full((6 * face * face, 3), constant)
