@@ -162,3 +162,9 @@ def test_prefiltered_env_is_rebuilt_when_the_env_changes(ctx):
     np.testing.assert_array_equal(again, fresh)
     with pytest.raises(PenumbraError, match="specular_mode"):
         Renderer(ctx, "isg", specular_mode=2)
+
+
+def test_a_diffuse_scene_builds_no_prefiltered_env(ctx):
+    """specular_mode 1 on a scene without specular lobes skips Gamma_L (its frame is mode 0's)."""
+    s = build(ctx, procedural.constant(1.0, 64, 32), translate(0.0, 1.2, 0.0, 0.6))
+    np.testing.assert_array_equal(render(ctx, s, specular_mode=1), render(ctx, s, specular_mode=0))

@@ -214,6 +214,21 @@ static pn_status gamma_of(pn_context ctx, pn_envmap env, const gamma_entry **out
     return PN_SUCCESS;
 }
 
+/* Whether the frame uses Gamma_L: specular_mode 1 and some instance has a
+ * specular lobe. A diffuse scene skips the build and its frames get mode 0,
+ * whose sharp-lobe path a G-buffer of the scene never enters (k_s = 0) and a
+ * G-buffer from elsewhere gets as a valid fallback: the kernel never reads
+ * an unbuilt table. */
+static bool uses_gamma(pn_renderer r, pn_scene scene)
+{
+    if (r->params[P_SPECULAR_MODE] != 1)
+        return false;
+    for (uint32_t i = 0; i < scene->instance_count; ++i)
+        if (scene->instances[i].material.specular > 0.0f)
+            return true;
+    return false;
+}
+
 static pn_status plan(pn_renderer r, pn_scene scene)
 {
     state *s = r->state;
@@ -222,7 +237,7 @@ static pn_status plan(pn_renderer r, pn_scene scene)
     const int k = (int)r->params[P_LOBES];
     pn_status st = PN_SUCCESS;
     const gamma_entry *gamma;
-    if (r->params[P_SPECULAR_MODE] == 1 && (st = gamma_of(ctx, env, &gamma)))
+    if (uses_gamma(r, scene) && (st = gamma_of(ctx, env, &gamma)))
         return st;
     if (s->lobes && s->lobe_count == k && s->env_version == env->version)
         return PN_SUCCESS;
@@ -469,7 +484,7 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const cl_float env_sharpness = (cl_float)r->params[P_ENV_SHARPNESS];
     const cl_float4 camera = pn_scene_camera_position(scene);
     /* specular_mode 0 never reads Gamma_L: any buffer stands in for it. */
-    const cl_int mode = (cl_int)r->params[P_SPECULAR_MODE];
+    const cl_int mode = uses_gamma(r, scene) ? 1 : 0;
     const gamma_entry *g = NULL;
     if (mode && (st = gamma_of(ctx, env, &g))) /* built at plan: found */
         return st;
