@@ -35,10 +35,10 @@ import harness  # noqa: E402
 from harness import Experiment, Suite, f4, generated_by, log  # noqa: E402
 from isg_experiments import DATA, PISA, IsgRunner, bunny_scene  # noqa: E402
 from isg_shading64 import cube_directions, gamma_lookup, prefilter  # noqa: E402  the float64 twin
+from test_isg_prefilter import device_gamma as run_gamma_kernels  # noqa: E402
 
 from penumbra import GBuffer, Image, Renderer  # noqa: E402
 from penumbra.kernels import expand  # noqa: E402
-from penumbra.methods.isg import gamma_levels  # noqa: E402
 from penumbra.render import render  # noqa: E402
 
 ROOITOU = str(DATA / "envmaps" / "rooitou_park_1k_polyhaven.hdr")
@@ -66,36 +66,13 @@ class PrefilterRunner(IsgRunner):
 
 
 def device_gamma(queue_ctx, rgb: np.ndarray, face: int):
-    """The build kernels as the library runs them (capi/src/methods/isg.c build_gamma): (levels, tables,
+    """The build kernels as the library runs them (the tests' pyopencl driver of them): (levels, tables,
     seconds of the kernels, waited for)."""
-    ctx, queue = queue_ctx
-    prg = cl.Program(ctx, expand("common/math.cl", '#include "isg.cl"\n')).build(options=["-cl-std=CL1.2"])
-    halve, pre = cl.Kernel(prg, "isg_cube_halve"), cl.Kernel(prg, "isg_prefilter")
-    mf = cl.mem_flags
-    c4 = np.zeros((len(rgb), 4), np.float32)
-    c4[:, :3] = rgb
-    dirs = cube_directions(face).astype(np.float32)
-    t0 = time.perf_counter()
-    src = {face: (cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=c4),
-                  cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=dirs))}
-    m = face
-    while m % 2 == 0 and m // 2 >= 2 and len(src) < 12:
-        t = 6 * (m // 2) ** 2
-        out = (cl.Buffer(ctx, mf.READ_WRITE, 16 * t), cl.Buffer(ctx, mf.READ_WRITE, 16 * t))
-        halve(queue, (t,), None, *src[m], np.int32(m), *out)
-        src[m // 2] = out
-        m //= 2
-    levels = gamma_levels(face)
-    offsets = np.cumsum([0] + [6 * n * n for _, n, _ in levels])
-    gbuf = cl.Buffer(ctx, mf.READ_WRITE, 16 * int(offsets[-1]))
-    for (lam, n, n_src), off in zip(levels, offsets):
-        pre(queue, (6 * n * n,), None, *src[n_src], np.int32(n_src), np.float32(lam), np.int32(n), np.int32(off),
-            gbuf)
-    queue.finish()
-    seconds = time.perf_counter() - t0
-    whole = np.empty((int(offsets[-1]), 4), np.float32)
-    cl.enqueue_copy(queue, whole, gbuf)
-    return levels, [whole[o:o + 6 * n * n, :3].astype(np.float64) for (_, n, _), o in zip(levels, offsets)], seconds
+    ctx = queue_ctx[0]
+    build = lambda src: cl.Program(ctx, expand("common/math.cl", src)).build(options=["-cl-std=CL1.2"])  # noqa: E731
+    seconds: list[float] = []
+    levels, tables, _ = run_gamma_kernels(queue_ctx, build, rgb, face, seconds)
+    return levels, [t.astype(np.float64) for t in tables], seconds[0]
 
 
 def env_scene(env_map: str, res=(64, 48)) -> dict:

@@ -10,6 +10,7 @@ sharpness), a 1e5:1 sun, sharpness below, at and beyond the table's ends.
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pyopencl as cl
@@ -35,9 +36,11 @@ LOOKUP_RTOL = 2e-5
 CONSTANT_RTOL = 1e-5
 
 
-def device_gamma(cl_pair, build_test_kernel, rgb: np.ndarray, face: int):
+def device_gamma(cl_pair, build_test_kernel, rgb: np.ndarray, face: int, seconds: list | None = None):
     """isg_cube_halve and isg_prefilter as the host runs them (build_gamma in capi/src/methods/isg.c), with
-    the levels of penumbra.methods.isg.gamma_levels: (levels, per-level tables (6 n n, 3), the whole buffer)."""
+    the levels of penumbra.methods.isg.gamma_levels: (levels, per-level tables (6 n n, 3), the whole
+    buffer). build_test_kernel: source -> pyopencl.Program; seconds: gets the kernels' wall time (waited
+    for; bench/isg_prefilter.py)."""
     ctx, queue = cl_pair
     prg = build_test_kernel(SOURCE)
     halve, prefilter_k = cl.Kernel(prg, "isg_cube_halve"), cl.Kernel(prg, "isg_prefilter")
@@ -45,6 +48,8 @@ def device_gamma(cl_pair, build_test_kernel, rgb: np.ndarray, face: int):
     cube = np.zeros((len(rgb), 4), np.float32)
     cube[:, :3] = rgb
     dirs = cube_directions(face).astype(np.float32)
+    queue.finish()
+    t0 = time.perf_counter()
     src = {face: (cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=cube),
                   cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=dirs))}
     m = face
@@ -59,7 +64,10 @@ def device_gamma(cl_pair, build_test_kernel, rgb: np.ndarray, face: int):
     gbuf = cl.Buffer(ctx, mf.READ_WRITE, 16 * int(offsets[-1]))
     for (lam, n, n_src), off in zip(levels, offsets):
         prefilter_k(queue, (6 * n * n,), None, *src[n_src], np.int32(n_src), np.float32(lam), np.int32(n),
-                          np.int32(off), gbuf)
+                    np.int32(off), gbuf)
+    queue.finish()
+    if seconds is not None:
+        seconds.append(time.perf_counter() - t0)
     whole = np.empty((int(offsets[-1]), 4), np.float32)
     cl.enqueue_copy(queue, whole, gbuf)
     tables = [whole[off:off + 6 * n * n, :3] for (_, n, _), off in zip(levels, offsets)]
@@ -75,8 +83,8 @@ def device_lookup(cl_pair, build_test_kernel, levels, whole, queries) -> np.ndar
     out = np.empty((len(q), 4), np.float32)
     ro = lambda a: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a)  # noqa: E731
     obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
-    cl.Kernel(build_test_kernel(LOOKUP), "gamma_at")(queue, (len(q),), None, ro(whole), ro(lv), np.int32(len(levels)),
-                                       np.float32(levels[0][0]), ro(q), obuf)
+    k = cl.Kernel(build_test_kernel(LOOKUP), "gamma_at")
+    k(queue, (len(q),), None, ro(whole), ro(lv), np.int32(len(levels)), np.float32(levels[0][0]), ro(q), obuf)
     cl.enqueue_copy(queue, out, obuf)
     return out[:, :3]
 
