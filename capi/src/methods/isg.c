@@ -74,9 +74,9 @@ static bool is_sphere_set(const pn_attachment *a)
  * env cube's face: a lobe half a texel wide, beyond which the cube itself is
  * the limit); level l a vertex-grid cube of clamp(6 sqrt(lambda) + 1, 8, 2F + 1)
  * vertices a side (a third of the lobe's width apart, at most half a texel),
- * built from the env cube
- * halved while its face stays at least 4 sqrt(lambda) (texels under half the
- * lobe's width) and even. Python twin: penumbra.methods.isg.gamma_levels. */
+ * built from the env cube halved while its face stays at least 4 sqrt(lambda)
+ * (texels under half the lobe's width) and even. Python twin:
+ * penumbra.methods.isg.gamma_levels. */
 #define GAMMA_LAMBDA0 1.0f
 enum { GAMMA_MAX_LEVELS = 32, GAMMA_MAX_MIPS = 12 };
 
