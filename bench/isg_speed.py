@@ -112,7 +112,10 @@ class Kernel:
                 *((self.nodes, np.int32(use_tree)) if (tree_args if tree_args is not None else not kernels) else ()),
                 np.int32(grid),
                 np.int32(self_occlusion), np.int32(specular_shadows), np.float32(env_sharpness), self.camera,
-                self.table, self.out, *extra_args]
+                self.table,
+                # specular_mode 0 (the patches; Gamma_L unread: the table stands in for its buffers)
+                *((np.int32(0), self.table, self.table, np.int32(1), np.float32(1.0)) if not kernels else ()),
+                self.out, *extra_args]
         self.queue.finish()
         t0, c0 = time.perf_counter(), time.process_time()
         k(self.queue, (self.n,), (64,) if self.n % 64 == 0 else None, *args)

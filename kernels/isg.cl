@@ -7,7 +7,8 @@
  *   diffuse  E_k = pn_sg_irradiance(G_k, n) * V(G_k x G_cos)
  *   specular S_k = k_s * pn_sg_irradiance(G_k x G_brdf, n) * V(G_k x G_brdf)
  * or, for a BRDF lobe at least `env_sharpness` sharp, the env cube itself
- * integrated over the BRDF lobe's visible patches (pn_isg_env_specular),
+ * integrated over the BRDF lobe's visible patches, or the prefiltered Gamma_L
+ * times their visible share (`specular_mode`; pn_isg_env_specular),
  * where G_cos = G(n, 2.133, 1.170) (the seed's cosine lobe: it only locates
  * the visibility, the unshadowed value is the accurate closed form) and G_brdf
  * is the BRDF lobe as an SG around the mirror direction (pn_brdf_sg, common/sg.cl; the anisotropic
@@ -392,15 +393,132 @@ inline float pn_isg_visibility(pn_sg g, float3 p, float3 n, uint self_id, int se
     return clamp(1.0f - occluded / total, 0.0f, 1.0f);
 }
 
-/* The specular integral of a sharp BRDF lobe b against the env itself:
- *   amplitude H(lambda) sum over visible patches of ISG_hat(patch) L(d) max(n.d, 0)
- * with L(d) the env cube at the patch centre d: the lobe-weighted env (the
- * seed's Gamma_L) evaluated on the lobe's own patches, occluded patches left
- * out (the seed's visibility ratio, patch by patch). */
+/* Prefiltered lighting Gamma_L(a, lambda) (the seed's eq. 10; docs/isg.md
+ * section 8): the env convolved with a normalised SG,
+ *   Gamma_L(a, lambda) = sum_t w_t L_t e^{lambda (a.t - 1)} / sum_t w_t e^{lambda (a.t - 1)}
+ * over the source cube's texels t (direction, solid angle w_t), the lobe's
+ * tail beyond e^{-PN_ISG_GAMMA_CUT} dropped from both sums (so a constant env
+ * gives the constant exactly). Levels lambda_l = lambda_0 2^l, each a
+ * vertex-grid cube (pn_cube_grid_lookup: seamless at the cube's edges) built by
+ * isg_prefilter from a source halved by isg_cube_halve while its texels stay
+ * finer than the lobe (host: capi/src/methods/isg.c build_gamma). Twin:
+ * tests/isg_shading64.py prefilter / gamma_lookup. */
+#define PN_ISG_GAMMA_CUT 20.0f
+/* Above this half-angle of the cut the cube-face window below is not
+ * conservative (a face whose axis is 90 degrees or more from a is 35.26
+ * degrees or more from it): every texel is visited. */
+#define PN_ISG_GAMMA_WINDOWED 0.6f
+
+/* A source of half the face size: each texel the solid-angle-weighted mean of
+ * its 2 x 2 children, its solid angle their sum (a cube's power is kept), its
+ * direction their power centroid (directions weighted by solid angle x the sum
+ * of RGB, + 1e-30 so a black block gets its geometric centre): a sun keeps its
+ * direction (a 1e5:1 one-texel sun: 7 % error at lambda = 1 with the plain
+ * mean direction, 0.9 % with the centroid; docs/isg.md section 8). */
+kernel void isg_cube_halve(global const float4 *cube, global const float4 *dirs, int n, global float4 *cube_out,
+                           global float4 *dirs_out)
+{
+    const int h = n / 2, gid = get_global_id(0);
+    if (gid >= 6 * h * h)
+        return;
+    const int f = gid / (h * h), j = (gid / h) % h, i = gid % h;
+    float4 l = (float4)(0.0f);
+    float3 d = (float3)(0.0f);
+    float w = 0.0f;
+    for (int dj = 0; dj < 2; ++dj)
+        for (int di = 0; di < 2; ++di) {
+            const int t = pn_cube_index(f, 2 * i + di, 2 * j + dj, n);
+            const float4 c = cube[t], dw = dirs[t];
+            l += dw.w * c;
+            d += dw.w * (c.x + c.y + c.z + 1e-30f) * dw.xyz;
+            w += dw.w;
+        }
+    cube_out[gid] = w > 0.0f ? l / w : (float4)(0.0f);
+    dirs_out[gid] = (float4)(normalize(d), w);
+}
+
+/* One level of Gamma_L: out[offset + vertex] for the 6 n_out^2 vertices of a
+ * vertex-grid cube, from the source cube of face n_src. Sharp lobes visit on
+ * each face only the texels whose centres can lie within the cut: for t on
+ * face g and a projected onto g's plane (gnomonic, a_g = a / (a.e_g)),
+ * |t_g - a_g| <= |t_g x a_g| = sin(angle) |t_g| |a_g| <= |t_g| sin(theta_cut) / (a.e_g)
+ * with |t_g| <= sqrt 3, so a box of that half-size around a_g (plus a texel:
+ * the halved sources' directions are centroids, not centres) holds them all;
+ * then again with |t_g| bounded at that box's far corner on the face. */
+kernel void isg_prefilter(global const float4 *cube, global const float4 *dirs, int n_src, float lambda, int n_out,
+                          int offset, global float4 *out)
+{
+    const int gid = get_global_id(0);
+    if (gid >= 6 * n_out * n_out)
+        return;
+    const int f = gid / (n_out * n_out), j = (gid / n_out) % n_out, i = gid % n_out;
+    const float step = 2.0f / (float)(n_out - 1);
+    const float3 a = normalize(pn_cube_to_dir(f, -1.0f + (float)i * step, -1.0f + (float)j * step));
+    const float cos_cut = 1.0f - PN_ISG_GAMMA_CUT / lambda, sin_cut = sqrt(fmax(1.0f - cos_cut * cos_cut, 0.0f));
+    const bool windowed = cos_cut > cos(PN_ISG_GAMMA_WINDOWED);
+    float3 sum = (float3)(0.0f);
+    float weight = 0.0f;
+    for (int g = 0; g < 6; ++g) {
+        int i0 = 0, i1 = n_src - 1, j0 = 0, j1 = n_src - 1;
+        if (windowed) {
+            const float3 e = pn_cube_to_dir(g, 0.0f, 0.0f);
+            const float de = dot(a, e);
+            if (de <= 0.0f)
+                continue;
+            const float ag = dot(a, pn_cube_to_dir(g, 1.0f, 0.0f) - e) / de;
+            const float bg = dot(a, pn_cube_to_dir(g, 0.0f, 1.0f) - e) / de;
+            /* |t_g| <= sqrt 3 first, then sqrt(1 + a^2 + b^2) at the first box's far corner on the face. */
+            const float h0 = fmin(1.73205081f * sin_cut / de, 4.0f);
+            const float fa = fmin(fabs(ag) + h0, 1.0f), fb = fmin(fabs(bg) + h0, 1.0f);
+            const float h = fmin(sqrt(1.0f + fa * fa + fb * fb) * sin_cut / de, 4.0f), half_n = 0.5f * (float)n_src;
+            i0 = max((int)floor((ag - h + 1.0f) * half_n) - 1, 0), i1 = min((int)floor((ag + h + 1.0f) * half_n) + 1, n_src - 1);
+            j0 = max((int)floor((bg - h + 1.0f) * half_n) - 1, 0), j1 = min((int)floor((bg + h + 1.0f) * half_n) + 1, n_src - 1);
+        }
+        for (int tj = j0; tj <= j1; ++tj)
+            for (int ti = i0; ti <= i1; ++ti) {
+                const int t = pn_cube_index(g, ti, tj, n_src);
+                const float4 dw = dirs[t];
+                const float c = dot(a, dw.xyz);
+                if (c < cos_cut)
+                    continue;
+                const float w = dw.w * exp(lambda * (c - 1.0f));
+                sum += w * cube[t].xyz;
+                weight += w;
+            }
+    }
+    out[offset + gid] = (float4)(weight > 0.0f ? sum / weight : (float3)(0.0f), 0.0f);
+}
+
+/* Gamma_L(d, lambda): bilinear in direction on the two levels around lambda,
+ * linear in log2 lambda between them, clamped to the first and last levels.
+ * levels: (offset, face vertices) per level; lambda_l = lambda0 2^l. */
+inline float3 pn_isg_gamma(global const float4 *gamma, global const int *levels, int count, float lambda0,
+                           float3 d, float lambda)
+{
+    const float t = clamp(log2(fmax(lambda, 1e-30f) / lambda0), 0.0f, (float)(count - 1));
+    const int l0 = min((int)t, max(count - 2, 0)), l1 = min(l0 + 1, count - 1);
+    const float3 g0 = pn_cube_grid_lookup(gamma + levels[2 * l0], levels[2 * l0 + 1], d);
+    const float3 g1 = pn_cube_grid_lookup(gamma + levels[2 * l1], levels[2 * l1 + 1], d);
+    return mix(g0, g1, t - (float)l0);
+}
+
+/* Where the specular term of a sharp BRDF lobe finds its light. */
+#define PN_ISG_SPECULAR_PATCHES 0     /* the env cube at each visible patch's centre */
+#define PN_ISG_SPECULAR_PREFILTERED 1 /* Gamma_L at the lobe's axis, times the visible patches' share */
+
+/* The specular integral of a sharp BRDF lobe b over its visible patches:
+ *   patches:      amplitude H(lambda) sum_visible ISG_hat(patch) L(d) max(n.d, 0)
+ *   prefiltered:  amplitude H(lambda) Gamma_L(axis, lambda) sum_visible ISG_hat(patch) max(n.d, 0)
+ * with d the patch centre, L(d) the env cube there. The first is the seed's
+ * Gamma_L by quadrature on the lobe's own patches, occluded patches left out;
+ * the second is the seed's eq. 10, Gamma_L times the visibility ratio (the
+ * visible over all patches, cosine-weighted, times their unoccluded sum). */
 inline float3 pn_isg_env_specular(pn_sg b, float3 p, float3 n, uint self_id, int self_occlusion,
                                   global const float4 *spheres, global const uint *owners, int sphere_count,
                                   global const float4 *nodes, const pn_isg_tree *tree, int grid,
-                                  global const float *table, global const float4 *cube, int n_cube)
+                                  global const float *table, global const float4 *cube, int n_cube, int mode,
+                                  global const float4 *gamma, global const int *levels, int level_count,
+                                  float lambda0)
 {
     pn_isg_grid pg;
     pn_isg_grid_init(b, grid, &pg);
@@ -409,6 +527,7 @@ inline float3 pn_isg_env_specular(pn_sg b, float3 p, float3 n, uint self_id, int
         return (float3)(0.0f);
     float a_edge[PN_ISG_MAX_GRID + 1], b_edge[PN_ISG_MAX_GRID + 1];
     pn_isg_edges(&pg, b.sharpness, table, a_edge, b_edge);
+    const bool prefiltered = mode == PN_ISG_SPECULAR_PREFILTERED;
     float3 sum = (float3)(0.0f);
     for (int i = 0; i < grid; ++i) {
         float3 row = (float3)(0.0f);
@@ -418,10 +537,13 @@ inline float3 pn_isg_env_specular(pn_sg b, float3 p, float3 n, uint self_id, int
             const float3 d = pg.sin_c[i] * (pg.cos_c[j] * pg.x + pg.sin_c[j] * pg.z) + pg.cos_c[i] * pg.y;
             const float c = dot(n, d);
             if (c > 0.0f)
-                row += (b_edge[j + 1] - b_edge[j]) * c * pn_cube_texel_lookup(cube, n_cube, d);
+                row += (b_edge[j + 1] - b_edge[j]) * c *
+                       (prefiltered ? (float3)(1.0f) : pn_cube_texel_lookup(cube, n_cube, d));
         }
         sum += (a_edge[i + 1] - a_edge[i]) * row;
     }
+    if (prefiltered)
+        sum *= pn_isg_gamma(gamma, levels, level_count, lambda0, b.axis, b.sharpness);
     return b.amplitude * pn_sg_hemisphere_integral(b.sharpness) * sum;
 }
 
@@ -431,7 +553,8 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
                       int lobe_count, global const float4 *spheres, global const uint *owners, int sphere_count,
                       global const float4 *nodes, int use_tree,
                       int grid, int self_occlusion, int specular_shadows, float env_sharpness, float4 camera,
-                      global const float *table, global float4 *image)
+                      global const float *table, int specular_mode, global const float4 *gamma,
+                      global const int *gamma_levels, int gamma_count, float gamma_lambda0, global float4 *image)
 {
     const int gid = get_global_id(0);
     if (gid >= count)
@@ -464,7 +587,8 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
     float3 diffuse = (float3)(0.0f), specular = (float3)(0.0f);
     if (env_specular && !(inside && specular_shadows))
         specular = pn_isg_env_specular(brdf[0], p, n, id, specular_shadows ? self_occlusion : 0, spheres, owners,
-                                       specular_shadows ? sphere_count : 0, nodes, &tree, grid, table, cube, n_cube);
+                                       specular_shadows ? sphere_count : 0, nodes, &tree, grid, table, cube, n_cube,
+                                       specular_mode, gamma, gamma_levels, gamma_count, gamma_lambda0);
     for (int k = 0; k < lobe_count; ++k) {
         const pn_sg g = pn_sg_load(lobes, k);
         const float3 e = pn_sg_irradiance(g, n);

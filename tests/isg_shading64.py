@@ -125,9 +125,130 @@ def cube_face(d) -> int:
     return 4 if d[2] > 0 else 5
 
 
-def env_specular(axis, lam, mu, p, n, self_id, self_occlusion, spheres, owners, grid, face_rgb) -> np.ndarray:
+def cube_dir(face: int, a, b) -> np.ndarray:
+    """pn_cube_to_dir: the unnormalised direction of face coordinates (a, b) (arrays broadcast)."""
+    a, b = np.broadcast_arrays(np.asarray(a, np.float64), np.asarray(b, np.float64))
+    one = np.ones_like(a)
+    return np.stack({0: (one, -b, -a), 1: (-one, -b, a), 2: (a, one, b), 3: (a, -one, -b), 4: (a, -b, one),
+                     5: (-a, -b, -one)}[face], -1)
+
+
+def cube_directions(n: int) -> np.ndarray:
+    """envmap_cube_directions: (6 n n, 4) unit texel-centre directions and exact solid angles, texel order
+    pn_cube_index (face, row j, column i)."""
+    e = -1.0 + 2.0 * np.arange(n + 1) / n
+    c = 0.5 * (e[1:] + e[:-1])
+    area = lambda x, y: np.arctan2(x * y, np.sqrt(x * x + y * y + 1.0))  # noqa: E731
+    w = (area(e[None, :-1], e[:-1, None]) - area(e[None, :-1], e[1:, None]) - area(e[None, 1:], e[:-1, None])
+         + area(e[None, 1:], e[1:, None]))  # [j, i]
+    out = []
+    for f in range(6):
+        d = cube_dir(f, c[None, :], c[:, None])
+        out.append(np.concatenate([d / np.linalg.norm(d, axis=-1, keepdims=True), w[..., None]], -1).reshape(-1, 4))
+    return np.concatenate(out)
+
+
+def cube_halve(cube: np.ndarray, dirs: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """isg_cube_halve: each texel of the n / 2 cube the solid-angle-weighted mean of its 2 x 2 children,
+    its solid angle their sum, its direction their power centroid (directions weighted by solid angle x
+    (sum of RGB + 1e-30), normalised). cube: (6 n n, 3)."""
+    h = n // 2
+    w = dirs[:, 3].reshape(6, h, 2, h, 2)
+    lw = (cube[:, :3] * dirs[:, 3:]).reshape(6, h, 2, h, 2, 3).sum((2, 4))
+    power = dirs[:, 3:] * (cube[:, :3].sum(-1, keepdims=True) + 1e-30)
+    dw = (dirs[:, :3] * power).reshape(6, h, 2, h, 2, 3).sum((2, 4))
+    ws = w.sum((2, 4))[..., None]
+    out_dirs = np.concatenate([dw / np.linalg.norm(dw, axis=-1, keepdims=True), ws], -1).reshape(-1, 4)
+    return np.where(ws > 0, lw / np.where(ws > 0, ws, 1.0), 0.0).reshape(-1, 3), out_dirs
+
+
+def sky_cube(face: int, sun: float = 0.0, seed: int = 1) -> np.ndarray:
+    """A test env: a smooth sky with a horizon, a coloured blob and ripples, optionally a one-texel sun
+    sun:1 brighter than the sky's mean: (6 face face, 3) radiance in cube texel order."""
+    d = cube_directions(face)[:, :3]
+    rng = np.random.default_rng(seed)
+    c = rng.uniform(-1, 1, 3)
+    c /= np.linalg.norm(c)
+    up = np.clip(d[:, 1], 0.0, None)
+    rgb = np.stack([0.3 + up, 0.4 + 1.2 * up, 0.6 + 2.0 * up], -1)
+    rgb += np.outer(np.exp(8.0 * (d @ c - 1.0)), [2.0, 1.0, 0.3])
+    rgb += 0.2 * np.outer(np.sin(9.0 * d[:, 0]) * np.cos(7.0 * d[:, 2]) ** 2, [1.0, 1.0, 1.0])
+    if sun:
+        s = np.argmax(d @ np.array([0.3, 0.8, 0.52]) / np.linalg.norm([0.3, 0.8, 0.52]))
+        rgb[s] = sun * rgb.mean()
+    return rgb
+
+
+GAMMA_CUT = 20.0  # PN_ISG_GAMMA_CUT: the lobe's tail below e^-20 is dropped
+
+
+def gamma_vertices(n_out: int) -> np.ndarray:
+    """The unit directions of a vertex-grid cube of n_out vertices a side, in pn_cube_index order."""
+    t = -1.0 + 2.0 * np.arange(n_out) / (n_out - 1)
+    d = np.concatenate([cube_dir(f, t[None, :], t[:, None]).reshape(-1, 3) for f in range(6)])
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def prefilter(cube: np.ndarray, dirs: np.ndarray, lam: float, directions: np.ndarray, cut: float | None = GAMMA_CUT):
+    """isg_prefilter: Gamma_L(a, lam) = sum_t w_t L_t e^{lam (a.t - 1)} / sum_t w_t e^{lam (a.t - 1)} over the
+    source texels t (every texel: no window), for each row a of ``directions``; cut: texels with
+    lam (1 - a.t) > cut dropped from both sums (None: none dropped, the exact convolution of the texels)."""
+    directions = np.asarray(directions, np.float64)
+    out = np.zeros((len(directions), 3))
+    for k in range(0, len(directions), 1024):  # in blocks: (directions x texels) matrices of at most ~50 MB
+        c = directions[k:k + 1024] @ dirs[:, :3].T
+        w = dirs[None, :, 3] * np.exp(lam * (c - 1.0))
+        if cut is not None:
+            w = np.where(c >= 1.0 - cut / lam, w, 0.0)
+        s = w.sum(1, keepdims=True)
+        out[k:k + 1024] = np.where(s > 0, (w @ cube[:, :3]) / np.where(s > 0, s, 1.0), 0.0)
+    return out
+
+
+def build_gamma(cube: np.ndarray, dirs: np.ndarray, face: int, levels) -> list[np.ndarray]:
+    """Every level of Gamma_L (levels: penumbra.methods.isg.gamma_levels(face)), each (6 n n, 3)."""
+    sources = {face: (np.asarray(cube, np.float64)[:, :3], np.asarray(dirs, np.float64))}
+    m = face
+    while m % 2 == 0 and m // 2 >= 2 and len(sources) < 12:
+        sources[m // 2] = cube_halve(*sources[m], m)
+        m //= 2
+    return [prefilter(*sources[n_src], lam, gamma_vertices(n_out)) for lam, n_out, n_src in levels]
+
+
+def grid_lookup(grid: np.ndarray, n: int, d) -> np.ndarray:
+    """pn_cube_grid_lookup: bilinear in the vertex-grid cube (6 n n, 3) at direction d."""
+    d = np.asarray(d, np.float64)
+    f = cube_face(d)
+    ax = [0, 0, 1, 1, 2, 2][f]
+    de = abs(d[ax])
+    u = cube_dir(f, 1.0, 0.0) - cube_dir(f, 0.0, 0.0)
+    v = cube_dir(f, 0.0, 1.0) - cube_dir(f, 0.0, 0.0)
+    x = min(max((float(d @ u) / de + 1.0) * 0.5 * (n - 1), 0.0), n - 1.0)
+    y = min(max((float(d @ v) / de + 1.0) * 0.5 * (n - 1), 0.0), n - 1.0)
+    x0, y0 = min(int(x), n - 2), min(int(y), n - 2)
+    fx, fy = x - x0, y - y0
+    g = grid.reshape(6, n, n, 3)[f]
+    top = g[y0, x0] * (1 - fx) + g[y0, x0 + 1] * fx
+    bottom = g[y0 + 1, x0] * (1 - fx) + g[y0 + 1, x0 + 1] * fx
+    return top * (1 - fy) + bottom * fy
+
+
+def gamma_lookup(levels, tables, d, lam: float) -> np.ndarray:
+    """pn_isg_gamma: bilinear in direction on the levels around lam, linear in log2 lam, clamped to the ends."""
+    count = len(levels)
+    t = min(max(math.log2(max(lam, 1e-30) / levels[0][0]), 0.0), count - 1.0)
+    l0 = min(int(t), max(count - 2, 0))
+    l1 = min(l0 + 1, count - 1)
+    g0 = grid_lookup(tables[l0], levels[l0][1], d)
+    g1 = grid_lookup(tables[l1], levels[l1][1], d)
+    return g0 + (g1 - g0) * (t - l0)
+
+
+def env_specular(axis, lam, mu, p, n, self_id, self_occlusion, spheres, owners, grid, face_rgb,
+                 gamma=None) -> np.ndarray:
     """pn_isg_env_specular with a cube of one texel per face (face_rgb (6, 3)):
-    mu H(lam) sum over visible patches of ISG(patch) L(centre) max(n.centre, 0)."""
+    mu H(lam) sum over visible patches of ISG(patch) L(centre) max(n.centre, 0); with gamma = (levels,
+    tables) (specular_mode 1) L(centre) is Gamma_L(axis, lam) for every patch."""
     mask, inside = patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid)
     if inside:
         return np.zeros(3)
@@ -137,6 +258,7 @@ def env_specular(axis, lam, mu, p, n, self_id, self_occlusion, spheres, owners, 
     s = isg_exact_grid(lam, edges, edges)
     patches = s[1:, 1:] - s[:-1, 1:] - s[1:, :-1] + s[:-1, :-1]
     centres = HALF_PI - w + (np.arange(grid) + 0.5) * (2.0 * w / grid)
+    light = None if gamma is None else gamma_lookup(*gamma, axis, lam)
     out = np.zeros(3)
     for i, th in enumerate(centres):
         for j, ph in enumerate(centres):
@@ -145,15 +267,17 @@ def env_specular(axis, lam, mu, p, n, self_id, self_occlusion, spheres, owners, 
             d = math.sin(th) * math.cos(ph) * x + math.cos(th) * y + math.sin(th) * math.sin(ph) * axis
             c = float(d @ n)
             if c > 0:
-                out += patches[i, j] * c * np.asarray(face_rgb[cube_face(d)], np.float64)
+                out += patches[i, j] * c * (np.asarray(face_rgb[cube_face(d)], np.float64) if light is None
+                                            else light)
     return np.asarray(mu, np.float64) * float(sg_hemisphere_integral(lam)) * out
 
 
 def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, grid, self_occlusion=1,
-          specular_shadows=1, env_sharpness=math.inf, face_rgb=None) -> np.ndarray:
+          specular_shadows=1, env_sharpness=math.inf, face_rgb=None, gamma=None) -> np.ndarray:
     """One pixel of shade_isg. lobes: (K, 7) axis xyz, sharpness, amplitude rgb;
     face_rgb: the env cube as one RGB per face (used by the env specular path,
-    for BRDF lobes at least env_sharpness sharp)."""
+    for BRDF lobes at least env_sharpness sharp); gamma: (levels, tables) of
+    Gamma_L for specular_mode 1 (None: specular_mode 0)."""
     p, n = np.asarray(p, np.float64), np.asarray(n, np.float64)
     n = n / np.linalg.norm(n)
     diffuse, specular = np.zeros(3), np.zeros(3)
@@ -165,7 +289,7 @@ def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, g
         env_path = len(sgs) == 1 and b_lam >= env_sharpness
         if env_path:
             specular = env_specular(b_axis, b_lam, b_mu, p, n, self_id, self_occlusion if specular_shadows else 0,
-                                    spheres if specular_shadows else [], owners, grid, face_rgb)
+                                    spheres if specular_shadows else [], owners, grid, face_rgb, gamma)
     for lobe in np.asarray(lobes, np.float64):
         axis, lam, mu = lobe[:3], lobe[3], lobe[4:7]
         e = irradiance(axis, lam, mu, n)

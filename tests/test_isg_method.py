@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from penumbra import BACKGROUND, Camera, EnvMap, GBuffer, Image, Material, Mesh, PenumbraError, Renderer, Scene, procedural
+from penumbra import BACKGROUND, Camera, Context, EnvMap, GBuffer, Image, Material, Mesh, PenumbraError, Renderer, Scene, procedural
 from penumbra.methods.isg import SphereSet
 from penumbra.metrics import rel_rms
 
@@ -128,3 +128,43 @@ def test_sphere_tree_gives_the_flat_loops_image(ctx):
     s["scene"].set_transform(s["ids"][1], translate(-0.5, 0.7, 0.4, 0.9))
     s["scene"].commit()
     np.testing.assert_array_equal(render(ctx, s, sphere_tree=1), render(ctx, s, sphere_tree=0))
+
+
+GLOSSY = Material(albedo=(0.4, 0.4, 0.4), specular=0.5, shininess=1000.0)
+
+
+def test_specular_modes_agree_on_a_constant_env(ctx):
+    """Gamma_L of a constant env is the constant, so specular_mode 1 (prefiltered, built by the library at
+    plan) shades a glossy floor as specular_mode 0 (the cube on the lobe's patches) does."""
+    s = build(ctx, procedural.constant(1.5, 64, 32), translate(0.0, 1.2, 0.0, 0.6), material=GLOSSY)
+    a, b = render(ctx, s, specular_mode=0), render(ctx, s, specular_mode=1)
+    assert a.max() > 0.1
+    np.testing.assert_allclose(b, a, rtol=1e-4, atol=1e-5 * a.max())
+
+
+def test_prefiltered_env_is_rebuilt_when_the_env_changes(ctx):
+    """The renderer's Gamma_L follows the scene's env map: after a new map, its frame is that of a new
+    context's renderer."""
+    rng = np.random.default_rng(2)
+    maps = [np.ascontiguousarray(rng.uniform(0.1, 2.0, (32, 64, 3)).astype(np.float32)) for _ in range(2)]
+    s = build(ctx, maps[0], translate(0.0, 1.2, 0.0, 0.6), material=GLOSSY)
+    r = Renderer(ctx, "isg", specular_mode=1)
+    img = Image(ctx, W, H)
+    r.execute(s["scene"], s["gb"], img)
+    first = img.read()[..., :3].astype(np.float64)
+    s["scene"].set_envmap(EnvMap(ctx, maps[1], face_size=16, irradiance_face_size=8))
+    s["scene"].commit()
+    r.execute(s["scene"], s["gb"], img)
+    again = img.read()[..., :3].astype(np.float64)
+    ctx2 = Context()  # a context of its own: no Gamma_L of the first map to reuse
+    fresh = render(ctx2, build(ctx2, maps[1], translate(0.0, 1.2, 0.0, 0.6), material=GLOSSY), specular_mode=1)
+    assert np.abs(again - first).max() > 0.05 * first.max()
+    np.testing.assert_array_equal(again, fresh)
+    with pytest.raises(PenumbraError, match="specular_mode"):
+        Renderer(ctx, "isg", specular_mode=2)
+
+
+def test_a_diffuse_scene_builds_no_prefiltered_env(ctx):
+    """specular_mode 1 on a scene without specular lobes skips Gamma_L (its frame is mode 0's)."""
+    s = build(ctx, procedural.constant(1.0, 64, 32), translate(0.0, 1.2, 0.0, 0.6))
+    np.testing.assert_array_equal(render(ctx, s, specular_mode=1), render(ctx, s, specular_mode=0))

@@ -11,17 +11,19 @@ counts: the kernel is called directly with pyopencl.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
 import pyopencl as cl
 import pytest
 from isg64 import isg_table, sg_cosine_exact
-from isg_shading64 import COS_AMPLITUDE, COS_SHARPNESS, sg_product, shade, visibility, visible_exact
+from isg_shading64 import (COS_AMPLITUDE, COS_SHARPNESS, build_gamma, cube_directions, sg_product, shade, sky_cube,
+                           visibility, visible_exact)
 from tolerances import ISG_SHADE_ATOL, ISG_SHADE_RTOL, ISG_VISIBILITY_GRID_ATOL, ISG_VISIBILITY_PATCH_ATOL
 
 from penumbra._native import call
-from penumbra.methods.isg import sphere_tree
+from penumbra.methods.isg import gamma_levels, sphere_tree
 
 BACKGROUND = 0xFFFFFFFF
 SOURCE = '#include "isg.cl"\n'
@@ -55,9 +57,11 @@ FACES = np.array([[1.0, 0.9, 0.8], [0.2, 0.3, 0.4], [3.0, 2.8, 2.5], [0.1, 0.1, 
 
 
 def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=16, self_occlusion=1,
-               specular_shadows=1, camera=(0.0, 3.0, 6.0), env_sharpness=1e30, tree=1):
+               specular_shadows=1, camera=(0.0, 3.0, 6.0), env_sharpness=1e30, tree=1, gamma=None):
     """pixels: list of dicts p, n, albedo, ks, material (shininess, roughness, lobe), id. tree: 1 the
-    spheres through the sphere tree (the method's default), 0 the flat loop over them."""
+    spheres through the sphere tree (the method's default), 0 the flat loop over them. gamma: (levels,
+    tables) of the prefiltered env (specular_mode 1; penumbra.methods.isg.gamma_levels layout), None:
+    specular_mode 0."""
     ctx, queue = cl_pair
     n = len(pixels)
     f4 = lambda rows: np.ascontiguousarray(np.array(rows, np.float32).reshape(n, 4))  # noqa: E731
@@ -75,22 +79,30 @@ def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=
     lb[:, :4], lb[:, 4:7] = np.asarray(lobes)[:, :4], np.asarray(lobes)[:, 4:7]
     cube = np.zeros((6, 4), np.float32)
     cube[:, :3] = FACES
+    if gamma is None:
+        mode, gbuf, lv, count, lambda0 = 0, np.zeros((1, 4), np.float32), np.zeros(2, np.int32), 1, 1.0
+    else:
+        mode, (levels, tables), count, lambda0 = 1, gamma, len(gamma[0]), gamma[0][0][0]
+        gbuf = np.concatenate([np.c_[t, np.zeros(len(t))] for t in tables]).astype(np.float32)
+        offsets = np.cumsum([0] + [len(t) for t in tables])[:-1]
+        lv = np.array([[o, lev[1]] for o, lev in zip(offsets, levels)], np.int32).ravel()
     out = np.empty((n, 4), np.float32)
     obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
     k = cl.Kernel(build_test_kernel(SOURCE), "shade_isg")
     k(queue, (n,), None, ro(pos), ro(nrm), ro(alb), ro(mat), ro(ids), np.int32(n), ro(cube), np.int32(1),
       ro(lb), np.int32(len(lobes)), ro(sp), ro(ow), np.int32(len(spheres)), ro(nodes), np.int32(tree), np.int32(grid),
       np.int32(self_occlusion), np.int32(specular_shadows), np.float32(env_sharpness),
-      np.array([*camera, 0.0], np.float32), ro(table32()),
-      obuf)
+      np.array([*camera, 0.0], np.float32), ro(table32()), np.int32(mode), ro(gbuf), ro(lv), np.int32(count),
+      np.float32(lambda0), obuf)
     cl.enqueue_copy(queue, out, obuf)
     return out
 
 
 def twin(pixels, lobes, spheres, owners, grid=16, self_occlusion=1, specular_shadows=1, camera=(0.0, 3.0, 6.0),
-         env_sharpness=1e30):
+         env_sharpness=1e30, gamma=None):
     return np.array([shade(q["p"], q["n"], q["albedo"], q["ks"], q["material"], camera, q["id"], lobes, spheres,
-                           owners, grid, self_occlusion, specular_shadows, env_sharpness, FACES) for q in pixels])
+                           owners, grid, self_occlusion, specular_shadows, env_sharpness, FACES, gamma)
+                     for q in pixels])
 
 
 def floor_pixels(ks=0.0, material=(0.0, 0.3, 0.0), xs=np.linspace(-1.6, 1.6, 9), zs=(-0.4, 0.0, 0.7)):
@@ -150,6 +162,48 @@ def test_env_specular_path_matches_twin(cl_pair, build_test_kernel, shininess, k
     check(got, want)
     lobes_only = twin(px, LOBES, SPHERES, OWNERS, camera=cam, specular_shadows=shadows)
     assert np.abs(want - lobes_only).max() > 0.01 * want.max()  # the env path is not the lobe path
+
+
+@functools.lru_cache(maxsize=4)
+def gamma_tables(face=16, sun=1e5, constant=None):
+    """Gamma_L of the twin's test sky (a 1e5:1 sun) or of a constant env, as the kernel reads it."""
+    rgb = sky_cube(face, sun) if constant is None else np.full((6 * face * face, 3), constant)
+    levels = gamma_levels(face)
+    return levels, [t.astype(np.float32).astype(np.float64) for t in build_gamma(rgb, cube_directions(face), face,
+                                                                                  levels)]
+
+
+@pytest.mark.parametrize("shininess,ks,shadows,lobe_kind,sharp", [(1000.0, 0.5, 1, 0, 100.0), (1000.0, 0.5, 0, 0, 100.0),
+                                                                  (200.0, 0.3, 1, 0, 100.0), (40.0, 0.4, 1, 0, 10.0),
+                                                                  (5000.0, 0.5, 1, 0, 100.0), (0.02, 0.4, 1, 2, 100.0)])
+def test_prefiltered_specular_matches_twin(cl_pair, build_test_kernel, shininess, ks, shadows, lobe_kind, sharp):
+    """specular_mode 1: Gamma_L at the lobe's axis times its visible patches' cosine-weighted share; lobes
+    between the table's levels (Phong 40 and 200: levels 1 ... 256 of a face-16 cube), beyond its last
+    (Phong 1000, 5000) and a GGX lobe."""
+    mat = (shininess, shininess, float(lobe_kind))
+    # and pixels whose mirror direction from the camera meets the test sky's sun
+    px = floor_pixels(ks=ks, material=mat) + floor_pixels(ks=ks, material=mat, xs=(1.7, 1.94, 2.2), zs=(5.4, 5.6, 5.8))
+    cam = (1.0, 2.5, 4.0)
+    g = gamma_tables()
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES, OWNERS, camera=cam, env_sharpness=sharp,
+                     specular_shadows=shadows, gamma=g)
+    want = twin(px, LOBES, SPHERES, OWNERS, camera=cam, env_sharpness=sharp, specular_shadows=shadows, gamma=g)
+    check(got, want)
+    patches = twin(px, LOBES, SPHERES, OWNERS, camera=cam, env_sharpness=sharp, specular_shadows=shadows)
+    assert np.abs(want - patches).max() > 0.01 * want.max()  # the prefiltered path is not the patch path
+
+
+def test_prefiltered_specular_of_a_constant_env_is_the_patch_paths(cl_pair, build_test_kernel):
+    """Gamma_L of a constant env is the constant, so both specular modes shade alike (the cosine and the
+    visibility are the same patch sums)."""
+    px = floor_pixels(ks=0.5, material=(1000.0, 0.3, 0.0))
+    cam = (1.0, 2.5, 4.0)
+    g = gamma_tables(constant=0.75)
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES, OWNERS, camera=cam, env_sharpness=100.0,
+                     gamma=g)
+    want = np.array([shade(q["p"], q["n"], q["albedo"], q["ks"], q["material"], cam, q["id"], LOBES, SPHERES,
+                           OWNERS, 16, env_sharpness=100.0, face_rgb=np.full((6, 3), 0.75)) for q in px])
+    check(got, want)
 
 
 @pytest.mark.parametrize("lobe_kind,param", [(1, 200.0), (2, 0.2)])

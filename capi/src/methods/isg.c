@@ -1,7 +1,8 @@
 /* The `isg` method (docs/isg.md, kernels/isg.cl): env lighting as K
  * spherical-Gaussian lobes, occluders as the sphere sets attached to
  * instances, diffuse and specular soft shadows by the Integral Spherical
- * Gaussian. Plan: the lobe fit (when the env map or K changed), the ISG
+ * Gaussian. Plan: the lobe fit (when the env map or K changed), the
+ * prefiltered env Gamma_L (per context and env map, specular_mode 1), the ISG
  * table (once per context). Execute: every attached sphere in world space
  * (from the instances' transforms, so moving objects cost nothing more),
  * uploaded without waiting, and the shading kernel. */
@@ -12,7 +13,16 @@
 #include <stdlib.h>
 #include <string.h>
 
-enum { P_BACKGROUND, P_LOBES, P_PATCH_GRID, P_SELF_OCCLUSION, P_SPECULAR_SHADOWS, P_ENV_SHARPNESS, P_SPHERE_TREE };
+enum {
+    P_BACKGROUND,
+    P_LOBES,
+    P_PATCH_GRID,
+    P_SELF_OCCLUSION,
+    P_SPECULAR_SHADOWS,
+    P_ENV_SHARPNESS,
+    P_SPHERE_TREE,
+    P_SPECULAR_MODE
+};
 
 static const pn_param_desc params[] = {
     PN_PARAM_BACKGROUND,
@@ -26,11 +36,15 @@ static const pn_param_desc params[] = {
     {"specular_shadows", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
      "1: the specular term is shadowed (patch by patch or by its product lobes' visibility), 0: unshadowed."},
     {"env_sharpness", PN_PARAM_FLOAT, PN_PARAM_FRAME, 100, 0, 1e9, "",
-     "BRDF lobes at least this sharp integrate the env cube on their own visible patches; broader ones use "
-     "the SG lobe products."},
+     "BRDF lobes at least this sharp take the specular_mode path (the env on their own visible patches); "
+     "broader ones use the SG lobe products."},
     {"sphere_tree", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
      "1: spheres culled per lobe through a tree of bounding spheres over them (rebuilt every frame in Morton "
      "order), 0: every sphere tested for every lobe (the same image, slower; kept for comparison)."},
+    {"specular_mode", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
+     "Light of the sharp BRDF lobes (env_sharpness): 1 the prefiltered env Gamma_L at the lobe's axis times "
+     "the visible share of its patches (seed eq. 10; built at plan when the env map changes), 0 the env cube "
+     "at each visible patch."},
 };
 
 static const pn_param_desc bake_params[] = {
@@ -55,18 +69,182 @@ static bool is_sphere_set(const pn_attachment *a)
     return a->asset->magic == PN_MAGIC_SPHERES;
 }
 
+/* The prefiltered Gamma_L (kernels/isg.cl isg_prefilter; docs/isg.md section
+ * 8). Levels lambda_l = GAMMA_LAMBDA0 2^l up to the first at least F^2 (F the
+ * env cube's face: a lobe half a texel wide, beyond which the cube itself is
+ * the limit); level l a vertex-grid cube of clamp(6 sqrt(lambda) + 1, 8, 2F + 1)
+ * vertices a side (a third of the lobe's width apart, at most half a texel),
+ * built from the env cube halved while its face stays at least 4 sqrt(lambda)
+ * (texels under half the lobe's width) and even. Python twin:
+ * penumbra.methods.isg.gamma_levels. */
+#define GAMMA_LAMBDA0 1.0f
+enum { GAMMA_MAX_LEVELS = 32, GAMMA_MAX_MIPS = 12 };
+
+static int gamma_level_count(int face)
+{
+    int count = 1;
+    while (count < GAMMA_MAX_LEVELS && ldexp(GAMMA_LAMBDA0, count - 1) < (double)face * face)
+        ++count;
+    return count;
+}
+
+static int gamma_level_size(int face, double lambda)
+{
+    const int n = (int)ceil(6.0 * sqrt(lambda)) + 1;
+    return n < 8 ? 8 : n > 2 * face + 1 ? 2 * face + 1 : n;
+}
+
+/* A built Gamma_L: every level's vertex-grid cube in `gamma`, (offset, size)
+ * per level in `levels`; made from the env map of content hash `hash` on a
+ * cube of face `face`. */
+typedef struct gamma_entry {
+    uint64_t hash, used;
+    int face, count;
+    cl_mem gamma, levels;
+} gamma_entry;
+
+/* The Gamma_L tables of a context, shared by its isg renderers: the last
+ * GAMMA_CACHED env maps' (a renderer made per frame, as penumbra.render does,
+ * or several on one env build it once). */
+enum { GAMMA_CACHED = 4 };
+typedef struct gamma_cache {
+    gamma_entry entry[GAMMA_CACHED];
+    uint64_t clock;
+} gamma_cache;
+static const int gamma_cache_key = 0;
+
+static void free_gamma_cache(void *data)
+{
+    gamma_cache *c = data;
+    for (int i = 0; i < GAMMA_CACHED; ++i) {
+        pn_mem_release(&c->entry[i].gamma);
+        pn_mem_release(&c->entry[i].levels);
+    }
+    free(c);
+}
+
+static pn_status build_gamma(pn_context ctx, pn_envmap env, gamma_entry *e)
+{
+    const int face = env->committed_face_size, count = gamma_level_count(face);
+    int levels[2 * GAMMA_MAX_LEVELS];
+    size_t total = 0;
+    for (int l = 0; l < count; ++l) {
+        const int n = gamma_level_size(face, ldexp(GAMMA_LAMBDA0, l));
+        levels[2 * l] = (int)total, levels[2 * l + 1] = n;
+        total += 6 * (size_t)n * (size_t)n;
+    }
+    cl_kernel halve, prefilter;
+    pn_status st;
+    if ((st = pn_context_kernel(ctx, "isg", "isg_cube_halve", &halve)) ||
+        (st = pn_context_kernel(ctx, "isg", "isg_prefilter", &prefilter)))
+        return st;
+    pn_mem_release(&e->gamma);
+    pn_mem_release(&e->levels);
+    e->count = 0;
+    if ((st = pn_alloc(ctx, total * 16, CL_MEM_READ_WRITE, NULL, &e->gamma, "the prefiltered env (Gamma_L)")) ||
+        (st = pn_alloc(ctx, sizeof levels, CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, levels, &e->levels,
+                       "the prefiltered env's levels")))
+        return st;
+    /* The halved sources: mip m has face face >> m (the env cube itself at 0). */
+    cl_mem cube[GAMMA_MAX_MIPS] = {env->cube}, dirs[GAMMA_MAX_MIPS] = {env->dirs};
+    int mips = 1;
+    for (; mips < GAMMA_MAX_MIPS && (face >> (mips - 1)) % 2 == 0 && (face >> mips) >= 2; ++mips) {
+        const cl_int n = face >> (mips - 1);
+        const size_t texels = 6 * (size_t)(n / 2) * (size_t)(n / 2);
+        if ((st = pn_alloc(ctx, texels * 16, CL_MEM_READ_WRITE, NULL, &cube[mips], "a halved env cube")) ||
+            (st = pn_alloc(ctx, texels * 16, CL_MEM_READ_WRITE, NULL, &dirs[mips], "a halved env cube")))
+            break;
+        size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof n, sizeof(cl_mem), sizeof(cl_mem)};
+        const void *vals[] = {&cube[mips - 1], &dirs[mips - 1], &n, &cube[mips], &dirs[mips]};
+        if ((st = pn_set_args(ctx, halve, "isg_cube_halve", 5, sizes, vals)) ||
+            (st = pn_enqueue_1d(ctx, halve, "isg_cube_halve", texels, 64)))
+            break;
+    }
+    for (int l = 0; !st && l < count; ++l) {
+        const cl_float lambda = (cl_float)ldexp(GAMMA_LAMBDA0, l);
+        int m = mips - 1; /* the smallest source whose face is at least 4 sqrt(lambda) */
+        while (m > 0 && (double)(face >> m) < 4.0 * sqrt((double)lambda))
+            --m;
+        const cl_int n_src = face >> m, n_out = levels[2 * l + 1], offset = levels[2 * l];
+        size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof n_src, sizeof lambda, sizeof n_out, sizeof offset,
+                          sizeof(cl_mem)};
+        const void *vals[] = {&cube[m], &dirs[m], &n_src, &lambda, &n_out, &offset, &e->gamma};
+        if (!(st = pn_set_args(ctx, prefilter, "isg_prefilter", 7, sizes, vals)))
+            st = pn_enqueue_1d(ctx, prefilter, "isg_prefilter", 6 * (size_t)n_out * (size_t)n_out, 64);
+    }
+    for (int m = 1; m < GAMMA_MAX_MIPS; ++m) { /* released once the queued kernels are done with them */
+        pn_mem_release(&cube[m]);
+        pn_mem_release(&dirs[m]);
+    }
+    if (!st)
+        e->count = count, e->hash = env->content_hash, e->face = face;
+    return st;
+}
+
+/* The context's Gamma_L of env (built now when it has none, in place of the
+ * least recently used). */
+static pn_status gamma_of(pn_context ctx, pn_envmap env, const gamma_entry **out)
+{
+    gamma_cache *c = pn_context_cache(ctx, &gamma_cache_key);
+    pn_status st;
+    if (!c) {
+        if (!(c = pn_malloc(ctx, sizeof *c, "the prefiltered env cache")))
+            return PN_ERROR_OUT_OF_MEMORY;
+        memset(c, 0, sizeof *c);
+        if ((st = pn_context_set_cache(ctx, &gamma_cache_key, c, free_gamma_cache))) {
+            free(c);
+            return st;
+        }
+    }
+    gamma_entry *oldest = &c->entry[0];
+    for (int i = 0; i < GAMMA_CACHED; ++i) {
+        gamma_entry *e = &c->entry[i];
+        if (e->count && e->hash == env->content_hash && e->face == env->committed_face_size) {
+            e->used = ++c->clock;
+            *out = e;
+            return PN_SUCCESS;
+        }
+        if (e->used < oldest->used)
+            oldest = e;
+    }
+    oldest->used = ++c->clock;
+    if ((st = build_gamma(ctx, env, oldest)))
+        return st;
+    *out = oldest;
+    return PN_SUCCESS;
+}
+
+/* Whether the frame uses Gamma_L: specular_mode 1 and some instance has a
+ * specular lobe. A diffuse scene skips the build and its frames get mode 0,
+ * whose sharp-lobe path a G-buffer of the scene never enters (k_s = 0) and a
+ * G-buffer from elsewhere gets as a valid fallback: the kernel never reads
+ * an unbuilt table. */
+static bool uses_gamma(pn_renderer r, pn_scene scene)
+{
+    if (r->params[P_SPECULAR_MODE] != 1)
+        return false;
+    for (uint32_t i = 0; i < scene->instance_count; ++i)
+        if (scene->instances[i].material.specular > 0.0f)
+            return true;
+    return false;
+}
+
 static pn_status plan(pn_renderer r, pn_scene scene)
 {
     state *s = r->state;
     pn_context ctx = r->obj.ctx;
     pn_envmap env = scene->env;
     const int k = (int)r->params[P_LOBES];
+    pn_status st = PN_SUCCESS;
+    const gamma_entry *gamma;
+    if (uses_gamma(r, scene) && (st = gamma_of(ctx, env, &gamma)))
+        return st;
     if (s->lobes && s->lobe_count == k && s->env_version == env->version)
         return PN_SUCCESS;
     pn_sg_lobe *lobes = pn_malloc(ctx, pn_mul_size((size_t)k, 1, sizeof *lobes), "the env map's SG lobes");
     if (!lobes)
         return PN_ERROR_OUT_OF_MEMORY;
-    pn_status st = pn_envmap_do_fit_sgs(env, (uint32_t)k, NULL, lobes, (size_t)k);
+    st = pn_envmap_do_fit_sgs(env, (uint32_t)k, NULL, lobes, (size_t)k);
     if (!st) {
         pn_mem_release(&s->lobes);
         st = pn_alloc(ctx, (size_t)k * sizeof *lobes, CL_MEM_READ_ONLY, lobes, &s->lobes, "the env map's SG lobes");
@@ -305,16 +483,26 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const cl_int self = (cl_int)r->params[P_SELF_OCCLUSION], spec = (cl_int)r->params[P_SPECULAR_SHADOWS];
     const cl_float env_sharpness = (cl_float)r->params[P_ENV_SHARPNESS];
     const cl_float4 camera = pn_scene_camera_position(scene);
+    /* specular_mode 0 never reads Gamma_L: any buffer stands in for it. */
+    const cl_int mode = uses_gamma(r, scene) ? 1 : 0;
+    const gamma_entry *g = NULL;
+    if (mode && (st = gamma_of(ctx, env, &g))) /* built at plan: found */
+        return st;
+    const cl_int gamma_count = g ? g->count : 1;
+    const cl_float lambda0 = GAMMA_LAMBDA0;
+    const cl_mem gamma = g ? g->gamma : s->lobes, gamma_levels = g ? g->levels : s->lobes;
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count,
                       sizeof(cl_mem), sizeof n, sizeof(cl_mem), sizeof lobes, sizeof(cl_mem),
                       sizeof(cl_mem), sizeof spheres, sizeof(cl_mem), sizeof use_tree, sizeof grid, sizeof self, sizeof spec, sizeof env_sharpness, sizeof camera,
-                      sizeof(cl_mem), sizeof(cl_mem)};
+                      sizeof(cl_mem), sizeof mode, sizeof(cl_mem), sizeof(cl_mem), sizeof gamma_count, sizeof lambda0,
+                      sizeof(cl_mem)};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->cube, &n, &s->lobes, &lobes,
                           &s->device_spheres, &s->device_owners, &spheres, &s->device_nodes, &use_tree, &grid, &self,
-                          &spec, &env_sharpness, &camera, &table, &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_isg", 22, sizes, vals)))
+                          &spec, &env_sharpness, &camera, &table, &mode, &gamma, &gamma_levels, &gamma_count,
+                          &lambda0, &image->buffer};
+    if ((st = pn_set_args(ctx, k, "shade_isg", 27, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_isg", (size_t)count, 64);
 }

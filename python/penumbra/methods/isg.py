@@ -121,6 +121,33 @@ def sphere_tree(spheres, owners) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return s.astype(np.float32), o, np.vstack(levels).astype(np.float32)
 
 
+GAMMA_LAMBDA0 = 1.0
+
+
+def gamma_levels(face: int) -> list[tuple[float, int, int]]:
+    """The prefiltered env Gamma_L's levels for an env cube of ``face`` texels
+    a side, as the library builds them (capi/src/methods/isg.c build_gamma):
+    (sharpness, vertices a side of the level's vertex-grid cube, face of its
+    source cube). Sharpness lambda_0 2^l up to the first at least face^2;
+    clamp(ceil(6 sqrt(lambda)) + 1, 8, 2 face + 1) vertices; the env cube halved
+    while it stays even, at least 2 and at least 4 sqrt(lambda) a side."""
+    count = 1
+    while count < 32 and GAMMA_LAMBDA0 * 2.0 ** (count - 1) < float(face) * face:
+        count += 1
+    mips = [face]
+    while len(mips) < 12 and mips[-1] % 2 == 0 and mips[-1] // 2 >= 2:
+        mips.append(mips[-1] // 2)
+    out = []
+    for level in range(count):
+        lam = GAMMA_LAMBDA0 * 2.0 ** level
+        n = min(max(int(np.ceil(6.0 * np.sqrt(lam))) + 1, 8), 2 * face + 1)
+        m = len(mips) - 1
+        while m > 0 and mips[m] < 4.0 * np.sqrt(lam):
+            m -= 1
+        out.append((lam, n, mips[m]))
+    return out
+
+
 def _sphere_count_param():
     from . import spec
 
