@@ -10,7 +10,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 from geometry64 import rotation, unit
-from test_reference import BRDF_SOURCE, gbuffer_of, make_scene, random_unit, reference64, shade, xform
+from test_reference import BRDF_SOURCE, gbuffer_of, make_scene, random_unit, reference64, shade, upper, xform
 from tolerances import BRDF_RTOL, REFERENCE_RTOL
 
 from penumbra import BACKGROUND, Camera, EnvMap, GBuffer, InputError, Material, procedural
@@ -47,8 +47,8 @@ def test_swapping_exponents_turns_the_lobe_by_a_right_angle():
     rng = np.random.default_rng(1)
     n = random_unit(rng, 2000)
     v, l = random_unit(rng, 2000), random_unit(rng, 2000)
-    v = np.where((np.sum(v * n, 1) < 0)[:, None], -v, v)
-    l = np.where((np.sum(l * n, 1) < 0)[:, None], -l, l)
+    v = upper(v, n)
+    l = upper(l, n)
     phi = rng.uniform(-np.pi, np.pi, 2000)
     a = ashikhmin_shirley(n, v, l, tangent_from_angle(n, phi), 10.0, 200.0)
     b = ashikhmin_shirley(n, v, l, tangent_from_angle(n, phi + np.pi / 2), 200.0, 10.0)
@@ -62,8 +62,8 @@ def test_isotropic_lobe_is_the_exponent_of_blinn_phong():
     rng = np.random.default_rng(2)
     n = random_unit(rng, 500)
     v, l = random_unit(rng, 500), random_unit(rng, 500)
-    v = np.where((np.sum(v * n, 1) < 0)[:, None], -v, v)
-    l = np.where((np.sum(l * n, 1) < 0)[:, None], -l, l)
+    v = upper(v, n)
+    l = upper(l, n)
     h = unit(v + l)
     f = ashikhmin_shirley(n, v, l, tangent_from_angle(n, rng.uniform(0, 6, 500)), 40.0, 40.0)
     want = 41.0 / (8 * np.pi) * np.sum(n * h, 1) ** 40 / (np.sum(h * l, 1) * np.maximum(np.sum(n * l, 1),
@@ -95,7 +95,7 @@ def test_as_kernel_matches_float64(cl_pair, build_test_kernel, n_u, n_v):
     count = 4096
     n = random_unit(rng, count)
     v = random_unit(rng, count)
-    v = np.where((np.sum(v * n, 1) < 0)[:, None], -v, v)
+    v = upper(v, n)
     r = 2 * np.sum(n * v, 1)[:, None] * n - v
     l = unit(r + rng.normal(scale=0.15, size=(count, 3)))  # near the mirror direction, where the lobe is large
     l[::3] = random_unit(rng, len(l[::3]))
