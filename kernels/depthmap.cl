@@ -14,7 +14,10 @@
  * texel coordinates of a point p: ((p.e1 - u_min) / du, (p.e2 - v_min) / dv),
  * its depth z = far - p.d (distance from the light side of the fitted box).
  * Depths are float bits of z >= 0 in uint (their order is the float order,
- * so atomic_min works); an empty texel holds +inf. */
+ * so atomic_min works); an empty texel holds +inf.
+ * The maps are packed in one atlas buffer: map m has atlas[m] = (offset of
+ * its first texel, its side res_m); texel (i, j) is at offset + j res_m + i.
+ * Maps may differ in size (the strong domains' larger maps). */
 #include "common/brdf.cl"
 #include "common/raytrace.cl"
 #include "common/sphere_maps.cl"
@@ -46,18 +49,37 @@ kernel void depthmap_clear(global uint *depth, int count, global uint *large_cou
         *large_count = 0u;
 }
 
+/* The slot of work-item gid in a dispatch over the texels of the maps drawn:
+ * list_start[s] is the first texel of slot s (exclusive prefix sum of the
+ * drawn maps' res^2, map_count + 1 entries); false past the last. */
+inline bool dm_slot(global const uint *list_start, int map_count, int gid, int *slot)
+{
+    if (gid >= (int)list_start[map_count])
+        return false;
+    int lo = 0, hi = map_count - 1;
+    while (lo < hi) {
+        int mid = (lo + hi + 1) / 2;
+        if ((int)list_start[mid] <= gid)
+            lo = mid;
+        else
+            hi = mid - 1;
+    }
+    *slot = lo;
+    return true;
+}
+
 /* Ray-cast maps: one closest-hit ray per texel centre, from just outside the
  * fitted box towards -d. One work-item per texel of every map drawn: `list`
  * holds the map_count domains that have a map (skip_power). */
-kernel void depthmap_raycast(PN_SCENE_ARGS, global const float4 *frames, int map_count, int res,
-                             global uint *depth, global const uint *list)
+kernel void depthmap_raycast(PN_SCENE_ARGS, global const float4 *frames, int map_count, global const uint2 *atlas,
+                             global uint *depth, global const uint *list, global const uint *list_start)
 {
     int gid = get_global_id(0);
-    int per_map = res * res;
-    if (gid >= per_map * map_count)
+    int slot = 0;
+    if (!dm_slot(list_start, map_count, gid, &slot))
         return;
-    int slot = gid / per_map, k = gid - slot * per_map;
-    int m = (int)list[slot];
+    int m = (int)list[slot], k = gid - (int)list_start[slot];
+    int res = (int)atlas[m].y;
     int j = k / res, i = k - j * res;
     global const float4 *f = frames + DM_FRAME * m;
     float3 e1 = f[0].xyz, e2 = f[1].xyz, d = f[2].xyz;
@@ -69,7 +91,7 @@ kernel void depthmap_raycast(PN_SCENE_ARGS, global const float4 *frames, int map
     uint z = DM_EMPTY;
     if (pn_trace(scene, org, -d, 0.0f, extent + 2.0f * margin, &hit, false))
         z = as_uint(fmax(hit.t - margin, 0.0f));
-    depth[(size_t)m * per_map + k] = z;
+    depth[atlas[m].x + k] = z;
 }
 
 /* half_maps: the 16-bit copy of every map drawn, depth quantised to
@@ -77,14 +99,14 @@ kernel void depthmap_raycast(PN_SCENE_ARGS, global const float4 *frames, int map
 #define DM_Q_MAX 65534.0f
 #define DM_Q_EMPTY 65535
 kernel void depthmap_pack16(global const uint *depth, global const float4 *frames, global const uint *list,
-                            int map_count, int res, global ushort *out)
+                            int map_count, global const uint2 *atlas, global const uint *list_start,
+                            global ushort *out)
 {
     int gid = get_global_id(0);
-    int per_map = res * res;
-    if (gid >= per_map * map_count)
+    int slot = 0;
+    if (!dm_slot(list_start, map_count, gid, &slot))
         return;
-    int slot = gid / per_map, k = gid - slot * per_map;
-    size_t at = (size_t)list[slot] * per_map + k;
+    size_t at = (size_t)atlas[list[slot]].x + (size_t)(gid - (int)list_start[slot]);
     float z = as_float(depth[at]);
     float extent = frames[DM_FRAME * list[slot] + 3].z;
     out[at] = isinf(z) ? (ushort)DM_Q_EMPTY : (ushort)fmin(rint(z / extent * DM_Q_MAX), DM_Q_MAX);
@@ -156,15 +178,15 @@ inline void dm_texel(const dm_projected *t, int i, int j, int res, volatile glob
 #define DM_LARGE 256
 kernel void depthmap_raster(global const float4 *tris, global const uint2 *ranges, global const uint *starts,
                             global const float4 *objects, int instance_total, int triangle_total,
-                            global const float4 *frames, int map_count, int res, volatile global uint *depth,
-                            volatile global uint *large_count, global uint2 *large, int large_capacity,
-                            global const uint *list)
+                            global const float4 *frames, int map_count, global const uint2 *atlas,
+                            volatile global uint *depth, volatile global uint *large_count, global uint2 *large,
+                            int large_capacity, global const uint *list)
 {
     int gid = get_global_id(0);
     if (gid >= triangle_total * map_count)
         return;
     int slot = gid / triangle_total, g = gid - slot * triangle_total;
-    int m = (int)list[slot];
+    int m = (int)list[slot], res = (int)atlas[m].y;
     dm_projected t;
     if (!dm_project(tris, ranges, starts, objects, instance_total, g, frames + DM_FRAME * m, res, &t))
         return;
@@ -175,7 +197,7 @@ kernel void depthmap_raster(global const float4 *tris, global const uint2 *range
             return;
         }
     }
-    volatile global uint *map = depth + (size_t)m * res * res;
+    volatile global uint *map = depth + atlas[m].x;
     for (int j = t.j0; j <= t.j1; ++j)
         for (int i = t.i0; i <= t.i1; ++i)
             dm_texel(&t, i, j, res, map);
@@ -186,18 +208,19 @@ kernel void depthmap_raster(global const float4 *tris, global const uint2 *range
  * group does the same amount of work. */
 kernel void depthmap_raster_large(global const float4 *tris, global const uint2 *ranges, global const uint *starts,
                                   global const float4 *objects, int instance_total, global const float4 *frames,
-                                  int res, volatile global uint *depth, global const uint *large_count,
+                                  global const uint2 *atlas, volatile global uint *depth, global const uint *large_count,
                                   global const uint2 *large, int large_capacity)
 {
     uint count = min(*large_count, (uint)large_capacity);
     int lid = get_local_id(0), lsize = get_local_size(0);
     for (uint e = get_group_id(0); e < count; e += get_num_groups(0)) {
         uint2 entry = large[e];
+        int res = (int)atlas[entry.x].y;
         dm_projected t;
         if (!dm_project(tris, ranges, starts, objects, instance_total, (int)entry.y, frames + DM_FRAME * entry.x,
                         res, &t))
             continue;
-        volatile global uint *map = depth + (size_t)entry.x * res * res;
+        volatile global uint *map = depth + atlas[entry.x].x;
         int w = t.i1 - t.i0 + 1, texels = w * (t.j1 - t.j0 + 1);
         for (int k = lid; k < texels; k += lsize)
             dm_texel(&t, t.i0 + k % w, t.j0 + k / w, res, map);
@@ -354,13 +377,13 @@ inline bool dm_lobe_reaches(pn_material m, float3 n, float3 v, float3 refl, floa
 }
 
 /* One work-item per pixel. `domains`: 2 float4 each (pn_env_domain: direction,
- * solid angle | radiance, cap radius); `frames`, `depth`: the maps (none when
+ * solid angle | radiance, cap radius); `frames`, `depth`, `atlas`: the maps (none when
  * use_maps is 0: every domain visible). bias: in texels, constant and slope
  * terms; specular: DM_SPECULAR_*. */
 kernel void shade_depthmap(global const float4 *position, global const float4 *normal, global const float4 *albedo,
                            global const float4 *material, global const uint *instance_id, int count, float4 camera,
                            global const float4 *domains, int domain_count, global const float4 *frames,
-                           global const uint *depth, int res, int use_maps, float bias_constant, float bias_slope,
+                           global const uint *depth, global const uint2 *atlas, int use_maps, float bias_constant, float bias_slope,
                            int pcf, int specular, int cap_samples, global float4 *image,
                            global const ushort *depth16, int half_maps, global const float *cap_table,
                            float table_min_n)
@@ -392,9 +415,9 @@ kernel void shade_depthmap(global const float4 *position, global const float4 *n
             float texel = fmax(f[3].x, f[3].y);
             /* a diagonal PCF tap is up to sqrt(2) pcf + 0.71 texels from p: the slope term covers it */
             float bias = texel * (bias_constant + bias_slope * (M_SQRT2_F * (float)pcf + 1.0f) * tan_theta);
-            size_t at = (size_t)i * res * res;
-            vis = dm_visibility(f, depth + at, half_maps ? depth16 + at : (global const ushort *)0, res, p, bias,
-                                pcf);
+            uint2 where = atlas[i]; /* the map's first texel and side */
+            vis = dm_visibility(f, depth + where.x, half_maps ? depth16 + where.x : (global const ushort *)0,
+                                (int)where.y, p, bias, pcf);
             if (vis == 0.0f)
                 continue;
         }

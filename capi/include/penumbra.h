@@ -764,6 +764,30 @@ PN_API pn_status pn_renderer_set_env_domains(pn_renderer renderer, const pn_env_
 PN_API pn_status pn_renderer_set_depth_maps(pn_renderer renderer, const float *frames, const float *depths,
                                             uint32_t count, uint32_t resolution);
 
+/* As pn_renderer_set_depth_maps, with a side per map: map m is
+ * resolutions[m]^2 floats (1 to 4096 texels a side), the maps packed one
+ * after the other in `depths` (any sides: they need not equal the
+ * renderer's `resolution`; the bias is in texels of each map). Copied
+ * (blocking upload). Errors as pn_renderer_set_depth_maps, and
+ * PN_ERROR_INVALID_ARGUMENT for NULL resolutions, PN_ERROR_INVALID_SIZE for a
+ * side of 0 or above 4096 or more than 2^28 texels in all. */
+PN_API pn_status pn_renderer_set_depth_maps_sized(pn_renderer renderer, const float *frames, const float *depths,
+                                                  uint32_t count, const uint32_t *resolutions);
+
+/* Zero copy: the depths are read in place from `depths`, a buffer of the
+ * caller's on the renderer's cl_context, laid out as in
+ * pn_renderer_set_depth_maps_sized (map after map, resolutions[m]^2 floats
+ * each, from offset 0). The buffer is retained until replaced or count 0;
+ * every execute reads what it holds then (the caller may redraw it between
+ * frames, in order on the context's queue or finished before execute).
+ * Its depths are not checked (that would need a blocking read): a NaN reads
+ * as shadowed. `frames` are copied and checked as before. Errors as
+ * pn_renderer_set_depth_maps_sized, and PN_ERROR_INVALID_ARGUMENT (a NULL or
+ * invalid cl_mem, one of another cl_context), PN_ERROR_INVALID_SIZE (a buffer
+ * smaller than the sum of resolutions[m]^2 floats). */
+PN_API pn_status pn_renderer_set_depth_maps_cl(pn_renderer renderer, const float *frames, cl_mem depths,
+                                               uint32_t count, const uint32_t *resolutions);
+
 #ifdef __cplusplus
 }
 #endif

@@ -768,6 +768,20 @@ pn_status pn_renderer_set_depth_maps(pn_renderer renderer, const float *frames, 
     return pn_depthmap_set_maps(renderer, frames, depths, count, resolution);
 }
 
+pn_status pn_renderer_set_depth_maps_sized(pn_renderer renderer, const float *frames, const float *depths,
+                                           uint32_t count, const uint32_t *resolutions)
+{
+    ENTER(renderer, PN_MAGIC_RENDERER, "renderer");
+    return pn_depthmap_set_maps_sized(renderer, frames, depths, count, resolutions);
+}
+
+pn_status pn_renderer_set_depth_maps_cl(pn_renderer renderer, const float *frames, cl_mem depths, uint32_t count,
+                                        const uint32_t *resolutions)
+{
+    ENTER(renderer, PN_MAGIC_RENDERER, "renderer");
+    return pn_depthmap_set_maps_cl(renderer, frames, depths, count, resolutions);
+}
+
 /* ------------------------------------------------------ occlusion fields */
 
 pn_status pn_envmap_get_hash(pn_envmap env, uint64_t *hash)

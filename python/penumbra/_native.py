@@ -216,6 +216,8 @@ _SIGNATURES = {
     "pn_renderer_read_output": [_H, _H, _str, _u32, _u32, _P, _size],
     "pn_renderer_set_env_domains": [_H, _P, _u32],
     "pn_renderer_set_depth_maps": [_H, _P, _P, _u32, _u32],
+    "pn_renderer_set_depth_maps_sized": [_H, _P, _P, _u32, _P],
+    "pn_renderer_set_depth_maps_cl": [_H, _P, _H, _u32, _P],
     "pn_method_get_info": [_str, ctypes.POINTER(MethodInfo)],
     "pn_method_get_param": [_str, _u32, ctypes.POINTER(ParamInfo)],
     "pn_method_get_output": [_str, _u32, ctypes.POINTER(OutputInfo)],

@@ -644,7 +644,7 @@ class Renderer(_Handle):
         from .methods import technique
 
         if shape is None:
-            shape = technique(self.method).output_shape(self, scene, name, instance)
+            shape = technique(self.method).output_shape(self, scene, name, instance, index)
         out = np.empty(shape, np.float32)
         self._call("pn_renderer_read_output", self._h, scene._h, name.encode(), int(instance), int(index),
                    _ptr(out), out.nbytes)

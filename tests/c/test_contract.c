@@ -2627,6 +2627,7 @@ static void test_depthmap(pn_context ctx, rig *r)
         return;
     expect_ok("caller domains", pn_renderer_set_env_domains(dr, d, 3), ctx);
     pn_renderer_set_int(dr, "resolution", 16);
+    pn_renderer_set_int(dr, "strong_resolution", 0); /* one size for all until the atlas below */
     for (int k = 0; k < 2; ++k) {
         pn_renderer_set_int(dr, "map_renderer", k);
         pn_renderer_commit(dr);
@@ -2695,6 +2696,98 @@ static void test_depthmap(pn_context ctx, rig *r)
     expect_error("maps for a NULL renderer", pn_renderer_set_depth_maps(NULL, frames, maps, 3, 16),
                  PN_ERROR_NULL_HANDLE, NULL, "pn_renderer_set_depth_maps", NULL);
     expect_ok("back to drawing the maps", pn_renderer_set_depth_maps(dr, NULL, NULL, 0, 0), ctx);
+    frames[16 + 4] = 0.0f;
+    pn_renderer_commit(dr);
+
+    /* Per-domain map sizes: domain 0 (0.62 of the power) gets a 32^2 map beside 16^2 ones, in one atlas. */
+    pn_renderer_set_int(dr, "strong_resolution", 32);
+    pn_renderer_set_float(dr, "strong_share", 0.3f);
+    for (int k = 0; k < 2; ++k) {
+        pn_renderer_set_int(dr, "map_renderer", k);
+        pn_renderer_commit(dr);
+        check_enqueue_only(ctx, r, dr, k ? "depthmap (an atlas, ray-cast)" : "depthmap (an atlas, rasterised)");
+    }
+    float sides[3] = {0}, big[32 * 32];
+    expect_ok("read the map sides", pn_renderer_read_output(dr, r->scene, "map_resolutions", 0, 0, sides, sizeof sides),
+              ctx);
+    CHECK("the strong domain's map is 32^2, the others 16^2", sides[0] == 32.0f && sides[1] == 16.0f && sides[2] == 16.0f);
+    expect_error("a strong map read at the base size", pn_renderer_read_output(dr, r->scene, "depth_map", 0, 0, depth,
+                                                                              sizeof depth),
+                 PN_ERROR_INVALID_SIZE, ctx, "needs 4096 bytes", NULL);
+    expect_ok("read the strong map", pn_renderer_read_output(dr, r->scene, "depth_map", 0, 0, big, sizeof big), ctx);
+    covered = 0;
+    for (int i = 0; i < 32 * 32; ++i)
+        covered += isfinite(big[i]) && big[i] >= 0.0f;
+    CHECK("the box covers the strong map", covered > 400);
+    pn_renderer_set_int(dr, "strong_resolution", 4);
+    pn_renderer_commit(dr);
+    expect_error("strong_resolution below 8", pn_renderer_execute(dr, r->scene, r->gbuffer, r->image),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "strong_resolution 4", NULL);
+    pn_renderer_set_int(dr, "strong_resolution", 32);
+    pn_renderer_commit(dr);
+
+    /* The caller's maps in a buffer of its own (zero copy), of three sizes. */
+    const uint32_t msides[3] = {32, 16, 16};
+    float packed[32 * 32 + 2 * 256];
+    memcpy(packed, big, sizeof big);
+    expect_ok("read the map frames", pn_renderer_read_output(dr, r->scene, "map_frames", 0, 0, frames, sizeof frames),
+              ctx);
+    for (uint32_t m = 1; m < 3; ++m)
+        expect_ok("read a depth map", pn_renderer_read_output(dr, r->scene, "depth_map", 0, m,
+                                                              packed + 1024 + 256 * (m - 1), 256 * sizeof(float)),
+                  ctx);
+    const size_t pixels = 16 * 12;
+    float *drawn = calloc(pixels * 4, sizeof(float)), *borrowed = calloc(pixels * 4, sizeof(float)),
+          *copied = calloc(pixels * 4, sizeof(float));
+    pn_renderer_execute(dr, r->scene, r->gbuffer, r->image);
+    pn_image_read(r->image, drawn, pixels * 16);
+    cl_context clc = NULL;
+    cl_command_queue q = NULL;
+    expect_ok("get_cl", pn_context_get_cl(ctx, &clc, &q, NULL), ctx);
+    cl_int err = CL_SUCCESS;
+    cl_mem buf = clCreateBuffer(clc, CL_MEM_READ_WRITE | CL_MEM_COPY_HOST_PTR, sizeof packed, packed, &err);
+    cl_mem small = clCreateBuffer(clc, CL_MEM_READ_WRITE, sizeof packed - 4, NULL, &err);
+    if (err == CL_SUCCESS) {
+        expect_ok("supply the maps in place", pn_renderer_set_depth_maps_cl(dr, frames, buf, 3, msides), ctx);
+        clReleaseMemObject(buf); /* retained by the renderer */
+        check_enqueue_only(ctx, r, dr, "depthmap (the caller's buffer)");
+        pn_renderer_execute(dr, r->scene, r->gbuffer, r->image);
+        pn_image_read(r->image, borrowed, pixels * 16);
+        expect_ok("supply the same maps copied", pn_renderer_set_depth_maps_sized(dr, frames, packed, 3, msides), ctx);
+        pn_renderer_execute(dr, r->scene, r->gbuffer, r->image);
+        pn_image_read(r->image, copied, pixels * 16);
+        CHECK("the caller's buffer, its copy and the drawn maps give one image bit for bit",
+              !memcmp(drawn, borrowed, pixels * 16) && !memcmp(drawn, copied, pixels * 16));
+        expect_error("a buffer too small", pn_renderer_set_depth_maps_cl(dr, frames, small, 3, msides),
+                     PN_ERROR_INVALID_SIZE, ctx, "the caller's depth-map buffer holds", NULL);
+        expect_error("a NULL buffer", pn_renderer_set_depth_maps_cl(dr, frames, NULL, 3, msides),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, "NULL", NULL);
+        expect_error("NULL sides", pn_renderer_set_depth_maps_cl(dr, frames, small, 3, NULL),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, "resolutions pointer is NULL", NULL);
+        const uint32_t zero[3] = {32, 0, 16}, huge[3] = {32, 16, 5000};
+        expect_error("a side of 0", pn_renderer_set_depth_maps_sized(dr, frames, packed, 3, zero),
+                     PN_ERROR_INVALID_SIZE, ctx, "depth map 1 is 0 x 0", NULL);
+        expect_error("a side above 4096", pn_renderer_set_depth_maps_cl(dr, frames, small, 3, huge),
+                     PN_ERROR_INVALID_SIZE, ctx, "depth map 2 is 5000 x 5000", NULL);
+        frames[16 + 3] = NAN;
+        expect_error("a NaN frame", pn_renderer_set_depth_maps_cl(dr, frames, small, 3, msides),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, "depth map 1's frame has a non-finite value at float 3", NULL);
+        frames[16 + 3] = 0.0f;
+        packed[1024 + 5] = -1.0f;
+        expect_error("a negative depth, sized", pn_renderer_set_depth_maps_sized(dr, frames, packed, 3, msides),
+                     PN_ERROR_INVALID_ARGUMENT, ctx, "depth map 1 has -1 at texel (5, 0)", NULL);
+        expect_error("the buffer for unshadowed", pn_renderer_set_depth_maps_cl(r->renderer, frames, small, 3, msides),
+                     PN_ERROR_UNSUPPORTED, ctx, "takes no depth maps", NULL);
+        expect_error("the buffer for a NULL renderer", pn_renderer_set_depth_maps_cl(NULL, frames, small, 3, msides),
+                     PN_ERROR_NULL_HANDLE, NULL, "pn_renderer_set_depth_maps_cl", NULL);
+        expect_ok("back to drawing the maps", pn_renderer_set_depth_maps_cl(dr, NULL, NULL, 0, NULL), ctx);
+        clReleaseMemObject(small);
+    } else {
+        report(0, "clCreateBuffer for the caller's maps", "OpenCL error %d", err);
+    }
+    free(drawn);
+    free(borrowed);
+    free(copied);
     pn_renderer_release(dr);
 }
 

@@ -21,10 +21,13 @@
 #define DM_LARGE_GROUPS 256          /* work-groups of depthmap_raster_large */
 #define SKIP_POWER_DEFAULT 0.01      /* skip_power's default (docs/depthmap.md, measured) */
 #define TABLE_MIN_EXPONENT_DEFAULT 32 /* below it the cap quadrature is closer (docs/depthmap.md, measured) */
+#define STRONG_RESOLUTION_DEFAULT 256 /* strong domains' map side (0: none; docs/depthmap.md, measured) */
+#define STRONG_SHARE_DEFAULT 0.2      /* a domain with this share of the power is strong (the sun; docs/depthmap.md) */
+#define DM_MAX_SIDE 4096              /* largest map side, the renderer's or the caller's */
 
 enum { P_BACKGROUND, P_DIRECTIONS, P_SEED, P_RESOLUTION, P_MAP_RENDERER, P_BIAS, P_SLOPE_BIAS, P_PCF, P_SPECULAR,
        P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS, P_SKIP_POWER, P_HALF_MAPS, P_FIT,
-       P_TABLE_MIN_EXPONENT };
+       P_TABLE_MIN_EXPONENT, P_STRONG_RESOLUTION, P_STRONG_SHARE };
 
 static const pn_param_desc params[] = {
     PN_PARAM_BACKGROUND,
@@ -62,16 +65,23 @@ static const pn_param_desc params[] = {
     {"table_min_exponent", PN_PARAM_FLOAT, PN_PARAM_FRAME, TABLE_MIN_EXPONENT_DEFAULT, 1, 1e6, "",
      "specular 3: lobes of this equivalent Phong exponent and sharper use the table, broader ones the cap "
      "quadrature (docs/depthmap.md, measured)."},
+    {"strong_resolution", PN_PARAM_INT, PN_PARAM_PLAN, STRONG_RESOLUTION_DEFAULT, 0, DM_MAX_SIDE, "texels",
+     "Map side of the strong domains (each holding at least strong_share of the power) when above resolution, all "
+     "maps packed in one atlas; 0: every map resolution (docs/depthmap.md, measured)."},
+    {"strong_share", PN_PARAM_FLOAT, PN_PARAM_PLAN, STRONG_SHARE_DEFAULT, 0, 1, "of the power",
+     "A domain whose power (luminance of its radiance) is at least this share of the total gets strong_resolution "
+     "(when that is set)."},
 };
 
-enum { OUT_DOMAINS, OUT_FRAMES, OUT_DEPTH };
+enum { OUT_DOMAINS, OUT_FRAMES, OUT_DEPTH, OUT_RESOLUTIONS };
 
 static const pn_output_desc outputs[] = {
     {"domains", "N pn_env_domain (8 floats each): the domains shaded with."},
     {"map_frames", "16 floats per domain: e1 | u_min, e2 | v_min, d | far, du, dv, depth extent, has a map (1) or "
                    "is lit unshadowed (0, skip_power) (kernels/depthmap.cl)."},
-    {"depth_map", "resolution^2 floats of domain `index`, row-major: depth from the light side of its box, +inf empty "
-                  "(all +inf for a domain without a map)."},
+    {"depth_map", "side^2 floats of domain `index` (its side: map_resolutions), row-major: depth from the light side "
+                  "of its box, +inf empty (all +inf for a domain without a map)."},
+    {"map_resolutions", "N floats: each domain's map side in texels (resolution, strong_resolution or the caller's)."},
 };
 
 typedef struct state {
@@ -83,8 +93,17 @@ typedef struct state {
     uint64_t key_env, key_caller;  /* what `domains` was built from */
     uint32_t key_n, key_seed;
     cl_mem device_domains;
-    cl_mem frames, depth;          /* map frames (4 float4 each), depths (uint) */
-    uint32_t map_count, res;       /* what `frames` / `depth` are sized for */
+    cl_mem frames, depth;          /* map frames (4 float4 each), the renderer's depths (uint, an atlas) */
+    uint32_t map_count;            /* what `frames` is sized for */
+    size_t depth_texels;           /* what `depth` holds */
+    /* The atlas of the maps shaded with (the caller's or the renderer's):
+     * per domain the first texel and the side. */
+    uint32_t *host_atlas, atlas_count;
+    size_t atlas_texels;
+    cl_mem atlas;
+    uint32_t *host_list_start;     /* drawn + 1: first texel of each drawn map in a dispatch over them */
+    uint32_t list_start_count;
+    cl_mem list_start;
     float *host_frames;
     cl_mem ranges, starts, objects; /* rasteriser instance tables */
     cl_mem large, large_count;      /* its list of large triangles and their count */
@@ -99,13 +118,17 @@ typedef struct state {
     cl_mem list;                   /* host_list on the device */
     double key_skip;               /* skip_power the list was made for */
     bool skip_valid;               /* false when the domains changed */
-    /* The caller's maps (pn_renderer_set_depth_maps), or none (supplied_count 0). */
-    cl_mem supplied_depth;         /* supplied_count x supplied_res^2 floats */
+    /* The caller's maps (pn_renderer_set_depth_maps*), or none (supplied_count 0). */
+    cl_mem supplied_depth;         /* sum of supplied_res[m]^2 floats: ours (uploaded) or the caller's (retained) */
+    bool supplied_borrowed;        /* supplied_depth is the caller's buffer */
     float *supplied_frames;        /* supplied_count x DM_FRAME_FLOATS */
-    uint32_t supplied_count, supplied_res;
-    size_t supplied_bytes;         /* size of supplied_depth */
+    uint32_t *supplied_res;        /* per map its side */
+    uint32_t supplied_count;
+    uint32_t supplied_uniform;     /* pn_renderer_set_depth_maps: the renderer's resolution then (checked at execute) */
+    size_t supplied_bytes;         /* size of supplied_depth when ours */
     /* half_maps: 16-bit copies of the maps for the lookups */
-    cl_mem depth16;                /* map_count x res^2 ushort, or NULL */
+    cl_mem depth16;                /* atlas_texels ushort, or NULL */
+    size_t depth16_texels;
     bool packed;                   /* depth16 holds the current maps */
 } state;
 
@@ -184,74 +207,145 @@ static pn_status check_frame(pn_context ctx, const float *f, uint32_t m)
     return PN_SUCCESS;
 }
 
-pn_status pn_depthmap_set_maps(pn_renderer r, const float *frames, const float *depths, uint32_t count,
-                               uint32_t resolution)
+static void clear_supplied(state *s)
+{
+    pn_mem_release(&s->supplied_depth); /* ours, or our retain of the caller's */
+    free(s->supplied_frames);
+    free(s->supplied_res);
+    s->supplied_frames = NULL;
+    s->supplied_res = NULL;
+    s->supplied_count = s->supplied_uniform = 0;
+    s->supplied_bytes = 0;
+    s->supplied_borrowed = false;
+    s->maps_drawn = false;
+}
+
+/* The caller's maps: `frames` (host) and the depths either on the host
+ * (`depths`, uploaded) or in the caller's `buffer` (retained, read in place),
+ * map m of side resolutions[m], packed map after map. `uniform`: the old
+ * single-resolution call's side (checked against the renderer's). */
+static pn_status supply_maps(pn_renderer r, const float *frames, const float *depths, cl_mem buffer, uint32_t count,
+                             const uint32_t *resolutions, uint32_t uniform)
 {
     pn_context ctx = r->obj.ctx;
     if (r->method != &pn_method_depthmap)
         return pn_fail(ctx, PN_ERROR_UNSUPPORTED, "method %s takes no depth maps (depthmap does)", r->method->name);
     state *s = r->state;
     if (!count) {
-        pn_mem_release(&s->supplied_depth);
-        free(s->supplied_frames);
-        s->supplied_frames = NULL;
-        s->supplied_count = s->supplied_res = 0;
-        s->supplied_bytes = 0;
-        s->maps_drawn = false;
+        clear_supplied(s);
         return PN_SUCCESS;
     }
-    if (!frames || !depths)
+    if (!frames || (!depths && !buffer) || (!uniform && !resolutions))
         return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "%u depth maps but the %s pointer is NULL", count,
-                       frames ? "depths" : "frames");
+                       !frames ? "frames" : (!depths && !buffer) ? "depths" : "resolutions");
     if (count > PN_ENV_DOMAINS_MAX)
         return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "%u depth maps: at most %u (one per domain)", count,
                        PN_ENV_DOMAINS_MAX);
-    const uint32_t res = (uint32_t)r->params[P_RESOLUTION];
-    if (resolution != res)
+    if (uniform && uniform != (uint32_t)r->params[P_RESOLUTION])
         return pn_fail(ctx, PN_ERROR_INVALID_SIZE,
                        "depth maps of %u x %u texels but the renderer's resolution is %u: set resolution first",
-                       resolution, resolution, res);
+                       uniform, uniform, (uint32_t)r->params[P_RESOLUTION]);
     if (s->caller_count && count != s->caller_count)
         return pn_fail(ctx, PN_ERROR_INVALID_SIZE,
                        "%u depth maps but the renderer shades with %u domains (one map each)", count, s->caller_count);
-    const size_t per_map = (size_t)res * res, texels = pn_mul_size(count, res, res);
+    size_t texels = 0;
+    for (uint32_t m = 0; m < count; ++m) {
+        const uint32_t side = uniform ? uniform : resolutions[m];
+        if (side < 1 || side > DM_MAX_SIDE)
+            return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "depth map %u is %u x %u texels: the side must be 1 to %u", m,
+                           side, side, DM_MAX_SIDE);
+        texels += (size_t)side * side;
+    }
     if (texels > DM_MAX_TEXELS)
-        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "%u depth maps of %u x %u texels: more than %u texels", count, res,
-                       res, DM_MAX_TEXELS);
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "%u depth maps of %zu texels in all: more than %u texels", count,
+                       texels, DM_MAX_TEXELS);
     pn_status st;
     for (uint32_t m = 0; m < count; ++m)
         if ((st = check_frame(ctx, frames + (size_t)m * DM_FRAME_FLOATS, m)))
             return st;
-    for (size_t k = 0; k < texels; ++k)
-        if (!(depths[k] >= 0.0f)) /* NaN, negative, -inf; +inf is an empty texel */
-            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
-                           "depth map %u has %g at texel (%zu, %zu): depths must be >= 0 (+inf: empty)",
-                           (uint32_t)(k / per_map), (double)depths[k], k % per_map % res, k % per_map / res);
-    float *copy = pn_malloc(ctx, pn_mul_size(count, DM_FRAME_FLOATS, sizeof(float)), "the caller's map frames");
-    if (!copy)
-        return PN_ERROR_OUT_OF_MEMORY;
-    memcpy(copy, frames, (size_t)count * DM_FRAME_FLOATS * sizeof(float));
-    s->maps_drawn = false;
     const size_t bytes = texels * sizeof(float);
-    if (s->supplied_bytes != bytes) {
-        pn_mem_release(&s->supplied_depth);
-        s->supplied_bytes = 0;
-        if ((st = pn_alloc(ctx, bytes, CL_MEM_READ_ONLY, NULL, &s->supplied_depth, "the caller's depth maps"))) {
-            free(copy);
-            return st;
+    if (depths) {
+        size_t k = 0;
+        for (uint32_t m = 0; m < count; ++m) {
+            const uint32_t side = uniform ? uniform : resolutions[m];
+            for (size_t t = 0; t < (size_t)side * side; ++t, ++k)
+                if (!(depths[k] >= 0.0f)) /* NaN, negative, -inf; +inf is an empty texel */
+                    return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                                   "depth map %u has %g at texel (%zu, %zu): depths must be >= 0 (+inf: empty)", m,
+                                   (double)depths[k], t % side, t / side);
         }
-        s->supplied_bytes = bytes;
+    } else if ((st = pn_check_cl_buffer(ctx, buffer, bytes, "the caller's depth-map buffer"))) {
+        return st;
     }
-    cl_int err = clEnqueueWriteBuffer(ctx->queue, s->supplied_depth, CL_TRUE, 0, bytes, depths, 0, NULL, NULL);
-    if (err != CL_SUCCESS) {
+    float *copy = pn_malloc(ctx, pn_mul_size(count, DM_FRAME_FLOATS, sizeof(float)), "the caller's map frames");
+    uint32_t *sides = pn_malloc(ctx, pn_mul_size(count, 1, sizeof(uint32_t)), "the caller's map sides");
+    if (!copy || !sides) {
         free(copy);
-        return pn_fail_cl(ctx, err, "uploading the caller's depth maps");
+        free(sides);
+        return PN_ERROR_OUT_OF_MEMORY;
     }
+    memcpy(copy, frames, (size_t)count * DM_FRAME_FLOATS * sizeof(float));
+    for (uint32_t m = 0; m < count; ++m)
+        sides[m] = uniform ? uniform : resolutions[m];
+    if (buffer) { /* zero copy: the caller's buffer, read by every execute */
+        cl_int err = clRetainMemObject(buffer);
+        if (err != CL_SUCCESS) {
+            free(copy);
+            free(sides);
+            return pn_fail_cl(ctx, err, "retaining the caller's depth-map buffer");
+        }
+        clear_supplied(s);
+        s->supplied_depth = buffer;
+        s->supplied_borrowed = true;
+    } else {
+        if (s->supplied_borrowed || s->supplied_bytes != bytes) {
+            pn_mem_release(&s->supplied_depth);
+            s->supplied_borrowed = false;
+            s->supplied_bytes = 0;
+            if ((st = pn_alloc(ctx, bytes, CL_MEM_READ_ONLY, NULL, &s->supplied_depth, "the caller's depth maps"))) {
+                free(copy);
+                free(sides);
+                return st;
+            }
+            s->supplied_bytes = bytes;
+        }
+        cl_int err = clEnqueueWriteBuffer(ctx->queue, s->supplied_depth, CL_TRUE, 0, bytes, depths, 0, NULL, NULL);
+        if (err != CL_SUCCESS) {
+            free(copy);
+            free(sides);
+            return pn_fail_cl(ctx, err, "uploading the caller's depth maps");
+        }
+    }
+    s->maps_drawn = false;
     free(s->supplied_frames);
+    free(s->supplied_res);
     s->supplied_frames = copy;
+    s->supplied_res = sides;
     s->supplied_count = count;
-    s->supplied_res = res;
+    s->supplied_uniform = uniform;
     return PN_SUCCESS;
+}
+
+pn_status pn_depthmap_set_maps(pn_renderer r, const float *frames, const float *depths, uint32_t count,
+                               uint32_t resolution)
+{
+    if (count && !resolution)
+        return pn_fail(r->obj.ctx, PN_ERROR_INVALID_SIZE, "depth maps of 0 x 0 texels");
+    return supply_maps(r, frames, depths, NULL, count, NULL, count ? resolution : 0);
+}
+
+pn_status pn_depthmap_set_maps_sized(pn_renderer r, const float *frames, const float *depths, uint32_t count,
+                                     const uint32_t *resolutions)
+{
+    return supply_maps(r, frames, depths, NULL, count, resolutions, 0);
+}
+
+pn_status pn_depthmap_set_maps_cl(pn_renderer r, const float *frames, cl_mem depths, uint32_t count,
+                                  const uint32_t *resolutions)
+{
+    if (count && !depths)
+        return pn_fail(r->obj.ctx, PN_ERROR_INVALID_ARGUMENT, "%u depth maps but the depth buffer is NULL", count);
+    return supply_maps(r, frames, NULL, depths, count, resolutions, 0);
 }
 
 /* The caller's maps against the domains and resolution of this frame. */
@@ -265,10 +359,10 @@ static pn_status check_supplied(pn_renderer r)
         return pn_fail(ctx, PN_ERROR_INVALID_SIZE,
                        "%u depth maps were supplied but the renderer shades with %u domains (one map each)",
                        s->supplied_count, s->domain_count);
-    if (s->supplied_res != (uint32_t)r->params[P_RESOLUTION])
+    if (s->supplied_uniform && s->supplied_uniform != (uint32_t)r->params[P_RESOLUTION])
         return pn_fail(ctx, PN_ERROR_INVALID_SIZE,
                        "the supplied depth maps are %u x %u texels but the renderer's resolution is now %u",
-                       s->supplied_res, s->supplied_res, (uint32_t)r->params[P_RESOLUTION]);
+                       s->supplied_uniform, s->supplied_uniform, (uint32_t)r->params[P_RESOLUTION]);
     for (uint32_t m = 0; m < s->domain_count; ++m) {
         const float *d = s->supplied_frames + (size_t)m * DM_FRAME_FLOATS + 8, *c = s->domains[m].direction;
         const double dot = (double)d[0] * c[0] + (double)d[1] * c[1] + (double)d[2] * c[2];
@@ -400,50 +494,145 @@ static pn_status plan_skip(pn_renderer r)
     return PN_SUCCESS;
 }
 
+/* The atlas of the maps shaded with: the caller's sides, or per domain
+ * `resolution`, strong_resolution for a domain holding strong_share of the
+ * power; then the first texel of each drawn map in a dispatch over them.
+ * Uploaded when changed. */
+static pn_status plan_atlas(pn_renderer r)
+{
+    state *s = r->state;
+    pn_context ctx = r->obj.ctx;
+    const uint32_t n = s->domain_count, maps = n ? n : 1;
+    uint32_t *atlas = pn_malloc(ctx, pn_mul_size(maps, 2, sizeof(uint32_t)), "the depth-map atlas");
+    uint32_t *starts = pn_malloc(ctx, pn_mul_size(s->drawn + 1, 1, sizeof(uint32_t)), "the depth-map starts");
+    if (!atlas || !starts) {
+        free(atlas);
+        free(starts);
+        return PN_ERROR_OUT_OF_MEMORY;
+    }
+    const uint32_t base = (uint32_t)r->params[P_RESOLUTION], strong = (uint32_t)r->params[P_STRONG_RESOLUTION];
+    const double share = r->params[P_STRONG_SHARE];
+    if (strong && strong < 8) {
+        free(atlas);
+        free(starts);
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "strong_resolution %u: 0 (off) or 8 to %u texels", strong,
+                       DM_MAX_SIDE);
+    }
+    double total_power = 0.0;
+    for (uint32_t m = 0; m < n; ++m)
+        total_power += domain_power(s->domains + m);
+    size_t texels = 0;
+    for (uint32_t m = 0; m < maps; ++m) {
+        uint32_t side = base;
+        if (s->supplied_count)
+            side = s->supplied_res[m]; /* check_supplied: one per domain */
+        else if (strong > base && m < n && total_power > 0.0 && domain_power(s->domains + m) >= share * total_power)
+            side = strong; /* never smaller than the others */
+        atlas[2 * m] = (uint32_t)texels;
+        atlas[2 * m + 1] = side;
+        texels += (size_t)side * side;
+        if (texels > DM_MAX_TEXELS) {
+            free(atlas);
+            free(starts);
+            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                           "%u depth maps of %u x %u texels (strong: %u x %u) are more than %u texels: lower directions "
+                           "or resolution",
+                           maps, base, base, strong, strong, DM_MAX_TEXELS);
+        }
+    }
+    size_t drawn_texels = 0;
+    for (uint32_t k = 0; k < s->drawn; ++k) {
+        starts[k] = (uint32_t)drawn_texels;
+        const size_t side = atlas[2 * s->host_list[k] + 1];
+        drawn_texels += side * side;
+    }
+    starts[s->drawn] = (uint32_t)drawn_texels;
+    pn_status st = PN_SUCCESS;
+    if (s->atlas && s->atlas_count == maps && !memcmp(s->host_atlas, atlas, (size_t)maps * 2 * sizeof *atlas)) {
+        free(atlas);
+    } else {
+        pn_mem_release(&s->atlas);
+        free(s->host_atlas);
+        s->host_atlas = NULL;
+        s->atlas_count = 0;
+        if ((st = pn_alloc(ctx, (size_t)maps * 2 * sizeof *atlas, CL_MEM_READ_ONLY, atlas, &s->atlas,
+                           "the depth-map atlas"))) {
+            free(atlas);
+            free(starts);
+            return st;
+        }
+        s->host_atlas = atlas;
+        s->atlas_count = maps;
+        s->atlas_texels = texels;
+        s->maps_drawn = false;
+        s->packed = false;
+    }
+    if (s->list_start && s->list_start_count == s->drawn + 1 &&
+        !memcmp(s->host_list_start, starts, (size_t)(s->drawn + 1) * sizeof *starts)) {
+        free(starts);
+        return PN_SUCCESS;
+    }
+    pn_mem_release(&s->list_start);
+    free(s->host_list_start);
+    s->host_list_start = NULL;
+    s->list_start_count = 0;
+    if ((st = pn_alloc(ctx, (size_t)(s->drawn + 1) * sizeof *starts, CL_MEM_READ_ONLY, starts, &s->list_start,
+                       "the depth-map starts"))) {
+        free(starts);
+        return st;
+    }
+    s->host_list_start = starts;
+    s->list_start_count = s->drawn + 1;
+    s->packed = false;
+    return PN_SUCCESS;
+}
+
 static pn_status plan(pn_renderer r, pn_scene scene)
 {
     state *s = r->state;
     pn_context ctx = r->obj.ctx;
     pn_status st = plan_domains(r, scene);
-    if (st || (st = plan_skip(r)) || (st = check_supplied(r)))
+    if (st || (st = plan_skip(r)) || (st = check_supplied(r)) || (st = plan_atlas(r)))
         return st;
-    const uint32_t maps = s->domain_count ? s->domain_count : 1, res = (uint32_t)r->params[P_RESOLUTION];
-    if (s->depth && s->map_count == maps && s->res == res) {
-        if ((int)r->params[P_HALF_MAPS] && !s->depth16) {
-            s->packed = false;
-            return pn_alloc(ctx, pn_mul_size(maps, (size_t)res * res, sizeof(uint16_t)), CL_MEM_READ_WRITE, NULL,
-                            &s->depth16, "the 16-bit depth maps");
-        }
-        return PN_SUCCESS;
+    const uint32_t maps = s->domain_count ? s->domain_count : 1;
+    const size_t texels = s->atlas_texels;
+    if (!s->large &&
+        ((st = pn_alloc(ctx, (size_t)DM_LARGE_CAPACITY * 8, CL_MEM_READ_WRITE, NULL, &s->large,
+                        "the rasteriser's large triangles")) ||
+         (st = pn_alloc(ctx, 4, CL_MEM_READ_WRITE, NULL, &s->large_count, "the rasteriser's count"))))
+        return st;
+    if (!s->frames || s->map_count != maps) {
+        float *host = pn_malloc(ctx, pn_mul_size(maps, DM_FRAME_FLOATS, sizeof(float)), "the depth-map frames");
+        if (!host)
+            return PN_ERROR_OUT_OF_MEMORY;
+        pn_mem_release(&s->frames);
+        free(s->host_frames);
+        s->host_frames = host;
+        s->map_count = 0;
+        s->maps_drawn = false;
+        if ((st = pn_alloc(ctx, (size_t)maps * DM_FRAME_FLOATS * sizeof(float), CL_MEM_READ_ONLY, NULL, &s->frames,
+                           "the depth-map frames")))
+            return st;
+        s->map_count = maps;
     }
-    const size_t texels = pn_mul_size(maps, res, res);
-    if (texels > DM_MAX_TEXELS)
-        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
-                       "%u depth maps of %u x %u texels are %zu texels, more than %u: lower directions or resolution",
-                       maps, res, res, texels, DM_MAX_TEXELS);
-    float *host = pn_malloc(ctx, pn_mul_size(maps, DM_FRAME_FLOATS, sizeof(float)), "the depth-map frames");
-    if (!host)
-        return PN_ERROR_OUT_OF_MEMORY;
-    pn_mem_release(&s->frames);
-    pn_mem_release(&s->depth);
-    pn_mem_release(&s->depth16);
-    s->packed = false;
-    free(s->host_frames);
-    s->host_frames = host;
-    s->map_count = 0;
-    s->maps_drawn = false;
-    if ((!s->large &&
-         ((st = pn_alloc(ctx, (size_t)DM_LARGE_CAPACITY * 8, CL_MEM_READ_WRITE, NULL, &s->large,
-                         "the rasteriser's large triangles")) ||
-          (st = pn_alloc(ctx, 4, CL_MEM_READ_WRITE, NULL, &s->large_count, "the rasteriser's count")))) ||
-        (st = pn_alloc(ctx, (size_t)maps * DM_FRAME_FLOATS * sizeof(float), CL_MEM_READ_ONLY, NULL, &s->frames,
-                       "the depth-map frames")) ||
-        (st = pn_alloc(ctx, texels * sizeof(uint32_t), CL_MEM_READ_WRITE, NULL, &s->depth, "the depth maps")) ||
-        ((int)r->params[P_HALF_MAPS] && (st = pn_alloc(ctx, texels * sizeof(uint16_t), CL_MEM_READ_WRITE, NULL,
-                                                       &s->depth16, "the 16-bit depth maps"))))
-        return st;
-    s->map_count = maps;
-    s->res = res;
+    /* The renderer's own maps (none needed while the caller's are used). */
+    if (!s->supplied_count && (!s->depth || s->depth_texels != texels)) {
+        pn_mem_release(&s->depth);
+        s->depth_texels = 0;
+        s->maps_drawn = false;
+        if ((st = pn_alloc(ctx, texels * sizeof(uint32_t), CL_MEM_READ_WRITE, NULL, &s->depth, "the depth maps")))
+            return st;
+        s->depth_texels = texels;
+    }
+    if ((int)r->params[P_HALF_MAPS] && (!s->depth16 || s->depth16_texels != texels)) {
+        pn_mem_release(&s->depth16);
+        s->depth16_texels = 0;
+        s->packed = false;
+        if ((st = pn_alloc(ctx, texels * sizeof(uint16_t), CL_MEM_READ_WRITE, NULL, &s->depth16,
+                           "the 16-bit depth maps")))
+            return st;
+        s->depth16_texels = texels;
+    }
     return PN_SUCCESS;
 }
 
@@ -627,9 +816,9 @@ static bool shadow_footprint(pn_scene scene, const double d[3], const double *ax
  * maps). */
 static bool fit_frames(state *s, pn_scene scene, int fit)
 {
-    const uint32_t res = s->res;
     bool any = false;
     for (uint32_t m = 0; m < s->domain_count; ++m) {
+        const uint32_t res = s->host_atlas[2 * m + 1];
         const float *df = s->domains[m].direction;
         double d[3] = {df[0], df[1], df[2]}, e1[3], e2[3];
         const double len = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
@@ -737,22 +926,23 @@ static pn_status draw_maps(pn_renderer r, pn_scene scene)
     state *s = r->state;
     pn_context ctx = r->obj.ctx;
     /* `maps`: the maps drawn (the list), `texels`: every domain's, cleared */
-    const cl_int maps = (cl_int)s->drawn, res = (cl_int)s->res;
-    const size_t texels = (size_t)s->domain_count * s->res * s->res;
+    const cl_int maps = (cl_int)s->drawn;
+    const size_t texels = s->atlas_texels;
     cl_kernel k;
     pn_status st;
     if ((int)r->params[P_MAP_RENDERER] == 1) {
         if ((st = pn_context_kernel(ctx, "depthmap", "depthmap_raycast", &k)) ||
             (st = pn_scene_set_kernel_args(scene, k, "depthmap_raycast", 0)))
             return st;
-        const size_t sizes[] = {sizeof(cl_mem), sizeof maps, sizeof res, sizeof(cl_mem), sizeof(cl_mem)};
-        const void *vals[] = {&s->frames, &maps, &res, &s->depth, &s->list};
-        for (cl_uint i = 0; i < 5; ++i) {
+        const size_t sizes[] = {sizeof(cl_mem), sizeof maps, sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem),
+                                sizeof(cl_mem)};
+        const void *vals[] = {&s->frames, &maps, &s->atlas, &s->depth, &s->list, &s->list_start};
+        for (cl_uint i = 0; i < 6; ++i) {
             cl_int err = clSetKernelArg(k, 6 + i, sizes[i], vals[i]);
             if (err != CL_SUCCESS)
                 return pn_fail_cl(ctx, err, "setting depthmap_raycast arguments");
         }
-        return pn_enqueue_1d(ctx, k, "depthmap_raycast", (size_t)maps * s->res * s->res, 64);
+        return pn_enqueue_1d(ctx, k, "depthmap_raycast", s->host_list_start[s->drawn], 64);
     }
     uint32_t instances = 0, triangles = 0;
     if ((st = raster_tables(r, scene, &instances, &triangles)))
@@ -773,19 +963,19 @@ static pn_status draw_maps(pn_renderer r, pn_scene scene)
         return st;
     const cl_int inst = (cl_int)instances, tri_total = (cl_int)triangles, capacity = (cl_int)DM_LARGE_CAPACITY;
     const size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof inst,
-                            sizeof tri_total, sizeof(cl_mem), sizeof maps, sizeof res, sizeof(cl_mem),
+                            sizeof tri_total, sizeof(cl_mem), sizeof maps, sizeof(cl_mem), sizeof(cl_mem),
                             sizeof(cl_mem), sizeof(cl_mem), sizeof capacity, sizeof(cl_mem)};
     const void *vals[] = {&scene->tris, &s->ranges, &s->starts, &s->objects, &inst, &tri_total, &s->frames,
-                          &maps, &res, &s->depth, &s->large_count, &s->large, &capacity, &s->list};
+                          &maps, &s->atlas, &s->depth, &s->large_count, &s->large, &capacity, &s->list};
     if ((st = pn_set_args(ctx, k, "depthmap_raster", 14, sizes, vals)) ||
         (st = pn_enqueue_1d(ctx, k, "depthmap_raster", (size_t)triangles * (size_t)maps, 64)) ||
         (st = pn_context_kernel(ctx, "depthmap", "depthmap_raster_large", &k)))
         return st;
     const size_t lsizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof inst,
-                             sizeof(cl_mem), sizeof res, sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem),
+                             sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem),
                              sizeof capacity};
     const void *lvals[] = {&scene->tris, &s->ranges, &s->starts, &s->objects, &inst, &s->frames,
-                           &res, &s->depth, &s->large_count, &s->large, &capacity};
+                           &s->atlas, &s->depth, &s->large_count, &s->large, &capacity};
     if ((st = pn_set_args(ctx, k, "depthmap_raster_large", 11, lsizes, lvals)))
         return st;
     return pn_enqueue_1d(ctx, k, "depthmap_raster_large", (size_t)DM_LARGE_GROUPS * 64, 64);
@@ -840,14 +1030,14 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     cl_kernel k;
     const cl_int half = maps && (int)r->params[P_HALF_MAPS] && s->depth16;
     if (!st && half && !s->packed) { /* the 16-bit copies of the maps just drawn or supplied */
-        const cl_int drawn = (cl_int)s->drawn, side = (cl_int)s->res;
-        const size_t psizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof drawn, sizeof side,
-                                 sizeof(cl_mem)};
+        const cl_int drawn = (cl_int)s->drawn;
+        const size_t psizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof drawn, sizeof(cl_mem),
+                                 sizeof(cl_mem), sizeof(cl_mem)};
         const void *pvals[] = {s->supplied_count ? &s->supplied_depth : &s->depth, &s->frames, &s->list, &drawn,
-                               &side, &s->depth16};
+                               &s->atlas, &s->list_start, &s->depth16};
         if (!(st = pn_context_kernel(ctx, "depthmap", "depthmap_pack16", &k)) &&
-            !(st = pn_set_args(ctx, k, "depthmap_pack16", 6, psizes, pvals)) &&
-            !(st = pn_enqueue_1d(ctx, k, "depthmap_pack16", (size_t)drawn * s->res * s->res, 64)))
+            !(st = pn_set_args(ctx, k, "depthmap_pack16", 7, psizes, pvals)) &&
+            !(st = pn_enqueue_1d(ctx, k, "depthmap_pack16", s->host_list_start[s->drawn], 64)))
             s->packed = true;
     }
     cl_mem table = NULL; /* the kernel reads it only with specular 3; any buffer stands in otherwise */
@@ -858,22 +1048,22 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     if (!table)
         table = s->device_domains;
     const cl_int count = (cl_int)(gb->width * gb->height), domains = (cl_int)s->domain_count;
-    const cl_int res = (cl_int)s->res, use_maps = maps ? 1 : 0, pcf = (cl_int)r->params[P_PCF];
+    const cl_int use_maps = maps ? 1 : 0, pcf = (cl_int)r->params[P_PCF];
+    cl_mem *depth = s->supplied_count ? &s->supplied_depth : &s->depth;
     const cl_float bias = (cl_float)r->params[P_BIAS], slope = (cl_float)r->params[P_SLOPE_BIAS];
     const cl_int specular = (cl_int)r->params[P_SPECULAR], samples = (cl_int)r->params[P_CAP_SAMPLES];
     const cl_float table_min = (cl_float)r->params[P_TABLE_MIN_EXPONENT];
     const cl_float4 camera = pn_scene_camera_position(scene);
     const size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem),
                             sizeof count, sizeof camera, sizeof(cl_mem), sizeof domains, sizeof(cl_mem),
-                            sizeof(cl_mem), sizeof res, sizeof use_maps, sizeof bias, sizeof slope, sizeof pcf,
+                            sizeof(cl_mem), sizeof(cl_mem), sizeof use_maps, sizeof bias, sizeof slope, sizeof pcf,
                             sizeof specular, sizeof samples, sizeof(cl_mem), sizeof(cl_mem), sizeof half,
                             sizeof(cl_mem), sizeof table_min};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &camera, &s->device_domains, &domains,
-                          &s->frames, s->supplied_count ? &s->supplied_depth : &s->depth, &res, &use_maps,
-                          &bias, &slope, &pcf, &specular, &samples, &image->buffer,
-                          half ? &s->depth16 : &s->depth, &half, &table, &table_min};
+                          &s->frames, depth, &s->atlas, &use_maps, &bias, &slope, &pcf, &specular, &samples,
+                          &image->buffer, half ? &s->depth16 : depth, &half, &table, &table_min};
     if ((st = pn_set_args(ctx, k, "shade_depthmap", 23, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_depthmap", (size_t)count, 64);
@@ -886,12 +1076,18 @@ static pn_status read_output(pn_renderer r, pn_scene scene, int what, uint32_t i
     state *s = r->state;
     pn_context ctx = r->obj.ctx;
     size_t need = 0;
+    if (what == OUT_DEPTH && index >= s->domain_count)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "depth map %u: the method has %u domains", index,
+                       s->domain_count);
+    const size_t side = what == OUT_DEPTH ? s->host_atlas[2 * index + 1] : 0;
     if (what == OUT_DOMAINS)
         need = (size_t)s->domain_count * sizeof(pn_env_domain);
     else if (what == OUT_FRAMES)
         need = (size_t)s->domain_count * DM_FRAME_FLOATS * sizeof(float);
+    else if (what == OUT_RESOLUTIONS)
+        need = (size_t)s->domain_count * sizeof(float);
     else
-        need = (size_t)s->res * s->res * sizeof(float);
+        need = side * side * sizeof(float);
     if (bytes != need)
         return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "depthmap output %s needs %zu bytes, the buffer has %zu",
                        outputs[what].name, need, bytes);
@@ -899,12 +1095,15 @@ static pn_status read_output(pn_renderer r, pn_scene scene, int what, uint32_t i
         memcpy(host, s->domains, need);
         return PN_SUCCESS;
     }
-    if (what == OUT_DEPTH && index >= s->domain_count)
-        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "depth map %u: the method has %u domains", index,
-                       s->domain_count);
+    if (what == OUT_RESOLUTIONS) {
+        float *out = host;
+        for (uint32_t m = 0; m < s->domain_count; ++m)
+            out[m] = (float)s->host_atlas[2 * m + 1];
+        return PN_SUCCESS;
+    }
     if (what == OUT_DEPTH && !s->shadowed[index]) { /* lit unshadowed (skip_power): an empty map */
         float *out = host;
-        for (size_t k = 0; k < (size_t)s->res * s->res; ++k)
+        for (size_t k = 0; k < side * side; ++k)
             out[k] = INFINITY;
         return PN_SUCCESS;
     }
@@ -923,7 +1122,8 @@ static pn_status read_output(pn_renderer r, pn_scene scene, int what, uint32_t i
     cl_int err = what == OUT_FRAMES
                      ? clEnqueueReadBuffer(ctx->queue, s->frames, CL_TRUE, 0, need, host, 0, NULL, NULL)
                      : clEnqueueReadBuffer(ctx->queue, s->supplied_count ? s->supplied_depth : s->depth, CL_TRUE,
-                                           (size_t)index * need, need, host, 0, NULL, NULL);
+                                           (size_t)s->host_atlas[2 * index] * sizeof(float), need, host, 0, NULL,
+                                           NULL);
     return err == CL_SUCCESS ? PN_SUCCESS : pn_fail_cl(ctx, err, "reading a depthmap output");
 }
 
@@ -941,6 +1141,11 @@ static void destroy(pn_renderer r)
     pn_mem_release(&s->list);
     pn_mem_release(&s->supplied_depth);
     pn_mem_release(&s->depth16);
+    pn_mem_release(&s->atlas);
+    pn_mem_release(&s->list_start);
+    free(s->host_atlas);
+    free(s->host_list_start);
+    free(s->supplied_res);
     free(s->shadowed);
     free(s->host_list);
     free(s->supplied_frames);

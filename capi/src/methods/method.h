@@ -15,7 +15,7 @@
 
 #include "assets/assets.h"
 
-#define PN_MAX_METHOD_PARAMS 16
+#define PN_MAX_METHOD_PARAMS 24
 
 /* The parameter every env-lit method has, first in its table (slot 0). */
 #define PN_PARAM_BACKGROUND                                                                                   \
@@ -75,6 +75,10 @@ pn_status pn_renderer_do_set_env_domains(pn_renderer r, const pn_env_domain *dom
 /* pn_renderer_set_depth_maps (methods/depthmap.c). */
 pn_status pn_depthmap_set_maps(pn_renderer r, const float *frames, const float *depths, uint32_t count,
                                uint32_t resolution);
+pn_status pn_depthmap_set_maps_sized(pn_renderer r, const float *frames, const float *depths, uint32_t count,
+                                     const uint32_t *resolutions);
+pn_status pn_depthmap_set_maps_cl(pn_renderer r, const float *frames, cl_mem depths, uint32_t count,
+                                  const uint32_t *resolutions);
 pn_status pn_renderer_do_read_output(pn_renderer r, pn_scene scene, const char *output, uint32_t instance,
                                      uint32_t index, void *host, size_t bytes);
 

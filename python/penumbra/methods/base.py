@@ -118,8 +118,8 @@ class Technique:
         if bake:
             raise InputError(f"method {self.name} has no bake parameters (got {', '.join(bake)})")
 
-    def output_shape(self, renderer, scene, output: str, instance: int) -> tuple[int, ...]:
-        """The float32 array shape of ``output`` (pn_renderer_read_output) of ``instance``."""
+    def output_shape(self, renderer, scene, output: str, instance: int, index: int = 0) -> tuple[int, ...]:
+        """The float32 array shape of ``output`` (pn_renderer_read_output) of ``instance``, item ``index``."""
         raise InputError(f"method {self.name} has no readable outputs")
 
     def use_cache_folder(self, desc, folder: Path) -> None:

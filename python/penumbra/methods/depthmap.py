@@ -64,35 +64,86 @@ def set_domains(renderer, domains) -> None:
 FRAME_FLOATS = 16  # a map's frame: e1 | u_min, e2 | v_min, d | far, du, dv, depth extent, has a map
 
 
-def read_maps(renderer, scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The renderer's domains (N, 8), map frames (N, 16) and depth maps
-    (N, res, res) for ``scene`` as it is now (its ``domains``, ``map_frames``
-    and ``depth_map`` outputs): what :func:`set_maps` takes back. A domain
-    without a map (``skip_power``) reads as an empty map (+inf)."""
+def map_resolutions(renderer, scene) -> np.ndarray:
+    """Each domain's map side in texels (the ``map_resolutions`` output):
+    ``resolution``, ``strong_resolution`` for the strong domains, or the
+    caller's sides."""
+    return renderer.read_output(scene, "map_resolutions", 0).astype(np.int64)
+
+
+def read_maps(renderer, scene):
+    """The renderer's domains (N, 8), map frames (N, 16) and depth maps for
+    ``scene`` as it is now (its ``domains``, ``map_frames`` and ``depth_map``
+    outputs): what :func:`set_maps` takes back. The maps are an (N, res, res)
+    array when they share one side, else a list of N square arrays (with
+    ``strong_resolution``). A domain without a map (``skip_power``) reads as
+    an empty map (+inf)."""
     doms = renderer.read_output(scene, "domains", 0)
     frames = renderer.read_output(scene, "map_frames", 0)
-    maps = np.stack([renderer.read_output(scene, "depth_map", 0, i) for i in range(len(doms))])
-    return doms, frames, maps
+    sides = map_resolutions(renderer, scene)
+    maps = [renderer.read_output(scene, "depth_map", 0, i, shape=(int(sides[i]), int(sides[i])))
+            for i in range(len(doms))]
+    return doms, frames, (np.stack(maps) if len(set(sides.tolist())) <= 1 else maps)
 
 
-def set_maps(renderer, frames, depths) -> None:
-    """The caller's depth maps for ``renderer`` (pn_renderer_set_depth_maps),
-    drawn by the caller instead of the library: ``frames`` (N, 16) and
-    ``depths`` (N, res, res) float32 in the layout of the ``map_frames`` and
-    ``depth_map`` outputs, one per domain the renderer shades with (its
-    ``domains`` output, or the caller's :func:`set_domains`), res its
-    ``resolution``; None returns to drawing the maps. The library checks them
-    (sizes, orthonormal frames, depths >= 0 or +inf, no NaN)."""
+def _sides(resolutions, n: int) -> np.ndarray:
+    r = np.asarray(resolutions)
+    if r.ndim == 0:
+        r = np.full(n, int(r))
+    if r.ndim != 1 or len(r) != n or not np.issubdtype(r.dtype, np.integer):
+        raise InputError(f"resolutions must be an int or {n} ints (one per map), got {resolutions!r}")
+    return np.ascontiguousarray(r, np.uint32)
+
+
+def set_maps(renderer, frames, depths, resolutions=None) -> None:
+    """The caller's depth maps for ``renderer``, drawn by the caller instead
+    of the library: ``frames`` (N, 16) in the layout of the ``map_frames``
+    output, one per domain the renderer shades with (its ``domains`` output,
+    or the caller's :func:`set_domains`), and ``depths``:
+
+    * an (N, res, res) float32 array, res the renderer's ``resolution``
+      (pn_renderer_set_depth_maps, copied);
+    * a list of N square arrays of any sides (pn_renderer_set_depth_maps_sized,
+      copied);
+    * a ``pyopencl.Buffer`` or ``pyopencl.array.Array`` of float32 on the
+      renderer's context holding the maps one after the other, with
+      ``resolutions`` (an int, or N ints) their sides
+      (pn_renderer_set_depth_maps_cl): read in place by every execute, no copy.
+
+    None returns to drawing the maps. The library checks them (sizes, context,
+    orthonormal frames; host depths >= 0 or +inf, no NaN)."""
     if frames is None or depths is None:
         renderer._call("pn_renderer_set_depth_maps", renderer._h, None, None, 0, 0)
+        renderer._borrowed_maps = None
         return
     f = np.ascontiguousarray(frames, np.float32)
-    d = np.ascontiguousarray(depths, np.float32)
     if f.ndim != 2 or f.shape[1] != FRAME_FLOATS:
         raise InputError(f"frames must be an (N, {FRAME_FLOATS}) array, got shape {f.shape}")
+    if not isinstance(depths, (np.ndarray, list, tuple)):  # a device buffer of the caller's
+        from ..core import _mem_handle
+
+        if resolutions is None:
+            raise InputError("depths is a device buffer: give resolutions (the side of each map)")
+        sides = _sides(resolutions, len(f))
+        handle = _mem_handle(depths, "depths", np.float32)
+        renderer._call("pn_renderer_set_depth_maps_cl", renderer._h, _ptr(f), handle, len(f), _ptr(sides))
+        renderer._borrowed_maps = depths
+        return
+    if isinstance(depths, (list, tuple)):
+        maps = [np.ascontiguousarray(m, np.float32) for m in depths]
+        if len(maps) != len(f) or any(m.ndim != 2 or m.shape[0] != m.shape[1] for m in maps):
+            raise InputError(f"depths must be {len(f)} square arrays (the frames' count), got shapes "
+                             f"{[m.shape for m in maps]}")
+        sides = np.array([m.shape[0] for m in maps], np.uint32)
+        packed = np.concatenate([m.reshape(-1) for m in maps]) if maps else np.empty(0, np.float32)
+        renderer._call("pn_renderer_set_depth_maps_sized", renderer._h, _ptr(f), _ptr(packed), len(f), _ptr(sides))
+        renderer._borrowed_maps = None
+        return
+    d = np.ascontiguousarray(depths, np.float32)
     if d.ndim != 3 or d.shape[1] != d.shape[2] or len(d) != len(f):
         raise InputError(f"depths must be an (N, res, res) array with N = {len(f)} (the frames'), got shape {d.shape}")
     renderer._call("pn_renderer_set_depth_maps", renderer._h, _ptr(f), _ptr(d), len(f), d.shape[1])
+    renderer._borrowed_maps = None
 
 
 def maps_drawn(renderer, scene) -> int:
@@ -112,22 +163,29 @@ def domain_count(renderer) -> int:
 class Depthmap(Technique):
     # Not in the README's benchmark table yet (its rows come from `make bench`); docs/depthmap.md has its results.
 
-    def output_shape(self, renderer, scene, output: str, instance: int) -> tuple[int, ...]:
-        if output == "depth_map":
-            res = renderer.get("resolution")
+    def output_shape(self, renderer, scene, output: str, instance: int, index: int = 0) -> tuple[int, ...]:
+        if output == "depth_map":  # each map its own side (strong_resolution, the caller's sizes)
+            sides = renderer.read_output(scene, "map_resolutions", 0)
+            res = int(sides[index]) if 0 <= index < len(sides) else renderer.get("resolution")
             return (res, res)
+        if output == "map_resolutions":
+            return (domain_count(renderer),)
         if output in ("domains", "map_frames"):
             n = domain_count(renderer)
             return (n, DOMAIN_FLOATS if output == "domains" else 16)
-        raise InputError(f"method {NAME} has no output '{output}' (outputs: domains, map_frames, depth_map)")
+        raise InputError(f"method {NAME} has no output '{output}' (outputs: domains, map_frames, depth_map, "
+                         "map_resolutions)")
 
     def sweep(self) -> list[dict]:
-        # Directions and map resolution from the cheapest up to the defaults and beyond; the cap quadrature
-        # (specular 2, the default before the table of cap averages) at 64^2 and at the defaults, for
-        # comparison (docs/depthmap.md).
-        return [{"directions": 16, "resolution": 64}, {"directions": 32, "resolution": 64},
-                {"directions": 64, "resolution": 64}, {"directions": 128, "resolution": 64}, {"directions": 32},
-                {}, {"directions": 128}, {"directions": 32, "resolution": 64, "specular": 2},
+        # Directions and map resolution from the cheapest up to the defaults and beyond, each with and without
+        # the strong domains' larger maps (strong_resolution 0: every map `resolution`, the defaults before);
+        # the cap quadrature (specular 2, the default before the table of cap averages) at 64^2 and at the
+        # defaults, for comparison (docs/depthmap.md).
+        return [{"directions": 16, "resolution": 64, "strong_resolution": 0}, {"directions": 16, "resolution": 64},
+                {"directions": 32, "resolution": 64, "strong_resolution": 0}, {"directions": 32, "resolution": 64},
+                {"directions": 64, "resolution": 64, "strong_resolution": 0}, {"directions": 64, "resolution": 64},
+                {"directions": 128, "resolution": 64}, {"directions": 32}, {"strong_resolution": 0}, {},
+                {"directions": 128}, {"directions": 32, "resolution": 64, "specular": 2},
                 {"directions": 64, "resolution": 64, "specular": 2}, {"specular": 2}]
 
 

@@ -262,7 +262,7 @@ class Heightfield(Technique):
                     out.append(Path(path).read_bytes())
         return b"".join(out)
 
-    def output_shape(self, renderer, scene, output: str, instance: int) -> tuple[int, ...]:
+    def output_shape(self, renderer, scene, output: str, instance: int, index: int = 0) -> tuple[int, ...]:
         return output_shape(renderer, scene, output, instance)
 
     def sweep(self) -> list[dict]:

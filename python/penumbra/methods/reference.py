@@ -27,7 +27,7 @@ class Reference(Technique):
     def sweep(self) -> list[dict]:
         return [{"face_size": f, "sun_supersampling": 1} for f in (4, 8, 16, 32)]
 
-    def output_shape(self, renderer, scene, output: str, instance: int) -> tuple[int, ...]:
+    def output_shape(self, renderer, scene, output: str, instance: int, index: int = 0) -> tuple[int, ...]:
         return (3,)
 
     def after_render(self, built, renderer) -> None:

@@ -1,0 +1,252 @@
+"""Per-domain map sizes (strong_resolution: the maps of the strong domains
+larger, every map in one atlas) and the caller's maps of any sizes, copied
+or read in place from a pyopencl buffer (pn_renderer_set_depth_maps_sized /
+_cl), against the float64 twin (tests/depthmap64.py) and the drawn maps;
+hard cases and bad input (docs/depthmap.md, "Per-domain map sizes")."""
+
+from __future__ import annotations
+
+import depthmap64 as d64
+import numpy as np
+import pyopencl as cl
+import pytest
+from test_depthmap import box_scene, domains_of, quantise16, render, sky  # noqa: F401  (fixtures)
+from test_reference import make_scene, xform
+from tolerances import DEPTHMAP_DEPTH_ATOL, DEPTHMAP_SHADE_RTOL
+
+from penumbra import BACKGROUND, GBuffer, Image, InputError, Material, PenumbraError, Renderer, procedural
+from penumbra.methods import depthmap as dm
+
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+def strongest(domains, k):
+    """strong_share that makes exactly the k most powerful domains strong."""
+    p = np.asarray(domains, np.float64)[:, 4:7] @ LUMA
+    share = np.sort(p / p.sum())[::-1]
+    assert share[k - 1] > share[k] * (1 + 1e-4)  # no tie at the threshold
+    return float(share[k - 1] * (1 - 1e-5)), np.argsort(-p)[:k]
+
+
+def twin_check(s, r, got, **params):
+    """The image against depthmap64.shade with the maps read back (each of its own size)."""
+    frames = r.read_output(s["scene"], "map_frames", 0).astype(np.float64)
+    _, _, maps = dm.read_maps(r, s["scene"])
+    if params.get("half_maps"):
+        maps = [quantise16(frames[i:i + 1], m[None])[0] for i, m in enumerate(maps)]
+    maps = [np.asarray(m, np.float64) for m in maps]
+    p = dict(bias=1.0, slope_bias=1.0, pcf=0, specular=3, cap_samples=16)
+    p.update({k: v for k, v in params.items() if k in p})
+    p["specular"] = 0  # the lookup is under test: the point-sample lobe has no table error on top
+    margin = DEPTHMAP_DEPTH_ATOL * frames[:, 14].max()
+    lo, hi = d64.shade(s["planes"], s["camera"].position, s["domains"], frames, maps, margin=margin, **p)
+    fg = s["planes"]["instance"] != BACKGROUND
+    scale = np.maximum(hi, 1e-3)
+    ok = (got >= lo - DEPTHMAP_SHADE_RTOL * scale) & (got <= hi + DEPTHMAP_SHADE_RTOL * scale)
+    assert ok[fg].all(), f"{(~ok[fg]).sum()} values off the twin"
+    return maps
+
+
+@pytest.mark.parametrize("params", [dict(), dict(pcf=1), dict(map_renderer=0), dict(half_maps=1, pcf=1),
+                                    dict(skip_power=0.05)])
+def test_atlas_lookup_matches_float64(ctx, box_scene, params):
+    """Three strong 80^2 maps beside 24^2 ones, in one atlas: the maps are the
+    twin's rasterisation at their own size, and the shading reads each at its
+    own offset and size (the twin shades with the maps as separate arrays)."""
+    s = box_scene
+    share, strong = strongest(s["domains"], 3)
+    got, r = render(ctx, s["scene"], s["gb"], s["domains"], resolution=24, strong_resolution=80, strong_share=share,
+                    specular=0, **params)
+    sides = dm.map_resolutions(r, s["scene"])
+    want = np.full(len(s["domains"]), 24)
+    want[strong] = 80
+    assert np.array_equal(sides, want)
+    assert any(sides[i] != sides[i + 1] for i in range(len(sides) - 1))  # different sizes side by side
+    maps = twin_check(s, r, got[..., :3], **params)
+    frames = r.read_output(s["scene"], "map_frames", 0).astype(np.float64)
+    for i in (int(strong[0]), int(np.flatnonzero(sides == 24)[0])):
+        if frames[i, 15] == 0:
+            continue  # skip_power: no map
+        ref = d64.rasterise(frames[i], s["tris"], int(sides[i]))
+        both = np.isfinite(maps[i]) & np.isfinite(ref)
+        assert (np.isfinite(maps[i]) != np.isfinite(ref)).mean() <= 0.02 and both.mean() > 0.2
+        assert np.mean(np.abs(maps[i][both] - ref[both]) <= DEPTHMAP_DEPTH_ATOL * frames[i, 14]) > 0.98
+
+
+def test_strong_maps_sharpen_the_outline(ctx, box_scene):
+    """The same domains with and without strong maps: only the strong domains'
+    pixels change, and the twin holds for both (so the test fails if the atlas
+    mixes maps up)."""
+    s = box_scene
+    share, _ = strongest(s["domains"], 2)
+    base, _ = render(ctx, s["scene"], s["gb"], s["domains"], resolution=16, specular=0)
+    got, r = render(ctx, s["scene"], s["gb"], s["domains"], resolution=16, strong_resolution=128, strong_share=share,
+                    specular=0)
+    assert not np.array_equal(base, got)
+    twin_check(s, r, got[..., :3])
+
+
+def test_one_domain_holds_all_the_power(ctx, box_scene):
+    """One bright domain, the rest black: it alone is strong (and the only map
+    drawn at the default skip_power); N = 1 alike."""
+    s = box_scene
+    doms = s["domains"].copy()
+    doms[1:, 4:7] = 0.0
+    got, r = render(ctx, s["scene"], s["gb"], doms, resolution=16, strong_resolution=64, specular=0)
+    sides = dm.map_resolutions(r, s["scene"])
+    assert sides[0] == 64 and (sides[1:] == 16).all()
+    assert dm.maps_drawn(r, s["scene"]) == 1
+    s1 = dict(s, domains=doms)
+    twin_check(s1, r, got[..., :3])
+    one = doms[:1]
+    got, r = render(ctx, s["scene"], s["gb"], one, resolution=16, strong_resolution=64, specular=0)
+    assert dm.map_resolutions(r, s["scene"]).tolist() == [64]
+    twin_check(dict(s, domains=one), r, got[..., :3])
+
+
+def test_receiver_outside_every_footprint_with_an_atlas(ctx, box_scene):
+    """A caller's G-buffer pixel far outside the scene is lit by every domain
+    above it, whatever the size of their maps."""
+    s = box_scene
+    planes = {k: v.copy() for k, v in s["planes"].items()}
+    planes["position"][0, 0] = [50.0, -20.0, 30.0, 1.0]
+    planes["normal"][0, 0] = [0.0, 1.0, 0.0, 0.0]
+    planes["instance"][0, 0] = 0
+    planes["albedo"][0, 0] = [0.5, 0.5, 0.5, 0.0]
+    gb = GBuffer(ctx, 32, 24)
+    for name, plane in planes.items():
+        gb.write(name, plane)
+    share, _ = strongest(s["domains"], 3)
+    got, _ = render(ctx, s["scene"], gb, s["domains"], resolution=16, strong_resolution=96, strong_share=share)
+    free, _ = render(ctx, s["scene"], gb, s["domains"], visibility=0)
+    assert got[0, 0, 0] > 0 and np.allclose(got[0, 0], free[0, 0], rtol=1e-6)
+
+
+def test_strong_resolution_is_checked(ctx, box_scene):
+    s = box_scene
+    r = Renderer(ctx, "depthmap", strong_resolution=4)
+    dm.set_domains(r, s["domains"])
+    img = Image(ctx, s["gb"].width, s["gb"].height)
+    with pytest.raises(InputError, match="strong_resolution 4: 0 \\(off\\) or 8 to 4096"):
+        r.execute(s["scene"], s["gb"], img)
+    # 17 maps of 4096^2: above the cap of 2^28 texels (refused at plan, before any allocation)
+    dm.set_domains(r, np.concatenate([s["domains"], s["domains"][:1]]))
+    r.set(strong_resolution=4096, strong_share=0.0)
+    with pytest.raises(InputError, match="more than 268435456 texels"):
+        r.execute(s["scene"], s["gb"], img)
+    with pytest.raises(PenumbraError, match="strong_resolution"):
+        Renderer(ctx, "depthmap", strong_resolution=5000)
+
+
+# --------------------------------------------------------------------------- the caller's maps, any sizes
+
+
+@pytest.fixture(scope="module")
+def supplied(ctx, box_scene):
+    """Maps of three sizes read back from a renderer, and a scene without the boxes."""
+    s = box_scene
+    share, _ = strongest(s["domains"], 3)
+    first, r1 = render(ctx, s["scene"], s["gb"], s["domains"], resolution=24, strong_resolution=80,
+                       strong_share=share, skip_power=0.05)
+    doms, frames, maps = dm.read_maps(r1, s["scene"])
+    assert isinstance(maps, list) and len({m.shape for m in maps}) == 2
+    floor_only, _, keep = make_scene(ctx, [(procedural.plane((4.0, 4.0)), xform(), Material())], s["env"],
+                                     s["camera"])
+    return dict(first=first, doms=doms, frames=frames, maps=maps, floor_only=floor_only, keep=keep,
+                sides=np.array([m.shape[0] for m in maps], np.uint32))
+
+
+def second(ctx, s, sup, **params):
+    r = Renderer(ctx, "depthmap", resolution=24, skip_power=0.05, **params)
+    dm.set_domains(r, sup["doms"])
+    return r
+
+
+def shade_with(ctx, s, sup, r):
+    img = Image(ctx, s["gb"].width, s["gb"].height)
+    r.execute(sup["floor_only"], s["gb"], img)
+    return img.read()
+
+
+def test_maps_of_any_sizes_copied_or_in_place_give_the_same_image(ctx, cl_pair, box_scene, supplied):
+    """Maps of two sizes read back and supplied to a second renderer (which
+    renders the scene without the boxes), as a list of arrays (copied) or in a
+    pyopencl buffer (read in place): the first image bit for bit, both ways;
+    the buffer's later contents are what the next execute reads (no copy)."""
+    s, sup = box_scene, supplied
+    _, queue = cl_pair
+    r = second(ctx, s, sup)
+    dm.set_maps(r, sup["frames"], sup["maps"])
+    assert np.array_equal(shade_with(ctx, s, sup, r), sup["first"])
+    packed = np.concatenate([m.reshape(-1) for m in sup["maps"]]).astype(np.float32)
+    buf = cl.Buffer(queue.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=packed)
+    rb = second(ctx, s, sup)
+    dm.set_maps(rb, sup["frames"], buf, resolutions=sup["sides"])
+    assert np.array_equal(shade_with(ctx, s, sup, rb), sup["first"])
+    back = dm.read_maps(rb, sup["floor_only"])
+    assert all(np.array_equal(a, b) for a, b in zip(back[2], sup["maps"]))
+    assert np.array_equal(dm.map_resolutions(rb, sup["floor_only"]), sup["sides"])
+    # The caller redraws its buffer (empty maps): the next execute sees it without a new set_maps.
+    cl.enqueue_copy(queue, buf, np.full_like(packed, np.inf))
+    queue.finish()
+    free = shade_with(ctx, s, sup, second(ctx, s, sup, visibility=0))
+    assert np.array_equal(shade_with(ctx, s, sup, rb), free)
+    # With 16-bit lookups too (the copy packs from the caller's buffer).
+    cl.enqueue_copy(queue, buf, packed)
+    queue.finish()
+    r16 = second(ctx, s, sup, half_maps=1)
+    dm.set_maps(r16, sup["frames"], buf, resolutions=sup["sides"])
+    r16c = second(ctx, s, sup, half_maps=1)
+    dm.set_maps(r16c, sup["frames"], sup["maps"])
+    assert np.array_equal(shade_with(ctx, s, sup, r16), shade_with(ctx, s, sup, r16c))
+    # A pyopencl Array works as well; None returns to drawing (the floor alone: no shadows).
+    import pyopencl.array as cla
+
+    arr = cla.to_device(queue, packed)
+    dm.set_maps(rb, sup["frames"], arr, resolutions=sup["sides"])
+    assert np.array_equal(shade_with(ctx, s, sup, rb), sup["first"])
+    dm.set_maps(rb, None, None)
+    assert not np.array_equal(shade_with(ctx, s, sup, rb), sup["first"])
+
+
+def test_the_callers_buffer_is_checked(ctx, cl_pair, box_scene, supplied):
+    s, sup = box_scene, supplied
+    _, queue = cl_pair
+    packed = np.concatenate([m.reshape(-1) for m in sup["maps"]]).astype(np.float32)
+    r = second(ctx, s, sup)
+    small = cl.Buffer(queue.context, cl.mem_flags.READ_WRITE, packed.nbytes - 4)
+    with pytest.raises(PenumbraError, match=f"buffer holds {packed.nbytes - 4} bytes but {packed.nbytes} are needed"):
+        dm.set_maps(r, sup["frames"], small, resolutions=sup["sides"])
+    other = cl.Context(queue.context.devices)
+    foreign = cl.Buffer(other, cl.mem_flags.READ_WRITE, packed.nbytes)
+    with pytest.raises(InputError, match="belongs to a different cl_context"):
+        dm.set_maps(r, sup["frames"], foreign, resolutions=sup["sides"])
+    buf = cl.Buffer(queue.context, cl.mem_flags.READ_WRITE, packed.nbytes)
+    with pytest.raises(InputError, match="give resolutions"):
+        dm.set_maps(r, sup["frames"], buf)
+    with pytest.raises(InputError, match="resolutions must be an int or 16 ints"):
+        dm.set_maps(r, sup["frames"], buf, resolutions=sup["sides"][:3])
+    sides = sup["sides"].copy()
+    sides[2] = 0
+    with pytest.raises(PenumbraError, match="depth map 2 is 0 x 0 texels: the side must be 1 to 4096"):
+        dm.set_maps(r, sup["frames"], buf, resolutions=sides)
+    f = sup["frames"].copy()
+    f[5, 1] = np.nan
+    with pytest.raises(InputError, match="depth map 5's frame has a non-finite value at float 1"):
+        dm.set_maps(r, f, buf, resolutions=sup["sides"])
+    import pyopencl.array as cla
+
+    with pytest.raises(InputError, match="float64 elements; it must hold float32"):
+        dm.set_maps(r, sup["frames"], cla.zeros(queue, packed.size, np.float64), resolutions=sup["sides"])
+    with pytest.raises(PenumbraError, match="15 depth maps but the renderer shades with 16 domains"):
+        dm.set_maps(r, sup["frames"][:15], buf, resolutions=sup["sides"][:15])
+    # Maps copied from the host, sizes from the arrays: a NaN names its map and texel; squares only.
+    bad = [m.copy() for m in sup["maps"]]
+    k = int(np.flatnonzero(sup["sides"] == 80)[0])
+    bad[k][70, 3] = np.nan
+    with pytest.raises(InputError, match=rf"depth map {k} has nan at texel \(3, 70\)"):
+        dm.set_maps(r, sup["frames"], bad)
+    with pytest.raises(InputError, match="square arrays"):
+        dm.set_maps(r, sup["frames"], [m[:, :-1] for m in sup["maps"]])
+    # None of these changed the renderer: it still draws its own maps.
+    r.execute(sup["floor_only"], s["gb"], Image(ctx, s["gb"].width, s["gb"].height))
