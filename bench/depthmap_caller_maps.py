@@ -5,8 +5,9 @@ against read in place from the caller's pyopencl buffer
 interleaved rounds (docs/depthmap.md, "Maps of any sizes, and zero copy").
 
 Per round and path: the supply (set_maps with the frames as a simulator would
-each frame) and one execute, timed to ctx.finish(); the maps are those the
-library drew for the scene (the default sizes: 256^2 for the strong domains).
+each frame; timed alone) and one execute, timed to ctx.finish(); the maps are
+those the library drew for the scene (the default sizes: 256^2 for the
+strong domains). Prints one JSON row.
 
   python bench/depthmap_caller_maps.py [--scene two_armadillos_sunny] [--rounds 7]
 """
@@ -58,26 +59,33 @@ def main() -> int:
     images = {}
 
     def frame(name):
+        """(supply ms, supply + execute ms)."""
         r = paths[name]
+        t0 = time.perf_counter()
         if name == "host copy":
             dm.set_maps(r, frames, maps)
         else:
             dm.set_maps(r, frames, buf, resolutions=sides)
+        t1 = time.perf_counter()
         r.execute(built.scene, gb, img)
         ctx.finish()
+        t2 = time.perf_counter()
         images[name] = img.read()
+        return 1000.0 * (t1 - t0), 1000.0 * (t2 - t0)
 
+    supply = {k: [] for k in paths}
     times = {k: [] for k in paths}
     for k in range(args.rounds + 1):  # round 0 warms up
         for name in paths:
-            t0 = time.perf_counter()
-            frame(name)
+            s_ms, f_ms = frame(name)
             if k:
-                times[name].append(1000.0 * (time.perf_counter() - t0))
+                supply[name].append(s_ms)
+                times[name].append(f_ms)
     same = bool(np.array_equal(images["host copy"], images["in place"]))
     row = dict(scene=args.scene, directions=args.directions, maps_mb=packed.nbytes / 1e6,
                sides=sorted(set(sides.tolist())), same_image=same, load=os.getloadavg(),
-               **{f"{k} ms": float(np.median(v)) for k, v in times.items()})
+               **{f"{k} supply ms": float(np.median(v)) for k, v in supply.items()},
+               **{f"{k} supply + frame ms": float(np.median(v)) for k, v in times.items()})
     print(json.dumps(row))
     return 0
 

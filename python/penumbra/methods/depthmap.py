@@ -178,13 +178,18 @@ class Depthmap(Technique):
 
     def sweep(self) -> list[dict]:
         # Directions and map resolution from the cheapest up to the defaults and beyond, each with and without
-        # the strong domains' larger maps (strong_resolution 0: every map `resolution`, the defaults before);
+        # the strong domains' larger maps (strong_resolution 0: every map `resolution`, the defaults before), and
+        # small maps for the weak domains beside a 128^2 one for the strong;
         # the cap quadrature (specular 2, the default before the table of cap averages) at 64^2 and at the
         # defaults, for comparison (docs/depthmap.md).
         return [{"directions": 16, "resolution": 64, "strong_resolution": 0}, {"directions": 16, "resolution": 64},
                 {"directions": 32, "resolution": 64, "strong_resolution": 0}, {"directions": 32, "resolution": 64},
                 {"directions": 64, "resolution": 64, "strong_resolution": 0}, {"directions": 64, "resolution": 64},
-                {"directions": 128, "resolution": 64}, {"directions": 32}, {"strong_resolution": 0}, {},
+                {"directions": 128, "resolution": 64},
+                {"directions": 16, "resolution": 32, "strong_resolution": 128},
+                {"directions": 32, "resolution": 32, "strong_resolution": 128},
+                {"directions": 64, "resolution": 32, "strong_resolution": 128},
+                {"directions": 32}, {"strong_resolution": 0}, {},
                 {"directions": 128}, {"directions": 32, "resolution": 64, "specular": 2},
                 {"directions": 64, "resolution": 64, "specular": 2}, {"specular": 2}]
 
