@@ -73,6 +73,9 @@ static const pn_param_desc params[] = {
      "(when that is set)."},
 };
 
+_Static_assert(sizeof params / sizeof params[0] <= PN_MAX_METHOD_PARAMS,
+               "depthmap has more parameters than a renderer holds (PN_MAX_METHOD_PARAMS)");
+
 enum { OUT_DOMAINS, OUT_FRAMES, OUT_DEPTH, OUT_RESOLUTIONS };
 
 static const pn_output_desc outputs[] = {
