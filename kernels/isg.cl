@@ -95,11 +95,16 @@ inline void pn_isg_grid_init(pn_sg g, int grid, pn_isg_grid *pg)
 typedef struct {
     int levels;
     int count[PN_ISG_MAX_LEVELS + 1], offset[PN_ISG_MAX_LEVELS + 1];
+    /* The LOD cut (`lod`, 0 = off; docs/isg.md section 8): a node wholly in
+     * front of the receiver plane whose bounding sphere subtends less than lod
+     * patch steps marks with that sphere in place of its spheres. */
+    float lod;
 } pn_isg_tree;
 
 inline void pn_isg_tree_init(int sphere_count, int use_tree, pn_isg_tree *t)
 {
     t->levels = 0;
+    t->lod = 0.0f;
     t->count[0] = sphere_count, t->offset[0] = 0;
     if (!use_tree || sphere_count <= 0)
         return;
@@ -223,6 +228,16 @@ inline bool pn_isg_node_open(float4 b, float3 p, float3 n, float3 z, float cos_c
     return !(cos_cone > -ca && dot(v, z) < d * (cos_cone * ca - sin_cone * sa));
 }
 
+/* The LOD cut's test: node b is wholly in front of the receiver plane and its
+ * bounding sphere's angular radius asin(r / d) is below half the cut's angle
+ * (r < d sin_lod): then the receiver is outside every sphere in it (none holds
+ * or touches it, sin_lod < 1), and the node's cap holds their caps. */
+inline bool pn_isg_node_small(float4 b, float3 p, float3 n, float sin_lod)
+{
+    const float3 v = b.xyz - p;
+    return dot(v, n) >= b.w && b.w * b.w < sin_lod * sin_lod * dot(v, v);
+}
+
 /* Whether sphere sp makes the receiver "inside an occluder" (pn_isg_mark_sphere_rows's
  * -1): the same tests, none of which depends on the lobe. */
 inline bool pn_isg_inside_sphere(float3 p, float3 n, float4 sp, bool own, int self_occlusion)
@@ -314,22 +329,35 @@ inline int pn_isg_mark(const pn_isg_grid *pg, float3 p, float3 n, uint self_id, 
     if (tree->levels == 0)
         return pn_isg_mark_range(pg, cos_cone, sin_cone, p, n, self_id, self_occlusion, spheres, owners, 0,
                                  sphere_count, mask, &full);
+    /* The LOD cut: nodes subtending less than lod patch steps (half-angle
+     * below lod step / 2, capped short of a hemisphere) stand for their
+     * spheres. Not with self_occlusion 0, where a node's own spheres would
+     * count; 0 when lod is 0 (the exact walk). */
+    const float sin_lod =
+        tree->lod > 0.0f && self_occlusion != 0 ? sin(fmin(0.5f * tree->lod * pg->step, 1.5f)) : 0.0f;
     const int top = tree->levels;
     int l = top, i = 0;
     while (l < top || i < tree->count[top]) {
-        if (pn_isg_node_open(nodes[tree->offset[l] + i], p, n, pg->z, cos_cone, sin_cone)) {
-            if (l > 1) {
+        const float4 b = nodes[tree->offset[l] + i];
+        if (pn_isg_node_open(b, p, n, pg->z, cos_cone, sin_cone)) {
+            if (sin_lod > 0.0f && pn_isg_node_small(b, p, n, sin_lod)) {
+                const int m = pn_isg_mark_sphere_rows(pg, cos_cone, sin_cone, p, n, b, false, self_occlusion, mask);
+                any += m; /* >= 0: the receiver is outside the node */
+                if (m > 0 && pn_isg_all_marked(mask, pg->grid))
+                    return any;
+            } else if (l > 1) {
                 --l, i *= PN_ISG_TREE_FANOUT;
                 continue;
+            } else {
+                const int m = pn_isg_mark_range(pg, cos_cone, sin_cone, p, n, self_id, self_occlusion, spheres,
+                                                owners, i * PN_ISG_TREE_FANOUT,
+                                                min((i + 1) * PN_ISG_TREE_FANOUT, sphere_count), mask, &full);
+                if (m < 0)
+                    return -1;
+                any += m;
+                if (full)
+                    return any;
             }
-            const int m = pn_isg_mark_range(pg, cos_cone, sin_cone, p, n, self_id, self_occlusion, spheres, owners,
-                                            i * PN_ISG_TREE_FANOUT, min((i + 1) * PN_ISG_TREE_FANOUT, sphere_count),
-                                            mask, &full);
-            if (m < 0)
-                return -1;
-            any += m;
-            if (full)
-                return any;
         }
         /* The next node: the next sibling, or up while this sibling group is done. */
         ++i;
@@ -551,7 +579,7 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
                       global const float4 *material, global const uint *instance_id, int count,
                       global const float4 *cube, int n_cube, global const float4 *lobes,
                       int lobe_count, global const float4 *spheres, global const uint *owners, int sphere_count,
-                      global const float4 *nodes, int use_tree,
+                      global const float4 *nodes, int use_tree, float lod,
                       int grid, int self_occlusion, int specular_shadows, float env_sharpness, float4 camera,
                       global const float *table, int specular_mode, global const float4 *gamma,
                       global const int *gamma_levels, int gamma_count, float gamma_lambda0, global float4 *image)
@@ -566,6 +594,7 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
     }
     pn_isg_tree tree;
     pn_isg_tree_init(sphere_count, use_tree, &tree);
+    tree.lod = tree.levels > 0 ? fmax(lod, 0.0f) : 0.0f;
     const float3 p = position[gid].xyz;
     const float3 n = normalize(normal[gid].xyz);
     const pn_material m = pn_material_from_gbuffer(albedo[gid], material[gid]);

@@ -57,11 +57,11 @@ FACES = np.array([[1.0, 0.9, 0.8], [0.2, 0.3, 0.4], [3.0, 2.8, 2.5], [0.1, 0.1, 
 
 
 def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=16, self_occlusion=1,
-               specular_shadows=1, camera=(0.0, 3.0, 6.0), env_sharpness=1e30, tree=1, gamma=None):
+               specular_shadows=1, camera=(0.0, 3.0, 6.0), env_sharpness=1e30, tree=1, gamma=None, lod=0.0):
     """pixels: list of dicts p, n, albedo, ks, material (shininess, roughness, lobe), id. tree: 1 the
     spheres through the sphere tree (the method's default), 0 the flat loop over them. gamma: (levels,
     tables) of the prefiltered env (specular_mode 1; penumbra.methods.isg.gamma_levels layout), None:
-    specular_mode 0."""
+    specular_mode 0. lod: the LOD cut (0: off)."""
     ctx, queue = cl_pair
     n = len(pixels)
     f4 = lambda rows: np.ascontiguousarray(np.array(rows, np.float32).reshape(n, 4))  # noqa: E731
@@ -90,7 +90,7 @@ def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=
     obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
     k = cl.Kernel(build_test_kernel(SOURCE), "shade_isg")
     k(queue, (n,), None, ro(pos), ro(nrm), ro(alb), ro(mat), ro(ids), np.int32(n), ro(cube), np.int32(1),
-      ro(lb), np.int32(len(lobes)), ro(sp), ro(ow), np.int32(len(spheres)), ro(nodes), np.int32(tree), np.int32(grid),
+      ro(lb), np.int32(len(lobes)), ro(sp), ro(ow), np.int32(len(spheres)), ro(nodes), np.int32(tree), np.float32(lod), np.int32(grid),
       np.int32(self_occlusion), np.int32(specular_shadows), np.float32(env_sharpness),
       np.array([*camera, 0.0], np.float32), ro(table32()), np.int32(mode), ro(gbuf), ro(lv), np.int32(count),
       np.float32(lambda0), obuf)
@@ -445,3 +445,131 @@ def test_patch_visibility_converges_to_the_exact_visible_integral(lam):
     exact_cos = visible_exact(axis, lam, 1.0, p, n, spheres) / visible_exact(axis, lam, 1.0, p, n, [])
     assert abs(visibility(m_axis, float(m_lam), p, n, 0, 1, spheres, [1, 1], 24) - exact_cos) < \
         ISG_VISIBILITY_PATCH_ATOL
+
+
+# ---------------------------------------------------------------- the LOD cut (docs/isg.md section 8)
+
+
+def clustered_spheres(clusters=40, seed=11):
+    """Clusters of 8 small spheres (radius 0.03-0.1 within 0.25 of the cluster's
+    centre) spread over a 12 x 12 area up to 3 above the floor, as sphere sets
+    of small objects: their tree nodes are compact, so far ones fall under the
+    LOD cut. Owners 1-3 by cluster."""
+    rng = np.random.default_rng(seed)
+    c = np.c_[rng.uniform(-6, 6, clusters), rng.uniform(0.4, 3.0, clusters), rng.uniform(-6, 6, clusters)]
+    s = np.repeat(c, 8, axis=0) + rng.uniform(-0.25, 0.25, (8 * clusters, 3))
+    return np.c_[s, rng.uniform(0.03, 0.1, 8 * clusters)].tolist(), (1 + np.repeat(np.arange(clusters), 8) % 3).tolist()
+
+
+def lod_pixels(spheres, owners):
+    """Floor receivers among spread spheres, near and far from them, diffuse and
+    specular (sharp: the env path; broad: the lobe products), and receivers on
+    spheres' surfaces (self-occlusion)."""
+    rng = np.random.default_rng(7)
+    px = floor_pixels(ks=0.3, material=(1000.0, 0.3, 0.0), xs=np.linspace(-5.5, 5.5, 6), zs=(-5.0, -1.0, 3.0))
+    px += floor_pixels(ks=0.3, material=(20.0, 0.3, 0.0), xs=np.linspace(-5.0, 5.0, 4), zs=(0.5, 5.5))
+    for s, o in list(zip(spheres, owners))[:6]:
+        d = unit(rng.normal(size=3) + [0.0, 1.0, 0.0])
+        px.append({"p": tuple(np.array(s[:3]) + s[3] * d), "n": tuple(d), "albedo": (0.6, 0.6, 0.6), "ks": 0.2,
+                   "material": (200.0, 0.3, 0.0), "id": o})
+    return px
+
+
+@pytest.mark.parametrize("lod", [1.0, 3.0])
+def test_lod_cut_matches_twin(cl_pair, build_test_kernel, lod):
+    """The kernel's LOD cut (a small node marks with its bounding sphere) against
+    the twin's tree walk (isg_shading64.patch_mask with tree), which is not the
+    exact marking: the cut changes the twin's image."""
+    spheres, owners = clustered_spheres()
+    sp, ow, nodes = sphere_tree(spheres, owners)
+    px = lod_pixels(spheres, owners)
+    args = dict(camera=(0.5, 4.0, 8.0), env_sharpness=100.0)
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, sp.tolist(), ow.tolist(), lod=lod, **args)
+    want = np.array([shade(q["p"], q["n"], q["albedo"], q["ks"], q["material"], args["camera"], q["id"], LOBES,
+                           sp, ow, 16, 1, 1, 100.0, FACES, None, (nodes, lod)) for q in px])
+    check(got, want)
+    exact = twin(px, LOBES, sp, ow, **args)
+    assert np.abs(want - exact).max() > 1e-3 * exact.max()  # the cut took nodes for spheres
+
+
+def test_lod_zero_is_the_exact_walk(cl_pair, build_test_kernel):
+    """lod 0 is today's image bit for bit (the flat loop's); so is any lod with
+    self_occlusion 0 (the cut is off there) or without the tree."""
+    spheres, owners = clustered_spheres()
+    px = lod_pixels(spheres, owners)
+    for policy in (0, 1, 2):
+        args = dict(self_occlusion=policy, camera=(0.5, 4.0, 8.0), env_sharpness=100.0)
+        flat = run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, owners, tree=0, **args)
+        np.testing.assert_array_equal(run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, owners, lod=0.0,
+                                                 **args), flat)
+        np.testing.assert_array_equal(run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, owners, tree=0,
+                                                 lod=2.0, **args), flat)
+        cut = run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, owners, lod=2.0, **args)
+        assert (cut == flat).all() if policy == 0 else (cut != flat).any()
+
+
+LOD_MARK_SOURCE = MARK_SOURCE.replace("kernel void mark_test(", "kernel void mark_lod_test(float lod, ").replace(
+    "pn_isg_tree_init(sphere_count, 1, &tree);", "pn_isg_tree_init(sphere_count, 1, &tree);\n    tree.lod = lod;")
+
+
+@pytest.mark.parametrize("lod", [0.5, 1.0, 3.0])
+def test_lod_cut_marks_match_twin(cl_pair, build_test_kernel, lod):
+    """The LOD cut's patch marks, patch by patch, against the twin's tree walk
+    (patch_mask with tree): random receivers among clustered spheres, lobes from
+    broad to lambda = 300. Excepted: patches within 1e-5 of a sphere's or node's
+    cap edge, and cases where a node's angular size is within 1e-5 of the cut
+    (float32 and float64 may decide it apart). The cut marks a superset of the
+    exact marks (a node's cap holds its spheres' caps), and more in some cases."""
+    from isg_shading64 import HALF_PI, frame, patch_mask, tree_levels, window
+
+    ctx, queue = cl_pair
+    rng = np.random.default_rng(300)
+    spheres, owners = clustered_spheres()
+    sp, ow, nodes = sphere_tree(spheres, owners)
+    lams = (0.5, 3.0, 30.0, 300.0)
+    axes = np.array([[*unit(rng.normal(size=3) + [0.0, 1.5, 0.0]), lam] for lam in lams], np.float32)
+    pos = np.c_[rng.uniform(-6, 6, 32), np.zeros(32), rng.uniform(-6, 6, 32)]
+    nrm = np.array([unit([*rng.normal(scale=0.3, size=1), 1.0, *rng.normal(scale=0.3, size=1)]) for _ in range(32)])
+    ids = np.zeros(32, np.uint32)
+    mf = cl.mem_flags
+    ro = lambda a: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))  # noqa: E731
+    f4 = lambda a: np.c_[a, np.zeros(len(a))].astype(np.float32)  # noqa: E731
+    cases = len(pos) * len(lams)
+    out = np.empty((cases, 25), np.uint32)
+    obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
+    k = cl.Kernel(build_test_kernel(LOD_MARK_SOURCE), "mark_lod_test")
+    k(queue, (cases,), None, np.float32(lod), ro(f4(pos)), ro(f4(nrm)), ro(ids), ro(axes), np.int32(len(lams)),
+      ro(sp), ro(ow), np.int32(len(sp)), ro(nodes), np.int32(16), np.int32(1), obuf)
+    cl.enqueue_copy(queue, out, obuf)
+    bits = ((out[:, :16, None] >> np.arange(16, dtype=np.uint32)) & 1).astype(bool)
+    spd, nd = sp.astype(np.float64), nodes.astype(np.float64)
+    compared = extra = skipped = 0
+    for case in range(cases):
+        q, li = divmod(case, len(lams))
+        axis, lam = axes[li, :3].astype(np.float64), float(axes[li, 3])
+        w = window(lam)
+        sin_lod = math.sin(min(0.5 * lod * 2.0 * w / 16, 1.5))
+        v = nd[:, :3] - pos[q]
+        d = np.linalg.norm(v, axis=1)
+        if (np.abs(nd[:, 3] / d - sin_lod) < 1e-5).any() or (np.abs(v @ nrm[q] - nd[:, 3]) < 1e-5 * d).any():
+            skipped += 1
+            continue
+        want, inside = patch_mask(axis, lam, pos[q], nrm[q], 0, 1, spd, ow, 16, (nodes, lod))
+        exact, _ = patch_mask(axis, lam, pos[q], nrm[q], 0, 1, spd, ow, 16)
+        assert not inside and int(out[case, 24]) != 0xFFFFFFFF
+        x, y = frame(axis)
+        cen = HALF_PI - w + (np.arange(16) + 0.5) * (2.0 * w / 16)
+        th, ph = np.meshgrid(cen, cen, indexing="ij")
+        dirs = (np.sin(th) * np.cos(ph))[..., None] * x + np.cos(th)[..., None] * y + \
+            (np.sin(th) * np.sin(ph))[..., None] * axis
+        edge = np.zeros((16, 16), bool)
+        for b in np.r_[spd, nd]:
+            vb = b[:3] - pos[q]
+            db = np.linalg.norm(vb)
+            edge |= np.abs(dirs @ (vb / db) - math.sqrt(max(1.0 - (b[3] / db) ** 2, 0.0))) < 1e-5
+        assert (bits[case] == want)[~edge].all(), (case, np.argwhere((bits[case] != want) & ~edge))
+        assert (want | ~exact).all()  # a superset of the exact marks
+        compared += 1
+        extra += int((want & ~exact).sum())
+    assert compared > cases * 3 // 4 and extra > 0, (compared, skipped, extra)
+    assert len(tree_levels(len(sp))) == 2

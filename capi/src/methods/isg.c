@@ -21,7 +21,8 @@ enum {
     P_SPECULAR_SHADOWS,
     P_ENV_SHARPNESS,
     P_SPHERE_TREE,
-    P_SPECULAR_MODE
+    P_SPECULAR_MODE,
+    P_LOD
 };
 
 static const pn_param_desc params[] = {
@@ -45,6 +46,10 @@ static const pn_param_desc params[] = {
      "Light of the sharp BRDF lobes (env_sharpness): 1 the prefiltered env Gamma_L at the lobe's axis times "
      "the visible share of its patches (seed eq. 10; built at plan when the env map changes), 0 the env cube "
      "at each visible patch."},
+    {"lod", PN_PARAM_FLOAT, PN_PARAM_FRAME, 0, 0, 16, "patch steps",
+     "LOD cut of the sphere tree: a node wholly in front of the receiver whose bounding sphere subtends less "
+     "than lod patch steps of a lobe's window occludes with that sphere instead of its spheres (0: off, the "
+     "exact walk; needs sphere_tree 1 and self_occlusion 1 or 2; docs/isg.md section 8)."},
 };
 
 static const pn_param_desc bake_params[] = {
@@ -451,6 +456,7 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
         (st = gather_spheres(r, scene, &sphere_count)))
         return st;
     const cl_int use_tree = (cl_int)r->params[P_SPHERE_TREE];
+    const cl_float lod = (cl_float)r->params[P_LOD];
     size_t node_count = 0;
     if (use_tree && (st = sphere_tree(r, sphere_count, &node_count)))
         return st;
@@ -493,16 +499,16 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const cl_mem gamma = g ? g->gamma : s->lobes, gamma_levels = g ? g->levels : s->lobes;
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count,
                       sizeof(cl_mem), sizeof n, sizeof(cl_mem), sizeof lobes, sizeof(cl_mem),
-                      sizeof(cl_mem), sizeof spheres, sizeof(cl_mem), sizeof use_tree, sizeof grid, sizeof self, sizeof spec, sizeof env_sharpness, sizeof camera,
+                      sizeof(cl_mem), sizeof spheres, sizeof(cl_mem), sizeof use_tree, sizeof lod, sizeof grid, sizeof self, sizeof spec, sizeof env_sharpness, sizeof camera,
                       sizeof(cl_mem), sizeof mode, sizeof(cl_mem), sizeof(cl_mem), sizeof gamma_count, sizeof lambda0,
                       sizeof(cl_mem)};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->cube, &n, &s->lobes, &lobes,
-                          &s->device_spheres, &s->device_owners, &spheres, &s->device_nodes, &use_tree, &grid, &self,
+                          &s->device_spheres, &s->device_owners, &spheres, &s->device_nodes, &use_tree, &lod, &grid, &self,
                           &spec, &env_sharpness, &camera, &table, &mode, &gamma, &gamma_levels, &gamma_count,
                           &lambda0, &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_isg", 27, sizes, vals)))
+    if ((st = pn_set_args(ctx, k, "shade_isg", 28, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_isg", (size_t)count, 64);
 }
