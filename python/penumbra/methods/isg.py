@@ -55,6 +55,15 @@ class SphereSet(_Handle):
         call("pn_sphere_set_create", ctx._h, ctx._h, a.ctypes.data if len(a) else None, len(a), ctypes.byref(out))
         return cls(ctx, out)
 
+    @classmethod
+    def shell(cls, ctx: Context) -> "SphereSet":
+        """A thin shell (pn_sphere_set_create_shell): no spheres; attached to an
+        instance, the isg method projects that instance's triangles (at most
+        4096) into each lobe's patch grid (docs/isg.md section 8)."""
+        out = ctypes.c_void_p()
+        call("pn_sphere_set_create_shell", ctx._h, ctx._h, ctypes.byref(out))
+        return cls(ctx, out)
+
     def info(self) -> dict:
         i = _native.SphereSetInfo()
         call("pn_sphere_set_get_info", self._ctx._h, self._h, ctypes.byref(i))
