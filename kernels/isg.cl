@@ -34,7 +34,11 @@
  * A sphere of another instance that contains the receiver occludes every
  * patch (the receiver is inside that occluder).
  *
- * Spheres: float4 (world centre, world radius) and the owning instance id. */
+ * Spheres: float4 (world centre, world radius) and the owning instance id.
+ * Thin shells: triangles (3 float4 world vertices) and their instance ids,
+ * marked into the same mask after the spheres (pn_isg_mark_triangle). The
+ * LOD cut (`lod`, 0 = off): a tree node subtending under lod patch steps
+ * marks with its bounding sphere (pn_isg_node_small). */
 #include "common/brdf.cl"
 #include "common/sg.cl"
 #include "common/sphere_maps.cl"
