@@ -726,3 +726,48 @@ def test_thin_shell_hard_cases_in_the_twin():
     for policy in (0, 1):
         mask, _ = patch_mask(axis, 2.0, q, n, 5, policy, [], [], 16, shells=(sheet, [5, 5]))
         assert not mask.any()
+
+
+def draped_sheet(n=8, half=1.0):
+    """bench/isg_shells.py's draped sheet at n x n quads: (T, 3, 3) triangles."""
+    t = np.linspace(-half, half, n + 1)
+    x, z = np.meshgrid(t, t, indexing="ij")
+    v = np.stack([x, 1.3 - 0.25 * (x * x + z * z) / (half * half), z], -1)
+    tris = []
+    for i in range(n):
+        for j in range(n):
+            tris += [[v[i, j], v[i + 1, j + 1], v[i + 1, j]], [v[i, j], v[i, j + 1], v[i + 1, j + 1]]]
+    return np.array(tris)
+
+
+@pytest.mark.parametrize("policy", [0, 1, 2])
+def test_thin_shell_shading_matches_twin(cl_pair, build_test_kernel, policy):
+    """Shaded pixels under a draped sheet (triangles of instance 7) and spheres, one
+    of them overlapping the sheet (a patch covered by both counts once), against the
+    twin (shade with shells): floor receivers, diffuse and specular (both paths), and
+    receivers on the sheet itself (instance 7, normals up and down) under each
+    self-occlusion policy. The sheet darkens the floor; a doubled sheet gives the
+    same image (overlaps count once)."""
+    tris = draped_sheet()
+    owners = np.full(len(tris), 7)
+    spheres, sph_owners = [[0.5, 1.25, 0.2, 0.3], [1.8, 0.5, 0.0, 0.3]], [1, 2]
+    px = floor_pixels(ks=0.3, material=(1000.0, 0.3, 0.0), xs=np.linspace(-1.5, 2.0, 6), zs=(-0.5, 0.4))
+    px += floor_pixels(ks=0.3, material=(30.0, 0.3, 0.0), xs=np.linspace(-1.0, 1.0, 3), zs=(0.0,))
+    for x, z, up in ((0.1, 0.2, 1), (-0.6, 0.5, 1), (0.3, -0.4, -1), (0.8, 0.8, 1)):
+        y = 1.3 - 0.25 * (x * x + z * z)
+        nrm = unit([0.5 * x, 1.0, 0.5 * z]) * up
+        px.append({"p": (x, y, z), "n": tuple(nrm), "albedo": (0.6, 0.6, 0.6), "ks": 0.0, "material": (0, 0.3, 0),
+                   "id": 7})
+    args = dict(self_occlusion=policy, camera=(0.5, 4.0, 5.0), env_sharpness=100.0)
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, sph_owners, triangles=tris,
+                     triangle_owners=owners, **args)
+    tris32 = tris.astype(np.float32).astype(np.float64)
+    want = np.array([shade(q["p"], q["n"], q["albedo"], q["ks"], q["material"], args["camera"], q["id"], LOBES,
+                           spheres, sph_owners, 16, policy, 1, 100.0, FACES, None, None, (tris32, owners))
+                     for q in px])
+    check(got, want)
+    free = run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, sph_owners, **args)
+    assert (got[:16, :3] < 0.7 * free[:16, :3]).any()  # the sheet shadows the floor
+    doubled = run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, sph_owners, triangles=np.r_[tris, tris],
+                         triangle_owners=np.r_[owners, owners], **args)
+    np.testing.assert_array_equal(doubled, got)
