@@ -247,29 +247,38 @@ inline int pn_isg_mark_triangle(const pn_isg_grid *pg, float cos_cone, float sin
     const float det = dot(a, bc), tol = own && self_occlusion == 1 ? PN_ISG_SHELL_OWN_FLAT : PN_ISG_SHELL_FLAT;
     if (!(fabs(det) > tol * length(a) * length(b) * length(c)))
         return 0;
-    /* The cone cull by the triangle's bounding sphere (centroid, farthest vertex). */
+    /* The cone cull by the triangle's bounding sphere (centroid, farthest vertex,
+     * padded by 1e-4), and the rows that can hold its directions: those whose
+     * best direction lies in that sphere's cap (the spheres' row test). */
     const float3 m = (a + b + c) * (1.0f / 3.0f);
-    const float r = sqrt(fmax(fmax(dot(a - m, a - m), dot(b - m, b - m)), dot(c - m, c - m)));
+    const float r = 1.0001f * sqrt(fmax(fmax(dot(a - m, a - m), dot(b - m, b - m)), dot(c - m, c - m)));
     const float d = length(m);
+    const int grid = pg->grid;
+    const uint full = pn_isg_full_row(grid);
+    const float16 s0 = vload16(0, pg->sin_c), c0 = vload16(0, pg->cos_c);
+    const float16 s1 = vload16(1, pg->sin_c), c1 = vload16(1, pg->cos_c);
+    uint rows = full;
     if (d > r) {
         const float sa = r / d, cs = sqrt(fmax(1.0f - sa * sa, 0.0f));
         if (cos_cone > -cs && dot(m, pg->z) < d * (cos_cone * cs - sin_cone * sa))
             return 0;
+        const float3 u = m / d, ul = (float3)(dot(u, pg->x), dot(u, pg->y), dot(u, pg->z));
+        const float rho = sqrt(ul.x * ul.x + ul.z * ul.z);
+        rows = pn_isg_bits16(s0 * rho + c0 * ul.y >= cs - 1e-6f, 0);
+        if (grid > 16)
+            rows |= pn_isg_bits16(s1 * rho + c1 * ul.y >= cs - 1e-6f, 16);
     }
     const float sg = det > 0.0f ? 1.0f : -1.0f;
     const float3 e0 = sg * bc, e1 = sg * ca, e2 = sg * ab;
     const float3 l0 = (float3)(dot(e0, pg->x), dot(e0, pg->y), dot(e0, pg->z));
     const float3 l1 = (float3)(dot(e1, pg->x), dot(e1, pg->y), dot(e1, pg->z));
     const float3 l2 = (float3)(dot(e2, pg->x), dot(e2, pg->y), dot(e2, pg->z));
-    const int grid = pg->grid;
-    const uint full = pn_isg_full_row(grid);
-    const float16 s0 = vload16(0, pg->sin_c), c0 = vload16(0, pg->cos_c);
-    const float16 s1 = vload16(1, pg->sin_c), c1 = vload16(1, pg->cos_c);
     /* Each column's azimuthal part of d.e_k, shared by the rows. */
     const float16 h0 = c0 * l0.x + s0 * l0.z, h1 = c0 * l1.x + s0 * l1.z, h2 = c0 * l2.x + s0 * l2.z;
     const float16 g0 = c1 * l0.x + s1 * l0.z, g1 = c1 * l1.x + s1 * l1.z, g2 = c1 * l2.x + s1 * l2.z;
     uint marked = 0u;
-    for (int i = 0; i < grid; ++i) {
+    for (uint f = rows & full; f != 0u; f &= f - 1u) {
+        const int i = pn_isg_ctz(f);
         const uint row = mask[i];
         if (row == full)
             continue;
