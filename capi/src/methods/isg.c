@@ -537,7 +537,8 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
         pn_mem_release(&s->device_tris);
         pn_mem_release(&s->device_tri_owners);
         s->device_tri_capacity = 0;
-        if ((st = pn_alloc(ctx, tri_need * 48, CL_MEM_READ_ONLY, NULL, &s->device_tris, "the thin shells' triangles")) ||
+        if ((st = pn_alloc(ctx, tri_need * 48, CL_MEM_READ_ONLY, NULL, &s->device_tris,
+                           "the thin shells' triangles")) ||
             (st = pn_alloc(ctx, tri_need * 4, CL_MEM_READ_ONLY, NULL, &s->device_tri_owners,
                            "the thin shells' owners")))
             return st;
