@@ -102,7 +102,7 @@ class Kernel:
         return self.programs[key]
 
     def run(self, defines=(), patch=None, grid=16, self_occlusion=1, specular_shadows=1, env_sharpness=100.0,
-            extra_args=(), count=None, use_tree=1, kernels=None, tree_args=None):
+            extra_args=(), count=None, use_tree=1, kernels=None, tree_args=None, lod=0.0):
         """kernels: another version's kernels/ folder; tree_args: whether its shade_isg takes the tree's
         arguments (default: only the working tree's)."""
         k = cl.Kernel(self.program(defines, patch, kernels), "shade_isg")
@@ -110,6 +110,8 @@ class Kernel:
         args = [b[0], b[1], b[2], b[3], b[4], np.int32(self.n), self.cube, np.int32(self.face), self.lobes,
                 np.int32(self.k), self.spheres, self.owners, np.int32(self.count if count is None else count),
                 *((self.nodes, np.int32(use_tree)) if (tree_args if tree_args is not None else not kernels) else ()),
+                # the LOD cut and no thin-shell triangles (this version's kernel only)
+                *((np.float32(lod), self.table, self.table, np.int32(0)) if not kernels else ()),
                 np.int32(grid),
                 np.int32(self_occlusion), np.int32(specular_shadows), np.float32(env_sharpness), self.camera,
                 self.table,

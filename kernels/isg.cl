@@ -34,7 +34,11 @@
  * A sphere of another instance that contains the receiver occludes every
  * patch (the receiver is inside that occluder).
  *
- * Spheres: float4 (world centre, world radius) and the owning instance id. */
+ * Spheres: float4 (world centre, world radius) and the owning instance id.
+ * Thin shells: triangles (3 float4 world vertices) and their instance ids,
+ * marked into the same mask after the spheres (pn_isg_mark_triangle). The
+ * LOD cut (`lod`, 0 = off): a tree node subtending under lod patch steps
+ * marks with its bounding sphere (pn_isg_node_small). */
 #include "common/brdf.cl"
 #include "common/sg.cl"
 #include "common/sphere_maps.cl"
@@ -95,11 +99,23 @@ inline void pn_isg_grid_init(pn_sg g, int grid, pn_isg_grid *pg)
 typedef struct {
     int levels;
     int count[PN_ISG_MAX_LEVELS + 1], offset[PN_ISG_MAX_LEVELS + 1];
+    /* The LOD cut (`lod`, 0 = off; docs/isg.md section 8): a node wholly in
+     * front of the receiver plane whose bounding sphere subtends less than lod
+     * patch steps marks with that sphere in place of its spheres. */
+    float lod;
+    /* Thin shells (docs/isg.md section 8): triangles (3 float4 world-space
+     * vertices each) and their instances, marked in every lobe after the
+     * spheres, into the same mask. */
+    global const float4 *tris;
+    global const uint *tri_owners;
+    int tri_count;
 } pn_isg_tree;
 
 inline void pn_isg_tree_init(int sphere_count, int use_tree, pn_isg_tree *t)
 {
     t->levels = 0;
+    t->lod = 0.0f;
+    t->tris = 0, t->tri_owners = 0, t->tri_count = 0;
     t->count[0] = sphere_count, t->offset[0] = 0;
     if (!use_tree || sphere_count <= 0)
         return;
@@ -205,6 +221,96 @@ inline int pn_isg_mark_sphere_rows(const pn_isg_grid *pg, float cos_cone, float 
     return marked != 0u;
 }
 
+/* Thin shells: a triangle's patches, those whose centre direction d hits it
+ * from p (d a positive combination of its vertices seen from p: the three
+ * edge planes' normals e_k = +-(b x c, c x a, a x b), signed by the
+ * orientation det = a.(b x c), all have d.e_k >= 0). The same 16-wide row
+ * and column tests as a sphere's. Skipped: triangles wholly behind the
+ * receiver plane, outside the window's cone (by their bounding sphere), and
+ * those nearly in the receiver's plane, |det| <= tol |a||b||c| (degenerate
+ * triangles, edge-on ones seen from p, the one the receiver lies on): tol is
+ * PN_ISG_SHELL_FLAT, or PN_ISG_SHELL_OWN_FLAT for the receiver's own triangles
+ * under self_occlusion 1 (its flat neighbourhood on the sheet); own
+ * triangles are ignored under self_occlusion 0. Returns 1 when it marked
+ * something new, else 0. */
+#define PN_ISG_SHELL_FLAT 1e-6f
+#define PN_ISG_SHELL_OWN_FLAT 1e-3f
+inline int pn_isg_mark_triangle(const pn_isg_grid *pg, float cos_cone, float sin_cone, float3 p, float3 n,
+                                float3 v0, float3 v1, float3 v2, bool own, int self_occlusion, uint *mask)
+{
+    if (own && self_occlusion == 0)
+        return 0;
+    const float3 a = v0 - p, b = v1 - p, c = v2 - p;
+    if (dot(a, n) <= 0.0f && dot(b, n) <= 0.0f && dot(c, n) <= 0.0f)
+        return 0;
+    const float3 bc = cross(b, c), ca = cross(c, a), ab = cross(a, b);
+    const float det = dot(a, bc), tol = own && self_occlusion == 1 ? PN_ISG_SHELL_OWN_FLAT : PN_ISG_SHELL_FLAT;
+    if (!(fabs(det) > tol * length(a) * length(b) * length(c)))
+        return 0;
+    /* The cone cull by the triangle's bounding sphere (centroid, farthest vertex,
+     * padded by 1e-4), and the rows that can hold its directions: those whose
+     * best direction lies in that sphere's cap (the spheres' row test). */
+    const float3 m = (a + b + c) * (1.0f / 3.0f);
+    const float r = 1.0001f * sqrt(fmax(fmax(dot(a - m, a - m), dot(b - m, b - m)), dot(c - m, c - m)));
+    const float d = length(m);
+    const int grid = pg->grid;
+    const uint full = pn_isg_full_row(grid);
+    const float16 s0 = vload16(0, pg->sin_c), c0 = vload16(0, pg->cos_c);
+    const float16 s1 = vload16(1, pg->sin_c), c1 = vload16(1, pg->cos_c);
+    uint rows = full;
+    if (d > r) {
+        const float sa = r / d, cs = sqrt(fmax(1.0f - sa * sa, 0.0f));
+        if (cos_cone > -cs && dot(m, pg->z) < d * (cos_cone * cs - sin_cone * sa))
+            return 0;
+        const float3 u = m / d, ul = (float3)(dot(u, pg->x), dot(u, pg->y), dot(u, pg->z));
+        const float rho = sqrt(ul.x * ul.x + ul.z * ul.z);
+        rows = pn_isg_bits16(s0 * rho + c0 * ul.y >= cs - 1e-6f, 0);
+        if (grid > 16)
+            rows |= pn_isg_bits16(s1 * rho + c1 * ul.y >= cs - 1e-6f, 16);
+    }
+    const float sg = det > 0.0f ? 1.0f : -1.0f;
+    const float3 e0 = sg * bc, e1 = sg * ca, e2 = sg * ab;
+    const float3 l0 = (float3)(dot(e0, pg->x), dot(e0, pg->y), dot(e0, pg->z));
+    const float3 l1 = (float3)(dot(e1, pg->x), dot(e1, pg->y), dot(e1, pg->z));
+    const float3 l2 = (float3)(dot(e2, pg->x), dot(e2, pg->y), dot(e2, pg->z));
+    /* Each column's azimuthal part of d.e_k, shared by the rows. */
+    const float16 h0 = c0 * l0.x + s0 * l0.z, h1 = c0 * l1.x + s0 * l1.z, h2 = c0 * l2.x + s0 * l2.z;
+    const float16 g0 = c1 * l0.x + s1 * l0.z, g1 = c1 * l1.x + s1 * l1.z, g2 = c1 * l2.x + s1 * l2.z;
+    uint marked = 0u;
+    for (uint f = rows & full; f != 0u; f &= f - 1u) {
+        const int i = pn_isg_ctz(f);
+        const uint row = mask[i];
+        if (row == full)
+            continue;
+        const float si = pg->sin_c[i], ci = pg->cos_c[i];
+        uint cols = pn_isg_bits16((si * h0 + ci * l0.y >= 0.0f) & (si * h1 + ci * l1.y >= 0.0f) &
+                                  (si * h2 + ci * l2.y >= 0.0f), 0);
+        if (grid > 16)
+            cols |= pn_isg_bits16((si * g0 + ci * l0.y >= 0.0f) & (si * g1 + ci * l1.y >= 0.0f) &
+                                  (si * g2 + ci * l2.y >= 0.0f), 16);
+        const uint bits = cols & full & ~row;
+        mask[i] = row | bits;
+        marked |= bits;
+    }
+    return marked != 0u;
+}
+
+/* The thin-shell triangles of `tree` into the mask (after the spheres). */
+inline int pn_isg_mark_triangles(const pn_isg_grid *pg, float cos_cone, float sin_cone, float3 p, float3 n,
+                                 uint self_id, int self_occlusion, const pn_isg_tree *tree, uint *mask)
+{
+    int any = 0;
+    for (int t = 0; t < tree->tri_count; ++t) {
+        const int m = pn_isg_mark_triangle(pg, cos_cone, sin_cone, p, n, tree->tris[3 * t].xyz,
+                                           tree->tris[3 * t + 1].xyz, tree->tris[3 * t + 2].xyz,
+                                           tree->tri_owners[t] == self_id, self_occlusion, mask);
+        any += m;
+        if (m > 0 && pn_isg_all_marked(mask, pg->grid))
+            break;
+    }
+    return any;
+}
+
 /* A tree node (bounding sphere b) that may hold a sphere marking a patch or
  * containing the receiver: not wholly behind the receiver plane, and its cap
  * not outside the window's cone unless the receiver is inside it. The host
@@ -221,6 +327,16 @@ inline bool pn_isg_node_open(float4 b, float3 p, float3 n, float3 z, float cos_c
         return true;
     const float d = sqrt(d2), sa = fmin(r / d, 1.0f), ca = sqrt(fmax(1.0f - sa * sa, 0.0f));
     return !(cos_cone > -ca && dot(v, z) < d * (cos_cone * ca - sin_cone * sa));
+}
+
+/* The LOD cut's test: node b is wholly in front of the receiver plane and its
+ * bounding sphere's angular radius asin(r / d) is below half the cut's angle
+ * (r < d sin_lod): then the receiver is outside every sphere in it (none holds
+ * or touches it, sin_lod < 1), and the node's cap holds their caps. */
+inline bool pn_isg_node_small(float4 b, float3 p, float3 n, float sin_lod)
+{
+    const float3 v = b.xyz - p;
+    return dot(v, n) >= b.w && b.w * b.w < sin_lod * sin_lod * dot(v, v);
 }
 
 /* Whether sphere sp makes the receiver "inside an occluder" (pn_isg_mark_sphere_rows's
@@ -299,9 +415,9 @@ inline int pn_isg_mark_range(const pn_isg_grid *pg, float cos_cone, float sin_co
  * unoccluded). Stops once every patch is marked: the spheres left can only
  * report "inside", which shade_isg has ruled out per pixel (pn_isg_inside),
  * so the image is the same. */
-inline int pn_isg_mark(const pn_isg_grid *pg, float3 p, float3 n, uint self_id, int self_occlusion,
-                       global const float4 *spheres, global const uint *owners, int sphere_count,
-                       global const float4 *nodes, const pn_isg_tree *tree, uint *mask)
+inline int pn_isg_mark_spheres(const pn_isg_grid *pg, float3 p, float3 n, uint self_id, int self_occlusion,
+                               global const float4 *spheres, global const uint *owners, int sphere_count,
+                               global const float4 *nodes, const pn_isg_tree *tree, uint *mask)
 {
     /* The window's cone: its corners lie within w * sqrt(2) of the axis. */
     const float cone = fmin((0.5f * PN_PI - pg->lo) * 1.41421356f, PN_PI), cos_cone = cos(cone), sin_cone = sin(cone);
@@ -314,22 +430,35 @@ inline int pn_isg_mark(const pn_isg_grid *pg, float3 p, float3 n, uint self_id, 
     if (tree->levels == 0)
         return pn_isg_mark_range(pg, cos_cone, sin_cone, p, n, self_id, self_occlusion, spheres, owners, 0,
                                  sphere_count, mask, &full);
+    /* The LOD cut: nodes subtending less than lod patch steps (half-angle
+     * below lod step / 2, capped short of a hemisphere) stand for their
+     * spheres. Not with self_occlusion 0, where a node's own spheres would
+     * count; 0 when lod is 0 (the exact walk). */
+    const float sin_lod =
+        tree->lod > 0.0f && self_occlusion != 0 ? sin(fmin(0.5f * tree->lod * pg->step, 1.5f)) : 0.0f;
     const int top = tree->levels;
     int l = top, i = 0;
     while (l < top || i < tree->count[top]) {
-        if (pn_isg_node_open(nodes[tree->offset[l] + i], p, n, pg->z, cos_cone, sin_cone)) {
-            if (l > 1) {
+        const float4 b = nodes[tree->offset[l] + i];
+        if (pn_isg_node_open(b, p, n, pg->z, cos_cone, sin_cone)) {
+            if (sin_lod > 0.0f && pn_isg_node_small(b, p, n, sin_lod)) {
+                const int m = pn_isg_mark_sphere_rows(pg, cos_cone, sin_cone, p, n, b, false, self_occlusion, mask);
+                any += m; /* >= 0: the receiver is outside the node */
+                if (m > 0 && pn_isg_all_marked(mask, pg->grid))
+                    return any;
+            } else if (l > 1) {
                 --l, i *= PN_ISG_TREE_FANOUT;
                 continue;
+            } else {
+                const int m = pn_isg_mark_range(pg, cos_cone, sin_cone, p, n, self_id, self_occlusion, spheres,
+                                                owners, i * PN_ISG_TREE_FANOUT,
+                                                min((i + 1) * PN_ISG_TREE_FANOUT, sphere_count), mask, &full);
+                if (m < 0)
+                    return -1;
+                any += m;
+                if (full)
+                    return any;
             }
-            const int m = pn_isg_mark_range(pg, cos_cone, sin_cone, p, n, self_id, self_occlusion, spheres, owners,
-                                            i * PN_ISG_TREE_FANOUT, min((i + 1) * PN_ISG_TREE_FANOUT, sphere_count),
-                                            mask, &full);
-            if (m < 0)
-                return -1;
-            any += m;
-            if (full)
-                return any;
         }
         /* The next node: the next sibling, or up while this sibling group is done. */
         ++i;
@@ -337,6 +466,22 @@ inline int pn_isg_mark(const pn_isg_grid *pg, float3 p, float3 n, uint self_id, 
             i = (i - 1) / PN_ISG_TREE_FANOUT + 1, ++l;
     }
     return any;
+}
+
+/* pn_isg_mark_spheres, then the thin-shell triangles into the same mask (a
+ * patch covered by spheres and triangles alike counts once): -1 when the
+ * receiver is inside an occluder sphere, else the number of spheres and
+ * triangles that marked something. */
+inline int pn_isg_mark(const pn_isg_grid *pg, float3 p, float3 n, uint self_id, int self_occlusion,
+                       global const float4 *spheres, global const uint *owners, int sphere_count,
+                       global const float4 *nodes, const pn_isg_tree *tree, uint *mask)
+{
+    const int any = pn_isg_mark_spheres(pg, p, n, self_id, self_occlusion, spheres, owners, sphere_count, nodes,
+                                        tree, mask);
+    if (any < 0 || tree->tri_count <= 0 || (any > 0 && pn_isg_all_marked(mask, pg->grid)))
+        return any;
+    const float cone = fmin((0.5f * PN_PI - pg->lo) * 1.41421356f, PN_PI), cos_cone = cos(cone), sin_cone = sin(cone);
+    return any + pn_isg_mark_triangles(pg, cos_cone, sin_cone, p, n, self_id, self_occlusion, tree, mask);
 }
 
 inline bool pn_isg_masked(const uint *mask, int i, int j)
@@ -551,7 +696,8 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
                       global const float4 *material, global const uint *instance_id, int count,
                       global const float4 *cube, int n_cube, global const float4 *lobes,
                       int lobe_count, global const float4 *spheres, global const uint *owners, int sphere_count,
-                      global const float4 *nodes, int use_tree,
+                      global const float4 *nodes, int use_tree, float lod, global const float4 *triangles,
+                      global const uint *triangle_owners, int triangle_count,
                       int grid, int self_occlusion, int specular_shadows, float env_sharpness, float4 camera,
                       global const float *table, int specular_mode, global const float4 *gamma,
                       global const int *gamma_levels, int gamma_count, float gamma_lambda0, global float4 *image)
@@ -566,6 +712,11 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
     }
     pn_isg_tree tree;
     pn_isg_tree_init(sphere_count, use_tree, &tree);
+    tree.lod = tree.levels > 0 ? fmax(lod, 0.0f) : 0.0f;
+    tree.tris = triangles, tree.tri_owners = triangle_owners, tree.tri_count = max(triangle_count, 0);
+    /* The specular path without shadows sees no occluder. */
+    pn_isg_tree spec_tree = tree;
+    spec_tree.tri_count = specular_shadows ? tree.tri_count : 0;
     const float3 p = position[gid].xyz;
     const float3 n = normalize(normal[gid].xyz);
     const pn_material m = pn_material_from_gbuffer(albedo[gid], material[gid]);
@@ -587,7 +738,8 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
     float3 diffuse = (float3)(0.0f), specular = (float3)(0.0f);
     if (env_specular && !(inside && specular_shadows))
         specular = pn_isg_env_specular(brdf[0], p, n, id, specular_shadows ? self_occlusion : 0, spheres, owners,
-                                       specular_shadows ? sphere_count : 0, nodes, &tree, grid, table, cube, n_cube,
+                                       specular_shadows ? sphere_count : 0, nodes, &spec_tree, grid, table, cube,
+                                       n_cube,
                                        specular_mode, gamma, gamma_levels, gamma_count, gamma_lambda0);
     for (int k = 0; k < lobe_count; ++k) {
         const pn_sg g = pn_sg_load(lobes, k);

@@ -38,10 +38,66 @@ def window(lam: float) -> float:
     return min(HALF_PI, WINDOW_SIGMAS / math.sqrt(max(lam, 1e-30)))
 
 
-def patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid):
+TREE_FANOUT = 8
+
+
+def tree_levels(sphere_count: int) -> list[tuple[int, int]]:
+    """pn_isg_tree_init: (offset in the node array, node count) of tree levels 1 .. top (the host's
+    sphere_tree, penumbra.methods.isg.sphere_tree, stores them one after the other)."""
+    out, n, offset = [], sphere_count, 0
+    while True:
+        offset += out[-1][1] if out else 0
+        n = (n + TREE_FANOUT - 1) // TREE_FANOUT
+        out.append((offset, n))
+        if n <= TREE_FANOUT:
+            return out
+
+
+def _cap_marks(dirs, v, r):
+    """The patches whose centre direction lies in the cap of a sphere at v (from the receiver), radius r."""
+    d = math.sqrt(v @ v)
+    return dirs @ (v / d) >= math.cos(math.asin(min(r / d, 1.0)))
+
+
+SHELL_FLAT, SHELL_OWN_FLAT = 1e-6, 1e-3
+
+
+def triangle_marks(dirs, p, n, tri, own, self_occlusion):
+    """pn_isg_mark_triangle: the patches whose centre direction d hits triangle ``tri`` (3, 3) from p,
+    d = a positive combination of its vertices seen from p, None when the triangle is skipped (wholly
+    behind the receiver plane, own under self_occlusion 0, or |det| <= tol |a||b||c|: degenerate, edge-on
+    from p, or nearly in the receiver's plane; tol SHELL_OWN_FLAT for own triangles under self_occlusion
+    1, else SHELL_FLAT). The cone cull of the kernel drops only triangles that mark nothing."""
+    if own and self_occlusion == 0:
+        return None
+    a, b, c = (np.asarray(v, np.float64) - p for v in tri)
+    if a @ n <= 0 and b @ n <= 0 and c @ n <= 0:
+        return None
+    det = a @ np.cross(b, c)
+    tol = SHELL_OWN_FLAT if own and self_occlusion == 1 else SHELL_FLAT
+    if not abs(det) > tol * np.linalg.norm(a) * np.linalg.norm(b) * np.linalg.norm(c):
+        return None
+    sg = 1.0 if det > 0 else -1.0
+    return ((dirs @ (sg * np.cross(b, c)) >= 0) & (dirs @ (sg * np.cross(c, a)) >= 0)
+            & (dirs @ (sg * np.cross(a, b)) >= 0))
+
+
+def patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, tree=None, shells=None):
     """(mask (grid, grid) bool, inside): the patches whose centre direction
     meets a sphere, as the kernel marks them (inside: the receiver is inside
-    another instance's sphere, or its own with self_occlusion 2)."""
+    another instance's sphere, or its own with self_occlusion 2).
+
+    tree = (nodes, lod): the LOD cut (kernels/isg.cl pn_isg_mark; docs/isg.md
+    section 8). ``spheres`` and ``owners`` are then in the order of
+    penumbra.methods.isg.sphere_tree and ``nodes`` its nodes; walking the tree
+    from the top, a node wholly in front of the receiver plane (c.n >= r from
+    the receiver) whose angular radius is below half the cut's angle
+    (r < d sin(min(lod step / 2, 1.5)), step the patch width) marks its own cap
+    instead of its spheres'. Not with self_occlusion 0, nor with lod 0 (the
+    exact marking).
+
+    shells = (triangles (T, 3, 3), owners): thin-shell triangles, marked
+    after the spheres into the same mask (triangle_marks)."""
     x, y = frame(axis)
     w = window(lam)
     lo, step = HALF_PI - w, 2.0 * w / grid
@@ -49,29 +105,63 @@ def patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid):
     th, ph = np.meshgrid(centres, centres, indexing="ij")
     dirs = (np.sin(th) * np.cos(ph))[..., None] * x + np.cos(th)[..., None] * y + (np.sin(th) * np.sin(ph))[..., None] * axis
     mask = np.zeros((grid, grid), bool)
-    for s, own_id in zip(np.asarray(spheres, np.float64), owners):
+    spheres = np.asarray(spheres, np.float64).reshape(-1, 4)
+    p, n = np.asarray(p, np.float64), np.asarray(n, np.float64)
+
+    def mark_sphere(s, own_id) -> bool:  # True: the receiver is inside an occluder
         v = s[:3] - p
         r = s[3]
-        d2 = v @ v
         if v @ n <= -r:
-            continue
+            return False
         own = own_id == self_id
         if own and self_occlusion == 0:
-            continue
-        if d2 <= (r * (1.0 + TOUCH)) ** 2:
-            if own and self_occlusion == 1:
-                continue
-            return mask, True
-        d = math.sqrt(d2)
-        u = v / d
-        ca = math.cos(math.asin(min(r / d, 1.0)))
-        mask |= dirs @ u >= ca
-    return mask, False
+            return False
+        if v @ v <= (r * (1.0 + TOUCH)) ** 2:
+            return not (own and self_occlusion == 1)
+        mask[...] |= _cap_marks(dirs, v, r)
+        return False
+
+    def mark_shells():
+        for tri, own_id in zip(*(shells if shells is not None else ((), ()))):
+            m = triangle_marks(dirs, p, n, np.asarray(tri, np.float64).reshape(3, 3), own_id == self_id,
+                               self_occlusion)
+            if m is not None:
+                mask[...] |= m
+        return mask, False
+
+    lod = 0.0 if tree is None or self_occlusion == 0 or not len(spheres) else float(tree[1])
+    if lod <= 0.0:
+        for s, own_id in zip(spheres, owners):
+            if mark_sphere(s, own_id):
+                return mask, True
+        return mark_shells()
+    nodes = np.asarray(tree[0], np.float64)
+    levels = tree_levels(len(spheres))
+    sin_lod = math.sin(min(0.5 * lod * step, 1.5))
+
+    def walk(level, i) -> bool:
+        b = nodes[levels[level - 1][0] + i]
+        v = b[:3] - p
+        if v @ n <= -b[3]:  # wholly behind the receiver plane: so are its spheres
+            return False
+        if v @ n >= b[3] and b[3] ** 2 < sin_lod ** 2 * (v @ v):
+            mask[...] |= _cap_marks(dirs, v, b[3])
+            return False
+        if level > 1:
+            return any(walk(level - 1, c) for c in range(TREE_FANOUT * i, min(TREE_FANOUT * (i + 1),
+                                                                              levels[level - 2][1])))
+        return any(mark_sphere(spheres[s], owners[s])
+                   for s in range(TREE_FANOUT * i, min(TREE_FANOUT * (i + 1), len(spheres))))
+
+    if any(walk(len(levels), i) for i in range(levels[-1][1])):
+        return mask, True
+    return mark_shells()
 
 
-def visibility(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid):
-    """V = 1 - sum of occluded patches / window, by the exact ISG."""
-    mask, inside = patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid)
+def visibility(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, tree=None, shells=None):
+    """V = 1 - sum of occluded patches / window, by the exact ISG (tree: patch_mask's LOD cut; shells:
+    its thin-shell triangles)."""
+    mask, inside = patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, tree, shells)
     if inside:
         return 0.0
     if not mask.any():
@@ -245,11 +335,11 @@ def gamma_lookup(levels, tables, d, lam: float) -> np.ndarray:
 
 
 def env_specular(axis, lam, mu, p, n, self_id, self_occlusion, spheres, owners, grid, face_rgb,
-                 gamma=None) -> np.ndarray:
+                 gamma=None, tree=None, shells=None) -> np.ndarray:
     """pn_isg_env_specular with a cube of one texel per face (face_rgb (6, 3)):
     mu H(lam) sum over visible patches of ISG(patch) L(centre) max(n.centre, 0); with gamma = (levels,
     tables) (specular_mode 1) L(centre) is Gamma_L(axis, lam) for every patch."""
-    mask, inside = patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid)
+    mask, inside = patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, tree, shells)
     if inside:
         return np.zeros(3)
     x, y = frame(axis)
@@ -273,11 +363,14 @@ def env_specular(axis, lam, mu, p, n, self_id, self_occlusion, spheres, owners, 
 
 
 def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, grid, self_occlusion=1,
-          specular_shadows=1, env_sharpness=math.inf, face_rgb=None, gamma=None) -> np.ndarray:
+          specular_shadows=1, env_sharpness=math.inf, face_rgb=None, gamma=None, tree=None,
+          shells=None) -> np.ndarray:
     """One pixel of shade_isg. lobes: (K, 7) axis xyz, sharpness, amplitude rgb;
     face_rgb: the env cube as one RGB per face (used by the env specular path,
     for BRDF lobes at least env_sharpness sharp); gamma: (levels, tables) of
-    Gamma_L for specular_mode 1 (None: specular_mode 0)."""
+    Gamma_L for specular_mode 1 (None: specular_mode 0); tree: (nodes, lod) of the LOD cut, the spheres
+    in penumbra.methods.isg.sphere_tree's order (patch_mask); shells: (triangles (T, 3, 3), owners) of
+    the thin shells."""
     p, n = np.asarray(p, np.float64), np.asarray(n, np.float64)
     n = n / np.linalg.norm(n)
     diffuse, specular = np.zeros(3), np.zeros(3)
@@ -289,18 +382,21 @@ def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, g
         env_path = len(sgs) == 1 and b_lam >= env_sharpness
         if env_path:
             specular = env_specular(b_axis, b_lam, b_mu, p, n, self_id, self_occlusion if specular_shadows else 0,
-                                    spheres if specular_shadows else [], owners, grid, face_rgb, gamma)
+                                    spheres if specular_shadows else [], owners, grid, face_rgb, gamma,
+                                    tree if specular_shadows else None, shells if specular_shadows else None)
     for lobe in np.asarray(lobes, np.float64):
         axis, lam, mu = lobe[:3], lobe[3], lobe[4:7]
         e = irradiance(axis, lam, mu, n)
         if (e > 0).any():
             m_axis, m_lam, _ = sg_product(axis, lam, 1.0, n, COS_SHARPNESS, COS_AMPLITUDE)
-            diffuse += e * visibility(m_axis, float(m_lam), p, n, self_id, self_occlusion, spheres, owners, grid)
+            diffuse += e * visibility(m_axis, float(m_lam), p, n, self_id, self_occlusion, spheres, owners, grid,
+                                      tree, shells)
         for b_axis, b_lam, b_mu in (sgs if ks > 0 and not env_path else []):
             g_axis, g_lam, g_mu = sg_product(axis, lam, 1.0, b_axis, b_lam, b_mu)
             s = irradiance(g_axis, float(g_lam), mu * g_mu, n)
             if (s > 0).any():
-                v = visibility(g_axis, float(g_lam), p, n, self_id, self_occlusion, spheres, owners, grid) \
+                v = visibility(g_axis, float(g_lam), p, n, self_id, self_occlusion, spheres, owners, grid, tree,
+                               shells) \
                     if specular_shadows else 1.0
                 specular += s * v
     return np.maximum(np.asarray(albedo, np.float64) / math.pi * diffuse + ks * specular, 0.0)

@@ -57,11 +57,13 @@ FACES = np.array([[1.0, 0.9, 0.8], [0.2, 0.3, 0.4], [3.0, 2.8, 2.5], [0.1, 0.1, 
 
 
 def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=16, self_occlusion=1,
-               specular_shadows=1, camera=(0.0, 3.0, 6.0), env_sharpness=1e30, tree=1, gamma=None):
+               specular_shadows=1, camera=(0.0, 3.0, 6.0), env_sharpness=1e30, tree=1, gamma=None, lod=0.0,
+               triangles=(), triangle_owners=()):
     """pixels: list of dicts p, n, albedo, ks, material (shininess, roughness, lobe), id. tree: 1 the
     spheres through the sphere tree (the method's default), 0 the flat loop over them. gamma: (levels,
     tables) of the prefiltered env (specular_mode 1; penumbra.methods.isg.gamma_levels layout), None:
-    specular_mode 0."""
+    specular_mode 0. lod: the LOD cut (0: off). triangles: thin-shell triangles (T, 3, 3) world space,
+    their owners triangle_owners."""
     ctx, queue = cl_pair
     n = len(pixels)
     f4 = lambda rows: np.ascontiguousarray(np.array(rows, np.float32).reshape(n, 4))  # noqa: E731
@@ -86,11 +88,15 @@ def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=
         gbuf = np.concatenate([np.c_[t, np.zeros(len(t))] for t in tables]).astype(np.float32)
         offsets = np.cumsum([0] + [len(t) for t in tables])[:-1]
         lv = np.array([[o, lev[1]] for o, lev in zip(offsets, levels)], np.int32).ravel()
+    tris = np.zeros((max(len(triangles), 1), 3, 4), np.float32)
+    tris[:len(triangles), :, :3] = np.asarray(triangles, np.float32).reshape(-1, 3, 3)
+    tri_ow = np.zeros(max(len(triangles), 1), np.uint32)
+    tri_ow[:len(triangles)] = np.asarray(triangle_owners, np.uint32)
     out = np.empty((n, 4), np.float32)
     obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
     k = cl.Kernel(build_test_kernel(SOURCE), "shade_isg")
     k(queue, (n,), None, ro(pos), ro(nrm), ro(alb), ro(mat), ro(ids), np.int32(n), ro(cube), np.int32(1),
-      ro(lb), np.int32(len(lobes)), ro(sp), ro(ow), np.int32(len(spheres)), ro(nodes), np.int32(tree), np.int32(grid),
+      ro(lb), np.int32(len(lobes)), ro(sp), ro(ow), np.int32(len(spheres)), ro(nodes), np.int32(tree), np.float32(lod), ro(tris), ro(tri_ow), np.int32(len(triangles)), np.int32(grid),
       np.int32(self_occlusion), np.int32(specular_shadows), np.float32(env_sharpness),
       np.array([*camera, 0.0], np.float32), ro(table32()), np.int32(mode), ro(gbuf), ro(lv), np.int32(count),
       np.float32(lambda0), obuf)
@@ -445,3 +451,323 @@ def test_patch_visibility_converges_to_the_exact_visible_integral(lam):
     exact_cos = visible_exact(axis, lam, 1.0, p, n, spheres) / visible_exact(axis, lam, 1.0, p, n, [])
     assert abs(visibility(m_axis, float(m_lam), p, n, 0, 1, spheres, [1, 1], 24) - exact_cos) < \
         ISG_VISIBILITY_PATCH_ATOL
+
+
+# ---------------------------------------------------------------- the LOD cut (docs/isg.md section 8)
+
+
+def clustered_spheres(clusters=40, seed=11):
+    """Clusters of 8 small spheres (radius 0.03-0.1 within 0.25 of the cluster's
+    centre) spread over a 12 x 12 area up to 3 above the floor, as sphere sets
+    of small objects: their tree nodes are compact, so far ones fall under the
+    LOD cut. Owners 1-3 by cluster."""
+    rng = np.random.default_rng(seed)
+    c = np.c_[rng.uniform(-6, 6, clusters), rng.uniform(0.4, 3.0, clusters), rng.uniform(-6, 6, clusters)]
+    s = np.repeat(c, 8, axis=0) + rng.uniform(-0.25, 0.25, (8 * clusters, 3))
+    return np.c_[s, rng.uniform(0.03, 0.1, 8 * clusters)].tolist(), (1 + np.repeat(np.arange(clusters), 8) % 3).tolist()
+
+
+def lod_pixels(spheres, owners):
+    """Floor receivers among spread spheres, near and far from them, diffuse and
+    specular (sharp: the env path; broad: the lobe products), and receivers on
+    spheres' surfaces (self-occlusion)."""
+    rng = np.random.default_rng(7)
+    px = floor_pixels(ks=0.3, material=(1000.0, 0.3, 0.0), xs=np.linspace(-5.5, 5.5, 6), zs=(-5.0, -1.0, 3.0))
+    px += floor_pixels(ks=0.3, material=(20.0, 0.3, 0.0), xs=np.linspace(-5.0, 5.0, 4), zs=(0.5, 5.5))
+    for s, o in list(zip(spheres, owners))[:6]:
+        d = unit(rng.normal(size=3) + [0.0, 1.0, 0.0])
+        px.append({"p": tuple(np.array(s[:3]) + s[3] * d), "n": tuple(d), "albedo": (0.6, 0.6, 0.6), "ks": 0.2,
+                   "material": (200.0, 0.3, 0.0), "id": o})
+    return px
+
+
+@pytest.mark.parametrize("lod", [1.0, 3.0])
+def test_lod_cut_matches_twin(cl_pair, build_test_kernel, lod):
+    """The kernel's LOD cut (a small node marks with its bounding sphere) against
+    the twin's tree walk (isg_shading64.patch_mask with tree), which is not the
+    exact marking: the cut changes the twin's image."""
+    spheres, owners = clustered_spheres()
+    sp, ow, nodes = sphere_tree(spheres, owners)
+    px = lod_pixels(spheres, owners)
+    args = dict(camera=(0.5, 4.0, 8.0), env_sharpness=100.0)
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, sp.tolist(), ow.tolist(), lod=lod, **args)
+    want = np.array([shade(q["p"], q["n"], q["albedo"], q["ks"], q["material"], args["camera"], q["id"], LOBES,
+                           sp, ow, 16, 1, 1, 100.0, FACES, None, (nodes, lod)) for q in px])
+    check(got, want)
+    exact = twin(px, LOBES, sp, ow, **args)
+    assert np.abs(want - exact).max() > 1e-3 * exact.max()  # the cut took nodes for spheres
+
+
+def test_lod_zero_is_the_exact_walk(cl_pair, build_test_kernel):
+    """lod 0 is today's image bit for bit (the flat loop's); so is any lod with
+    self_occlusion 0 (the cut is off there) or without the tree."""
+    spheres, owners = clustered_spheres()
+    px = lod_pixels(spheres, owners)
+    for policy in (0, 1, 2):
+        args = dict(self_occlusion=policy, camera=(0.5, 4.0, 8.0), env_sharpness=100.0)
+        flat = run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, owners, tree=0, **args)
+        np.testing.assert_array_equal(run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, owners, lod=0.0,
+                                                 **args), flat)
+        np.testing.assert_array_equal(run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, owners, tree=0,
+                                                 lod=2.0, **args), flat)
+        cut = run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, owners, lod=2.0, **args)
+        assert (cut == flat).all() if policy == 0 else (cut != flat).any()
+
+
+LOD_MARK_SOURCE = MARK_SOURCE.replace("kernel void mark_test(", "kernel void mark_lod_test(float lod, ").replace(
+    "pn_isg_tree_init(sphere_count, 1, &tree);", "pn_isg_tree_init(sphere_count, 1, &tree);\n    tree.lod = lod;")
+
+
+@pytest.mark.parametrize("lod", [0.5, 1.0, 3.0])
+def test_lod_cut_marks_match_twin(cl_pair, build_test_kernel, lod):
+    """The LOD cut's patch marks, patch by patch, against the twin's tree walk
+    (patch_mask with tree): random receivers among clustered spheres, lobes from
+    broad to lambda = 300. Excepted: patches within 1e-5 of a sphere's or node's
+    cap edge, and cases where a node's angular size is within 1e-5 of the cut
+    (float32 and float64 may decide it apart). The cut marks a superset of the
+    exact marks (a node's cap holds its spheres' caps), and more in some cases."""
+    from isg_shading64 import HALF_PI, frame, patch_mask, tree_levels, window
+
+    ctx, queue = cl_pair
+    rng = np.random.default_rng(300)
+    spheres, owners = clustered_spheres()
+    sp, ow, nodes = sphere_tree(spheres, owners)
+    lams = (0.5, 3.0, 30.0, 300.0)
+    axes = np.array([[*unit(rng.normal(size=3) + [0.0, 1.5, 0.0]), lam] for lam in lams], np.float32)
+    pos = np.c_[rng.uniform(-6, 6, 32), np.zeros(32), rng.uniform(-6, 6, 32)]
+    nrm = np.array([unit([*rng.normal(scale=0.3, size=1), 1.0, *rng.normal(scale=0.3, size=1)]) for _ in range(32)])
+    ids = np.zeros(32, np.uint32)
+    mf = cl.mem_flags
+    ro = lambda a: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))  # noqa: E731
+    f4 = lambda a: np.c_[a, np.zeros(len(a))].astype(np.float32)  # noqa: E731
+    cases = len(pos) * len(lams)
+    out = np.empty((cases, 25), np.uint32)
+    obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
+    k = cl.Kernel(build_test_kernel(LOD_MARK_SOURCE), "mark_lod_test")
+    k(queue, (cases,), None, np.float32(lod), ro(f4(pos)), ro(f4(nrm)), ro(ids), ro(axes), np.int32(len(lams)),
+      ro(sp), ro(ow), np.int32(len(sp)), ro(nodes), np.int32(16), np.int32(1), obuf)
+    cl.enqueue_copy(queue, out, obuf)
+    bits = ((out[:, :16, None] >> np.arange(16, dtype=np.uint32)) & 1).astype(bool)
+    spd, nd = sp.astype(np.float64), nodes.astype(np.float64)
+    compared = extra = skipped = 0
+    for case in range(cases):
+        q, li = divmod(case, len(lams))
+        axis, lam = axes[li, :3].astype(np.float64), float(axes[li, 3])
+        w = window(lam)
+        sin_lod = math.sin(min(0.5 * lod * 2.0 * w / 16, 1.5))
+        v = nd[:, :3] - pos[q]
+        d = np.linalg.norm(v, axis=1)
+        if (np.abs(nd[:, 3] / d - sin_lod) < 1e-5).any() or (np.abs(v @ nrm[q] - nd[:, 3]) < 1e-5 * d).any():
+            skipped += 1
+            continue
+        want, inside = patch_mask(axis, lam, pos[q], nrm[q], 0, 1, spd, ow, 16, (nodes, lod))
+        exact, _ = patch_mask(axis, lam, pos[q], nrm[q], 0, 1, spd, ow, 16)
+        assert not inside and int(out[case, 24]) != 0xFFFFFFFF
+        x, y = frame(axis)
+        cen = HALF_PI - w + (np.arange(16) + 0.5) * (2.0 * w / 16)
+        th, ph = np.meshgrid(cen, cen, indexing="ij")
+        dirs = (np.sin(th) * np.cos(ph))[..., None] * x + np.cos(th)[..., None] * y + \
+            (np.sin(th) * np.sin(ph))[..., None] * axis
+        edge = np.zeros((16, 16), bool)
+        for b in np.r_[spd, nd]:
+            vb = b[:3] - pos[q]
+            db = np.linalg.norm(vb)
+            edge |= np.abs(dirs @ (vb / db) - math.sqrt(max(1.0 - (b[3] / db) ** 2, 0.0))) < 1e-5
+        assert (bits[case] == want)[~edge].all(), (case, np.argwhere((bits[case] != want) & ~edge))
+        assert (want | ~exact).all()  # a superset of the exact marks
+        compared += 1
+        extra += int((want & ~exact).sum())
+    assert compared > cases * 3 // 4 and extra > 0, (compared, skipped, extra)
+    assert len(tree_levels(len(sp))) == 2
+
+
+# ---------------------------------------------------------------- thin shells (docs/isg.md section 8)
+
+
+SHELL_MARK_SOURCE = """#include "isg.cl"
+kernel void mark_shell_test(global const float4 *position, global const float4 *normal, global const uint *ids,
+                            global const float4 *axis, int lobe_count, global const float4 *tris,
+                            global const uint *tri_owners, int tri_count, int grid, int self_occlusion,
+                            global uint *out)
+{
+    const int gid = get_global_id(0), q = gid / lobe_count;
+    pn_sg g;
+    g.axis = axis[gid % lobe_count].xyz, g.sharpness = axis[gid % lobe_count].w, g.amplitude = (float3)(1.0f);
+    pn_isg_grid pg;
+    pn_isg_grid_init(g, grid, &pg);
+    pn_isg_tree tree;
+    pn_isg_tree_init(0, 1, &tree);
+    tree.tris = tris, tree.tri_owners = tri_owners, tree.tri_count = tri_count;
+    uint mask[PN_ISG_MAX_GRID];
+    const int m = pn_isg_mark(&pg, position[q].xyz, normal[q].xyz, ids[q], self_occlusion, tris, tri_owners, 0,
+                              tris, &tree, mask);
+    for (int i = 0; i < PN_ISG_MAX_GRID; ++i)
+        out[gid * (PN_ISG_MAX_GRID + 1) + i] = mask[i];
+    out[gid * (PN_ISG_MAX_GRID + 1) + PN_ISG_MAX_GRID] = (uint)m;
+}
+"""
+
+
+def hard_triangles(rng, count=60):
+    """Random triangles around the origin, of sizes 0.02-2, plus the hard cases: ones
+    crossing the plane y = 0 (the receivers' plane, roughly), edge-on ones (their
+    plane through the origin), degenerate ones (collinear and coincident vertices)."""
+    c = rng.uniform(-2.5, 2.5, (count, 3)) + [0.0, 1.0, 0.0]
+    tris = c[:, None, :] + rng.normal(size=(count, 3, 3)) * np.exp(rng.uniform(np.log(0.02), np.log(1.0),
+                                                                              (count, 1, 1)))
+    crossing = np.array([[[-0.5, -0.4, 0.8], [0.6, 0.5, 0.9], [0.0, 0.6, 1.4]],
+                         [[1.0, -1.0, -0.2], [1.2, 1.5, 0.1], [0.7, 1.0, -0.6]]])
+    edge_on = np.array([[[0.5, 0.5, 0.0], [1.0, 1.0, 0.0], [0.3, 1.2, 0.0]]])  # plane z = 0 holds the origin
+    degenerate = np.array([[[0.0, 1.0, 0.0], [0.5, 1.2, 0.1], [1.0, 1.4, 0.2]],   # collinear
+                           [[0.2, 0.8, 0.2], [0.2, 0.8, 0.2], [0.6, 1.0, 0.1]]])  # two vertices equal
+    return np.concatenate([tris, crossing, edge_on, degenerate])
+
+
+def ray_hits(dirs, p, tri):
+    """Exact float64 ray-triangle hits (t > 0) of rays p + t d, Moller-Trumbore."""
+    a, b, c = (np.asarray(v, np.float64) for v in tri)
+    e1, e2 = b - a, c - a
+    h = np.cross(dirs, e2)
+    det = h @ e1
+    ok = np.abs(det) > 1e-300
+    f = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    s = p - a
+    u = f * (h @ s)
+    qv = np.cross(s, e1)
+    v = f * (dirs @ qv)
+    t = f * (qv @ e2)
+    return ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+
+
+@pytest.mark.parametrize("grid", [5, 16, 24])
+def test_thin_shell_marks_match_twin_and_ray_hits(cl_pair, build_test_kernel, grid):
+    """The kernel's triangle marks (pn_isg_mark_triangle, 16 columns per test) are the
+    twin's patch by patch, and the twin's are the exact ray-triangle hits from the
+    receiver through the patch centres for every triangle it does not skip
+    (patches within 1e-5 of a triangle's edge plane excepted). Hard cases: triangles
+    crossing the receiver plane, edge-on, degenerate (skipped), own triangles under
+    each policy."""
+    from isg_shading64 import HALF_PI, frame, patch_mask, triangle_marks, window
+
+    ctx, queue = cl_pair
+    rng = np.random.default_rng(400 + grid)
+    tris = hard_triangles(rng)
+    tri_ow = rng.integers(1, 4, len(tris)).astype(np.uint32)
+    lams = (0.5, 3.0, 30.0, 300.0)
+    axes = np.array([[*unit(rng.normal(size=3) + [0.0, 1.0, 0.0]), lam] for lam in lams], np.float32)
+    pos = np.r_[np.zeros((1, 3)), rng.uniform(-1.5, 1.5, (15, 3)) * [1.0, 0.3, 1.0]]
+    nrm = np.array([[0.0, 1.0, 0.0]] + [unit(rng.normal(size=3) + [0.0, 1.0, 0.0]) for _ in range(15)])
+    ids = rng.integers(0, 4, len(pos)).astype(np.uint32)
+    mf = cl.mem_flags
+    ro = lambda a: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))  # noqa: E731
+    f4 = lambda a: np.c_[a, np.zeros(len(a))].astype(np.float32)  # noqa: E731
+    t4 = np.zeros((len(tris), 3, 4), np.float32)
+    t4[..., :3] = tris
+    tris32 = t4[..., :3].astype(np.float64)  # what the kernel sees
+    cases = len(pos) * len(lams)
+    checked = hits = 0
+    for policy in (0, 1, 2):
+        out = np.empty((cases, 25), np.uint32)
+        obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
+        k = cl.Kernel(build_test_kernel(SHELL_MARK_SOURCE), "mark_shell_test")
+        k(queue, (cases,), None, ro(f4(pos)), ro(f4(nrm)), ro(ids), ro(axes), np.int32(len(lams)), ro(t4),
+          ro(tri_ow), np.int32(len(tris)), np.int32(grid), np.int32(policy), obuf)
+        cl.enqueue_copy(queue, out, obuf)
+        bits = ((out[:, :grid, None] >> np.arange(grid, dtype=np.uint32)) & 1).astype(bool)
+        for case in range(cases):
+            q, li = divmod(case, len(lams))
+            axis, lam = axes[li, :3].astype(np.float64), float(axes[li, 3])
+            want, inside = patch_mask(axis, lam, pos[q], nrm[q], int(ids[q]), policy, [], [], grid,
+                                      shells=(tris32, tri_ow))
+            assert not inside and int(out[case, 24]) != 0xFFFFFFFF
+            x, y = frame(axis)
+            w = window(lam)
+            cen = HALF_PI - w + (np.arange(grid) + 0.5) * (2.0 * w / grid)
+            th, ph = np.meshgrid(cen, cen, indexing="ij")
+            dirs = (np.sin(th) * np.cos(ph))[..., None] * x + np.cos(th)[..., None] * y + \
+                (np.sin(th) * np.sin(ph))[..., None] * axis
+            edge = np.zeros((grid, grid), bool)
+            for tri, o in zip(tris32, tri_ow):
+                a, b, c = tri - pos[q]
+                for e in (np.cross(b, c), np.cross(c, a), np.cross(a, b)):
+                    ne = np.linalg.norm(e)
+                    if ne > 0:
+                        edge |= np.abs(dirs @ (e / ne)) < 1e-5
+                m = triangle_marks(dirs, pos[q], nrm[q], tri, o == ids[q], policy)
+                if m is not None:  # the twin's marks are the exact ray hits
+                    assert (m == ray_hits(dirs.reshape(-1, 3), pos[q], tri).reshape(grid, grid))[~edge].all()
+                    hits += int(m.sum())
+            assert (bits[case] == want)[~edge].all(), (policy, case, np.argwhere((bits[case] != want) & ~edge))
+            checked += int((~edge).sum())
+    assert hits > 20 * grid and checked > 0.9 * 3 * cases * grid * grid
+
+
+def test_thin_shell_hard_cases_in_the_twin():
+    """Degenerate triangles and edge-on ones (plane through the receiver) mark nothing;
+    a triangle crossing the receiver plane marks only directions that hit it; the
+    receiver on a flat sheet of its own instance is not shadowed by it (policy 1)."""
+    from isg_shading64 import HALF_PI, frame, patch_mask, triangle_marks, window
+
+    p, n = np.zeros(3), np.array([0.0, 1.0, 0.0])
+    axis = unit([0.2, 1.0, 0.1])
+    x, y = frame(axis)
+    w = window(2.0)
+    cen = HALF_PI - w + (np.arange(16) + 0.5) * (2.0 * w / 16)
+    th, ph = np.meshgrid(cen, cen, indexing="ij")
+    dirs = (np.sin(th) * np.cos(ph))[..., None] * x + np.cos(th)[..., None] * y + \
+        (np.sin(th) * np.sin(ph))[..., None] * axis
+    assert triangle_marks(dirs, p, n, np.array([[0, 1, 0], [0.5, 1.2, 0.1], [1.0, 1.4, 0.2]]), False, 1) is None
+    assert triangle_marks(dirs, p, n, np.array([[0.5, 0.5, 0], [1, 1, 0], [0.3, 1.2, 0]]), False, 1) is None
+    crossing = np.array([[-1.0, -0.5, 0.3], [1.0, -0.5, 0.3], [0.0, 2.0, 0.3]])
+    m = triangle_marks(dirs, p, n, crossing, False, 1)
+    assert m.any() and (m == ray_hits(dirs.reshape(-1, 3), p, crossing).reshape(16, 16)).all()
+    sheet = np.array([[[-3, 0, -3], [3, 0, -3], [3, 0, 3]], [[-3, 0, -3], [3, 0, 3], [-3, 0, 3]]], np.float64)
+    q = np.array([0.4, 0.0, -0.2])
+    for policy in (0, 1):
+        mask, _ = patch_mask(axis, 2.0, q, n, 5, policy, [], [], 16, shells=(sheet, [5, 5]))
+        assert not mask.any()
+
+
+def draped_sheet(n=8, half=1.0):
+    """bench/isg_shells.py's draped sheet at n x n quads: (T, 3, 3) triangles."""
+    t = np.linspace(-half, half, n + 1)
+    x, z = np.meshgrid(t, t, indexing="ij")
+    v = np.stack([x, 1.3 - 0.25 * (x * x + z * z) / (half * half), z], -1)
+    tris = []
+    for i in range(n):
+        for j in range(n):
+            tris += [[v[i, j], v[i + 1, j + 1], v[i + 1, j]], [v[i, j], v[i, j + 1], v[i + 1, j + 1]]]
+    return np.array(tris)
+
+
+@pytest.mark.parametrize("policy", [0, 1, 2])
+def test_thin_shell_shading_matches_twin(cl_pair, build_test_kernel, policy):
+    """Shaded pixels under a draped sheet (triangles of instance 7) and spheres, one
+    of them overlapping the sheet (a patch covered by both counts once), against the
+    twin (shade with shells): floor receivers, diffuse and specular (both paths), and
+    receivers on the sheet itself (instance 7, normals up and down) under each
+    self-occlusion policy. The sheet darkens the floor; a doubled sheet gives the
+    same image (overlaps count once)."""
+    tris = draped_sheet()
+    owners = np.full(len(tris), 7)
+    spheres, sph_owners = [[0.5, 1.25, 0.2, 0.3], [1.8, 0.5, 0.0, 0.3]], [1, 2]
+    px = floor_pixels(ks=0.3, material=(1000.0, 0.3, 0.0), xs=np.linspace(-1.5, 2.0, 6), zs=(-0.5, 0.4))
+    px += floor_pixels(ks=0.3, material=(30.0, 0.3, 0.0), xs=np.linspace(-1.0, 1.0, 3), zs=(0.0,))
+    for x, z, up in ((0.1, 0.2, 1), (-0.6, 0.5, 1), (0.3, -0.4, -1), (0.8, 0.8, 1)):
+        y = 1.3 - 0.25 * (x * x + z * z)
+        nrm = unit([0.5 * x, 1.0, 0.5 * z]) * up
+        px.append({"p": (x, y, z), "n": tuple(nrm), "albedo": (0.6, 0.6, 0.6), "ks": 0.0, "material": (0, 0.3, 0),
+                   "id": 7})
+    args = dict(self_occlusion=policy, camera=(0.5, 4.0, 5.0), env_sharpness=100.0)
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, sph_owners, triangles=tris,
+                     triangle_owners=owners, **args)
+    tris32 = tris.astype(np.float32).astype(np.float64)
+    want = np.array([shade(q["p"], q["n"], q["albedo"], q["ks"], q["material"], args["camera"], q["id"], LOBES,
+                           spheres, sph_owners, 16, policy, 1, 100.0, FACES, None, None, (tris32, owners))
+                     for q in px])
+    check(got, want)
+    free = run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, sph_owners, **args)
+    assert (got[:16, :3] < 0.7 * free[:16, :3]).any()  # the sheet shadows the floor
+    doubled = run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, sph_owners, triangles=np.r_[tris, tris],
+                         triangle_owners=np.r_[owners, owners], **args)
+    np.testing.assert_array_equal(doubled, got)

@@ -617,6 +617,14 @@ PN_API pn_status pn_heightfield_build_mesh(pn_heightfield hf, pn_mesh *out);
  * first); such a set attaches to any instance. */
 PN_API pn_status pn_sphere_set_build(pn_mesh mesh, uint32_t count, pn_sphere_set *out);
 PN_API pn_status pn_sphere_set_create(pn_context ctx, const float *spheres, uint32_t count, pn_sphere_set *out);
+/* A thin shell (cloth, leaves, open meshes; docs/isg.md section 8): a set of
+ * no spheres that, attached to an instance, makes the isg method project
+ * that instance's triangles (world space, read from its mesh at every
+ * execute, so a deformed mesh needs nothing more) into each lobe's patch
+ * grid. At most 4096 triangles per shell instance (more is
+ * PN_ERROR_INVALID_SIZE at execute). Attaches to any instance; deform is a
+ * no-op. */
+PN_API pn_status pn_sphere_set_create_shell(pn_context ctx, pn_sphere_set *out);
 PN_API pn_status pn_sphere_set_retain(pn_sphere_set set);
 PN_API pn_status pn_sphere_set_release(pn_sphere_set set);
 

@@ -973,6 +973,14 @@ pn_status pn_sphere_set_create(pn_context ctx, const float *spheres, uint32_t co
     RETURN_HANDLE(pn_sphere_set_do_create(ctx, spheres, count, out), out);
 }
 
+pn_status pn_sphere_set_create_shell(pn_context ctx, pn_sphere_set *out)
+{
+    ENTER(ctx, PN_MAGIC_CONTEXT, "context");
+    CHECK_PTR(ctx, out);
+    *out = NULL;
+    RETURN_HANDLE(pn_sphere_set_do_create_shell(ctx, out), out);
+}
+
 pn_status pn_sphere_set_retain(pn_sphere_set set)
 {
     ENTER(set, PN_MAGIC_SPHERES, "sphere set");

@@ -239,6 +239,7 @@ _SIGNATURES = {
     "pn_heightfield_commit": [_H],
     "pn_heightfield_build_mesh": [_H, _OUT],
     "pn_sphere_set_build": [_H, _u32, _OUT], "pn_sphere_set_create": [_H, _P, _u32, _OUT],
+    "pn_sphere_set_create_shell": [_H, _OUT],
     "pn_sphere_set_release": [_H], "pn_sphere_set_get_info": [_H, ctypes.POINTER(SphereSetInfo)],
     "pn_sphere_set_read": [_H, _P, _size], "pn_sphere_set_deform": [_H, _H],
 }

@@ -3034,6 +3034,27 @@ static void test_isg(pn_context ctx)
                 expect_ok("attach the caller's set", pn_scene_attach(r.scene, r.instance, mine), ctx) &&
                 expect_ok("commit", pn_scene_commit(r.scene), ctx))
                 expect_ok("render with the caller's set", rig_render_with(&r, isg), ctx);
+            /* A thin shell: no spheres, the instance's own triangles; with the LOD cut on. */
+            pn_sphere_set shell = (pn_sphere_set)(uintptr_t)1;
+            expect_error("NULL context: pn_sphere_set_create_shell", pn_sphere_set_create_shell(NULL, &shell),
+                         PN_ERROR_NULL_HANDLE, NULL, "pn_sphere_set_create_shell", NULL);
+            expect_error("pn_sphere_set_create_shell(out = NULL)", pn_sphere_set_create_shell(ctx, NULL),
+                         PN_ERROR_INVALID_ARGUMENT, ctx, "out", NULL);
+            shell = NULL;
+            if (expect_ok("pn_sphere_set_create_shell", pn_sphere_set_create_shell(ctx, &shell), ctx) &&
+                expect_ok("its info", pn_sphere_set_get_info(shell, &info), ctx)) {
+                CHECK("a shell holds no spheres", info.count == 0 && info.mesh_hash == 0);
+                float none[4];
+                expect_ok("reading a shell's 0 spheres", pn_sphere_set_read(shell, none, 0), ctx);
+                expect_ok("deform is a no-op on a shell", pn_sphere_set_deform(shell, r.mesh), ctx);
+                pn_renderer_set_float(isg, "lod", 4.0f);
+                pn_renderer_commit(isg);
+                if (expect_ok("attach the shell", pn_scene_attach(r.scene, r.instance, shell), ctx) &&
+                    expect_ok("commit", pn_scene_commit(r.scene), ctx))
+                    expect_ok("render with the shell", rig_render_with(&r, isg), ctx);
+            }
+            if (shell)
+                pn_sphere_set_release(shell);
         }
     }
     if (isg)

@@ -88,6 +88,9 @@ struct pn_sphere_set_impl {
     float mesh_volume;        /* of the solid, on the build grid */
     float outside_share, missed_share; /* union outside / solid missed, shares of mesh_volume (NaN: caller's) */
     double build_seconds;
+    /* A thin shell (pn_sphere_set_create_shell): no spheres; the isg method
+     * projects the triangles of the instance it is attached to. */
+    bool shell;
     /* Deformation (built sets): each centre is the fixed combination
      * sum w_j v[id_j] of PN_SPHERE_ANCHORS mesh vertices; its radius scales
      * with their mean distance from the centre (rest_spread at build). */
@@ -100,6 +103,7 @@ struct pn_sphere_set_impl {
 
 pn_status pn_sphere_set_do_build(pn_mesh mesh, uint32_t count, pn_sphere_set *out);
 pn_status pn_sphere_set_do_create(pn_context ctx, const float *spheres, uint32_t count, pn_sphere_set *out);
+pn_status pn_sphere_set_do_create_shell(pn_context ctx, pn_sphere_set *out);
 void pn_sphere_set_fill_info(pn_sphere_set set, pn_sphere_set_info *info);
 pn_status pn_sphere_set_do_read(pn_sphere_set set, float *host, size_t bytes);
 pn_status pn_sphere_set_do_deform(pn_sphere_set set, pn_mesh mesh);

@@ -93,6 +93,15 @@ pn_status pn_sphere_set_do_create(pn_context ctx, const float *spheres, uint32_t
     return new_set(ctx, spheres, count, out);
 }
 
+pn_status pn_sphere_set_do_create_shell(pn_context ctx, pn_sphere_set *out)
+{
+    const float none[4] = {0.0f, 0.0f, 0.0f, 1.0f}; /* new_set copies one sphere's room; count 0 */
+    pn_status st = new_set(ctx, none, 1, out);
+    if (!st)
+        (*out)->count = 0, (*out)->shell = true;
+    return st;
+}
+
 void pn_sphere_set_fill_info(pn_sphere_set s, pn_sphere_set_info *info)
 {
     memset(info, 0, sizeof *info);
@@ -591,6 +600,8 @@ static pn_status make_anchors(pn_context ctx, pn_sphere_set s, pn_mesh mesh)
 pn_status pn_sphere_set_do_deform(pn_sphere_set s, pn_mesh mesh)
 {
     pn_context ctx = s->obj.ctx;
+    if (s->shell) /* a shell's triangles are its instance's mesh: they follow it already */
+        return PN_SUCCESS;
     if (!s->anchor_ids)
         return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
                        "pn_sphere_set_deform: the set was not built from a mesh (or its mesh has fewer than %d "

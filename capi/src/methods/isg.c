@@ -21,7 +21,8 @@ enum {
     P_SPECULAR_SHADOWS,
     P_ENV_SHARPNESS,
     P_SPHERE_TREE,
-    P_SPECULAR_MODE
+    P_SPECULAR_MODE,
+    P_LOD
 };
 
 static const pn_param_desc params[] = {
@@ -45,6 +46,10 @@ static const pn_param_desc params[] = {
      "Light of the sharp BRDF lobes (env_sharpness): 1 the prefiltered env Gamma_L at the lobe's axis times "
      "the visible share of its patches (seed eq. 10; built at plan when the env map changes), 0 the env cube "
      "at each visible patch."},
+    {"lod", PN_PARAM_FLOAT, PN_PARAM_FRAME, 0, 0, 16, "patch steps",
+     "LOD cut of the sphere tree: a node wholly in front of the receiver whose bounding sphere subtends less "
+     "than lod patch steps of a lobe's window occludes with that sphere instead of its spheres (0: off, the "
+     "exact walk; needs sphere_tree 1 and self_occlusion 1 or 2; docs/isg.md section 8)."},
 };
 
 static const pn_param_desc bake_params[] = {
@@ -62,6 +67,10 @@ typedef struct state {
     uint32_t *scratch;        /* host: Morton keys and order, sorted spheres (sphere_tree) */
     size_t capacity, device_capacity, node_capacity, device_node_capacity;
     cl_mem device_spheres, device_owners, device_nodes;
+    float *tris;              /* host: thin-shell triangles, 3 world-space float4 vertices each */
+    uint32_t *tri_owners;     /* host: instance id per triangle */
+    size_t tri_capacity, device_tri_capacity;
+    cl_mem device_tris, device_tri_owners;
 } state;
 
 static bool is_sphere_set(const pn_attachment *a)
@@ -312,6 +321,61 @@ static pn_status gather_spheres(pn_renderer r, pn_scene scene, uint32_t *count_o
     return PN_SUCCESS;
 }
 
+/* Thin shells (pn_sphere_set_create_shell; kernels/isg.cl
+ * pn_isg_mark_triangle): every triangle of each instance with a shell
+ * attached, in world space, the kernel tests all of them per lobe (culled by
+ * the receiver plane and the window's cone), hence the bound per instance. */
+enum { SHELL_MAX_TRIANGLES = 4096 };
+
+static pn_status gather_triangles(pn_renderer r, pn_scene scene, uint32_t *count_out)
+{
+    state *s = r->state;
+    pn_context ctx = r->obj.ctx;
+    size_t total = 0;
+    for (uint32_t ai = 0; ai < scene->attachment_count; ++ai) {
+        const pn_attachment *a = &scene->attachments[ai];
+        if (!is_sphere_set(a) || !((pn_sphere_set)a->asset)->shell)
+            continue;
+        const pn_mesh mesh = pn_scene_instance(scene, a->instance)->mesh;
+        if (mesh->triangle_count > SHELL_MAX_TRIANGLES)
+            return pn_fail(ctx, PN_ERROR_INVALID_SIZE,
+                           "instance %u is a thin shell of %u triangles, more than the %d the isg method projects "
+                           "per shell: simplify its mesh or give it a sphere set",
+                           a->instance, mesh->triangle_count, SHELL_MAX_TRIANGLES);
+        total += mesh->triangle_count;
+    }
+    if (total > s->tri_capacity) {
+        free(s->tris), free(s->tri_owners);
+        s->tri_capacity = 0;
+        s->tris = pn_malloc(ctx, pn_mul_size(total, 12, sizeof(float)), "the thin shells' triangles");
+        s->tri_owners = pn_malloc(ctx, pn_mul_size(total, 1, sizeof(uint32_t)), "the thin shells' owners");
+        if (!s->tris || !s->tri_owners)
+            return PN_ERROR_OUT_OF_MEMORY;
+        s->tri_capacity = total;
+    }
+    uint32_t n = 0;
+    for (uint32_t ai = 0; ai < scene->attachment_count; ++ai) {
+        const pn_attachment *a = &scene->attachments[ai];
+        if (!is_sphere_set(a) || !((pn_sphere_set)a->asset)->shell)
+            continue;
+        const pn_instance *inst = pn_scene_instance(scene, a->instance);
+        const pn_mesh mesh = inst->mesh;
+        const float *m = inst->object_to_world;
+        for (uint32_t t = 0; t < mesh->triangle_count; ++t, ++n) {
+            for (int k = 0; k < 3; ++k) {
+                const float *v = mesh->positions + 3 * (size_t)mesh->indices[3 * (size_t)t + k];
+                float *o = s->tris + 12 * (size_t)n + 4 * k;
+                for (int row = 0; row < 3; ++row)
+                    o[row] = m[4 * row] * v[0] + m[4 * row + 1] * v[1] + m[4 * row + 2] * v[2] + m[4 * row + 3];
+                o[3] = 0.0f;
+            }
+            s->tri_owners[n] = a->instance;
+        }
+    }
+    *count_out = n;
+    return PN_SUCCESS;
+}
+
 enum { TREE_FANOUT = 8 };
 
 /* Nodes of the sphere tree over n > 0 spheres: levels of ceil(previous / 8)
@@ -451,6 +515,7 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
         (st = gather_spheres(r, scene, &sphere_count)))
         return st;
     const cl_int use_tree = (cl_int)r->params[P_SPHERE_TREE];
+    const cl_float lod = (cl_float)r->params[P_LOD];
     size_t node_count = 0;
     if (use_tree && (st = sphere_tree(r, sphere_count, &node_count)))
         return st;
@@ -464,6 +529,27 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     }
     if (node_count && (st = pn_upload_async(ctx, s->device_nodes, s->nodes, node_count * 16, "uploading the sphere tree")))
         return st;
+    uint32_t tri_count = 0;
+    if ((st = gather_triangles(r, scene, &tri_count)))
+        return st;
+    const size_t tri_need = tri_count ? tri_count : 1;
+    if (tri_need > s->device_tri_capacity) {
+        pn_mem_release(&s->device_tris);
+        pn_mem_release(&s->device_tri_owners);
+        s->device_tri_capacity = 0;
+        if ((st = pn_alloc(ctx, tri_need * 48, CL_MEM_READ_ONLY, NULL, &s->device_tris,
+                           "the thin shells' triangles")) ||
+            (st = pn_alloc(ctx, tri_need * 4, CL_MEM_READ_ONLY, NULL, &s->device_tri_owners,
+                           "the thin shells' owners")))
+            return st;
+        s->device_tri_capacity = tri_need;
+    }
+    if (tri_count &&
+        ((st = pn_upload_async(ctx, s->device_tris, s->tris, (size_t)tri_count * 48, "uploading thin shells")) ||
+         (st = pn_upload_async(ctx, s->device_tri_owners, s->tri_owners, (size_t)tri_count * 4,
+                               "uploading thin shells' owners"))))
+        return st;
+    const cl_int triangles = (cl_int)tri_count;
     const size_t need = sphere_count ? sphere_count : 1;
     if (need > s->device_capacity) {
         pn_mem_release(&s->device_spheres);
@@ -493,16 +579,17 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const cl_mem gamma = g ? g->gamma : s->lobes, gamma_levels = g ? g->levels : s->lobes;
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count,
                       sizeof(cl_mem), sizeof n, sizeof(cl_mem), sizeof lobes, sizeof(cl_mem),
-                      sizeof(cl_mem), sizeof spheres, sizeof(cl_mem), sizeof use_tree, sizeof grid, sizeof self, sizeof spec, sizeof env_sharpness, sizeof camera,
+                      sizeof(cl_mem), sizeof spheres, sizeof(cl_mem), sizeof use_tree, sizeof lod, sizeof(cl_mem), sizeof(cl_mem), sizeof triangles, sizeof grid, sizeof self, sizeof spec, sizeof env_sharpness, sizeof camera,
                       sizeof(cl_mem), sizeof mode, sizeof(cl_mem), sizeof(cl_mem), sizeof gamma_count, sizeof lambda0,
                       sizeof(cl_mem)};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->cube, &n, &s->lobes, &lobes,
-                          &s->device_spheres, &s->device_owners, &spheres, &s->device_nodes, &use_tree, &grid, &self,
+                          &s->device_spheres, &s->device_owners, &spheres, &s->device_nodes, &use_tree, &lod, &s->device_tris, &s->device_tri_owners,
+                          &triangles, &grid, &self,
                           &spec, &env_sharpness, &camera, &table, &mode, &gamma, &gamma_levels, &gamma_count,
                           &lambda0, &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_isg", 27, sizes, vals)))
+    if ((st = pn_set_args(ctx, k, "shade_isg", 31, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_isg", (size_t)count, 64);
 }
@@ -514,6 +601,10 @@ static void destroy(pn_renderer r)
     pn_mem_release(&s->device_spheres);
     pn_mem_release(&s->device_owners);
     pn_mem_release(&s->device_nodes);
+    pn_mem_release(&s->device_tris);
+    pn_mem_release(&s->device_tri_owners);
+    free(s->tris);
+    free(s->tri_owners);
     free(s->spheres);
     free(s->owners);
     free(s->nodes);

@@ -55,6 +55,15 @@ class SphereSet(_Handle):
         call("pn_sphere_set_create", ctx._h, ctx._h, a.ctypes.data if len(a) else None, len(a), ctypes.byref(out))
         return cls(ctx, out)
 
+    @classmethod
+    def shell(cls, ctx: Context) -> "SphereSet":
+        """A thin shell (pn_sphere_set_create_shell): no spheres; attached to an
+        instance, the isg method projects that instance's triangles (at most
+        4096) into each lobe's patch grid (docs/isg.md section 8)."""
+        out = ctypes.c_void_p()
+        call("pn_sphere_set_create_shell", ctx._h, ctx._h, ctypes.byref(out))
+        return cls(ctx, out)
+
     def info(self) -> dict:
         i = _native.SphereSetInfo()
         call("pn_sphere_set_get_info", self._ctx._h, self._h, ctypes.byref(i))
@@ -157,9 +166,12 @@ def _sphere_count_param():
 @dataclass
 class IsgTable:
     """``[isg]``: how the method builds sphere sets (docs/scene-format.md):
-    ``spheres``, N per occluder mesh."""
+    ``spheres``, N per occluder mesh; ``thin_shells``, the names of occluder
+    objects that occlude by their triangles instead (cloth, leaves, open
+    meshes: pn_sphere_set_create_shell, at most 4096 triangles each)."""
 
     spheres: int | None = None
+    thin_shells: tuple[str, ...] = ()
 
     @property
     def sphere_count(self) -> int:
@@ -172,10 +184,19 @@ def _parse_table(d, base: Path, data: dict) -> IsgTable:
     d = {} if d is None else d
     if not isinstance(d, dict):
         raise InputError("[isg] must be a table")
-    _check_keys("isg", d, {"spheres"})
-    if "spheres" not in d:
-        return IsgTable()
-    return IsgTable(int(_sphere_count_param().check(d["spheres"], "[isg] spheres")))
+    _check_keys("isg", d, {"spheres", "thin_shells"})
+    shells = d.get("thin_shells", [])
+    if not isinstance(shells, list) or not all(isinstance(x, str) for x in shells):
+        raise InputError(f"[isg] thin_shells must be a list of object names, got {shells!r}")
+    objects = {o.get("name"): o for o in data.get("object", []) if isinstance(o, dict)}
+    for name in shells:
+        if name not in objects:
+            raise InputError(f"[isg] thin_shells names {name!r}, which is not an object of the scene "
+                             f"(objects: {', '.join(map(str, objects)) or 'none'})")
+        if objects[name].get("occluder", True) is False:
+            raise InputError(f"[isg] thin_shells names {name!r}, which has occluder = false")
+    count = int(_sphere_count_param().check(d["spheres"], "[isg] spheres")) if "spheres" in d else None
+    return IsgTable(count, tuple(shells))
 
 
 @dataclass
@@ -206,11 +227,20 @@ def attach_sphere_sets(built, overrides: dict | None = None) -> list[dict]:
     if s.count == count:
         return s.records
     groups: dict[int, tuple[Mesh, list[str]]] = {}
+    shells = set(desc.isg.thin_shells) if desc.isg is not None else set()
+    records = []
+    if shells:
+        shell = SphereSet.shell(built.ctx)
+        names = [obj.name for obj in desc.objects if obj.name in shells]
+        for name in names:
+            built.scene.attach(built.instance_ids[name], shell)
+            s.sets[name] = shell
+        records.append({"objects": names, "spheres": 0, "shell": True, "outside_share": float("nan"),
+                        "missed_share": float("nan"), "build_s": 0.0})
     for obj in desc.objects:
-        if obj.is_occluder:
+        if obj.is_occluder and obj.name not in shells:
             mesh = built.object_meshes[obj.name]
             groups.setdefault(id(mesh), (mesh, []))[1].append(obj.name)
-    records = []
     for mesh, names in groups.values():
         t0 = time.perf_counter()
         sset = SphereSet.build(mesh, count)
@@ -232,8 +262,8 @@ class Isg(Technique):
     readme_label = "defaults"
 
     def applies_to(self, desc) -> bool:
-        # Without occluders it would shade like unshadowed SG lighting.
-        return any(obj.is_occluder for obj in desc.objects)
+        # Without occluders (sphere sets or thin shells) it would shade like unshadowed SG lighting.
+        return any(obj.is_occluder for obj in desc.objects) or bool(desc.isg is not None and desc.isg.thin_shells)
 
     def prepare(self, built, bake, bake_progress=None) -> None:
         attach_sphere_sets(built, bake)
@@ -246,8 +276,9 @@ class Isg(Technique):
         recs = state(built).records
         if not recs:
             return []
-        parts = [f"{len(r['objects'])} x {r['spheres']} spheres (outside {100 * r['outside_share']:.1f} %, missed "
-                 f"{100 * r['missed_share']:.1f} % of the solid)" for r in recs]
+        parts = [f"{len(r['objects'])} thin shell(s) ({', '.join(r['objects'])}: their triangles)" if r.get("shell")
+                 else f"{len(r['objects'])} x {r['spheres']} spheres (outside {100 * r['outside_share']:.1f} %, "
+                 f"missed {100 * r['missed_share']:.1f} % of the solid)" for r in recs]
         return ["isg sphere sets: " + "; ".join(parts)]
 
     def bench_extras(self, built) -> dict:
