@@ -138,6 +138,41 @@ PN_FIV_INLINE void pn_fiv_shell(global const uchar *fields, uint offset, int hp,
     pn_fiv_add(fields, offset, hp, n_theta, n_phi, k, i0 + 1, j1, wk * ti * tj, acc, wsum);
 }
 
+/* The lookup's second half: the samples around grid coordinates (fi, fj, fk)
+ * (fk >= 0, clamped to the grid), trilinear over the valid ones of the 8
+ * nearest, renormalised; with none valid, the nearest sphere farther out that
+ * has one. Times the value scale and the fall-off; false when none is valid. */
+PN_FIV_INLINE bool pn_fiv_fetch(global const float4 *occ, global const uchar *fields, float fi, float fj, float fk,
+                                float falloff, int trilinear, pn_fiv3 *out)
+{
+    uint offset = as_uint(occ[2].x);
+    int n_theta = as_int(occ[2].y), n_phi = as_int(occ[2].z), n_rho = as_int(occ[2].w);
+    int hp = as_int(occ[3].y);
+    pn_fiv3 acc = {(float3)(0.0f), (float3)(0.0f), (float3)(0.0f)};
+    float wsum = 0.0f;
+    if (!trilinear) {
+        fi = round(fi);
+        fj = round(fj);
+        fk = round(fk);
+    }
+    int i0 = min((int)fi, n_theta - 2), k0 = min((int)fk, n_rho - 2);
+    float ti = clamp(fi - (float)i0, 0.0f, 1.0f), tk = clamp(fk - (float)k0, 0.0f, 1.0f);
+    int jf = min((int)fj, n_phi - 1); /* phi = 2 pi after rounding is the seam */
+    float tj = clamp(fj - (float)jf, 0.0f, 1.0f);
+    int j0 = jf, j1 = jf + 1 < n_phi ? jf + 1 : 0; /* the phi seam wraps */
+    pn_fiv_shell(fields, offset, hp, n_theta, n_phi, k0, 1.0f - tk, i0, ti, j0, j1, tj, &acc, &wsum);
+    pn_fiv_shell(fields, offset, hp, n_theta, n_phi, k0 + 1, tk, i0, ti, j0, j1, tj, &acc, &wsum);
+    for (int k = k0 + 1; wsum <= 0.0f && k < n_rho; ++k)
+        pn_fiv_shell(fields, offset, hp, n_theta, n_phi, k, 1.0f, i0, ti, j0, j1, tj, &acc, &wsum);
+    if (wsum <= 0.0f)
+        return false;
+    float f = occ[3].z * falloff / wsum;
+    out->x = acc.x * f;
+    out->y = acc.y * f;
+    out->z = acc.z * f;
+    return true;
+}
+
 /* The occluded FIV at receiver-to-centre vector v (world units); false when
  * no valid sample is near (the receiver is deep inside the geometry).
  * Within the grid: trilinear over the valid ones of the 8 nearest samples,
@@ -193,29 +228,7 @@ PN_FIV_INLINE bool pn_fiv_lookup(global const float4 *occ, global const uchar *f
     out->x = out->y = out->z = (float3)((fi + fj + fk) * falloff);
     return true;
 #endif
-    pn_fiv3 acc = {(float3)(0.0f), (float3)(0.0f), (float3)(0.0f)};
-    float wsum = 0.0f;
-    if (!trilinear) {
-        fi = round(fi);
-        fj = round(fj);
-        fk = round(fk);
-    }
-    int i0 = min((int)fi, n_theta - 2), k0 = min((int)fk, n_rho - 2);
-    float ti = clamp(fi - (float)i0, 0.0f, 1.0f), tk = clamp(fk - (float)k0, 0.0f, 1.0f);
-    int jf = min((int)fj, n_phi - 1); /* phi = 2 pi after rounding is the seam */
-    float tj = clamp(fj - (float)jf, 0.0f, 1.0f);
-    int j0 = jf, j1 = jf + 1 < n_phi ? jf + 1 : 0; /* the phi seam wraps */
-    pn_fiv_shell(fields, offset, hp, n_theta, n_phi, k0, 1.0f - tk, i0, ti, j0, j1, tj, &acc, &wsum);
-    pn_fiv_shell(fields, offset, hp, n_theta, n_phi, k0 + 1, tk, i0, ti, j0, j1, tj, &acc, &wsum);
-    for (int k = k0 + 1; wsum <= 0.0f && k < n_rho; ++k)
-        pn_fiv_shell(fields, offset, hp, n_theta, n_phi, k, 1.0f, i0, ti, j0, j1, tj, &acc, &wsum);
-    if (wsum <= 0.0f)
-        return false;
-    float f = occ[3].z * falloff / wsum;
-    out->x = acc.x * f;
-    out->y = acc.y * f;
-    out->z = acc.z * f;
-    return true;
+    return pn_fiv_fetch(occ, fields, fi, fj, fk, falloff, trilinear, out);
 }
 
 inline float3 pn_fiv_dot(float3 n, pn_fiv3 f)
@@ -285,6 +298,134 @@ kernel void bin_fiv_tiles(global const float4 *position, global const uint *inst
     }
 }
 
+/* ---- Vector lanes across pixels ----------------------------------------
+ * shade_fiv runs 8 pixels of a row per work-item (x0 a multiple of 8, so the
+ * 8 lie in one 16x16 tile and share its occluder list): the occluder loop's
+ * tests and the lookup's index math (angles, logarithm, culling) are float8
+ * arithmetic, one lane per pixel, and only the lanes still in play fetch
+ * samples (pn_fiv_fetch, lane by lane). PoCL 3.1 does not vectorise the
+ * per-pixel code by itself: its loop over a work-group's work-items is never
+ * the innermost loop when the kernel loops over occluders, and the SLP pass
+ * turns scalar pairs (|x| against |z|, the colour channels) into 2- or
+ * 4-wide vectors the work-item loop vectorizer then refuses
+ * (docs/performance.md, FIV). Each lane does the scalar code's operations in
+ * the same order. */
+#define PN_FIV_LANES 8
+
+/* pn_atan (common/math.cl), lane by lane. */
+PN_FIV_INLINE float8 pn_fiv_atan8(float8 x)
+{
+    const float8 a = fabs(x), t = select(a, 1.0f / a, a > 1.0f), t2 = t * t;
+    float8 p;
+    PN_ATAN_POLY(p, t2);
+    const float8 r = t * p;
+    return copysign(select(r, M_PI_2_F - r, a > 1.0f), x);
+}
+
+/* pn_atan2 (common/math.cl), lane by lane. */
+PN_FIV_INLINE float8 pn_fiv_atan2_8(float8 y, float8 x)
+{
+    const float8 ax = fabs(x), ay = fabs(y), hi = fmax(ax, ay), lo = fmin(ax, ay);
+    const float8 t = select((float8)(0.0f), lo / hi, hi > 0.0f);
+    float8 a = pn_fiv_atan8(t);
+    a = select(a, M_PI_2_F - a, ay > ax);
+    a = select(a, PN_PI - a, x < 0.0f);
+    return copysign(a, y);
+}
+
+/* pn_fiv_ln, lane by lane. */
+PN_FIV_INLINE float8 pn_fiv_ln8(float8 x)
+{
+    int8 bits = as_int8(x);
+    int8 e = (bits >> 23) - 127;
+    float8 m = as_float8((bits & 0x007fffff) | 0x3f800000);
+    int8 big = m > 1.41421356f;
+    m = select(m, 0.5f * m, big);
+    e = select(e, e + 1, big);
+    float8 f = m - 1.0f;
+    float8 s = f / (2.0f + f), s2 = s * s;
+    float8 p = 0.11111111f;
+    p = p * s2 + 0.14285715f;
+    p = p * s2 + 0.2f;
+    p = p * s2 + 0.33333334f;
+    p = p * s2 + 1.0f;
+    return convert_float8(e) * 0.693147180559945f + 2.0f * s * p;
+}
+
+/* pn_fiv_dir_bin, lane by lane. */
+PN_FIV_INLINE int8 pn_fiv_dir_bin8(float8 vx, float8 vy, float8 vz, float8 rho)
+{
+    float8 ax = fabs(vx), az = fabs(vz), hi = fmax(ax, az);
+    float8 t = select((float8)(0.0f), fmin(ax, az) / hi, hi > 0.0f);
+    float8 q = select(t, 2.0f - t, az > ax);
+    float8 p = select(select(q, 8.0f - q, vz < 0.0f), select(4.0f - q, 4.0f + q, vz < 0.0f), vx < 0.0f);
+    int8 bz = clamp(convert_int8((vy / rho + 1.0f) * (0.5f * PN_FIV_BINS_Z)), 0, PN_FIV_BINS_Z - 1);
+    int8 bp = min(convert_int8(p * (PN_FIV_BINS_P / 8.0f)), PN_FIV_BINS_P - 1);
+    return bz * PN_FIV_BINS_P + bp;
+}
+
+/* base[idx] in the lanes of mask (-1), 0 in the others (whose idx may be anything). */
+PN_FIV_INLINE float8 pn_fiv_gather8(global const float *base, int8 idx, int8 mask)
+{
+    int i[PN_FIV_LANES], m[PN_FIV_LANES];
+    float v[PN_FIV_LANES];
+    vstore8(idx, 0, i);
+    vstore8(mask, 0, m);
+    for (int l = 0; l < PN_FIV_LANES; ++l)
+        v[l] = m[l] ? base[i[l]] : 0.0f;
+    return vload8(0, v);
+}
+
+/* pn_fiv_lookup's first half for 8 receivers (v_world per lane, the lanes
+ * of `live` taken): the grid coordinates and fall-off of each lane, and the
+ * lanes that go on to fetch samples (the others: not finite, or culled per
+ * direction). */
+PN_FIV_INLINE int8 pn_fiv_index8(global const float4 *occ, global const uchar *fields, float8 wx, float8 wy,
+                                 float8 wz, int8 live, float cull_floor, float8 *fi_out, float8 *fj_out,
+                                 float8 *fk_out, float8 *falloff_out)
+{
+    float inv_scale = occ[1].x, rho_min = occ[1].y, log_ratio = occ[1].z;
+    uint offset = as_uint(occ[2].x);
+    int n_theta = as_int(occ[2].y), n_phi = as_int(occ[2].z), n_rho = as_int(occ[2].w);
+    int hp = as_int(occ[3].y);
+    float8 vx = wx * inv_scale, vy = wy * inv_scale, vz = wz * inv_scale;
+    float8 rho = sqrt(vx * vx + vy * vy + vz * vz);
+    live &= isfinite(rho);
+    size_t samples = (size_t)n_rho * n_theta * n_phi * PN_FIV_FLOATS * (hp ? 2 : 4);
+    global const float *cell_bound = (global const float *)(fields + offset + ((samples + 15) & ~(size_t)15));
+    float rho_max = occ[3].w;
+    if (cull_floor > 0.0f) {
+        int8 beyond = live & (rho > rho_max * 1.0001f);
+        if (any(beyond)) {
+            global const float *bin_bound = cell_bound + (((size_t)(n_theta - 1) * n_phi + 3) & ~(size_t)3);
+            float8 bound = pn_fiv_gather8(bin_bound, pn_fiv_dir_bin8(vx, vy, vz, rho), beyond);
+            live &= ~(beyond & (bound * ((rho_max / rho) * (rho_max / rho)) < cull_floor));
+        }
+    }
+    float8 theta = pn_fiv_atan2_8(sqrt(vx * vx + vz * vz), vy);
+    float8 phi = pn_fiv_atan2_8(vz, vx);
+    phi = select(phi, phi + PN_TWO_PI, phi < 0.0f);
+    float8 fi = theta * (float)(n_theta - 1) * PN_INV_PI;
+    float8 fj = phi * (float)n_phi * PN_INV_TWO_PI;
+    float8 fk = select((float8)(0.0f), pn_fiv_ln8(rho / rho_min) / log_ratio * (float)(n_rho - 1), rho > 0.0f);
+    int8 out_of_grid = fk > (float)(n_rho - 1);
+    float8 falloff = select((float8)(1.0f), (rho_max / rho) * (rho_max / rho), out_of_grid);
+    fk = select(fk, (float8)(n_rho - 1), out_of_grid);
+    int8 cull = live & out_of_grid;
+    if (any(cull)) { /* the cell test (pn_fiv_lookup) */
+        int8 ci = min(convert_int8(fi), n_theta - 2), cj = min(convert_int8(fj), n_phi - 1);
+        float8 bound = pn_fiv_gather8(cell_bound, ci * n_phi + cj, cull);
+        live &= ~(cull & (bound * falloff < cull_floor));
+    }
+    *fi_out = fi;
+    *fj_out = fj;
+    *fk_out = fmax(fk, 0.0f);
+    *falloff_out = falloff;
+    return live;
+}
+
+/* One work-item per 8 pixels of a row (above): global size
+ * ceil(width / 8) x height. */
 kernel void shade_fiv(global const float4 *position, global const float4 *normal, global const float4 *albedo,
                       global const uint *instance_id, int count, global const float4 *irradiance, int m,
                       global const float4 *occluders,
@@ -293,49 +434,73 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
                       int overlap, int partial, int self_shadow, int trilinear, int width, int binned,
                       global const uint *tile_masks, global float4 *image)
 {
-    int gid = get_global_id(0);
-    if (gid >= count)
+    int groups = (width + PN_FIV_LANES - 1) / PN_FIV_LANES;
+    int item = get_global_id(0);
+    int y = item / groups, x0 = (item - y * groups) * PN_FIV_LANES;
+    if (width <= 0 || y >= count / width)
         return;
-    uint id = instance_id[gid];
-    if (id == PN_BACKGROUND) { /* black; the renderer draws the env map there (envmap_background) */
-        image[gid] = (float4)(0.0f);
-        return;
-    }
-    float3 p = position[gid].xyz;
-    float3 n = normalize(normal[gid].xyz);
-    float3 e_tot = pn_cube_grid_lookup(irradiance, m, n);
-    float3 e_base = e_tot;
-    float3 sum = (float3)(0.0f), largest = (float3)(0.0f), visible = (float3)(1.0f);
-    float3 occluded[PN_FIV_MAX_OVERLAP];
-    float4 disc[PN_FIV_MAX_OVERLAP]; /* unit-sphere direction, radius */
-    int discs = 0;
-    /* Self-shadowing: the pixel's own occluder, found by its id among all of
-     * them (a tile's mask may leave it out when a G-buffer puts the pixel
-     * beyond its culling distance). All unoccluded light is in the positive
-     * hemisphere. */
-    for (int o = 0; self_shadow && o < occluder_count; ++o) {
-        global const float4 *occ = occluders + PN_FIV_RECORD * o;
-        pn_fiv3 f;
-        if (as_uint(occ[3].x) != id)
-            continue;
-        if (pn_fiv_lookup(occ, fields, occ[0].xyz - p, trilinear, 0.0f, &f)) {
-            /* A sample off the surface also sees unoccluded light behind
-             * the receiver plane, which the fullsphere sum subtracts: the
-             * estimate errs low, never above the unoccluded irradiance. */
-            pn_fiv3 env = {env_x.xyz, env_y.xyz, env_z.xyz};
-            e_base = clamp(pn_fiv_dot(n, env) - pn_fiv_dot(n, f), 0.0f, e_tot);
+    /* Per lane (scalar): the pixel, its unshadowed irradiance, self-shadowing. */
+    float lp[3][PN_FIV_LANES], ln[3][PN_FIV_LANES], le_tot[3][PN_FIV_LANES], le_base[3][PN_FIV_LANES];
+    uint lid[PN_FIV_LANES];
+    int lactive[PN_FIV_LANES];
+    for (int l = 0; l < PN_FIV_LANES; ++l) {
+        int gid = y * width + x0 + l;
+        uint id = x0 + l < width ? instance_id[gid] : PN_BACKGROUND;
+        float3 p = (float3)(0.0f), n = (float3)(0.0f, 1.0f, 0.0f), e_tot = (float3)(0.0f), e_base = (float3)(0.0f);
+        if (id != PN_BACKGROUND) {
+            p = position[gid].xyz;
+            n = normalize(normal[gid].xyz);
+            e_tot = pn_cube_grid_lookup(irradiance, m, n);
+            e_base = e_tot;
+            /* Self-shadowing: the pixel's own occluder, found by its id among all
+             * of them (a tile's mask may leave it out when a G-buffer puts the
+             * pixel beyond its culling distance). All unoccluded light is in the
+             * positive hemisphere. */
+            for (int o = 0; self_shadow && o < occluder_count; ++o) {
+                global const float4 *occ = occluders + PN_FIV_RECORD * o;
+                pn_fiv3 f;
+                if (as_uint(occ[3].x) != id)
+                    continue;
+                if (pn_fiv_lookup(occ, fields, occ[0].xyz - p, trilinear, 0.0f, &f)) {
+                    /* A sample off the surface also sees unoccluded light behind
+                     * the receiver plane, which the fullsphere sum subtracts: the
+                     * estimate errs low, never above the unoccluded irradiance. */
+                    pn_fiv3 env = {env_x.xyz, env_y.xyz, env_z.xyz};
+                    e_base = clamp(pn_fiv_dot(n, env) - pn_fiv_dot(n, f), 0.0f, e_tot);
+                }
+                break; /* one field per instance */
+            }
+        } else if (x0 + l < width) { /* black; the renderer draws the env map there (envmap_background) */
+            image[gid] = (float4)(0.0f);
         }
-        break; /* one field per instance */
+        lid[l] = id;
+        lactive[l] = id != PN_BACKGROUND ? -1 : 0;
+        lp[0][l] = p.x, lp[1][l] = p.y, lp[2][l] = p.z;
+        ln[0][l] = n.x, ln[1][l] = n.y, ln[2][l] = n.z;
+        le_tot[0][l] = e_tot.x, le_tot[1][l] = e_tot.y, le_tot[2][l] = e_tot.z;
+        le_base[0][l] = e_base.x, le_base[1][l] = e_base.y, le_base[2][l] = e_base.z;
     }
+    int8 active = vload8(0, lactive);
+    if (!any(active))
+        return;
+    uint8 id8 = vload8(0, lid);
+    float8 px = vload8(0, lp[0]), py = vload8(0, lp[1]), pz = vload8(0, lp[2]);
+    float8 nx = vload8(0, ln[0]), ny = vload8(0, ln[1]), nz = vload8(0, ln[2]);
+    float8 tot_r = vload8(0, le_tot[0]), tot_g = vload8(0, le_tot[1]), tot_b = vload8(0, le_tot[2]);
+    float8 sum_r = 0.0f, sum_g = 0.0f, sum_b = 0.0f, big_r = 0.0f, big_g = 0.0f, big_b = 0.0f;
+    float8 vis_r = 1.0f, vis_g = 1.0f, vis_b = 1.0f;
+    /* Disc correction: per lane the occluders that took part (at most 32). */
+    float3 occluded[PN_FIV_LANES][PN_FIV_MAX_OVERLAP];
+    float4 disc[PN_FIV_LANES][PN_FIV_MAX_OVERLAP]; /* unit-sphere direction, radius */
+    int discs[PN_FIV_LANES] = {0, 0, 0, 0, 0, 0, 0, 0};
     int words = (occluder_count + 31) / 32;
     global const uint *mask = tile_masks;
-    if (binned) { /* one integer division (a slow scalar instruction), none unbinned */
-        int y = gid / width, x = gid - y * width;
-        int tile = (y / PN_FIV_TILE) * ((width + PN_FIV_TILE - 1) / PN_FIV_TILE) + x / PN_FIV_TILE;
+    if (binned) {
+        int tile = (y / PN_FIV_TILE) * ((width + PN_FIV_TILE - 1) / PN_FIV_TILE) + x0 / PN_FIV_TILE;
         mask += (size_t)tile * words;
     }
     for (int w = 0; w < words; ++w) {
-        /* The occluders of this pixel's tile (all of them unbinned), in order. */
+        /* The occluders of these pixels' tile (all of them unbinned), in order. */
         int left = occluder_count - 32 * w;
         uint bits = binned ? mask[w] : left >= 32 ? 0xFFFFFFFFu : (1u << left) - 1u;
         while (bits) {
@@ -343,60 +508,126 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
             bits &= bits - 1u;
             global const float4 *occ = occluders + PN_FIV_RECORD * o;
             float4 sphere = occ[0];
-            float3 v = sphere.xyz - p;
-            if (as_uint(occ[3].x) == id) /* its own occluder: above */
+            float8 vx = sphere.x - px, vy = sphere.y - py, vz = sphere.z - pz;
+            float r = sphere.w;
+            float8 dist_plane = vx * nx + vy * ny + vz * nz;
+            float8 rho = sqrt(vx * vx + vy * vy + vz * vz);
+            /* not its own occluder (above), not fully behind the receiver
+             * plane (case C), not beyond the culling distance */
+            int8 take = active & (id8 != as_uint(occ[3].x)) & ~(dist_plane <= -r) & ~(rho > occ[1].w);
+            if (!any(take))
                 continue;
-            float r = sphere.w, dist_plane = dot(v, n);
-            if (dist_plane <= -r) /* case C: fully behind the receiver plane */
-                continue;
-            float rho = length(v);
-            if (rho > occ[1].w) /* beyond the culling distance */
-                continue;
-            pn_fiv3 f;
+            float fr[9][PN_FIV_LANES];
 #if PN_FIV_PROFILE == 1
-            f.x = f.y = f.z = (float3)(occ[3].z * 1e-3f);
+            for (int c = 0; c < 9; ++c)
+                vstore8((float8)(occ[3].z * 1e-3f), 0, fr[c]);
 #else
-            if (!pn_fiv_lookup(occ, fields, v, trilinear, cull_floor, &f))
+            float8 fi, fj, fk, falloff;
+            take = pn_fiv_index8(occ, fields, vx, vy, vz, take, cull_floor, &fi, &fj, &fk, &falloff);
+            if (!any(take))
                 continue;
+#if PN_FIV_PROFILE == 2
+            for (int c = 0; c < 9; ++c)
+                vstore8((fi + fj + fk) * falloff, 0, fr[c]);
+#else
+            {
+                float afi[PN_FIV_LANES], afj[PN_FIV_LANES], afk[PN_FIV_LANES], afo[PN_FIV_LANES];
+                int at[PN_FIV_LANES];
+                vstore8(fi, 0, afi);
+                vstore8(fj, 0, afj);
+                vstore8(fk, 0, afk);
+                vstore8(falloff, 0, afo);
+                vstore8(take, 0, at);
+                for (int l = 0; l < PN_FIV_LANES; ++l) {
+                    pn_fiv3 f = {(float3)(0.0f), (float3)(0.0f), (float3)(0.0f)};
+                    if (at[l] && !pn_fiv_fetch(occ, fields, afi[l], afj[l], afk[l], afo[l], trilinear, &f))
+                        at[l] = 0;
+                    fr[0][l] = f.x.x, fr[1][l] = f.x.y, fr[2][l] = f.x.z;
+                    fr[3][l] = f.y.x, fr[4][l] = f.y.y, fr[5][l] = f.y.z;
+                    fr[6][l] = f.z.x, fr[7][l] = f.z.y, fr[8][l] = f.z.z;
+                }
+                take = vload8(0, at);
+                if (!any(take))
+                    continue;
+            }
 #endif
-            /* An occluder only removes light. */
-            float3 i_occ = fmax(pn_fiv_dot(n, f), 0.0f);
-            if (partial && dist_plane < r) /* case B: the share above the plane */
-                i_occ *= (dist_plane + r) / (2.0f * r);
-            sum += i_occ;
-            largest = fmax(largest, i_occ);
-            if (overlap == PN_OVERLAP_MULTIPLY)
-                visible *= clamp(1.0f - i_occ / fmax(e_tot, 1e-30f), 0.0f, 1.0f);
-            else if (overlap == PN_OVERLAP_DISC && discs < PN_FIV_MAX_OVERLAP) {
-                occluded[discs] = i_occ;
-                disc[discs] = (float4)(rho > 0.0f ? v / rho : n, fmin(r / fmax(rho, 1e-30f), 1.0f));
-                ++discs;
+#endif
+            /* An occluder only removes light (N . FIV per channel, as pn_fiv_dot). */
+            float8 i_r = fmax(nx * vload8(0, fr[0]) + ny * vload8(0, fr[3]) + nz * vload8(0, fr[6]), 0.0f);
+            float8 i_g = fmax(nx * vload8(0, fr[1]) + ny * vload8(0, fr[4]) + nz * vload8(0, fr[7]), 0.0f);
+            float8 i_b = fmax(nx * vload8(0, fr[2]) + ny * vload8(0, fr[5]) + nz * vload8(0, fr[8]), 0.0f);
+            if (partial) { /* case B: the share above the plane */
+                int8 b = dist_plane < r;
+                float8 share = select((float8)(1.0f), (dist_plane + r) / (2.0f * r), b);
+                i_r = select(i_r, i_r * share, b);
+                i_g = select(i_g, i_g * share, b);
+                i_b = select(i_b, i_b * share, b);
+            }
+            i_r = select((float8)(0.0f), i_r, take);
+            i_g = select((float8)(0.0f), i_g, take);
+            i_b = select((float8)(0.0f), i_b, take);
+            sum_r += i_r, sum_g += i_g, sum_b += i_b;
+            big_r = fmax(big_r, i_r), big_g = fmax(big_g, i_g), big_b = fmax(big_b, i_b);
+            if (overlap == PN_OVERLAP_MULTIPLY) {
+                vis_r = select(vis_r, vis_r * clamp(1.0f - i_r / fmax(tot_r, 1e-30f), 0.0f, 1.0f), take);
+                vis_g = select(vis_g, vis_g * clamp(1.0f - i_g / fmax(tot_g, 1e-30f), 0.0f, 1.0f), take);
+                vis_b = select(vis_b, vis_b * clamp(1.0f - i_b / fmax(tot_b, 1e-30f), 0.0f, 1.0f), take);
+            } else if (overlap == PN_OVERLAP_DISC) {
+                float ar[PN_FIV_LANES], ag[PN_FIV_LANES], ab[PN_FIV_LANES], arho[PN_FIV_LANES];
+                int at[PN_FIV_LANES];
+                vstore8(i_r, 0, ar);
+                vstore8(i_g, 0, ag);
+                vstore8(i_b, 0, ab);
+                vstore8(rho, 0, arho);
+                vstore8(take, 0, at);
+                for (int l = 0; l < PN_FIV_LANES; ++l) {
+                    if (!at[l] || discs[l] >= PN_FIV_MAX_OVERLAP)
+                        continue;
+                    float3 v = sphere.xyz - (float3)(lp[0][l], lp[1][l], lp[2][l]);
+                    float3 n = (float3)(ln[0][l], ln[1][l], ln[2][l]);
+                    occluded[l][discs[l]] = (float3)(ar[l], ag[l], ab[l]);
+                    disc[l][discs[l]] =
+                        (float4)(arho[l] > 0.0f ? v / arho[l] : n, fmin(r / fmax(arho[l], 1e-30f), 1.0f));
+                    ++discs[l];
+                }
             }
         }
     }
-    float3 e;
-    if (overlap == PN_OVERLAP_MULTIPLY) {
-        e = e_base * visible;
-    } else {
-        float3 total = sum;
-        if (overlap == PN_OVERLAP_DISC) {
-            /* Pairwise: the lens of two unit bounding discs, as a share of their
-             * areas, of the two occluders' irradiance is counted once. */
-            for (int a = 0; a < discs; ++a)
-                for (int b = a + 1; b < discs; ++b) {
-                    float ra = disc[a].w, rb = disc[b].w;
-                    float3 d = disc[a].xyz - disc[b].xyz;
-                    float d2 = dot(d, d);
-                    /* Most pairs are apart: no lens, and no sqrt or acos spent on it. */
-                    if (d2 >= (ra + rb) * (ra + rb))
-                        continue;
-                    float lens = pn_lens_area(ra, rb, sqrt(d2));
-                    if (lens > 0.0f)
-                        total -= lens / (PN_PI * (ra * ra + rb * rb)) * (occluded[a] + occluded[b]);
-                }
-            total = clamp(total, largest, sum);
+    /* Per lane (scalar): the overlap correction and the pixel. */
+    float as[3][PN_FIV_LANES], ag[3][PN_FIV_LANES], av[3][PN_FIV_LANES];
+    vstore8(sum_r, 0, as[0]), vstore8(sum_g, 0, as[1]), vstore8(sum_b, 0, as[2]);
+    vstore8(big_r, 0, ag[0]), vstore8(big_g, 0, ag[1]), vstore8(big_b, 0, ag[2]);
+    vstore8(vis_r, 0, av[0]), vstore8(vis_g, 0, av[1]), vstore8(vis_b, 0, av[2]);
+    for (int l = 0; l < PN_FIV_LANES; ++l) {
+        if (!lactive[l])
+            continue;
+        int gid = y * width + x0 + l;
+        float3 e_base = (float3)(le_base[0][l], le_base[1][l], le_base[2][l]);
+        float3 sum = (float3)(as[0][l], as[1][l], as[2][l]);
+        float3 e;
+        if (overlap == PN_OVERLAP_MULTIPLY) {
+            e = e_base * (float3)(av[0][l], av[1][l], av[2][l]);
+        } else {
+            float3 total = sum;
+            if (overlap == PN_OVERLAP_DISC) {
+                /* Pairwise: the lens of two unit bounding discs, as a share of their
+                 * areas, of the two occluders' irradiance is counted once. */
+                for (int a = 0; a < discs[l]; ++a)
+                    for (int b = a + 1; b < discs[l]; ++b) {
+                        float ra = disc[l][a].w, rb = disc[l][b].w;
+                        float3 d = disc[l][a].xyz - disc[l][b].xyz;
+                        float d2 = dot(d, d);
+                        /* Most pairs are apart: no lens, and no sqrt or acos spent on it. */
+                        if (d2 >= (ra + rb) * (ra + rb))
+                            continue;
+                        float lens = pn_lens_area(ra, rb, sqrt(d2));
+                        if (lens > 0.0f)
+                            total -= lens / (PN_PI * (ra * ra + rb * rb)) * (occluded[l][a] + occluded[l][b]);
+                    }
+                total = clamp(total, (float3)(ag[0][l], ag[1][l], ag[2][l]), sum);
+            }
+            e = e_base - total;
         }
-        e = e_base - total;
+        image[gid] = (float4)(fmax(albedo[gid].xyz * e * PN_INV_PI, 0.0f), 1.0f);
     }
-    image[gid] = (float4)(fmax(albedo[gid].xyz * e * PN_INV_PI, 0.0f), 1.0f);
 }
