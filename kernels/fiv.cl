@@ -376,6 +376,40 @@ PN_FIV_INLINE float8 pn_fiv_gather8(global const float *base, int8 idx, int8 mas
     return vload8(0, v);
 }
 
+/* pn_cube_grid_lookup (common/sphere_maps.cl) for 8 unit directions: the
+ * face and the cell (x0, y0, fx, fy) of each lane, from the same operations
+ * as pn_dir_to_cube's branches, as selects (their mispredictions were most
+ * of the lookup's cost); pn_fiv_cube_fetch then reads the 4 samples. */
+PN_FIV_INLINE void pn_fiv_cube_cell8(int n, float8 dx, float8 dy, float8 dz, int *face, int *x0, int *y0, float *fx,
+                                     float *fy)
+{
+    float8 ax = fabs(dx), ay = fabs(dy), az = fabs(dz);
+    int8 xm = (ax >= ay) & (ax >= az), ym = ~xm & (ay >= az);
+    float8 inv = 1.0f / select(select(az, ay, ym), ax, xm);
+    float8 a = select(select(select(-dx, dx, dz > 0.0f), dx, ym), select(dz, -dz, dx > 0.0f), xm) * inv;
+    float8 b = select(-dy, select(-dz, dz, dy > 0.0f), ym) * inv;
+    int8 f = select(select(select((int8)(5), (int8)(4), dz > 0.0f), select((int8)(3), (int8)(2), dy > 0.0f), ym),
+                    select((int8)(1), (int8)(0), dx > 0.0f), xm);
+    float8 x = clamp((a + 1.0f) * 0.5f * (float)(n - 1), 0.0f, (float)(n - 1));
+    float8 y = clamp((b + 1.0f) * 0.5f * (float)(n - 1), 0.0f, (float)(n - 1));
+    int8 ix = min(convert_int8(x), n - 2), iy = min(convert_int8(y), n - 2);
+    vstore8(f, 0, face);
+    vstore8(ix, 0, x0);
+    vstore8(iy, 0, y0);
+    vstore8(x - convert_float8(ix), 0, fx);
+    vstore8(y - convert_float8(iy), 0, fy);
+}
+
+/* The rest of pn_cube_grid_lookup for one lane. */
+PN_FIV_INLINE float3 pn_fiv_cube_fetch(global const float4 *grid, int n, int face, int x0, int y0, float fx, float fy)
+{
+    global const float4 *row0 = grid + (face * n + y0) * n + x0;
+    global const float4 *row1 = row0 + n;
+    float4 top = mix(row0[0], row0[1], fx);
+    float4 bottom = mix(row1[0], row1[1], fx);
+    return mix(top, bottom, fy).xyz;
+}
+
 /* pn_fiv_lookup's first half for 8 receivers (v_world per lane, the lanes
  * of `live` taken): the grid coordinates and fall-off of each lane, and the
  * lanes that go on to fetch samples (the others: not finite, or culled per
@@ -439,18 +473,35 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     int y = item / groups, x0 = (item - y * groups) * PN_FIV_LANES;
     if (width <= 0 || y >= count / width)
         return;
-    /* Per lane (scalar): the pixel, its unshadowed irradiance, self-shadowing. */
+    /* Per lane (scalar): the pixel; then its unshadowed irradiance (the cube
+     * cell in lanes), self-shadowing. */
     float lp[3][PN_FIV_LANES], ln[3][PN_FIV_LANES], le_tot[3][PN_FIV_LANES], le_base[3][PN_FIV_LANES];
     uint lid[PN_FIV_LANES];
     int lactive[PN_FIV_LANES];
     for (int l = 0; l < PN_FIV_LANES; ++l) {
         int gid = y * width + x0 + l;
         uint id = x0 + l < width ? instance_id[gid] : PN_BACKGROUND;
-        float3 p = (float3)(0.0f), n = (float3)(0.0f, 1.0f, 0.0f), e_tot = (float3)(0.0f), e_base = (float3)(0.0f);
+        float3 p = (float3)(0.0f), n = (float3)(0.0f, 1.0f, 0.0f);
         if (id != PN_BACKGROUND) {
             p = position[gid].xyz;
             n = normalize(normal[gid].xyz);
-            e_tot = pn_cube_grid_lookup(irradiance, m, n);
+        } else if (x0 + l < width) { /* black; the renderer draws the env map there (envmap_background) */
+            image[gid] = (float4)(0.0f);
+        }
+        lid[l] = id;
+        lactive[l] = id != PN_BACKGROUND ? -1 : 0;
+        lp[0][l] = p.x, lp[1][l] = p.y, lp[2][l] = p.z;
+        ln[0][l] = n.x, ln[1][l] = n.y, ln[2][l] = n.z;
+    }
+    int cface[PN_FIV_LANES], cx[PN_FIV_LANES], cy[PN_FIV_LANES];
+    float cfx[PN_FIV_LANES], cfy[PN_FIV_LANES];
+    pn_fiv_cube_cell8(m, vload8(0, ln[0]), vload8(0, ln[1]), vload8(0, ln[2]), cface, cx, cy, cfx, cfy);
+    for (int l = 0; l < PN_FIV_LANES; ++l) {
+        float3 e_tot = (float3)(0.0f), e_base = (float3)(0.0f);
+        if (lactive[l]) {
+            uint id = lid[l];
+            float3 p = (float3)(lp[0][l], lp[1][l], lp[2][l]), n = (float3)(ln[0][l], ln[1][l], ln[2][l]);
+            e_tot = pn_fiv_cube_fetch(irradiance, m, cface[l], cx[l], cy[l], cfx[l], cfy[l]);
             e_base = e_tot;
             /* Self-shadowing: the pixel's own occluder, found by its id among all
              * of them (a tile's mask may leave it out when a G-buffer puts the
@@ -470,13 +521,7 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
                 }
                 break; /* one field per instance */
             }
-        } else if (x0 + l < width) { /* black; the renderer draws the env map there (envmap_background) */
-            image[gid] = (float4)(0.0f);
         }
-        lid[l] = id;
-        lactive[l] = id != PN_BACKGROUND ? -1 : 0;
-        lp[0][l] = p.x, lp[1][l] = p.y, lp[2][l] = p.z;
-        ln[0][l] = n.x, ln[1][l] = n.y, ln[2][l] = n.z;
         le_tot[0][l] = e_tot.x, le_tot[1][l] = e_tot.y, le_tot[2][l] = e_tot.z;
         le_base[0][l] = e_base.x, le_base[1][l] = e_base.y, le_base[2][l] = e_base.z;
     }
