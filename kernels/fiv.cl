@@ -458,6 +458,17 @@ PN_FIV_INLINE int8 pn_fiv_index8(global const float4 *occ, global const uchar *f
     return live;
 }
 
+/* pn_lens_area, lane by lane. */
+PN_FIV_INLINE float8 pn_fiv_lens8(float8 a, float8 b, float8 dist)
+{
+    float8 r = fmin(a, b);
+    float8 ca = clamp((dist * dist + a * a - b * b) / (2.0f * dist * a), -1.0f, 1.0f);
+    float8 cb = clamp((dist * dist + b * b - a * a) / (2.0f * dist * b), -1.0f, 1.0f);
+    float8 k = (-dist + a + b) * (dist + a - b) * (dist - a + b) * (dist + a + b);
+    float8 lens = a * a * acos(ca) + b * b * acos(cb) - 0.5f * sqrt(fmax(k, 0.0f));
+    return select(select(lens, PN_PI * r * r, dist <= fabs(a - b)), (float8)(0.0f), dist >= a + b);
+}
+
 /* One work-item per 8 pixels of a row (above): global size
  * ceil(width / 8) x height. */
 kernel void shade_fiv(global const float4 *position, global const float4 *normal, global const float4 *albedo,
@@ -534,9 +545,10 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     float8 tot_r = vload8(0, le_tot[0]), tot_g = vload8(0, le_tot[1]), tot_b = vload8(0, le_tot[2]);
     float8 sum_r = 0.0f, sum_g = 0.0f, sum_b = 0.0f, big_r = 0.0f, big_g = 0.0f, big_b = 0.0f;
     float8 vis_r = 1.0f, vis_g = 1.0f, vis_b = 1.0f;
-    /* Disc correction: per lane the occluders that took part (at most 32). */
-    float3 occluded[PN_FIV_LANES][PN_FIV_MAX_OVERLAP];
-    float4 disc[PN_FIV_LANES][PN_FIV_MAX_OVERLAP]; /* unit-sphere direction, radius */
+    /* Disc correction: per lane the occluders that took part (at most 32),
+     * slot d of lane l at [d * 8 + l]: unit-sphere direction, radius, the
+     * occluder's irradiance. */
+    float dd[7][PN_FIV_MAX_OVERLAP * PN_FIV_LANES];
     int discs[PN_FIV_LANES] = {0, 0, 0, 0, 0, 0, 0, 0};
     int words = (occluder_count + 31) / 32;
     global const uint *mask = tile_masks;
@@ -629,50 +641,63 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
                     if (!at[l] || discs[l] >= PN_FIV_MAX_OVERLAP)
                         continue;
                     float3 v = sphere.xyz - (float3)(lp[0][l], lp[1][l], lp[2][l]);
-                    float3 n = (float3)(ln[0][l], ln[1][l], ln[2][l]);
-                    occluded[l][discs[l]] = (float3)(ar[l], ag[l], ab[l]);
-                    disc[l][discs[l]] =
-                        (float4)(arho[l] > 0.0f ? v / arho[l] : n, fmin(r / fmax(arho[l], 1e-30f), 1.0f));
-                    ++discs[l];
+                    float3 u = arho[l] > 0.0f ? v / arho[l] : (float3)(ln[0][l], ln[1][l], ln[2][l]);
+                    int slot = discs[l]++ * PN_FIV_LANES + l;
+                    dd[0][slot] = u.x, dd[1][slot] = u.y, dd[2][slot] = u.z;
+                    dd[3][slot] = fmin(r / fmax(arho[l], 1e-30f), 1.0f);
+                    dd[4][slot] = ar[l], dd[5][slot] = ag[l], dd[6][slot] = ab[l];
                 }
             }
         }
     }
-    /* Per lane (scalar): the overlap correction and the pixel. */
-    float as[3][PN_FIV_LANES], ag[3][PN_FIV_LANES], av[3][PN_FIV_LANES];
-    vstore8(sum_r, 0, as[0]), vstore8(sum_g, 0, as[1]), vstore8(sum_b, 0, as[2]);
-    vstore8(big_r, 0, ag[0]), vstore8(big_g, 0, ag[1]), vstore8(big_b, 0, ag[2]);
-    vstore8(vis_r, 0, av[0]), vstore8(vis_g, 0, av[1]), vstore8(vis_b, 0, av[2]);
+    /* The overlap correction, in lanes; then the pixels. */
+    float8 e_r, e_g, e_b;
+    float8 base_r = vload8(0, le_base[0]), base_g = vload8(0, le_base[1]), base_b = vload8(0, le_base[2]);
+    if (overlap == PN_OVERLAP_MULTIPLY) {
+        e_r = base_r * vis_r, e_g = base_g * vis_g, e_b = base_b * vis_b;
+    } else {
+        float8 tot_r = sum_r, tot_g = sum_g, tot_b = sum_b;
+        if (overlap == PN_OVERLAP_DISC) {
+            /* Pairwise: the lens of two unit bounding discs, as a share of their
+             * areas, of the two occluders' irradiance is counted once; each
+             * lane over its own discs, in the scalar code's order. */
+            int8 nd = vload8(0, discs);
+            int most = 0;
+            for (int l = 0; l < PN_FIV_LANES; ++l)
+                most = max(most, discs[l]);
+            for (int l = 0; l < PN_FIV_LANES; ++l) /* the slots a lane did not fill: defined, never taken */
+                for (int d = discs[l]; d < most; ++d)
+                    for (int c = 0; c < 7; ++c)
+                        dd[c][d * PN_FIV_LANES + l] = 0.0f;
+            for (int a = 0; a < most; ++a) {
+                float8 uax = vload8(a, dd[0]), uay = vload8(a, dd[1]), uaz = vload8(a, dd[2]), ra = vload8(a, dd[3]);
+                for (int b = a + 1; b < most; ++b) {
+                    float8 rb = vload8(b, dd[3]);
+                    float8 ex = uax - vload8(b, dd[0]), ey = uay - vload8(b, dd[1]), ez = uaz - vload8(b, dd[2]);
+                    float8 d2 = ex * ex + ey * ey + ez * ez;
+                    /* Most pairs are apart: no lens, and no sqrt or acos spent on it. */
+                    int8 near = ((int8)(b) < nd) & ~(d2 >= (ra + rb) * (ra + rb));
+                    if (!any(near))
+                        continue;
+                    float8 lens = pn_fiv_lens8(ra, rb, sqrt(d2));
+                    int8 take = near & (lens > 0.0f);
+                    float8 share = lens / (PN_PI * (ra * ra + rb * rb));
+                    tot_r = select(tot_r, tot_r - share * (vload8(a, dd[4]) + vload8(b, dd[4])), take);
+                    tot_g = select(tot_g, tot_g - share * (vload8(a, dd[5]) + vload8(b, dd[5])), take);
+                    tot_b = select(tot_b, tot_b - share * (vload8(a, dd[6]) + vload8(b, dd[6])), take);
+                }
+            }
+            tot_r = clamp(tot_r, big_r, sum_r), tot_g = clamp(tot_g, big_g, sum_g), tot_b = clamp(tot_b, big_b, sum_b);
+        }
+        e_r = base_r - tot_r, e_g = base_g - tot_g, e_b = base_b - tot_b;
+    }
+    float ae[3][PN_FIV_LANES];
+    vstore8(e_r, 0, ae[0]), vstore8(e_g, 0, ae[1]), vstore8(e_b, 0, ae[2]);
     for (int l = 0; l < PN_FIV_LANES; ++l) {
         if (!lactive[l])
             continue;
         int gid = y * width + x0 + l;
-        float3 e_base = (float3)(le_base[0][l], le_base[1][l], le_base[2][l]);
-        float3 sum = (float3)(as[0][l], as[1][l], as[2][l]);
-        float3 e;
-        if (overlap == PN_OVERLAP_MULTIPLY) {
-            e = e_base * (float3)(av[0][l], av[1][l], av[2][l]);
-        } else {
-            float3 total = sum;
-            if (overlap == PN_OVERLAP_DISC) {
-                /* Pairwise: the lens of two unit bounding discs, as a share of their
-                 * areas, of the two occluders' irradiance is counted once. */
-                for (int a = 0; a < discs[l]; ++a)
-                    for (int b = a + 1; b < discs[l]; ++b) {
-                        float ra = disc[l][a].w, rb = disc[l][b].w;
-                        float3 d = disc[l][a].xyz - disc[l][b].xyz;
-                        float d2 = dot(d, d);
-                        /* Most pairs are apart: no lens, and no sqrt or acos spent on it. */
-                        if (d2 >= (ra + rb) * (ra + rb))
-                            continue;
-                        float lens = pn_lens_area(ra, rb, sqrt(d2));
-                        if (lens > 0.0f)
-                            total -= lens / (PN_PI * (ra * ra + rb * rb)) * (occluded[l][a] + occluded[l][b]);
-                    }
-                total = clamp(total, (float3)(ag[0][l], ag[1][l], ag[2][l]), sum);
-            }
-            e = e_base - total;
-        }
+        float3 e = (float3)(ae[0][l], ae[1][l], ae[2][l]);
         image[gid] = (float4)(fmax(albedo[gid].xyz * e * PN_INV_PI, 0.0f), 1.0f);
     }
 }
