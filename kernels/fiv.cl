@@ -465,7 +465,11 @@ PN_FIV_INLINE float8 pn_fiv_lens8(float8 a, float8 b, float8 dist)
     float8 ca = clamp((dist * dist + a * a - b * b) / (2.0f * dist * a), -1.0f, 1.0f);
     float8 cb = clamp((dist * dist + b * b - a * a) / (2.0f * dist * b), -1.0f, 1.0f);
     float8 k = (-dist + a + b) * (dist + a - b) * (dist - a + b) * (dist + a + b);
-    float8 lens = a * a * acos(ca) + b * b * acos(cb) - 0.5f * sqrt(fmax(k, 0.0f));
+    /* acos c = atan2(sqrt(1 - c^2), c) by the polynomial atan (2.5e-7 rad;
+     * the library acos is an out-of-line call) */
+    float8 aa = pn_fiv_atan2_8(sqrt(fmax(1.0f - ca * ca, 0.0f)), ca);
+    float8 ab = pn_fiv_atan2_8(sqrt(fmax(1.0f - cb * cb, 0.0f)), cb);
+    float8 lens = a * a * aa + b * b * ab - 0.5f * sqrt(fmax(k, 0.0f));
     return select(select(lens, PN_PI * r * r, dist <= fabs(a - b)), (float8)(0.0f), dist >= a + b);
 }
 
