@@ -458,18 +458,19 @@ PN_FIV_INLINE int8 pn_fiv_index8(global const float4 *occ, global const uchar *f
     return live;
 }
 
-/* pn_lens_area, lane by lane. */
+/* pn_lens_area, lane by lane, without its divides and acos: with
+ * k = (-d + a + b)(d + a - b)(d - a + b)(d + a + b) = (2 d a)^2 - (d^2 + a^2 - b^2)^2,
+ * acos((d^2 + a^2 - b^2) / (2 d a)) = atan2(sqrt(k), d^2 + a^2 - b^2) (both
+ * scaled by 2 d a > 0), and likewise for b; atan2 by the polynomial atan
+ * (2.5e-7 rad; the library acos is an out-of-line call). k < 0 by rounding
+ * reads as 0, the angle 0 or pi, as acos of the clamped cosine. */
 PN_FIV_INLINE float8 pn_fiv_lens8(float8 a, float8 b, float8 dist)
 {
     float8 r = fmin(a, b);
-    float8 ca = clamp((dist * dist + a * a - b * b) / (2.0f * dist * a), -1.0f, 1.0f);
-    float8 cb = clamp((dist * dist + b * b - a * a) / (2.0f * dist * b), -1.0f, 1.0f);
+    float8 d2 = dist * dist, a2 = a * a, b2 = b * b;
     float8 k = (-dist + a + b) * (dist + a - b) * (dist - a + b) * (dist + a + b);
-    /* acos c = atan2(sqrt(1 - c^2), c) by the polynomial atan (2.5e-7 rad;
-     * the library acos is an out-of-line call) */
-    float8 aa = pn_fiv_atan2_8(sqrt(fmax(1.0f - ca * ca, 0.0f)), ca);
-    float8 ab = pn_fiv_atan2_8(sqrt(fmax(1.0f - cb * cb, 0.0f)), cb);
-    float8 lens = a * a * aa + b * b * ab - 0.5f * sqrt(fmax(k, 0.0f));
+    float8 sk = sqrt(fmax(k, 0.0f));
+    float8 lens = a2 * pn_fiv_atan2_8(sk, d2 + a2 - b2) + b2 * pn_fiv_atan2_8(sk, d2 + b2 - a2) - 0.5f * sk;
     return select(select(lens, PN_PI * r * r, dist <= fabs(a - b)), (float8)(0.0f), dist >= a + b);
 }
 
