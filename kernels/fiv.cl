@@ -555,6 +555,8 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
      * occluder's irradiance. */
     float dd[7][PN_FIV_MAX_OVERLAP * PN_FIV_LANES];
     int discs[PN_FIV_LANES] = {0, 0, 0, 0, 0, 0, 0, 0};
+    /* With one occluder there is no pair: total = sum, clamped to [largest, sum]. */
+    const bool pairs = overlap == PN_OVERLAP_DISC && occluder_count > 1;
     int words = (occluder_count + 31) / 32;
     global const uint *mask = tile_masks;
     if (binned) {
@@ -634,7 +636,7 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
                 vis_r = select(vis_r, vis_r * clamp(1.0f - i_r / fmax(tot_r, 1e-30f), 0.0f, 1.0f), take);
                 vis_g = select(vis_g, vis_g * clamp(1.0f - i_g / fmax(tot_g, 1e-30f), 0.0f, 1.0f), take);
                 vis_b = select(vis_b, vis_b * clamp(1.0f - i_b / fmax(tot_b, 1e-30f), 0.0f, 1.0f), take);
-            } else if (overlap == PN_OVERLAP_DISC) {
+            } else if (pairs) {
                 float ar[PN_FIV_LANES], ag[PN_FIV_LANES], ab[PN_FIV_LANES], arho[PN_FIV_LANES];
                 int at[PN_FIV_LANES];
                 vstore8(i_r, 0, ar);
@@ -662,7 +664,7 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
         e_r = base_r * vis_r, e_g = base_g * vis_g, e_b = base_b * vis_b;
     } else {
         float8 tot_r = sum_r, tot_g = sum_g, tot_b = sum_b;
-        if (overlap == PN_OVERLAP_DISC) {
+        if (pairs) {
             /* Pairwise: the lens of two unit bounding discs, as a share of their
              * areas, of the two occluders' irradiance is counted once; each
              * lane over its own discs, in the scalar code's order. */
