@@ -34,7 +34,18 @@ VARIANTS = {"floor": ("floor", {}),
             "fiv_sum_nobg": ("fiv", {"overlap": 0, "background": 0})}
 
 
-def measure(occluders: int, resolution: int, rounds: int, out: Path, build_options=("",), spread: bool = False) -> dict:
+def cpu_timed(fn, ctx) -> float:
+    """ms of the process's CPU time (PoCL's worker threads included) for fn and
+    the queue's finish: on a loaded machine less disturbed by the other jobs
+    than the wall clock (waits for a core do not count)."""
+    t0 = time.process_time()
+    fn()
+    ctx.finish()
+    return 1000.0 * (time.process_time() - t0)
+
+
+def measure(occluders: int, resolution: int, rounds: int, out: Path, build_options=("",), spread: bool = False,
+            cpu: bool = False) -> dict:
     """ms of every variant, per round (round-robin, first round dropped); with
     several ``build_options`` (kernel build switches, e.g. -DPN_FIV_PROFILE=1)
     every variant runs under each of them in turn, keyed "variant[options]"."""
@@ -70,7 +81,7 @@ def measure(occluders: int, resolution: int, rounds: int, out: Path, build_optio
     times = {k: [] for k in runs}
     for r in range(rounds + 1):
         for k, (built, gb, img, rd) in runs.items():
-            t = _timed(lambda: rd.execute(built.scene, gb, img), built.ctx)
+            t = (cpu_timed if cpu else _timed)(lambda: rd.execute(built.scene, gb, img), built.ctx)
             if r:
                 times[k].append(t)
     return times
@@ -94,6 +105,7 @@ def main() -> None:
     ap.add_argument("--variants", help="comma-separated subset of " + ", ".join(VARIANTS))
     ap.add_argument("--build-options", action="append", default=None,
                     help="kernel build switches; give it twice or more to time the builds against each other")
+    ap.add_argument("--cpu", action="store_true", help="time by the process's CPU time, not the wall clock")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     out = Path(args.out)
@@ -101,12 +113,12 @@ def main() -> None:
         for k in set(VARIANTS) - set(args.variants.split(",")):
             del VARIANTS[k]
     if args.child:
-        print(json.dumps(measure(args.occluders, args.resolution, args.rounds, out)))
+        print(json.dumps(measure(args.occluders, args.resolution, args.rounds, out, spread=args.spread, cpu=args.cpu)))
         return
     load = [round(os.getloadavg()[0], 2)]
     if not args.against:
         times = measure(args.occluders, args.resolution, args.rounds, out, tuple(args.build_options or ("",)),
-                        args.spread)
+                        args.spread, args.cpu)
         load.append(round(os.getloadavg()[0], 2))
         print(f"{args.occluders} occluder(s), {args.resolution}^2, median of {args.rounds} rounds, load {load}")
         print("\n".join(table(times)))
@@ -121,7 +133,9 @@ def main() -> None:
                 if where:
                     env["PYTHONPATH"] = where + os.pathsep + env.get("PYTHONPATH", "")
                 res = subprocess.run([sys.executable, __file__, "--child", "--occluders", str(args.occluders),
-                                      "--resolution", str(args.resolution), "--rounds", "3", "--out", str(out)],
+                                      "--resolution", str(args.resolution), "--rounds", "3", "--out", str(out)]
+                                     + (["--variants", args.variants] if args.variants else [])
+                                     + (["--spread"] if args.spread else []) + (["--cpu"] if args.cpu else []),
                                      env=env, check=True, capture_output=True, text=True)
                 for k, t in json.loads(res.stdout.strip().splitlines()[-1]).items():
                     times[b][k] += t

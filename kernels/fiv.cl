@@ -138,6 +138,41 @@ PN_FIV_INLINE void pn_fiv_shell(global const uchar *fields, uint offset, int hp,
     pn_fiv_add(fields, offset, hp, n_theta, n_phi, k, i0 + 1, j1, wk * ti * tj, acc, wsum);
 }
 
+/* The lookup's second half: the samples around grid coordinates (fi, fj, fk)
+ * (fk >= 0, clamped to the grid), trilinear over the valid ones of the 8
+ * nearest, renormalised; with none valid, the nearest sphere farther out that
+ * has one. Times the value scale and the fall-off; false when none is valid. */
+PN_FIV_INLINE bool pn_fiv_fetch(global const float4 *occ, global const uchar *fields, float fi, float fj, float fk,
+                                float falloff, int trilinear, pn_fiv3 *out)
+{
+    uint offset = as_uint(occ[2].x);
+    int n_theta = as_int(occ[2].y), n_phi = as_int(occ[2].z), n_rho = as_int(occ[2].w);
+    int hp = as_int(occ[3].y);
+    pn_fiv3 acc = {(float3)(0.0f), (float3)(0.0f), (float3)(0.0f)};
+    float wsum = 0.0f;
+    if (!trilinear) {
+        fi = round(fi);
+        fj = round(fj);
+        fk = round(fk);
+    }
+    int i0 = min((int)fi, n_theta - 2), k0 = min((int)fk, n_rho - 2);
+    float ti = clamp(fi - (float)i0, 0.0f, 1.0f), tk = clamp(fk - (float)k0, 0.0f, 1.0f);
+    int jf = min((int)fj, n_phi - 1); /* phi = 2 pi after rounding is the seam */
+    float tj = clamp(fj - (float)jf, 0.0f, 1.0f);
+    int j0 = jf, j1 = jf + 1 < n_phi ? jf + 1 : 0; /* the phi seam wraps */
+    pn_fiv_shell(fields, offset, hp, n_theta, n_phi, k0, 1.0f - tk, i0, ti, j0, j1, tj, &acc, &wsum);
+    pn_fiv_shell(fields, offset, hp, n_theta, n_phi, k0 + 1, tk, i0, ti, j0, j1, tj, &acc, &wsum);
+    for (int k = k0 + 1; wsum <= 0.0f && k < n_rho; ++k)
+        pn_fiv_shell(fields, offset, hp, n_theta, n_phi, k, 1.0f, i0, ti, j0, j1, tj, &acc, &wsum);
+    if (wsum <= 0.0f)
+        return false;
+    float f = occ[3].z * falloff / wsum;
+    out->x = acc.x * f;
+    out->y = acc.y * f;
+    out->z = acc.z * f;
+    return true;
+}
+
 /* The occluded FIV at receiver-to-centre vector v (world units); false when
  * no valid sample is near (the receiver is deep inside the geometry).
  * Within the grid: trilinear over the valid ones of the 8 nearest samples,
@@ -193,29 +228,7 @@ PN_FIV_INLINE bool pn_fiv_lookup(global const float4 *occ, global const uchar *f
     out->x = out->y = out->z = (float3)((fi + fj + fk) * falloff);
     return true;
 #endif
-    pn_fiv3 acc = {(float3)(0.0f), (float3)(0.0f), (float3)(0.0f)};
-    float wsum = 0.0f;
-    if (!trilinear) {
-        fi = round(fi);
-        fj = round(fj);
-        fk = round(fk);
-    }
-    int i0 = min((int)fi, n_theta - 2), k0 = min((int)fk, n_rho - 2);
-    float ti = clamp(fi - (float)i0, 0.0f, 1.0f), tk = clamp(fk - (float)k0, 0.0f, 1.0f);
-    int jf = min((int)fj, n_phi - 1); /* phi = 2 pi after rounding is the seam */
-    float tj = clamp(fj - (float)jf, 0.0f, 1.0f);
-    int j0 = jf, j1 = jf + 1 < n_phi ? jf + 1 : 0; /* the phi seam wraps */
-    pn_fiv_shell(fields, offset, hp, n_theta, n_phi, k0, 1.0f - tk, i0, ti, j0, j1, tj, &acc, &wsum);
-    pn_fiv_shell(fields, offset, hp, n_theta, n_phi, k0 + 1, tk, i0, ti, j0, j1, tj, &acc, &wsum);
-    for (int k = k0 + 1; wsum <= 0.0f && k < n_rho; ++k)
-        pn_fiv_shell(fields, offset, hp, n_theta, n_phi, k, 1.0f, i0, ti, j0, j1, tj, &acc, &wsum);
-    if (wsum <= 0.0f)
-        return false;
-    float f = occ[3].z * falloff / wsum;
-    out->x = acc.x * f;
-    out->y = acc.y * f;
-    out->z = acc.z * f;
-    return true;
+    return pn_fiv_fetch(occ, fields, fi, fj, fk, falloff, trilinear, out);
 }
 
 inline float3 pn_fiv_dot(float3 n, pn_fiv3 f)
@@ -285,6 +298,184 @@ kernel void bin_fiv_tiles(global const float4 *position, global const uint *inst
     }
 }
 
+/* ---- Vector lanes across pixels ----------------------------------------
+ * shade_fiv runs 8 pixels of a row per work-item (x0 a multiple of 8, so the
+ * 8 lie in one 16x16 tile and share its occluder list): the occluder loop's
+ * tests and the lookup's index math (angles, logarithm, culling) are float8
+ * arithmetic, one lane per pixel, and only the lanes still in play fetch
+ * samples (pn_fiv_fetch, lane by lane). PoCL 3.1 does not vectorise the
+ * per-pixel code by itself: its loop over a work-group's work-items is never
+ * the innermost loop when the kernel loops over occluders, and the SLP pass
+ * turns scalar pairs (|x| against |z|, the colour channels) into 2- or
+ * 4-wide vectors the work-item loop vectorizer then refuses
+ * (docs/performance.md, FIV). Each lane does the scalar code's operations in
+ * the same order. */
+#define PN_FIV_LANES 8
+
+/* pn_atan (common/math.cl), lane by lane. */
+PN_FIV_INLINE float8 pn_fiv_atan8(float8 x)
+{
+    const float8 a = fabs(x), t = select(a, 1.0f / a, a > 1.0f), t2 = t * t;
+    float8 p;
+    PN_ATAN_POLY(p, t2);
+    const float8 r = t * p;
+    return copysign(select(r, M_PI_2_F - r, a > 1.0f), x);
+}
+
+/* pn_atan2 (common/math.cl), lane by lane. */
+PN_FIV_INLINE float8 pn_fiv_atan2_8(float8 y, float8 x)
+{
+    const float8 ax = fabs(x), ay = fabs(y), hi = fmax(ax, ay), lo = fmin(ax, ay);
+    const float8 t = select((float8)(0.0f), lo / hi, hi > 0.0f);
+    float8 a = pn_fiv_atan8(t);
+    a = select(a, M_PI_2_F - a, ay > ax);
+    a = select(a, PN_PI - a, x < 0.0f);
+    return copysign(a, y);
+}
+
+/* pn_fiv_ln, lane by lane. */
+PN_FIV_INLINE float8 pn_fiv_ln8(float8 x)
+{
+    int8 bits = as_int8(x);
+    int8 e = (bits >> 23) - 127;
+    float8 m = as_float8((bits & 0x007fffff) | 0x3f800000);
+    int8 big = m > 1.41421356f;
+    m = select(m, 0.5f * m, big);
+    e = select(e, e + 1, big);
+    float8 f = m - 1.0f;
+    float8 s = f / (2.0f + f), s2 = s * s;
+    float8 p = 0.11111111f;
+    p = p * s2 + 0.14285715f;
+    p = p * s2 + 0.2f;
+    p = p * s2 + 0.33333334f;
+    p = p * s2 + 1.0f;
+    return convert_float8(e) * 0.693147180559945f + 2.0f * s * p;
+}
+
+/* pn_fiv_dir_bin, lane by lane. */
+PN_FIV_INLINE int8 pn_fiv_dir_bin8(float8 vx, float8 vy, float8 vz, float8 rho)
+{
+    float8 ax = fabs(vx), az = fabs(vz), hi = fmax(ax, az);
+    float8 t = select((float8)(0.0f), fmin(ax, az) / hi, hi > 0.0f);
+    float8 q = select(t, 2.0f - t, az > ax);
+    float8 p = select(select(q, 8.0f - q, vz < 0.0f), select(4.0f - q, 4.0f + q, vz < 0.0f), vx < 0.0f);
+    int8 bz = clamp(convert_int8((vy / rho + 1.0f) * (0.5f * PN_FIV_BINS_Z)), 0, PN_FIV_BINS_Z - 1);
+    int8 bp = min(convert_int8(p * (PN_FIV_BINS_P / 8.0f)), PN_FIV_BINS_P - 1);
+    return bz * PN_FIV_BINS_P + bp;
+}
+
+/* base[idx] in the lanes of mask (-1), 0 in the others (whose idx may be anything). */
+PN_FIV_INLINE float8 pn_fiv_gather8(global const float *base, int8 idx, int8 mask)
+{
+    int i[PN_FIV_LANES], m[PN_FIV_LANES];
+    float v[PN_FIV_LANES];
+    vstore8(idx, 0, i);
+    vstore8(mask, 0, m);
+    for (int l = 0; l < PN_FIV_LANES; ++l)
+        v[l] = m[l] ? base[i[l]] : 0.0f;
+    return vload8(0, v);
+}
+
+/* pn_cube_grid_lookup (common/sphere_maps.cl) for 8 unit directions: the
+ * face and the cell (x0, y0, fx, fy) of each lane, from the same operations
+ * as pn_dir_to_cube's branches, as selects (their mispredictions were most
+ * of the lookup's cost); pn_fiv_cube_fetch then reads the 4 samples. */
+PN_FIV_INLINE void pn_fiv_cube_cell8(int n, float8 dx, float8 dy, float8 dz, int *face, int *x0, int *y0, float *fx,
+                                     float *fy)
+{
+    float8 ax = fabs(dx), ay = fabs(dy), az = fabs(dz);
+    int8 xm = (ax >= ay) & (ax >= az), ym = ~xm & (ay >= az);
+    float8 inv = 1.0f / select(select(az, ay, ym), ax, xm);
+    float8 a = select(select(select(-dx, dx, dz > 0.0f), dx, ym), select(dz, -dz, dx > 0.0f), xm) * inv;
+    float8 b = select(-dy, select(-dz, dz, dy > 0.0f), ym) * inv;
+    int8 f = select(select(select((int8)(5), (int8)(4), dz > 0.0f), select((int8)(3), (int8)(2), dy > 0.0f), ym),
+                    select((int8)(1), (int8)(0), dx > 0.0f), xm);
+    float8 x = clamp((a + 1.0f) * 0.5f * (float)(n - 1), 0.0f, (float)(n - 1));
+    float8 y = clamp((b + 1.0f) * 0.5f * (float)(n - 1), 0.0f, (float)(n - 1));
+    int8 ix = min(convert_int8(x), n - 2), iy = min(convert_int8(y), n - 2);
+    vstore8(f, 0, face);
+    vstore8(ix, 0, x0);
+    vstore8(iy, 0, y0);
+    vstore8(x - convert_float8(ix), 0, fx);
+    vstore8(y - convert_float8(iy), 0, fy);
+}
+
+/* The rest of pn_cube_grid_lookup for one lane. */
+PN_FIV_INLINE float3 pn_fiv_cube_fetch(global const float4 *grid, int n, int face, int x0, int y0, float fx, float fy)
+{
+    global const float4 *row0 = grid + (face * n + y0) * n + x0;
+    global const float4 *row1 = row0 + n;
+    float4 top = mix(row0[0], row0[1], fx);
+    float4 bottom = mix(row1[0], row1[1], fx);
+    return mix(top, bottom, fy).xyz;
+}
+
+/* pn_fiv_lookup's first half for 8 receivers (v_world per lane, the lanes
+ * of `live` taken): the grid coordinates and fall-off of each lane, and the
+ * lanes that go on to fetch samples (the others: not finite, or culled per
+ * direction). */
+PN_FIV_INLINE int8 pn_fiv_index8(global const float4 *occ, global const uchar *fields, float8 wx, float8 wy,
+                                 float8 wz, int8 live, float cull_floor, float8 *fi_out, float8 *fj_out,
+                                 float8 *fk_out, float8 *falloff_out)
+{
+    float inv_scale = occ[1].x, rho_min = occ[1].y, log_ratio = occ[1].z;
+    uint offset = as_uint(occ[2].x);
+    int n_theta = as_int(occ[2].y), n_phi = as_int(occ[2].z), n_rho = as_int(occ[2].w);
+    int hp = as_int(occ[3].y);
+    float8 vx = wx * inv_scale, vy = wy * inv_scale, vz = wz * inv_scale;
+    float8 rho = sqrt(vx * vx + vy * vy + vz * vz);
+    live &= isfinite(rho);
+    size_t samples = (size_t)n_rho * n_theta * n_phi * PN_FIV_FLOATS * (hp ? 2 : 4);
+    global const float *cell_bound = (global const float *)(fields + offset + ((samples + 15) & ~(size_t)15));
+    float rho_max = occ[3].w;
+    if (cull_floor > 0.0f) {
+        int8 beyond = live & (rho > rho_max * 1.0001f);
+        if (any(beyond)) {
+            global const float *bin_bound = cell_bound + (((size_t)(n_theta - 1) * n_phi + 3) & ~(size_t)3);
+            float8 bound = pn_fiv_gather8(bin_bound, pn_fiv_dir_bin8(vx, vy, vz, rho), beyond);
+            live &= ~(beyond & (bound * ((rho_max / rho) * (rho_max / rho)) < cull_floor));
+        }
+    }
+    float8 theta = pn_fiv_atan2_8(sqrt(vx * vx + vz * vz), vy);
+    float8 phi = pn_fiv_atan2_8(vz, vx);
+    phi = select(phi, phi + PN_TWO_PI, phi < 0.0f);
+    float8 fi = theta * (float)(n_theta - 1) * PN_INV_PI;
+    float8 fj = phi * (float)n_phi * PN_INV_TWO_PI;
+    float8 fk = select((float8)(0.0f), pn_fiv_ln8(rho / rho_min) / log_ratio * (float)(n_rho - 1), rho > 0.0f);
+    int8 out_of_grid = fk > (float)(n_rho - 1);
+    float8 falloff = select((float8)(1.0f), (rho_max / rho) * (rho_max / rho), out_of_grid);
+    fk = select(fk, (float8)(n_rho - 1), out_of_grid);
+    int8 cull = live & out_of_grid;
+    if (any(cull)) { /* the cell test (pn_fiv_lookup) */
+        int8 ci = min(convert_int8(fi), n_theta - 2), cj = min(convert_int8(fj), n_phi - 1);
+        float8 bound = pn_fiv_gather8(cell_bound, ci * n_phi + cj, cull);
+        live &= ~(cull & (bound * falloff < cull_floor));
+    }
+    *fi_out = fi;
+    *fj_out = fj;
+    *fk_out = fmax(fk, 0.0f);
+    *falloff_out = falloff;
+    return live;
+}
+
+/* pn_lens_area, lane by lane, without its divides and acos: with
+ * k = (-d + a + b)(d + a - b)(d - a + b)(d + a + b) = (2 d a)^2 - (d^2 + a^2 - b^2)^2,
+ * acos((d^2 + a^2 - b^2) / (2 d a)) = atan2(sqrt(k), d^2 + a^2 - b^2) (both
+ * scaled by 2 d a > 0), and likewise for b; atan2 by the polynomial atan
+ * (2.5e-7 rad; the library acos is an out-of-line call). k < 0 by rounding
+ * reads as 0, the angle 0 or pi, as acos of the clamped cosine. */
+PN_FIV_INLINE float8 pn_fiv_lens8(float8 a, float8 b, float8 dist)
+{
+    float8 r = fmin(a, b);
+    float8 d2 = dist * dist, a2 = a * a, b2 = b * b;
+    float8 k = (-dist + a + b) * (dist + a - b) * (dist - a + b) * (dist + a + b);
+    float8 sk = sqrt(fmax(k, 0.0f));
+    float8 lens = a2 * pn_fiv_atan2_8(sk, d2 + a2 - b2) + b2 * pn_fiv_atan2_8(sk, d2 + b2 - a2) - 0.5f * sk;
+    return select(select(lens, PN_PI * r * r, dist <= fabs(a - b)), (float8)(0.0f), dist >= a + b);
+}
+
+/* One work-item per 8 pixels of a row (above): global size
+ * ceil(width / 8) x height. */
 kernel void shade_fiv(global const float4 *position, global const float4 *normal, global const float4 *albedo,
                       global const uint *instance_id, int count, global const float4 *irradiance, int m,
                       global const float4 *occluders,
@@ -293,49 +484,87 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
                       int overlap, int partial, int self_shadow, int trilinear, int width, int binned,
                       global const uint *tile_masks, global float4 *image)
 {
-    int gid = get_global_id(0);
-    if (gid >= count)
+    int groups = (width + PN_FIV_LANES - 1) / PN_FIV_LANES;
+    int item = get_global_id(0);
+    int y = item / groups, x0 = (item - y * groups) * PN_FIV_LANES;
+    if (width <= 0 || y >= count / width)
         return;
-    uint id = instance_id[gid];
-    if (id == PN_BACKGROUND) { /* black; the renderer draws the env map there (envmap_background) */
-        image[gid] = (float4)(0.0f);
-        return;
-    }
-    float3 p = position[gid].xyz;
-    float3 n = normalize(normal[gid].xyz);
-    float3 e_tot = pn_cube_grid_lookup(irradiance, m, n);
-    float3 e_base = e_tot;
-    float3 sum = (float3)(0.0f), largest = (float3)(0.0f), visible = (float3)(1.0f);
-    float3 occluded[PN_FIV_MAX_OVERLAP];
-    float4 disc[PN_FIV_MAX_OVERLAP]; /* unit-sphere direction, radius */
-    int discs = 0;
-    /* Self-shadowing: the pixel's own occluder, found by its id among all of
-     * them (a tile's mask may leave it out when a G-buffer puts the pixel
-     * beyond its culling distance). All unoccluded light is in the positive
-     * hemisphere. */
-    for (int o = 0; self_shadow && o < occluder_count; ++o) {
-        global const float4 *occ = occluders + PN_FIV_RECORD * o;
-        pn_fiv3 f;
-        if (as_uint(occ[3].x) != id)
-            continue;
-        if (pn_fiv_lookup(occ, fields, occ[0].xyz - p, trilinear, 0.0f, &f)) {
-            /* A sample off the surface also sees unoccluded light behind
-             * the receiver plane, which the fullsphere sum subtracts: the
-             * estimate errs low, never above the unoccluded irradiance. */
-            pn_fiv3 env = {env_x.xyz, env_y.xyz, env_z.xyz};
-            e_base = clamp(pn_fiv_dot(n, env) - pn_fiv_dot(n, f), 0.0f, e_tot);
+    /* Per lane (scalar): the pixel; then its unshadowed irradiance (the cube
+     * cell in lanes), self-shadowing. */
+    float lp[3][PN_FIV_LANES], ln[3][PN_FIV_LANES], le_tot[3][PN_FIV_LANES], le_base[3][PN_FIV_LANES];
+    uint lid[PN_FIV_LANES];
+    int lactive[PN_FIV_LANES];
+    for (int l = 0; l < PN_FIV_LANES; ++l) {
+        int gid = y * width + x0 + l;
+        uint id = x0 + l < width ? instance_id[gid] : PN_BACKGROUND;
+        float3 p = (float3)(0.0f), n = (float3)(0.0f, 1.0f, 0.0f);
+        if (id != PN_BACKGROUND) {
+            p = position[gid].xyz;
+            n = normalize(normal[gid].xyz);
+        } else if (x0 + l < width) { /* black; the renderer draws the env map there (envmap_background) */
+            image[gid] = (float4)(0.0f);
         }
-        break; /* one field per instance */
+        lid[l] = id;
+        lactive[l] = id != PN_BACKGROUND ? -1 : 0;
+        lp[0][l] = p.x, lp[1][l] = p.y, lp[2][l] = p.z;
+        ln[0][l] = n.x, ln[1][l] = n.y, ln[2][l] = n.z;
     }
+    int cface[PN_FIV_LANES], cx[PN_FIV_LANES], cy[PN_FIV_LANES];
+    float cfx[PN_FIV_LANES], cfy[PN_FIV_LANES];
+    pn_fiv_cube_cell8(m, vload8(0, ln[0]), vload8(0, ln[1]), vload8(0, ln[2]), cface, cx, cy, cfx, cfy);
+    for (int l = 0; l < PN_FIV_LANES; ++l) {
+        float3 e_tot = (float3)(0.0f), e_base = (float3)(0.0f);
+        if (lactive[l]) {
+            uint id = lid[l];
+            float3 p = (float3)(lp[0][l], lp[1][l], lp[2][l]), n = (float3)(ln[0][l], ln[1][l], ln[2][l]);
+            e_tot = pn_fiv_cube_fetch(irradiance, m, cface[l], cx[l], cy[l], cfx[l], cfy[l]);
+            e_base = e_tot;
+            /* Self-shadowing: the pixel's own occluder, found by its id among all
+             * of them (a tile's mask may leave it out when a G-buffer puts the
+             * pixel beyond its culling distance). All unoccluded light is in the
+             * positive hemisphere. */
+            for (int o = 0; self_shadow && o < occluder_count; ++o) {
+                global const float4 *occ = occluders + PN_FIV_RECORD * o;
+                pn_fiv3 f;
+                if (as_uint(occ[3].x) != id)
+                    continue;
+                if (pn_fiv_lookup(occ, fields, occ[0].xyz - p, trilinear, 0.0f, &f)) {
+                    /* A sample off the surface also sees unoccluded light behind
+                     * the receiver plane, which the fullsphere sum subtracts: the
+                     * estimate errs low, never above the unoccluded irradiance. */
+                    pn_fiv3 env = {env_x.xyz, env_y.xyz, env_z.xyz};
+                    e_base = clamp(pn_fiv_dot(n, env) - pn_fiv_dot(n, f), 0.0f, e_tot);
+                }
+                break; /* one field per instance */
+            }
+        }
+        le_tot[0][l] = e_tot.x, le_tot[1][l] = e_tot.y, le_tot[2][l] = e_tot.z;
+        le_base[0][l] = e_base.x, le_base[1][l] = e_base.y, le_base[2][l] = e_base.z;
+    }
+    int8 active = vload8(0, lactive);
+    if (!any(active))
+        return;
+    uint8 id8 = vload8(0, lid);
+    float8 px = vload8(0, lp[0]), py = vload8(0, lp[1]), pz = vload8(0, lp[2]);
+    float8 nx = vload8(0, ln[0]), ny = vload8(0, ln[1]), nz = vload8(0, ln[2]);
+    float8 tot_r = vload8(0, le_tot[0]), tot_g = vload8(0, le_tot[1]), tot_b = vload8(0, le_tot[2]);
+    float8 sum_r = 0.0f, sum_g = 0.0f, sum_b = 0.0f, big_r = 0.0f, big_g = 0.0f, big_b = 0.0f;
+    float8 vis_r = 1.0f, vis_g = 1.0f, vis_b = 1.0f;
+    /* Disc correction: per lane the occluders that took part (at most 32),
+     * slot d of lane l at [d * 8 + l]: unit-sphere direction, radius, the
+     * occluder's irradiance. */
+    float dd[7][PN_FIV_MAX_OVERLAP * PN_FIV_LANES];
+    int discs[PN_FIV_LANES] = {0, 0, 0, 0, 0, 0, 0, 0};
+    /* With one occluder there is no pair: total = sum, clamped to [largest, sum]. */
+    const bool pairs = overlap == PN_OVERLAP_DISC && occluder_count > 1;
     int words = (occluder_count + 31) / 32;
     global const uint *mask = tile_masks;
-    if (binned) { /* one integer division (a slow scalar instruction), none unbinned */
-        int y = gid / width, x = gid - y * width;
-        int tile = (y / PN_FIV_TILE) * ((width + PN_FIV_TILE - 1) / PN_FIV_TILE) + x / PN_FIV_TILE;
+    if (binned) {
+        int tile = (y / PN_FIV_TILE) * ((width + PN_FIV_TILE - 1) / PN_FIV_TILE) + x0 / PN_FIV_TILE;
         mask += (size_t)tile * words;
     }
     for (int w = 0; w < words; ++w) {
-        /* The occluders of this pixel's tile (all of them unbinned), in order. */
+        /* The occluders of these pixels' tile (all of them unbinned), in order. */
         int left = occluder_count - 32 * w;
         uint bits = binned ? mask[w] : left >= 32 ? 0xFFFFFFFFu : (1u << left) - 1u;
         while (bits) {
@@ -343,60 +572,139 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
             bits &= bits - 1u;
             global const float4 *occ = occluders + PN_FIV_RECORD * o;
             float4 sphere = occ[0];
-            float3 v = sphere.xyz - p;
-            if (as_uint(occ[3].x) == id) /* its own occluder: above */
+            float8 vx = sphere.x - px, vy = sphere.y - py, vz = sphere.z - pz;
+            float r = sphere.w;
+            float8 dist_plane = vx * nx + vy * ny + vz * nz;
+            float8 rho = sqrt(vx * vx + vy * vy + vz * vz);
+            /* not its own occluder (above), not fully behind the receiver
+             * plane (case C), not beyond the culling distance */
+            int8 take = active & (id8 != as_uint(occ[3].x)) & ~(dist_plane <= -r) & ~(rho > occ[1].w);
+            if (!any(take))
                 continue;
-            float r = sphere.w, dist_plane = dot(v, n);
-            if (dist_plane <= -r) /* case C: fully behind the receiver plane */
-                continue;
-            float rho = length(v);
-            if (rho > occ[1].w) /* beyond the culling distance */
-                continue;
-            pn_fiv3 f;
+            float fr[9][PN_FIV_LANES];
 #if PN_FIV_PROFILE == 1
-            f.x = f.y = f.z = (float3)(occ[3].z * 1e-3f);
+            for (int c = 0; c < 9; ++c)
+                vstore8((float8)(occ[3].z * 1e-3f), 0, fr[c]);
 #else
-            if (!pn_fiv_lookup(occ, fields, v, trilinear, cull_floor, &f))
+            float8 fi, fj, fk, falloff;
+            take = pn_fiv_index8(occ, fields, vx, vy, vz, take, cull_floor, &fi, &fj, &fk, &falloff);
+            if (!any(take))
                 continue;
+#if PN_FIV_PROFILE == 2
+            for (int c = 0; c < 9; ++c)
+                vstore8((fi + fj + fk) * falloff, 0, fr[c]);
+#else
+            {
+                float afi[PN_FIV_LANES], afj[PN_FIV_LANES], afk[PN_FIV_LANES], afo[PN_FIV_LANES];
+                int at[PN_FIV_LANES];
+                vstore8(fi, 0, afi);
+                vstore8(fj, 0, afj);
+                vstore8(fk, 0, afk);
+                vstore8(falloff, 0, afo);
+                vstore8(take, 0, at);
+                for (int l = 0; l < PN_FIV_LANES; ++l) {
+                    pn_fiv3 f = {(float3)(0.0f), (float3)(0.0f), (float3)(0.0f)};
+                    if (at[l] && !pn_fiv_fetch(occ, fields, afi[l], afj[l], afk[l], afo[l], trilinear, &f))
+                        at[l] = 0;
+                    fr[0][l] = f.x.x, fr[1][l] = f.x.y, fr[2][l] = f.x.z;
+                    fr[3][l] = f.y.x, fr[4][l] = f.y.y, fr[5][l] = f.y.z;
+                    fr[6][l] = f.z.x, fr[7][l] = f.z.y, fr[8][l] = f.z.z;
+                }
+                take = vload8(0, at);
+                if (!any(take))
+                    continue;
+            }
 #endif
-            /* An occluder only removes light. */
-            float3 i_occ = fmax(pn_fiv_dot(n, f), 0.0f);
-            if (partial && dist_plane < r) /* case B: the share above the plane */
-                i_occ *= (dist_plane + r) / (2.0f * r);
-            sum += i_occ;
-            largest = fmax(largest, i_occ);
-            if (overlap == PN_OVERLAP_MULTIPLY)
-                visible *= clamp(1.0f - i_occ / fmax(e_tot, 1e-30f), 0.0f, 1.0f);
-            else if (overlap == PN_OVERLAP_DISC && discs < PN_FIV_MAX_OVERLAP) {
-                occluded[discs] = i_occ;
-                disc[discs] = (float4)(rho > 0.0f ? v / rho : n, fmin(r / fmax(rho, 1e-30f), 1.0f));
-                ++discs;
+#endif
+            /* An occluder only removes light (N . FIV per channel, as pn_fiv_dot). */
+            float8 i_r = fmax(nx * vload8(0, fr[0]) + ny * vload8(0, fr[3]) + nz * vload8(0, fr[6]), 0.0f);
+            float8 i_g = fmax(nx * vload8(0, fr[1]) + ny * vload8(0, fr[4]) + nz * vload8(0, fr[7]), 0.0f);
+            float8 i_b = fmax(nx * vload8(0, fr[2]) + ny * vload8(0, fr[5]) + nz * vload8(0, fr[8]), 0.0f);
+            if (partial) { /* case B: the share above the plane */
+                int8 b = dist_plane < r;
+                float8 share = select((float8)(1.0f), (dist_plane + r) / (2.0f * r), b);
+                i_r = select(i_r, i_r * share, b);
+                i_g = select(i_g, i_g * share, b);
+                i_b = select(i_b, i_b * share, b);
+            }
+            i_r = select((float8)(0.0f), i_r, take);
+            i_g = select((float8)(0.0f), i_g, take);
+            i_b = select((float8)(0.0f), i_b, take);
+            sum_r += i_r, sum_g += i_g, sum_b += i_b;
+            big_r = fmax(big_r, i_r), big_g = fmax(big_g, i_g), big_b = fmax(big_b, i_b);
+            if (overlap == PN_OVERLAP_MULTIPLY) {
+                vis_r = select(vis_r, vis_r * clamp(1.0f - i_r / fmax(tot_r, 1e-30f), 0.0f, 1.0f), take);
+                vis_g = select(vis_g, vis_g * clamp(1.0f - i_g / fmax(tot_g, 1e-30f), 0.0f, 1.0f), take);
+                vis_b = select(vis_b, vis_b * clamp(1.0f - i_b / fmax(tot_b, 1e-30f), 0.0f, 1.0f), take);
+            } else if (pairs) {
+                float ar[PN_FIV_LANES], ag[PN_FIV_LANES], ab[PN_FIV_LANES], arho[PN_FIV_LANES];
+                int at[PN_FIV_LANES];
+                vstore8(i_r, 0, ar);
+                vstore8(i_g, 0, ag);
+                vstore8(i_b, 0, ab);
+                vstore8(rho, 0, arho);
+                vstore8(take, 0, at);
+                for (int l = 0; l < PN_FIV_LANES; ++l) {
+                    if (!at[l] || discs[l] >= PN_FIV_MAX_OVERLAP)
+                        continue;
+                    float3 v = sphere.xyz - (float3)(lp[0][l], lp[1][l], lp[2][l]);
+                    float3 u = arho[l] > 0.0f ? v / arho[l] : (float3)(ln[0][l], ln[1][l], ln[2][l]);
+                    int slot = discs[l]++ * PN_FIV_LANES + l;
+                    dd[0][slot] = u.x, dd[1][slot] = u.y, dd[2][slot] = u.z;
+                    dd[3][slot] = fmin(r / fmax(arho[l], 1e-30f), 1.0f);
+                    dd[4][slot] = ar[l], dd[5][slot] = ag[l], dd[6][slot] = ab[l];
+                }
             }
         }
     }
-    float3 e;
+    /* The overlap correction, in lanes; then the pixels. */
+    float8 e_r, e_g, e_b;
+    float8 base_r = vload8(0, le_base[0]), base_g = vload8(0, le_base[1]), base_b = vload8(0, le_base[2]);
     if (overlap == PN_OVERLAP_MULTIPLY) {
-        e = e_base * visible;
+        e_r = base_r * vis_r, e_g = base_g * vis_g, e_b = base_b * vis_b;
     } else {
-        float3 total = sum;
-        if (overlap == PN_OVERLAP_DISC) {
+        float8 tot_r = sum_r, tot_g = sum_g, tot_b = sum_b;
+        if (pairs) {
             /* Pairwise: the lens of two unit bounding discs, as a share of their
-             * areas, of the two occluders' irradiance is counted once. */
-            for (int a = 0; a < discs; ++a)
-                for (int b = a + 1; b < discs; ++b) {
-                    float ra = disc[a].w, rb = disc[b].w;
-                    float3 d = disc[a].xyz - disc[b].xyz;
-                    float d2 = dot(d, d);
+             * areas, of the two occluders' irradiance is counted once; each
+             * lane over its own discs, in the scalar code's order. */
+            int8 nd = vload8(0, discs);
+            int most = 0;
+            for (int l = 0; l < PN_FIV_LANES; ++l)
+                most = max(most, discs[l]);
+            for (int l = 0; l < PN_FIV_LANES; ++l) /* the slots a lane did not fill: defined, never taken */
+                for (int d = discs[l]; d < most; ++d)
+                    for (int c = 0; c < 7; ++c)
+                        dd[c][d * PN_FIV_LANES + l] = 0.0f;
+            for (int a = 0; a < most; ++a) {
+                float8 uax = vload8(a, dd[0]), uay = vload8(a, dd[1]), uaz = vload8(a, dd[2]), ra = vload8(a, dd[3]);
+                for (int b = a + 1; b < most; ++b) {
+                    float8 rb = vload8(b, dd[3]);
+                    float8 ex = uax - vload8(b, dd[0]), ey = uay - vload8(b, dd[1]), ez = uaz - vload8(b, dd[2]);
+                    float8 d2 = ex * ex + ey * ey + ez * ez;
                     /* Most pairs are apart: no lens, and no sqrt or acos spent on it. */
-                    if (d2 >= (ra + rb) * (ra + rb))
+                    int8 near = ((int8)(b) < nd) & ~(d2 >= (ra + rb) * (ra + rb));
+                    if (!any(near))
                         continue;
-                    float lens = pn_lens_area(ra, rb, sqrt(d2));
-                    if (lens > 0.0f)
-                        total -= lens / (PN_PI * (ra * ra + rb * rb)) * (occluded[a] + occluded[b]);
+                    float8 lens = pn_fiv_lens8(ra, rb, sqrt(d2));
+                    int8 take = near & (lens > 0.0f);
+                    float8 share = lens / (PN_PI * (ra * ra + rb * rb));
+                    tot_r = select(tot_r, tot_r - share * (vload8(a, dd[4]) + vload8(b, dd[4])), take);
+                    tot_g = select(tot_g, tot_g - share * (vload8(a, dd[5]) + vload8(b, dd[5])), take);
+                    tot_b = select(tot_b, tot_b - share * (vload8(a, dd[6]) + vload8(b, dd[6])), take);
                 }
-            total = clamp(total, largest, sum);
+            }
+            tot_r = clamp(tot_r, big_r, sum_r), tot_g = clamp(tot_g, big_g, sum_g), tot_b = clamp(tot_b, big_b, sum_b);
         }
-        e = e_base - total;
+        e_r = base_r - tot_r, e_g = base_g - tot_g, e_b = base_b - tot_b;
     }
-    image[gid] = (float4)(fmax(albedo[gid].xyz * e * PN_INV_PI, 0.0f), 1.0f);
+    float ae[3][PN_FIV_LANES];
+    vstore8(e_r, 0, ae[0]), vstore8(e_g, 0, ae[1]), vstore8(e_b, 0, ae[2]);
+    for (int l = 0; l < PN_FIV_LANES; ++l) {
+        if (!lactive[l])
+            continue;
+        int gid = y * width + x0 + l;
+        float3 e = (float3)(ae[0][l], ae[1][l], ae[2][l]);
+        image[gid] = (float4)(fmax(albedo[gid].xyz * e * PN_INV_PI, 0.0f), 1.0f);
+    }
 }

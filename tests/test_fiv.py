@@ -443,6 +443,77 @@ def test_tile_culling_changes_no_pixel(ctx, env, meshes, fields):
     assert 0 < bins["lookups_per_pixel"] < bins["per_tile_mean"]
 
 
+def assert_matches_twin(s, params, cull_threshold=0.0):
+    """The kernel's image against the twin's on the foreground, the background as unshadowed's."""
+    got = s.render(cull_threshold=cull_threshold, **params)
+    want, _, fragile = s.twin(cull_threshold=cull_threshold, **params)
+    scale = s.e0[s.fg].max() / np.pi
+    err = np.abs(got[s.fg][:, :3] - want).max(axis=1)
+    bad = (err > FIV_SHADE_ATOL * scale) & ~fragile
+    assert not bad.any(), f"{params}: {bad.sum()} of {bad.size} pixels differ, worst {err.max() / scale:.3g}"
+    bg = render(s.ctx, s.scene, s.gb, "unshadowed")
+    assert np.array_equal(got[~s.fg], bg[~s.fg])
+    return got
+
+
+@pytest.mark.parametrize("h,w", [(1, 1), (7, 13), (18, 21), (3, 40)])
+def test_lanes_at_image_edges(ctx, env, meshes, fields, h, w):
+    """shade_fiv shades 8 pixels of a row per work-item (kernels/fiv.cl):
+    widths that are not a multiple of 8 or 16 leave lanes past the row's
+    end, heights a partial row of tiles; every pixel still matches the twin,
+    and the tile masks change none, with background pixels and pixels on an
+    occluder (self-shadowing) in the same lanes as plane pixels."""
+    rng = np.random.default_rng(100 * h + w)
+    pos, nrm, inst = plane_receivers(rng, h=h, w=w)
+    c0 = np.array([0.0, 0.6, 0.0])
+    if h * w > 1:
+        inst[rng.random((h, w)) < 0.15] = BACKGROUND
+        inst[0, -1] = BACKGROUND  # the last lane of the first row
+        on = (rng.random((h, w)) < 0.2) & (inst != BACKGROUND)
+        on[-1, -1] = True  # the very last pixel, on the sphere
+        u = unit(rng.normal(size=(on.sum(), 3)) + np.array([0.0, 1.0, 0.0]))
+        pos[on], nrm[on], inst[on] = c0 + 0.5 * u, u, 0
+    instances = [(fields["sphere"], meshes["sphere"][1], translate(c0)),
+                 (fields["sphere"], meshes["sphere"][1], translate((0.5, 0.7, 0.3))),
+                 (fields["box"], meshes["box"][1], translate((-0.8, 0.5, -0.4), 1.5))]
+    s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
+    assert s.fg.any()
+    for params in (dict(overlap=0), dict(overlap=1, partial=1, self_shadow=1), dict(overlap=2, trilinear=0)):
+        got = assert_matches_twin(s, params)
+        assert np.array_equal(got, s.render(cull_threshold=0.0, tile_cull=0, **params)), params
+    # Culling per direction and by distance, with the tile masks on (the default) and off.
+    got = assert_matches_twin(s, dict(overlap=1), cull_threshold=0.1)
+    assert np.array_equal(got, s.render(cull_threshold=0.1, tile_cull=0, overlap=1))
+
+
+def test_many_occluders_per_tile(ctx, env, meshes, fields):
+    """40 small spheres over every pixel of a 20 x 12 image: two words of the
+    tile masks, every lane of a work-item taking most occluders, more than 32
+    taking part at a pixel (the overlap correction keeps the first 32, as the
+    twin does), and lanes past the row's end; against the twin."""
+    rng = np.random.default_rng(21)
+    h, w = 12, 20
+    pos, nrm, inst = plane_receivers(rng, h=h, w=w, max_tilt_deg=40.0)
+    gx, gz = np.meshgrid(np.linspace(-2.0, 2.0, 8), np.linspace(-1.5, 1.5, 5))
+    centres = np.stack([gx.ravel(), 0.4 + 0.1 * rng.random(40), gz.ravel()], -1)
+    instances = [(fields["sphere"], meshes["sphere"][1], translate(c, 0.3)) for c in centres]
+    s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
+    assert len(s.occluders()) == 40
+    for params in (dict(overlap=0), dict(overlap=1, partial=1), dict(overlap=2)):
+        got = assert_matches_twin(s, params)
+        assert np.array_equal(got, s.render(cull_threshold=0.0, tile_cull=0, **params)), params
+    # More than 32 occluders take part at some pixels (not behind the plane,
+    # a valid lookup), so the cap of the overlap correction is reached.
+    p = pos.reshape(-1, 3)
+    n = nrm.reshape(-1, 3)
+    taking = np.zeros(len(p), int)
+    for o in s.occluders():
+        v = o.centre[None, :] - p
+        _, ok, _ = lookup(o, v)
+        taking += ok & (np.einsum("nk,nk->n", v, n) > -o.radius)
+    assert taking.max() > 32
+
+
 # --------------------------------------------------------------------------- the bake file
 
 

@@ -405,7 +405,9 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
                           &s->tile_masks, &image->buffer};
     if ((st = pn_set_args(ctx, k, "shade_fiv", 22, sizes, vals)))
         return st;
-    return pn_enqueue_1d(ctx, k, "shade_fiv", (size_t)count, 64);
+    /* 8 pixels of a row per work-item (vector lanes, kernels/fiv.cl). */
+    const size_t items = (size_t)((gb->width + 7) / 8) * gb->height;
+    return pn_enqueue_1d(ctx, k, "shade_fiv", items, 8);
 }
 
 static pn_status create(pn_renderer r)
