@@ -720,3 +720,78 @@ def test_bvh_width_variable_is_checked(monkeypatch, value):
     monkeypatch.setenv("PENUMBRA_BVH_WIDTH", value)
     with pytest.raises(PenumbraError, match="PENUMBRA_BVH_WIDTH='.*' must be 2 or 4"):
         penumbra.Context()
+
+
+# --------------------------------------------------------------------------- (h) translated instances, caller memory
+
+
+def build_options_context(monkeypatch, options):
+    """A context whose kernels are built with extra `options` (PENUMBRA_CL_BUILD_OPTIONS, read at creation)."""
+    import penumbra
+
+    monkeypatch.setenv("PENUMBRA_CL_BUILD_OPTIONS", options)
+    try:
+        return penumbra.Context()
+    finally:
+        monkeypatch.delenv("PENUMBRA_CL_BUILD_OPTIONS")
+
+
+def translated_setup(ctx):
+    """Instances whose transform is a pure translation (or none), which the
+    walk traces with the world ray's direction, next to a rotated one."""
+    meshes, _ = two_level_setup(ctx)
+    transforms = [
+        ("sphere", affine(np.eye(3), [0.0, 0.0, 0.0])),
+        ("torus", affine(np.eye(3), [2.5, -0.25, 0.5])),
+        ("sphere", affine(np.eye(3), [-2.0, 1.0, -1.5])),
+        ("torus", affine(np.eye(3), [0.0, -2.0, 0.0])),  # origin-plane coordinates: zero translation lanes
+        ("sphere", affine(rotation([1, 2, 0], 0.6), [1.0, 2.0, -2.0])),
+    ]
+    return meshes, transforms
+
+
+def hard_rays(rng, n=1500):
+    """Random rays plus edge-on ones: axis-parallel directions (zero
+    components, so infinite reciprocals), rays starting inside the instances'
+    boxes, and rays through box planes (origin coordinates on them)."""
+    o = 6.0 * random_units(rng, n)
+    d = unit(rng.uniform(-3.0, 3.0, size=(n, 3)) - o)
+    axes = np.concatenate([np.eye(3), -np.eye(3)])
+    k = 600
+    o2 = rng.uniform(-3.0, 3.0, size=(k, 3))
+    o2[::3, 1] = -2.0  # in the plane y = -2 (the lowered torus' centre plane)
+    o2[1::3, 0] = 0.0
+    d2 = axes[rng.integers(0, 6, k)]
+    d3 = unit(np.where(rng.random((k, 3)) < 0.4, 0.0, rng.normal(size=(k, 3))) + 1e-30)
+    return (np.concatenate([o, o2, o2]).astype(np.float32), np.concatenate([d, d2, d3]).astype(np.float32))
+
+
+def test_translated_instances_identical_to_general_transform(ctx, monkeypatch):
+    """Instances translated only (or not moved) reuse the world ray's
+    direction and reciprocal (PN_INST_FLAG_TRANSLATION); the answers must be
+    bit-identical to the general transform path (a build with
+    -DPN_INSTANCE_GENERAL): t, instance, triangle, occlusion with and without
+    a tmax cut, also for edge-on and axis-parallel rays and rays starting
+    inside boxes; and right against the float64 brute force."""
+    rng = np.random.default_rng(5)
+    o, d = hard_rays(rng)
+    general = build_options_context(monkeypatch, "-DPN_INSTANCE_GENERAL")
+    answers = []
+    for c in (ctx, general):
+        meshes, transforms = translated_setup(c)
+        scene = Scene(c)
+        placed = {}
+        for name, m in transforms:
+            placed[scene.add(meshes[name][0], m)] = (name, m)
+        scene.commit()
+        answers.append((*scene.intersect(o, d), scene.occluded(o, d), scene.occluded(o, d, tmax=2.0),
+                        *scene.intersect(o, d, tmin=0.5, tmax=4.0)))
+        if c is ctx:
+            check_scene(scene, meshes, placed, o[:1500], d[:1500])
+    for fast, slow in zip(*answers):
+        assert np.array_equal(fast, slow), f"{(fast != slow).sum()} answers differ"
+    t, inst, _, occ, occ_short = answers[0][:5]
+    hit = np.isfinite(t)
+    assert hit.mean() > 0.2 and (occ & ~occ_short).any()  # not vacuous
+    assert set(np.unique(inst[hit]).tolist()) == set(range(5))  # every instance seen
+    assert hit[1500:].sum() > 100  # the axis-parallel and edge-on rays hit too

@@ -38,6 +38,12 @@
 #define PN_INST_OFFSETS 8         /* uint bits: blas node offset, triangle offset, flags, instance id */
 #define PN_INST_TANGENT 9         /* Ashikhmin-Shirley tangent axis in the object's frame, 0 */
 #define PN_INST_FLAG_NORMALS 1u
+/* world_to_object's linear part is exactly the identity (a translation, or
+ * nothing): the object-space direction is the world one, so the walk reuses
+ * the world ray's reciprocal direction instead of transforming the direction
+ * and dividing again (pn_instance_ray). Builds with -DPN_INSTANCE_GENERAL
+ * ignore the flag (tests compare the two). */
+#define PN_INST_FLAG_TRANSLATION 2u
 
 typedef struct {
     global const float4 *tlas;      /* TLAS nodes over instances */
@@ -130,6 +136,34 @@ inline pn_ray_slab pn_make_slab(float3 org, float3 dir)
     r.inv = 1.0f / dir;
     r.neg = signbit(r.inv);
     return r;
+}
+
+/* The ray of the instance at `inst` in object space: its origin and
+ * direction and their slab constants. world: the world ray's slab
+ * constants, or NULL. For an instance flagged PN_INST_FLAG_TRANSLATION the
+ * direction is `dir` itself, so its reciprocal is the world one, and the
+ * origin is org + translation: dot((1, 0, 0), org) + t.x in the general
+ * transform is org.x + t.x exactly (a product by 1 or 0 is exact and adding
+ * zeros does not change a nonzero sum), so answers are bit-identical to the
+ * general path (at most the sign of a zero coordinate differs, which no test
+ * below can see: zeros compare equal, and a zero times an infinite
+ * reciprocal is NaN either way). */
+PN_TRACE_INLINE pn_ray_slab pn_instance_ray(global const float4 *inst, uint flags, float3 org, float3 dir,
+                                                  const pn_ray_slab *world, float3 *d_out)
+{
+#ifndef PN_INSTANCE_GENERAL
+    if ((flags & PN_INST_FLAG_TRANSLATION) && world) {
+        global const float4 *w2o = inst + PN_INST_WORLD_TO_OBJECT;
+        pn_ray_slab r = *world;
+        r.org = org + (float3)(w2o[0].w, w2o[1].w, w2o[2].w);
+        *d_out = dir;
+        return r;
+    }
+#endif
+    float3 o = pn_xform_point(inst + PN_INST_WORLD_TO_OBJECT, org);
+    float3 d = pn_xform_vector(inst + PN_INST_WORLD_TO_OBJECT, dir);
+    *d_out = d;
+    return pn_make_slab(o, d);
 }
 
 /* Larger (smaller) of acc and t, acc when t is NaN: the compare-and-select
@@ -289,16 +323,16 @@ PN_TRACE_INLINE bool pn_leaf_triangles(const pn_ray_shear *shear, float tmin, gl
 }
 
 #if PN_BVH_WIDTH == 2
-PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir, float tmin, pn_hit *hit,
-                          bool any_hit)
+PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir,
+                                   const pn_ray_slab *world, float tmin, pn_hit *hit, bool any_hit)
 {
     global const float4 *inst = scene.instances + slot * PN_INSTANCE_STRIDE;
     uint4 offs = as_uint4(inst[PN_INST_OFFSETS]);
     global const float4 *nodes = scene.blas + 2 * offs.x;
     global const float4 *tris = scene.tris + 3 * offs.y;
-    float3 o = pn_xform_point(inst + PN_INST_WORLD_TO_OBJECT, org);
-    float3 d = pn_xform_vector(inst + PN_INST_WORLD_TO_OBJECT, dir);
-    pn_ray_slab ray = pn_make_slab(o, d);
+    float3 d;
+    pn_ray_slab ray = pn_instance_ray(inst, offs.z, org, dir, world, &d);
+    float3 o = ray.org;
     bool found = false;
     uint stack[PN_BVH_MAX_DEPTH];
     float stack_t[PN_BVH_MAX_DEPTH];
@@ -432,16 +466,16 @@ inline void pn_push4(float4 te, global const float4 *n, bool any_hit, uint *stac
  * farthest first, so the nearest is popped next, and a popped entry whose
  * entry distance lies beyond a hit found meanwhile is dropped (as in the
  * binary walk: only tmax can have changed since the test). */
-PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir, float tmin, pn_hit *hit,
-                          bool any_hit)
+PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir,
+                                   const pn_ray_slab *world, float tmin, pn_hit *hit, bool any_hit)
 {
     global const float4 *inst = scene.instances + slot * PN_INSTANCE_STRIDE;
     uint4 offs = as_uint4(inst[PN_INST_OFFSETS]);
     global const float4 *nodes = scene.blas + 8 * offs.x;
     global const float4 *tris = scene.tris + 3 * offs.y;
-    float3 o = pn_xform_point(inst + PN_INST_WORLD_TO_OBJECT, org);
-    float3 d = pn_xform_vector(inst + PN_INST_WORLD_TO_OBJECT, dir);
-    pn_ray_slab ray = pn_make_slab(o, d);
+    float3 d;
+    pn_ray_slab ray = pn_instance_ray(inst, offs.z, org, dir, world, &d);
+    float3 o = ray.org;
     pn_ray_shear shear;
     bool sheared = false, found = false;
     uint stack[PN_BVH4_STACK], stack_n[PN_BVH4_STACK];
@@ -499,7 +533,7 @@ PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float
         return false;
     /* One instance: its BLAS root box test does the TLAS root's job. */
     if (scene.instance_count == 1)
-        return pn_trace_blas(scene, 0, org, dir, tmin, hit, any_hit);
+        return pn_trace_blas(scene, 0, org, dir, NULL, tmin, hit, any_hit);
     pn_ray_slab ray = pn_make_slab(org, dir);
     bool found = false;
     uint stack[PN_BVH_MAX_DEPTH];
@@ -515,7 +549,7 @@ PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float
         uint first = pn_load_w(nodes + 2 * node), count = pn_load_w(nodes + 2 * node + 1);
         if (count > 0) {
             for (uint k = first; k < first + count; ++k) {
-                if (pn_trace_blas(scene, k, org, dir, tmin, hit, any_hit)) {
+                if (pn_trace_blas(scene, k, org, dir, &ray, tmin, hit, any_hit)) {
                     found = true;
                     if (any_hit)
                         return true;
@@ -557,7 +591,7 @@ PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float
         return false;
     /* One instance: its BLAS root node does the TLAS root's job. */
     if (scene.instance_count == 1)
-        return pn_trace_blas(scene, 0, org, dir, tmin, hit, any_hit);
+        return pn_trace_blas(scene, 0, org, dir, NULL, tmin, hit, any_hit);
     pn_ray_slab ray = pn_make_slab(org, dir);
     bool found = false;
     uint stack[PN_BVH4_STACK], stack_n[PN_BVH4_STACK];
@@ -578,7 +612,7 @@ PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float
                 break;
             }
             for (uint k = first; k < first + count; ++k) {
-                if (pn_trace_blas(scene, k, org, dir, tmin, hit, any_hit)) {
+                if (pn_trace_blas(scene, k, org, dir, &ray, tmin, hit, any_hit)) {
                     found = true;
                     if (any_hit)
                         return true;

@@ -564,7 +564,13 @@ pn_status pn_scene_do_commit(pn_scene scene)
         r[29] = inst->material.roughness;
         r[30] = (float)inst->material.lobe;
         r[31] = inst->material.shininess_v;
-        uint32_t offs[4] = {ms->node_offset, ms->tri_offset, inst->mesh->leaf_normals ? 1u : 0u, inst->id};
+        /* Flags (kernels/common/raytrace.cl, PN_INST_FLAG_*): 1 vertex normals, 2 a world_to_object whose
+         * linear part is exactly the identity (the walk reuses the world ray's direction). */
+        const float *w = inst->world_to_object;
+        const bool translation = w[0] == 1.0f && w[1] == 0.0f && w[2] == 0.0f && w[4] == 0.0f && w[5] == 1.0f &&
+                                 w[6] == 0.0f && w[8] == 0.0f && w[9] == 0.0f && w[10] == 1.0f;
+        uint32_t offs[4] = {ms->node_offset, ms->tri_offset,
+                            (inst->mesh->leaf_normals ? 1u : 0u) | (translation ? 2u : 0u), inst->id};
         memcpy(r + 32, offs, sizeof offs);
         memcpy(r + 36, inst->material.tangent, 3 * sizeof(float));
         r[39] = 0.0f;
