@@ -431,7 +431,7 @@ pn_status pn_alloc(pn_context ctx, size_t bytes, cl_mem_flags flags, const void 
         return st;
     }
     cl_int err;
-    if (host)
+    if (host && !(flags & CL_MEM_USE_HOST_PTR))
         flags |= CL_MEM_COPY_HOST_PTR;
     *out = clCreateBuffer(ctx->cl_ctx, flags, bytes ? bytes : 16, (void *)host, &err);
     if (err != CL_SUCCESS) {

@@ -200,6 +200,8 @@ pn_status pn_context_table(pn_context ctx, const void *key, size_t floats, void 
 pn_status pn_set_args(pn_context ctx, cl_kernel kernel, const char *name, int count, const size_t *sizes,
                       const void *const *values);
 pn_status pn_enqueue_1d(pn_context ctx, cl_kernel kernel, const char *name, size_t items, size_t local);
+/* host: copied into the new buffer (CL_MEM_COPY_HOST_PTR), or used in place
+ * when flags hold CL_MEM_USE_HOST_PTR. */
 pn_status pn_alloc(pn_context ctx, size_t bytes, cl_mem_flags flags, const void *host, cl_mem *out,
                    const char *what);
 /* Enqueues a copy of `bytes` host bytes into `buffer` without waiting: the
