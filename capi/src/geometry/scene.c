@@ -391,8 +391,9 @@ static pn_status gather_meshes(pn_scene scene)
         return PN_ERROR_OUT_OF_MEMORY;
     size_t nodes = 0, tris = 0;
     bool any_normals = false;
-    const bool wide = ctx->bvh_width == 4;
-    const size_t node_size = wide ? sizeof(pn_bvh4_node) : sizeof(pn_bvh_node);
+    const int width = ctx->bvh_width;
+    const size_t node_size =
+        width == 8 ? sizeof(pn_bvh8_node) : width == 4 ? sizeof(pn_bvh4_node) : sizeof(pn_bvh_node);
     for (uint32_t i = 0; i < scene->instance_count; ++i) {
         pn_mesh m = scene->instances[i].mesh;
         if (!m)
@@ -411,7 +412,7 @@ static pn_status gather_meshes(pn_scene scene)
         slots[count].version = m->version;
         slots[count].node_offset = (uint32_t)nodes;
         slots[count].tri_offset = (uint32_t)tris;
-        nodes += wide ? m->wide.node_count : m->bvh.node_count;
+        nodes += width == 8 ? m->wide8.node_count : width == 4 ? m->wide.node_count : m->bvh.node_count;
         tris += m->triangle_count;
         any_normals = any_normals || m->leaf_normals;
         ++count;
@@ -435,9 +436,12 @@ static pn_status gather_meshes(pn_scene scene)
         st = PN_ERROR_OUT_OF_MEMORY;
     for (uint32_t k = 0; !st && k < count; ++k) {
         pn_mesh m = slots[k].mesh;
-        memcpy((char *)hnodes + (size_t)slots[k].node_offset * node_size,
-               wide ? (const void *)m->wide.nodes : (const void *)m->bvh.nodes,
-               (size_t)(wide ? m->wide.node_count : m->bvh.node_count) * node_size);
+        const void *src = width == 8 ? (const void *)m->wide8.nodes
+                          : width == 4 ? (const void *)m->wide.nodes
+                                       : (const void *)m->bvh.nodes;
+        memcpy((char *)hnodes + (size_t)slots[k].node_offset * node_size, src,
+               (size_t)(width == 8 ? m->wide8.node_count : width == 4 ? m->wide.node_count : m->bvh.node_count) *
+                   node_size);
         memcpy(htris + 12 * (size_t)slots[k].tri_offset, m->leaf_tris, (size_t)m->triangle_count * 12 * sizeof(float));
         if (hnrm) {
             float *dst = hnrm + 12 * (size_t)slots[k].tri_offset;
@@ -548,10 +552,13 @@ pn_status pn_scene_do_commit(pn_scene scene)
         }
     }
     pn_bvh4 wide_tlas = {0};
+    pn_bvh8 wide8_tlas = {0};
     if (!st && live && pn_bvh_build(boxes, live, 2, &tlas) != 0)
         st = pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building the instance BVH");
     /* The kernels walk the TLAS in the BLAS' layout. */
     if (!st && live && ctx->bvh_width == 4 && pn_bvh4_collapse(&tlas, &wide_tlas) != 0)
+        st = pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building the instance BVH");
+    if (!st && live && ctx->bvh_width == 8 && pn_bvh8_collapse(&tlas, &wide8_tlas) != 0)
         st = pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building the instance BVH");
     for (uint32_t slot = 0; !st && slot < live; ++slot) {
         const pn_instance *inst = &scene->instances[ids[tlas.order[slot]]];
@@ -577,10 +584,15 @@ pn_status pn_scene_do_commit(pn_scene scene)
         r[39] = 0.0f;
     }
     if (!st) {
-        const bool wide = ctx->bvh_width == 4;
-        const void *tlas_nodes = wide ? (const void *)wide_tlas.nodes : (const void *)tlas.nodes;
-        const size_t node_size = wide ? sizeof(pn_bvh4_node) : sizeof(pn_bvh_node);
-        size_t tlas_bytes = (live ? (size_t)(wide ? wide_tlas.node_count : tlas.node_count) : 1) * node_size;
+        const int width = ctx->bvh_width;
+        const void *tlas_nodes = width == 8   ? (const void *)wide8_tlas.nodes
+                                 : width == 4 ? (const void *)wide_tlas.nodes
+                                              : (const void *)tlas.nodes;
+        const size_t node_size =
+            width == 8 ? sizeof(pn_bvh8_node) : width == 4 ? sizeof(pn_bvh4_node) : sizeof(pn_bvh_node);
+        const uint32_t tlas_count =
+            width == 8 ? wide8_tlas.node_count : width == 4 ? wide_tlas.node_count : tlas.node_count;
+        size_t tlas_bytes = (live ? (size_t)tlas_count : 1) * node_size;
         size_t rec_bytes = (size_t)(live ? live : 1) * RECORD_FLOATS * sizeof(float);
         if (!(st = ensure_buffer(ctx, &scene->tlas, &scene->tlas_capacity, tlas_bytes, "the instance BVH")) &&
             !(st = ensure_buffer(ctx, &scene->records, &scene->records_capacity, rec_bytes, "instance records"))) {
@@ -596,6 +608,7 @@ pn_status pn_scene_do_commit(pn_scene scene)
     }
     pn_bvh_free(&tlas);
     pn_bvh4_free(&wide_tlas);
+    pn_bvh8_free(&wide8_tlas);
     free(boxes);
     free(ids);
     free(records);
