@@ -483,8 +483,11 @@ inline float8 pn_ray_box8(const pn_ray_slab *r, float tmin, float tmax, global c
     return select((float8)(INFINITY), enter, enter <= leave);
 }
 
-/* pn_push4 for the eight children of an 8-wide node; closest hits sort with
- * the 19-comparator network for eight. */
+/* pn_push4 for the eight children of an 8-wide node. Closest hits: one or
+ * two children entered (most nodes) go on nearest last without sorting,
+ * more are sorted with the 19-comparator network for eight (measured: the
+ * network alone made primary rays 0.68-0.78x the 4-wide walk; the shortcut
+ * is 1.27-1.33x faster than it). */
 inline void pn_push8(float8 te, global const float4 *node, bool any_hit, uint *stack, uint *stack_n, float *stack_t,
                      int *top)
 {
@@ -494,6 +497,34 @@ inline void pn_push8(float8 te, global const float4 *node, bool any_hit, uint *s
     uint c0 = child.s0, c1 = child.s1, c2 = child.s2, c3 = child.s3, c4 = child.s4, c5 = child.s5, c6 = child.s6,
          c7 = child.s7;
     uint n0 = cnt.s0, n1 = cnt.s1, n2 = cnt.s2, n3 = cnt.s3, n4 = cnt.s4, n5 = cnt.s5, n6 = cnt.s6, n7 = cnt.s7;
+    if (!any_hit) {
+        /* Most nodes are entered through one or two children: those need no
+         * sorting network (one compare for two). */
+        uint8 bit = as_uint8(te != (float8)(INFINITY)) & (uint8)(1, 2, 4, 8, 16, 32, 64, 128);
+        uint4 b4 = bit.lo | bit.hi;
+        uint2 b2 = b4.lo | b4.hi;
+        uint mask = b2.x | b2.y;
+        if (popcount(mask) <= 2) {
+            int sp = *top;
+            if (mask) {
+                uint a = 31 - clz(mask & (0u - mask)), b = 31 - clz(mask);
+                float ta = te[a], tb = te[b];
+                bool near_a = ta <= tb;
+                uint ca = child[a], cb = child[b], na = cnt[a], nb = cnt[b];
+                /* Farther one first (b == a pushes the single child twice, the second overwriting the first). */
+                stack[sp] = near_a ? cb : ca;
+                stack_n[sp] = near_a ? nb : na;
+                stack_t[sp] = near_a ? tb : ta;
+                sp += a != b;
+                stack[sp] = near_a ? ca : cb;
+                stack_n[sp] = near_a ? na : nb;
+                stack_t[sp] = near_a ? ta : tb;
+                ++sp;
+            }
+            *top = sp;
+            return;
+        }
+    }
     if (!any_hit) {
         PN_CSWAP(t0, c0, n0, t2, c2, n2);
         PN_CSWAP(t1, c1, n1, t3, c3, n3);
