@@ -645,6 +645,28 @@ def test_nan_ray_input_raises(soup, where):
         soup["scene"].occluded(o, d, tmin=tmin, tmax=tmax)
 
 
+@pytest.mark.parametrize("bad", [0, 255, 256, 700, 999])
+def test_bad_ray_named_in_any_block(soup, bad):
+    """The host checks rays in blocks of 256: a bad ray anywhere, in the
+    first or a later block and at a block's edges, is found and named."""
+    rng = np.random.default_rng(bad)
+    o = rng.uniform(-1, 1, (1000, 3)).astype(np.float32)
+    d = unit(rng.normal(size=(1000, 3))).astype(np.float32)
+    tmax = np.full(1000, np.inf, np.float32)
+    for kind in ("nan_origin", "inf_direction", "nan_tmax"):
+        oo, dd, tt = o.copy(), d.copy(), tmax.copy()
+        if kind == "nan_origin":
+            oo[bad, 2] = np.nan
+        elif kind == "inf_direction":
+            dd[bad, 0] = -np.inf
+        else:
+            tt[bad] = np.nan
+        for query in (soup["scene"].intersect, soup["scene"].occluded):
+            with pytest.raises(InputError, match=f"ray {bad} has a non-finite"):
+                query(oo, dd, tmax=tt)
+    soup["scene"].occluded(o, d, tmax=tmax)  # the unmodified rays pass
+
+
 def test_uncommitted_scene_raises(ctx, soup):
     tris = soup["tris"]
     scene = single_instance_scene(ctx, tris.reshape(-1, 3), np.arange(3 * len(tris)).reshape(-1, 3))
