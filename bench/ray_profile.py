@@ -8,7 +8,7 @@ For every scene, in one process:
   build of the kernels (-DPN_RAY_STATS, which reports the counts in place
   of the hit ids);
 * time per ray: penumbra with each BVH layout (PENUMBRA_BVH_WIDTH=2, the
-  binary BVH, and the default 4-wide one) and Embree (embreex, 1 thread) on
+  binary BVH, the default 4-wide one, and PENUMBRA_BVH_WIDTH=8) and Embree (embreex, 1 thread) on
   the same rays, in interleaved rounds (per round and query, one timed
   call of each tracer back to back, each after an untimed one; order
   rotated; warm-up round excluded), medians; plus the fixed cost of a call (the same number
@@ -45,7 +45,7 @@ SCENES = {
     "indoor_contact": REPO / "bench/scenes/indoor_contact.toml",
 }
 # Layouts compared; each gets its own context, built with these variables set.
-LAYOUTS = {"binary": {"PENUMBRA_BVH_WIDTH": "2"}, "wide": {}}
+LAYOUTS = {"binary": {"PENUMBRA_BVH_WIDTH": "2"}, "wide": {}, "wide8": {"PENUMBRA_BVH_WIDTH": "8"}}
 
 
 def context(env: dict) -> penumbra.Context:
@@ -155,8 +155,10 @@ def profile_scene(name: str, rounds: int, layouts: dict) -> dict:
             L[f"{q}_vs_embree_rounds"] = statistics.median(
                 e / p for e, p in zip(times["embree"][q], times[k][q]))
     if len(builts) > 1:
-        a, b = list(builts)[:2]
-        res["speedup"] = {q: statistics.median(x / y for x, y in zip(times[a][q], times[b][q])) for q in rays_n}
+        # The last layout against each other one: medians of per-round time ratios.
+        *others, last = list(builts)
+        res["speedup"] = {a: {q: statistics.median(x / y for x, y in zip(times[a][q], times[last][q])) for q in rays_n}
+                          for a in others}
     return res
 
 
@@ -192,9 +194,9 @@ def main(argv=None) -> int:
                   f" {w['shadow']['triangles_per_ray']:.1f} tris/ray |"
                   f" mismatches {L['primary_mismatches_vs_embree']}/{L['shadow_mismatches_vs_embree']},"
                   f" t differs {L['primary_t_differs_from_first_layout']}")
-        if "speedup" in r:
-            print(f"  {'/'.join(list(layouts)[::-1])} speed-up (per-round median): primary {r['speedup']['primary']:.2f}x,"
-                  f" shadow {r['speedup']['shadow']:.2f}x")
+        for a, sp in r.get("speedup", {}).items():
+            print(f"  {list(layouts)[-1]}/{a} speed-up (per-round median): primary {sp['primary']:.2f}x,"
+                  f" shadow {sp['shadow']:.2f}x")
     out["load_after"] = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
     print(f"\nload: {out['load_after']}")
     if args.json:

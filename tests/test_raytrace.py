@@ -645,6 +645,28 @@ def test_nan_ray_input_raises(soup, where):
         soup["scene"].occluded(o, d, tmin=tmin, tmax=tmax)
 
 
+@pytest.mark.parametrize("bad", [0, 255, 256, 700, 999])
+def test_bad_ray_named_in_any_block(soup, bad):
+    """The host checks rays in blocks of 256: a bad ray anywhere, in the
+    first or a later block and at a block's edges, is found and named."""
+    rng = np.random.default_rng(bad)
+    o = rng.uniform(-1, 1, (1000, 3)).astype(np.float32)
+    d = unit(rng.normal(size=(1000, 3))).astype(np.float32)
+    tmax = np.full(1000, np.inf, np.float32)
+    for kind in ("nan_origin", "inf_direction", "nan_tmax"):
+        oo, dd, tt = o.copy(), d.copy(), tmax.copy()
+        if kind == "nan_origin":
+            oo[bad, 2] = np.nan
+        elif kind == "inf_direction":
+            dd[bad, 0] = -np.inf
+        else:
+            tt[bad] = np.nan
+        for query in (soup["scene"].intersect, soup["scene"].occluded):
+            with pytest.raises(InputError, match=f"ray {bad} has a non-finite"):
+                query(oo, dd, tmax=tt)
+    soup["scene"].occluded(o, d, tmax=tmax)  # the unmodified rays pass
+
+
 def test_uncommitted_scene_raises(ctx, soup):
     tris = soup["tris"]
     scene = single_instance_scene(ctx, tris.reshape(-1, 3), np.arange(3 * len(tris)).reshape(-1, 3))
@@ -684,9 +706,11 @@ def layout_context(monkeypatch, width):
         monkeypatch.delenv("PENUMBRA_BVH_WIDTH")
 
 
-def test_bvh_layouts_give_identical_answers(ctx, monkeypatch, two_level_rays):
-    """The 4-wide layout (default) and the binary one (PENUMBRA_BVH_WIDTH=2)
-    have the same leaves and box tests, so every answer is bit-identical: t,
+@pytest.mark.parametrize("width", ["2", "8"])
+def test_bvh_layouts_give_identical_answers(ctx, monkeypatch, two_level_rays, width):
+    """The 4-wide layout (default), the binary one (PENUMBRA_BVH_WIDTH=2) and
+    the 8-wide one (PENUMBRA_BVH_WIDTH=8) have the same leaves and box tests,
+    so every answer is bit-identical: t,
     instance and triangle of closest hits (these rays hit no exact tie),
     any-hit occlusion, and the G-buffer, on a scene of five instances (two
     of them mirrored) with tmax cutting some hits off."""
@@ -694,7 +718,7 @@ def test_bvh_layouts_give_identical_answers(ctx, monkeypatch, two_level_rays):
 
     o, d = two_level_rays
     answers = []
-    for c in (ctx, layout_context(monkeypatch, "2")):
+    for c in (ctx, layout_context(monkeypatch, width)):
         meshes, transforms = two_level_setup(c)
         scene = Scene(c)
         for name, m in transforms:
@@ -713,10 +737,168 @@ def test_bvh_layouts_give_identical_answers(ctx, monkeypatch, two_level_rays):
     assert (answers[0][7] != BACKGROUND).mean() > 0.2  # the G-buffer sees the instances
 
 
-@pytest.mark.parametrize("value", ["3", "wide", "8"])
+@pytest.mark.parametrize("value", ["3", "wide", "16", "88"])
 def test_bvh_width_variable_is_checked(monkeypatch, value):
     import penumbra
 
     monkeypatch.setenv("PENUMBRA_BVH_WIDTH", value)
-    with pytest.raises(PenumbraError, match="PENUMBRA_BVH_WIDTH='.*' must be 2 or 4"):
+    with pytest.raises(PenumbraError, match="PENUMBRA_BVH_WIDTH='.*' must be 2, 4 or 8"):
         penumbra.Context()
+
+
+# --------------------------------------------------------------------------- (h) translated instances, caller memory
+
+
+def build_options_context(monkeypatch, options):
+    """A context whose kernels are built with extra `options` (PENUMBRA_CL_BUILD_OPTIONS, read at creation)."""
+    import penumbra
+
+    monkeypatch.setenv("PENUMBRA_CL_BUILD_OPTIONS", options)
+    try:
+        return penumbra.Context()
+    finally:
+        monkeypatch.delenv("PENUMBRA_CL_BUILD_OPTIONS")
+
+
+def translated_setup(ctx):
+    """Instances whose transform is a pure translation (or none), which the
+    walk traces with the world ray's direction, next to a rotated one."""
+    meshes, _ = two_level_setup(ctx)
+    transforms = [
+        ("sphere", affine(np.eye(3), [0.0, 0.0, 0.0])),
+        ("torus", affine(np.eye(3), [2.5, -0.25, 0.5])),
+        ("sphere", affine(np.eye(3), [-2.0, 1.0, -1.5])),
+        ("torus", affine(np.eye(3), [0.0, -2.0, 0.0])),  # origin-plane coordinates: zero translation lanes
+        ("sphere", affine(rotation([1, 2, 0], 0.6), [1.0, 2.0, -2.0])),
+    ]
+    return meshes, transforms
+
+
+def hard_rays(rng, n=1500):
+    """Random rays plus edge-on ones: axis-parallel directions (zero
+    components, so infinite reciprocals), rays starting inside the instances'
+    boxes, and rays through box planes (origin coordinates on them)."""
+    o = 6.0 * random_units(rng, n)
+    d = unit(rng.uniform(-3.0, 3.0, size=(n, 3)) - o)
+    axes = np.concatenate([np.eye(3), -np.eye(3)])
+    k = 600
+    o2 = rng.uniform(-3.0, 3.0, size=(k, 3))
+    o2[::3, 1] = -2.0  # in the plane y = -2 (the lowered torus' centre plane)
+    o2[1::3, 0] = 0.0
+    d2 = axes[rng.integers(0, 6, k)]
+    d3 = unit(np.where(rng.random((k, 3)) < 0.4, 0.0, rng.normal(size=(k, 3))) + 1e-30)
+    return (np.concatenate([o, o2, o2]).astype(np.float32), np.concatenate([d, d2, d3]).astype(np.float32))
+
+
+def test_translated_instances_identical_to_general_transform(ctx, monkeypatch):
+    """Instances translated only (or not moved) reuse the world ray's
+    direction and reciprocal (PN_INST_FLAG_TRANSLATION); the answers must be
+    bit-identical to the general transform path (a build with
+    -DPN_INSTANCE_GENERAL): t, instance, triangle, occlusion with and without
+    a tmax cut, also for edge-on and axis-parallel rays and rays starting
+    inside boxes; and right against the float64 brute force."""
+    rng = np.random.default_rng(5)
+    o, d = hard_rays(rng)
+    general = build_options_context(monkeypatch, "-DPN_INSTANCE_GENERAL")
+    answers = []
+    for c in (ctx, general):
+        meshes, transforms = translated_setup(c)
+        scene = Scene(c)
+        placed = {}
+        for name, m in transforms:
+            placed[scene.add(meshes[name][0], m)] = (name, m)
+        scene.commit()
+        answers.append((*scene.intersect(o, d), scene.occluded(o, d), scene.occluded(o, d, tmax=2.0),
+                        *scene.intersect(o, d, tmin=0.5, tmax=4.0)))
+        if c is ctx:
+            check_scene(scene, meshes, placed, o[:1500], d[:1500])
+    for fast, slow in zip(*answers):
+        assert np.array_equal(fast, slow), f"{(fast != slow).sum()} answers differ"
+    t, inst, _, occ, occ_short = answers[0][:5]
+    hit = np.isfinite(t)
+    assert hit.mean() > 0.2 and (occ & ~occ_short).any()  # not vacuous
+    assert set(np.unique(inst[hit]).tolist()) == set(range(5))  # every instance seen
+    assert hit[1500:].sum() > 100  # the axis-parallel and edge-on rays hit too
+
+
+def at_offset(nbytes, misalign):
+    """A zeroed uint8 array of nbytes whose address is misalign bytes past a 16-byte boundary."""
+    raw = np.zeros(nbytes + 32, np.uint8)
+    start = (-raw.ctypes.data) % 16 + misalign
+    a = raw[start: start + nbytes]
+    assert a.ctypes.data % 16 == misalign
+    return a
+
+
+def test_queries_on_unaligned_caller_memory(soup):
+    """The C API uses the caller's ray and result arrays in place when they
+    are aligned for the kernel's loads and copies them otherwise: answers
+    from arrays at odd addresses equal those from aligned ones."""
+    scene = soup["scene"]
+    o, d = soup["origins"][:300], soup["directions"][:300]
+    t_ref, inst_ref, tri_ref = scene.intersect(o, d)
+    occ_ref = scene.occluded(o, d)
+    n = len(o)
+    rays = Scene._rays(o, d, 0.0, np.inf)
+    for misalign in (4, 8, 2, 1):
+        r = at_offset(32 * n, misalign if misalign % 4 == 0 else 12)
+        r.view(np.float32)[:] = rays.reshape(-1)
+        t, inst, tri, occ = (at_offset(4 * n, misalign), at_offset(4 * n, misalign), at_offset(4 * n, misalign),
+                             at_offset(n, misalign))
+        scene._call("pn_scene_intersect", scene._h, r.ctypes.data, n, t.ctypes.data, inst.ctypes.data,
+                    tri.ctypes.data)
+        scene._call("pn_scene_occluded", scene._h, r.ctypes.data, n, occ.ctypes.data)
+        assert np.array_equal(t.copy().view(np.float32), t_ref)
+        assert np.array_equal(inst.copy().view(np.uint32), inst_ref)
+        assert np.array_equal(tri.copy().view(np.uint32), tri_ref)
+        assert np.array_equal(occ.view(bool), occ_ref)
+    assert np.isfinite(t_ref).any() and occ_ref.any()  # not vacuous
+
+
+@pytest.mark.parametrize("width", ["2", "8"])
+def test_bvh_layouts_identical_on_hard_rays(ctx, monkeypatch, soup, width):
+    """Every layout gives the default (4-wide) one's answers bit for bit on
+    the hard cases: edge-on and axis-parallel rays, rays starting inside
+    boxes (inside the triangle cloud), directions of any length, tmin / tmax
+    cutting hits off, meshes of zero-area triangles (never hit), translated
+    instances; and a mesh deep enough for several levels of 8-wide nodes."""
+    other = layout_context(monkeypatch, width)
+    rng = np.random.default_rng(17)
+    o, d = hard_rays(rng)
+    so, sd = soup["origins"], soup["directions"]
+    tris = soup["tris"]
+    big = procedural.sphere(1.0, 5)  # 20 480 triangles
+    degenerate = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0], [0, 1, 0], [1, 1, 1]], np.float32)
+    tmin = rng.uniform(0.0, 2.0, len(o)).astype(np.float32)
+    tmax = (tmin + rng.uniform(0.0, 8.0, len(o))).astype(np.float32)
+    answers = []
+    for c in (ctx, other):
+        meshes, transforms = translated_setup(c)
+        scene = Scene(c)
+        for name, m in transforms:
+            scene.add(meshes[name][0], m)
+        scene.add(Mesh(c, tris.reshape(-1, 3), np.arange(3 * len(tris)).reshape(-1, 3)),
+                  affine(np.eye(3), [0.0, 0.0, 4.0]))
+        scene.add(Mesh(c, big.vertices, big.faces), affine(np.diag([1.2, 0.8, 1.0]), [0.0, 3.0, 0.0]))
+        scene.add(Mesh(c, degenerate, np.array([[0, 1, 2], [3, 4, 5]])), affine(np.eye(3), [0.5, 0.0, 0.5]))
+        scene.commit()
+        soup_scene = single_instance_scene(c, tris.reshape(-1, 3), np.arange(3 * len(tris)).reshape(-1, 3))
+        answers.append((*scene.intersect(o, d), scene.occluded(o, d), *scene.intersect(o, d, tmin=tmin, tmax=tmax),
+                        scene.occluded(o, d, tmin=tmin, tmax=tmax), *soup_scene.intersect(so, sd),
+                        soup_scene.occluded(so, sd), soup_scene.occluded(so, sd, tmax=0.5)))
+    for k, (a, b) in enumerate(zip(*answers)):
+        if k in (2, 6):
+            # Triangle ids: a ray through a shared edge or vertex hits both
+            # triangles at exactly the same t, and the first one found wins,
+            # which depends on the visiting order (docs/performance.md). The
+            # grid-aligned rays (index >= 1500) cross the sphere's edges; a
+            # tie keeps t and the instance equal (checked above and below).
+            tie = (a != b) & (answers[0][k - 2] == answers[1][k - 2]) & (answers[0][k - 1] == answers[1][k - 1])
+            assert np.all(np.flatnonzero(tie) >= 1500) and tie.sum() <= 0.02 * len(a), f"{tie.sum()} ties"
+            a, b = a[~tie], b[~tie]
+        assert np.array_equal(a, b), f"answer {k}: {(a != b).sum()} rays differ"
+    t, inst = answers[0][0], answers[0][1]
+    t_cut, soup_t = answers[0][4], answers[0][8]
+    assert np.isfinite(t).mean() > 0.2 and np.isfinite(t_cut).any() and (np.isfinite(t) & ~np.isfinite(t_cut)).any()
+    assert len(np.unique(inst[np.isfinite(t)])) >= 6  # the instances, the soup and the deep mesh are hit
+    assert np.isfinite(soup_t).mean() > 0.3

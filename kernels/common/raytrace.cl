@@ -38,6 +38,12 @@
 #define PN_INST_OFFSETS 8         /* uint bits: blas node offset, triangle offset, flags, instance id */
 #define PN_INST_TANGENT 9         /* Ashikhmin-Shirley tangent axis in the object's frame, 0 */
 #define PN_INST_FLAG_NORMALS 1u
+/* world_to_object's linear part is exactly the identity (a translation, or
+ * nothing): the object-space direction is the world one, so the walk reuses
+ * the world ray's reciprocal direction instead of transforming the direction
+ * and dividing again (pn_instance_ray). Builds with -DPN_INSTANCE_GENERAL
+ * ignore the flag (tests compare the two). */
+#define PN_INST_FLAG_TRANSLATION 2u
 
 typedef struct {
     global const float4 *tlas;      /* TLAS nodes over instances */
@@ -130,6 +136,34 @@ inline pn_ray_slab pn_make_slab(float3 org, float3 dir)
     r.inv = 1.0f / dir;
     r.neg = signbit(r.inv);
     return r;
+}
+
+/* The ray of the instance at `inst` in object space: its origin and
+ * direction and their slab constants. world: the world ray's slab
+ * constants, or NULL. For an instance flagged PN_INST_FLAG_TRANSLATION the
+ * direction is `dir` itself, so its reciprocal is the world one, and the
+ * origin is org + translation: dot((1, 0, 0), org) + t.x in the general
+ * transform is org.x + t.x exactly (a product by 1 or 0 is exact and adding
+ * zeros does not change a nonzero sum), so answers are bit-identical to the
+ * general path (at most the sign of a zero coordinate differs, which no test
+ * below can see: zeros compare equal, and a zero times an infinite
+ * reciprocal is NaN either way). */
+PN_TRACE_INLINE pn_ray_slab pn_instance_ray(global const float4 *inst, uint flags, float3 org, float3 dir,
+                                                  const pn_ray_slab *world, float3 *d_out)
+{
+#ifndef PN_INSTANCE_GENERAL
+    if ((flags & PN_INST_FLAG_TRANSLATION) && world) {
+        global const float4 *w2o = inst + PN_INST_WORLD_TO_OBJECT;
+        pn_ray_slab r = *world;
+        r.org = org + (float3)(w2o[0].w, w2o[1].w, w2o[2].w);
+        *d_out = dir;
+        return r;
+    }
+#endif
+    float3 o = pn_xform_point(inst + PN_INST_WORLD_TO_OBJECT, org);
+    float3 d = pn_xform_vector(inst + PN_INST_WORLD_TO_OBJECT, dir);
+    *d_out = d;
+    return pn_make_slab(o, d);
 }
 
 /* Larger (smaller) of acc and t, acc when t is NaN: the compare-and-select
@@ -289,16 +323,16 @@ PN_TRACE_INLINE bool pn_leaf_triangles(const pn_ray_shear *shear, float tmin, gl
 }
 
 #if PN_BVH_WIDTH == 2
-PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir, float tmin, pn_hit *hit,
-                          bool any_hit)
+PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir,
+                                   const pn_ray_slab *world, float tmin, pn_hit *hit, bool any_hit)
 {
     global const float4 *inst = scene.instances + slot * PN_INSTANCE_STRIDE;
     uint4 offs = as_uint4(inst[PN_INST_OFFSETS]);
     global const float4 *nodes = scene.blas + 2 * offs.x;
     global const float4 *tris = scene.tris + 3 * offs.y;
-    float3 o = pn_xform_point(inst + PN_INST_WORLD_TO_OBJECT, org);
-    float3 d = pn_xform_vector(inst + PN_INST_WORLD_TO_OBJECT, dir);
-    pn_ray_slab ray = pn_make_slab(o, d);
+    float3 d;
+    pn_ray_slab ray = pn_instance_ray(inst, offs.z, org, dir, world, &d);
+    float3 o = ray.org;
     bool found = false;
     uint stack[PN_BVH_MAX_DEPTH];
     float stack_t[PN_BVH_MAX_DEPTH];
@@ -344,7 +378,7 @@ PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, f
     }
 }
 
-#else /* PN_BVH_WIDTH == 4 */
+#else /* PN_BVH_WIDTH == 4 or 8 */
 
 /* Larger (smaller) of acc and t per lane, acc where t is NaN: pn_max_acc /
  * pn_min_acc on four lanes. */
@@ -424,6 +458,121 @@ inline void pn_push4(float4 te, global const float4 *n, bool any_hit, uint *stac
     *top = sp;
 }
 
+/* 8-wide nodes (PENUMBRA_BVH_WIDTH=8, bvh.h pn_bvh8_node): the same test on
+ * eight lanes (float8: the node's six bound arrays are six float8), so each
+ * lane is again bit-identical to the binary test of that box. */
+inline float8 pn_max_acc8(float8 acc, float8 t)
+{
+    return select(acc, t, t > acc);
+}
+
+inline float8 pn_min_acc8(float8 acc, float8 t)
+{
+    return select(acc, t, t < acc);
+}
+
+inline float8 pn_ray_box8(const pn_ray_slab *r, float tmin, float tmax, global const float4 *node)
+{
+    global const float8 *w = (global const float8 *)node;
+    float8 lx = w[0], hx = w[1], ly = w[2], hy = w[3], lz = w[4], hz = w[5];
+    float8 tnx = ((r->neg.x ? hx : lx) - r->org.x) * r->inv.x, tfx = ((r->neg.x ? lx : hx) - r->org.x) * r->inv.x;
+    float8 tny = ((r->neg.y ? hy : ly) - r->org.y) * r->inv.y, tfy = ((r->neg.y ? ly : hy) - r->org.y) * r->inv.y;
+    float8 tnz = ((r->neg.z ? hz : lz) - r->org.z) * r->inv.z, tfz = ((r->neg.z ? lz : hz) - r->org.z) * r->inv.z;
+    float8 enter = pn_max_acc8(pn_max_acc8(pn_max_acc8((float8)(tmin), tnx), tny), tnz);
+    float8 leave = pn_min_acc8(pn_min_acc8(pn_min_acc8((float8)(tmax), tfx), tfy), tfz) * 1.00000024f;
+    return select((float8)(INFINITY), enter, enter <= leave);
+}
+
+/* pn_push4 for the eight children of an 8-wide node. Closest hits: one or
+ * two children entered (most nodes) go on nearest last without sorting,
+ * more are sorted with the 19-comparator network for eight (measured: the
+ * network alone made primary rays 0.68-0.78x the 4-wide walk; the shortcut
+ * is 1.27-1.33x faster than it). */
+inline void pn_push8(float8 te, global const float4 *node, bool any_hit, uint *stack, uint *stack_n, float *stack_t,
+                     int *top)
+{
+    global const float8 *w = (global const float8 *)node;
+    uint8 child = as_uint8(w[6]), cnt = as_uint8(w[7]);
+    float t0 = te.s0, t1 = te.s1, t2 = te.s2, t3 = te.s3, t4 = te.s4, t5 = te.s5, t6 = te.s6, t7 = te.s7;
+    uint c0 = child.s0, c1 = child.s1, c2 = child.s2, c3 = child.s3, c4 = child.s4, c5 = child.s5, c6 = child.s6,
+         c7 = child.s7;
+    uint n0 = cnt.s0, n1 = cnt.s1, n2 = cnt.s2, n3 = cnt.s3, n4 = cnt.s4, n5 = cnt.s5, n6 = cnt.s6, n7 = cnt.s7;
+    if (!any_hit) {
+        /* Most nodes are entered through one or two children: those need no
+         * sorting network (one compare for two). */
+        uint8 bit = as_uint8(te != (float8)(INFINITY)) & (uint8)(1, 2, 4, 8, 16, 32, 64, 128);
+        uint4 b4 = bit.lo | bit.hi;
+        uint2 b2 = b4.lo | b4.hi;
+        uint mask = b2.x | b2.y;
+        if (popcount(mask) <= 2) {
+            int sp = *top;
+            if (mask) {
+                uint a = 31 - clz(mask & (0u - mask)), b = 31 - clz(mask);
+                float ta = te[a], tb = te[b];
+                bool near_a = ta <= tb;
+                uint ca = child[a], cb = child[b], na = cnt[a], nb = cnt[b];
+                /* Farther one first (b == a pushes the single child twice, the second overwriting the first). */
+                stack[sp] = near_a ? cb : ca;
+                stack_n[sp] = near_a ? nb : na;
+                stack_t[sp] = near_a ? tb : ta;
+                sp += a != b;
+                stack[sp] = near_a ? ca : cb;
+                stack_n[sp] = near_a ? na : nb;
+                stack_t[sp] = near_a ? ta : tb;
+                ++sp;
+            }
+            *top = sp;
+            return;
+        }
+    }
+    if (!any_hit) {
+        PN_CSWAP(t0, c0, n0, t2, c2, n2);
+        PN_CSWAP(t1, c1, n1, t3, c3, n3);
+        PN_CSWAP(t4, c4, n4, t6, c6, n6);
+        PN_CSWAP(t5, c5, n5, t7, c7, n7);
+        PN_CSWAP(t0, c0, n0, t4, c4, n4);
+        PN_CSWAP(t1, c1, n1, t5, c5, n5);
+        PN_CSWAP(t2, c2, n2, t6, c6, n6);
+        PN_CSWAP(t3, c3, n3, t7, c7, n7);
+        PN_CSWAP(t0, c0, n0, t1, c1, n1);
+        PN_CSWAP(t2, c2, n2, t3, c3, n3);
+        PN_CSWAP(t4, c4, n4, t5, c5, n5);
+        PN_CSWAP(t6, c6, n6, t7, c7, n7);
+        PN_CSWAP(t2, c2, n2, t4, c4, n4);
+        PN_CSWAP(t3, c3, n3, t5, c5, n5);
+        PN_CSWAP(t1, c1, n1, t4, c4, n4);
+        PN_CSWAP(t3, c3, n3, t6, c6, n6);
+        PN_CSWAP(t1, c1, n1, t2, c2, n2);
+        PN_CSWAP(t3, c3, n3, t4, c4, n4);
+        PN_CSWAP(t5, c5, n5, t6, c6, n6);
+    }
+    int sp = *top;
+    PN_PUSH(t7, c7, n7);
+    PN_PUSH(t6, c6, n6);
+    PN_PUSH(t5, c5, n5);
+    PN_PUSH(t4, c4, n4);
+    PN_PUSH(t3, c3, n3);
+    PN_PUSH(t2, c2, n2);
+    PN_PUSH(t1, c1, n1);
+    PN_PUSH(t0, c0, n0);
+    *top = sp;
+}
+
+/* The walk below serves both wide layouts: node size in float4, stack
+ * depth (a node leaves at most width - 1 children behind per level, and
+ * PN_PUSH writes one past the top), node test and push. */
+#if PN_BVH_WIDTH == 8
+#define PN_NODE_F4 16
+#define PN_WIDE_STACK (7 * PN_BVH_MAX_DEPTH + 1)
+#define PN_WIDE_TEST_PUSH(ray, tmin, tmax, n, any_hit, stack, stack_n, stack_t, sp)                                  \
+    pn_push8(pn_ray_box8(ray, tmin, tmax, n), n, any_hit, stack, stack_n, stack_t, sp)
+#else
+#define PN_NODE_F4 8
+#define PN_WIDE_STACK PN_BVH4_STACK
+#define PN_WIDE_TEST_PUSH(ray, tmin, tmax, n, any_hit, stack, stack_n, stack_t, sp)                                  \
+    pn_push4(pn_ray_box4(ray, tmin, tmax, n), n, any_hit, stack, stack_n, stack_t, sp)
+#endif
+
 /* Traverses one instance's 4-wide BLAS in object space (bvh.h, pn_bvh4_node).
  * any_hit: stop at the first hit. Returns true if hit->t was lowered.
  *
@@ -432,28 +581,27 @@ inline void pn_push4(float4 te, global const float4 *n, bool any_hit, uint *stac
  * farthest first, so the nearest is popped next, and a popped entry whose
  * entry distance lies beyond a hit found meanwhile is dropped (as in the
  * binary walk: only tmax can have changed since the test). */
-PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir, float tmin, pn_hit *hit,
-                          bool any_hit)
+PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir,
+                                   const pn_ray_slab *world, float tmin, pn_hit *hit, bool any_hit)
 {
     global const float4 *inst = scene.instances + slot * PN_INSTANCE_STRIDE;
     uint4 offs = as_uint4(inst[PN_INST_OFFSETS]);
-    global const float4 *nodes = scene.blas + 8 * offs.x;
+    global const float4 *nodes = scene.blas + PN_NODE_F4 * offs.x;
     global const float4 *tris = scene.tris + 3 * offs.y;
-    float3 o = pn_xform_point(inst + PN_INST_WORLD_TO_OBJECT, org);
-    float3 d = pn_xform_vector(inst + PN_INST_WORLD_TO_OBJECT, dir);
-    pn_ray_slab ray = pn_make_slab(o, d);
+    float3 d;
+    pn_ray_slab ray = pn_instance_ray(inst, offs.z, org, dir, world, &d);
+    float3 o = ray.org;
     pn_ray_shear shear;
     bool sheared = false, found = false;
-    uint stack[PN_BVH4_STACK], stack_n[PN_BVH4_STACK];
-    float stack_t[PN_BVH4_STACK];
+    uint stack[PN_WIDE_STACK], stack_n[PN_WIDE_STACK];
+    float stack_t[PN_WIDE_STACK];
     int sp = 0;
     uint node = 0;
     for (;;) {
-        global const float4 *n = nodes + 8 * node;
-        float4 te = pn_ray_box4(&ray, tmin, hit->t, n);
+        global const float4 *n = nodes + PN_NODE_F4 * node;
         PN_STAT(hit, nodes, 1);
-        PN_STAT(hit, boxes, 4);
-        pn_push4(te, n, any_hit, stack, stack_n, stack_t, &sp);
+        PN_STAT(hit, boxes, PN_BVH_WIDTH);
+        PN_WIDE_TEST_PUSH(&ray, tmin, hit->t, n, any_hit, stack, stack_n, stack_t, &sp);
         /* Next interior node; leaves on the way are tested here. */
         for (;;) {
             if (!pn_pop(stack_t, &sp, any_hit, hit->t))
@@ -499,7 +647,7 @@ PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float
         return false;
     /* One instance: its BLAS root box test does the TLAS root's job. */
     if (scene.instance_count == 1)
-        return pn_trace_blas(scene, 0, org, dir, tmin, hit, any_hit);
+        return pn_trace_blas(scene, 0, org, dir, NULL, tmin, hit, any_hit);
     pn_ray_slab ray = pn_make_slab(org, dir);
     bool found = false;
     uint stack[PN_BVH_MAX_DEPTH];
@@ -515,7 +663,7 @@ PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float
         uint first = pn_load_w(nodes + 2 * node), count = pn_load_w(nodes + 2 * node + 1);
         if (count > 0) {
             for (uint k = first; k < first + count; ++k) {
-                if (pn_trace_blas(scene, k, org, dir, tmin, hit, any_hit)) {
+                if (pn_trace_blas(scene, k, org, dir, &ray, tmin, hit, any_hit)) {
                     found = true;
                     if (any_hit)
                         return true;
@@ -557,18 +705,18 @@ PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float
         return false;
     /* One instance: its BLAS root node does the TLAS root's job. */
     if (scene.instance_count == 1)
-        return pn_trace_blas(scene, 0, org, dir, tmin, hit, any_hit);
+        return pn_trace_blas(scene, 0, org, dir, NULL, tmin, hit, any_hit);
     pn_ray_slab ray = pn_make_slab(org, dir);
     bool found = false;
-    uint stack[PN_BVH4_STACK], stack_n[PN_BVH4_STACK];
-    float stack_t[PN_BVH4_STACK];
+    uint stack[PN_WIDE_STACK], stack_n[PN_WIDE_STACK];
+    float stack_t[PN_WIDE_STACK];
     int sp = 0;
     uint node = 0;
     for (;;) {
-        global const float4 *n = scene.tlas + 8 * node;
+        global const float4 *n = scene.tlas + PN_NODE_F4 * node;
         PN_STAT(hit, nodes, 1);
-        PN_STAT(hit, boxes, 4);
-        pn_push4(pn_ray_box4(&ray, tmin, hit->t, n), n, any_hit, stack, stack_n, stack_t, &sp);
+        PN_STAT(hit, boxes, PN_BVH_WIDTH);
+        PN_WIDE_TEST_PUSH(&ray, tmin, hit->t, n, any_hit, stack, stack_n, stack_t, &sp);
         for (;;) {
             if (!pn_pop(stack_t, &sp, any_hit, hit->t))
                 return found;
@@ -578,7 +726,7 @@ PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float
                 break;
             }
             for (uint k = first; k < first + count; ++k) {
-                if (pn_trace_blas(scene, k, org, dir, tmin, hit, any_hit)) {
+                if (pn_trace_blas(scene, k, org, dir, &ray, tmin, hit, any_hit)) {
                     found = true;
                     if (any_hit)
                         return true;

@@ -495,7 +495,7 @@ class Scene(_Handle):
         rays = self._rays(origins, directions, tmin, tmax)
         out = np.empty(len(rays), np.uint8)
         self._call("pn_scene_occluded", self._h, _ptr(rays), len(rays), _ptr(out))
-        return out.astype(bool)
+        return out.view(bool)  # the kernel writes 0 or 1
 
     def render_gbuffer(self, gbuffer: "GBuffer") -> None:
         self._call("pn_scene_render_gbuffer", self._h, gbuffer._h)

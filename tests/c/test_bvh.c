@@ -454,35 +454,65 @@ static int check_rays(const pn_bvh *bvh, const tri *tris, uint32_t n, int nrays)
     return hits;
 }
 
-/* ---- the 4-wide collapse ---- */
+/* ---- the 4- and 8-wide collapses ---- */
 
-static void slot_box(const pn_bvh4_node *w, int k, float *lo, float *hi)
+/* A wide tree of either width: pn_bvh4_node and pn_bvh8_node are eight
+ * arrays of `width` 32-bit words (lo_x, hi_x, lo_y, hi_y, lo_z, hi_z, child,
+ * count), read through these helpers. */
+typedef struct {
+    const unsigned char *nodes;
+    uint32_t node_count, depth;
+    int width;
+} wide_tree;
+
+static wide_tree wide4(const pn_bvh4 *w)
 {
-    lo[0] = w->lo_x[k];
-    lo[1] = w->lo_y[k];
-    lo[2] = w->lo_z[k];
-    hi[0] = w->hi_x[k];
-    hi[1] = w->hi_y[k];
-    hi[2] = w->hi_z[k];
+    wide_tree t = {(const unsigned char *)w->nodes, w->node_count, w->depth, 4};
+    return t;
 }
 
-/* The kernel's scheme (kernels/common/raytrace.cl): test the four child
- * boxes, push every child hit (leaves too), pop; a stack of
- * 3 * PN_BVH_MAX_DEPTH + 1 entries must never overflow. */
-static float bvh4_query(const pn_bvh4 *w, const pn_bvh *bvh, const ray *r, const tri *tris, uint32_t *prim,
+static wide_tree wide8(const pn_bvh8 *w)
+{
+    wide_tree t = {(const unsigned char *)w->nodes, w->node_count, w->depth, 8};
+    return t;
+}
+
+static uint32_t node_word(const wide_tree *w, uint32_t ni, int array, int k)
+{
+    uint32_t v;
+    memcpy(&v, w->nodes + 32u * (size_t)w->width * ni + 4u * ((size_t)array * w->width + k), 4);
+    return v;
+}
+
+static uint32_t slot_child(const wide_tree *w, uint32_t ni, int k) { return node_word(w, ni, 6, k); }
+static uint32_t slot_count(const wide_tree *w, uint32_t ni, int k) { return node_word(w, ni, 7, k); }
+
+static void slot_box(const wide_tree *w, uint32_t ni, int k, float *lo, float *hi)
+{
+    for (int a = 0; a < 3; ++a) {
+        uint32_t l = node_word(w, ni, 2 * a, k), h = node_word(w, ni, 2 * a + 1, k);
+        memcpy(&lo[a], &l, 4);
+        memcpy(&hi[a], &h, 4);
+    }
+}
+
+/* The kernel's scheme (kernels/common/raytrace.cl): test the child boxes,
+ * push every child hit (leaves too), pop; a stack of
+ * (width - 1) * PN_BVH_MAX_DEPTH + 1 entries must never overflow. */
+static float wide_query(const wide_tree *w, const pn_bvh *bvh, const ray *r, const tri *tris, uint32_t *prim,
                         int *overflow)
 {
-    enum { STACK = 3 * PN_BVH_MAX_DEPTH + 1 };
-    uint32_t stack[STACK], stack_n[STACK];
+    enum { STACK_MAX = 7 * PN_BVH_MAX_DEPTH + 1 };
+    const int STACK = (w->width - 1) * PN_BVH_MAX_DEPTH + 1;
+    uint32_t stack[STACK_MAX], stack_n[STACK_MAX];
     int sp = 0;
     float best = INFINITY;
     *prim = UINT32_MAX;
     uint32_t ni = 0;
     for (;;) {
-        const pn_bvh4_node *n = &w->nodes[ni];
-        for (int k = 3; k >= 0; --k) {
+        for (int k = w->width - 1; k >= 0; --k) {
             float lo[3], hi[3];
-            slot_box(n, k, lo, hi);
+            slot_box(w, ni, k, lo, hi);
             if (!(lo[0] <= hi[0])) /* unused slot */
                 continue;
             if (!ray_box(r, lo, hi, best))
@@ -491,8 +521,8 @@ static float bvh4_query(const pn_bvh4 *w, const pn_bvh *bvh, const ray *r, const
                 *overflow = 1;
                 return best;
             }
-            stack[sp] = n->child[k];
-            stack_n[sp++] = n->count[k];
+            stack[sp] = slot_child(w, ni, k);
+            stack_n[sp++] = slot_count(w, ni, k);
         }
         for (;;) {
             if (sp == 0)
@@ -514,10 +544,10 @@ static float bvh4_query(const pn_bvh4 *w, const pn_bvh *bvh, const ray *r, const
     }
 }
 
-/* The 4-wide tree has exactly the binary tree's leaves (same ranges, same
+/* The wide tree has exactly the binary tree's leaves (same ranges, same
  * boxes), every interior box bounds its children, unused slots hold the empty
  * box, every node is reached once, and the depth is reported right. */
-static void check_wide(const pn_bvh4 *w, const pn_bvh *bvh)
+static void check_wide(const wide_tree *w, const pn_bvh *bvh)
 {
     CHECK(w->nodes && w->node_count >= 1 && w->node_count <= bvh->node_count / 2 + 1, "%u wide nodes for %u binary",
           w->node_count, bvh->node_count);
@@ -547,40 +577,39 @@ static void check_wide(const pn_bvh4 *w, const pn_bvh *bvh)
     while (sp > 0 && errors < 5) {
         sp--;
         uint32_t ni = stack[sp], d = sdepth[sp];
-        const pn_bvh4_node *n = &w->nodes[ni];
         max_depth = d > max_depth ? d : max_depth;
-        for (int k = 0; k < 4; k++) {
+        for (int k = 0; k < w->width; k++) {
             float lo[3], hi[3];
-            slot_box(n, k, lo, hi);
+            slot_box(w, ni, k, lo, hi);
+            const uint32_t child = slot_child(w, ni, k), count = slot_count(w, ni, k);
             if (lo[0] == INFINITY) {
-                int empty = n->count[k] == 0;
+                int empty = count == 0;
                 for (int a = 0; a < 3; a++)
                     empty = empty && lo[a] == INFINITY && hi[a] == -INFINITY;
                 if (!empty && errors++ < 5)
                     fail("node %u slot %d: unused slot is not the empty box", ni, k);
                 continue;
             }
-            if (n->count[k] > 0) {
+            if (count > 0) {
                 /* find the binary leaf with this range */
-                uint32_t b = n->child[k] < bvh->prim_count ? leaf_of[n->child[k]] : UINT32_MAX;
-                if (b == UINT32_MAX || bvh->nodes[b].count != n->count[k] || leaf_seen[b]++ ||
+                uint32_t b = child < bvh->prim_count ? leaf_of[child] : UINT32_MAX;
+                if (b == UINT32_MAX || bvh->nodes[b].count != count || leaf_seen[b]++ ||
                     memcmp(lo, bvh->nodes[b].lo, sizeof lo) || memcmp(hi, bvh->nodes[b].hi, sizeof hi)) {
                     if (errors++ < 5)
                         fail("node %u slot %d: leaf %u+%u is not a binary leaf, or seen twice, or its box differs", ni,
-                             k, n->child[k], n->count[k]);
+                             k, child, count);
                 }
                 continue;
             }
-            uint32_t c = n->child[k];
+            uint32_t c = child;
             if (c == 0 || c >= w->node_count || visited[c]++) {
                 if (errors++ < 5)
                     fail("node %u slot %d: child %u out of range or reached twice", ni, k, c);
                 continue;
             }
-            const pn_bvh4_node *cn = &w->nodes[c];
-            for (int j = 0; j < 4; j++) {
+            for (int j = 0; j < w->width; j++) {
                 float clo[3], chi[3];
-                slot_box(cn, j, clo, chi);
+                slot_box(w, c, j, clo, chi);
                 if (clo[0] != INFINITY && !box_contains(lo, hi, clo, chi) && errors++ < 5)
                     fail("node %u slot %d: box does not contain child %u's slot %d", ni, k, c, j);
             }
@@ -609,11 +638,13 @@ out:
 
 /* Collapses bvh, checks the structure and that wide queries give brute
  * force's distances exactly. */
-static void check_collapse(const pn_bvh *bvh, const tri *tris, uint32_t n, int nrays)
+static void check_collapse_width(const pn_bvh *bvh, const tri *tris, uint32_t n, int nrays, int width)
 {
-    pn_bvh4 w;
-    int rc = pn_bvh4_collapse(bvh, &w);
-    CHECK(rc == 0, "collapse returned %d", rc);
+    pn_bvh4 w4;
+    pn_bvh8 w8;
+    int rc = width == 8 ? pn_bvh8_collapse(bvh, &w8) : pn_bvh4_collapse(bvh, &w4);
+    CHECK(rc == 0, "%d-wide collapse returned %d", width, rc);
+    const wide_tree w = width == 8 ? wide8(&w8) : wide4(&w4);
     if (rc == 0)
         check_wide(&w, bvh);
     if (rc == 0 && g_case_errors == 0 && tris) {
@@ -625,19 +656,30 @@ static void check_collapse(const pn_bvh *bvh, const tri *tris, uint32_t n, int n
             make_ray(&r, tris, n, &scene);
             uint32_t pb, pq;
             float tb = brute_force(&r, tris, n, &pb);
-            float tq = bvh4_query(&w, bvh, &r, tris, &pq, &overflow);
+            float tq = wide_query(&w, bvh, &r, tris, &pq, &overflow);
             int ok = tb == tq || (tb != tb && tq != tq);
             if (ok && pq != pb)
                 ok = pq < n && tri_hit(&r, &tris[pq]) == tb;
             if (!ok && mismatches++ < 5)
-                fail("ray %d: brute force t=%.9g prim %u, 4-wide t=%.9g prim %u", i, tb, pb, tq, pq);
+                fail("ray %d: brute force t=%.9g prim %u, %d-wide t=%.9g prim %u", i, tb, pb, width, tq, pq);
         }
-        CHECK(mismatches == 0, "%d/%d rays disagree with brute force in the 4-wide tree", mismatches, nrays);
-        CHECK(!overflow, "4-wide traversal stack overflowed");
-        printf("  4-wide: %u nodes, depth %u\n", w.node_count, w.depth);
+        CHECK(mismatches == 0, "%d/%d rays disagree with brute force in the %d-wide tree", mismatches, nrays, width);
+        CHECK(!overflow, "%d-wide traversal stack overflowed", width);
+        printf("  %d-wide: %u nodes, depth %u\n", width, w.node_count, w.depth);
     }
-    pn_bvh4_free(&w);
-    pn_bvh4_free(&w); /* safe twice */
+    if (width == 8) {
+        pn_bvh8_free(&w8);
+        pn_bvh8_free(&w8); /* safe twice */
+    } else {
+        pn_bvh4_free(&w4);
+        pn_bvh4_free(&w4);
+    }
+}
+
+static void check_collapse(const pn_bvh *bvh, const tri *tris, uint32_t n, int nrays)
+{
+    check_collapse_width(bvh, tris, n, nrays, 4);
+    check_collapse_width(bvh, tris, n, nrays, 8);
 }
 
 /* Builds over tris, checks invariants and ray queries; expect_depth 0 means any. */
@@ -855,9 +897,23 @@ static void test_api_edges(void)
     if (w.nodes) {
         CHECK(w.node_count == 1 && w.depth == 1 && w.nodes[0].count[0] == 1, "single leaf: %u nodes, depth %u", w.node_count,
               w.depth);
-        check_wide(&w, &bvh);
+        const wide_tree t = wide4(&w);
+        check_wide(&t, &bvh);
     }
     pn_bvh4_free(&w);
+    pn_bvh8 w8;
+    memset(&w8, 0xAB, sizeof(w8));
+    pn_bvh empty_tree;
+    memset(&empty_tree, 0, sizeof(empty_tree));
+    CHECK(pn_bvh8_collapse(&empty_tree, &w8) == -1 && w8.nodes == NULL, "8-wide collapse of an empty tree accepted");
+    CHECK(pn_bvh8_collapse(&bvh, &w8) == 0, "8-wide collapse failed");
+    if (w8.nodes) {
+        CHECK(w8.node_count == 1 && w8.depth == 1 && w8.nodes[0].count[0] == 1, "8-wide single leaf: %u nodes, depth %u",
+              w8.node_count, w8.depth);
+        const wide_tree t = wide8(&w8);
+        check_wide(&t, &bvh);
+    }
+    pn_bvh8_free(&w8);
     pn_bvh_free(&bvh);
     case_end();
 }

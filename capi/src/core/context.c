@@ -152,8 +152,8 @@ pn_status pn_context_new(const char *config, cl_context cl_ctx, cl_command_queue
     int bvh_width = 4;
     const char *width_env = getenv("PENUMBRA_BVH_WIDTH");
     if (width_env && *width_env) {
-        if (strcmp(width_env, "2") && strcmp(width_env, "4"))
-            return pn_fail(NULL, PN_ERROR_BAD_CONFIG, "PENUMBRA_BVH_WIDTH='%s' must be 2 or 4", width_env);
+        if (strcmp(width_env, "2") && strcmp(width_env, "4") && strcmp(width_env, "8"))
+            return pn_fail(NULL, PN_ERROR_BAD_CONFIG, "PENUMBRA_BVH_WIDTH='%s' must be 2, 4 or 8", width_env);
         bvh_width = width_env[0] - '0';
     }
     pn_context ctx = calloc(1, sizeof *ctx);
@@ -431,7 +431,7 @@ pn_status pn_alloc(pn_context ctx, size_t bytes, cl_mem_flags flags, const void 
         return st;
     }
     cl_int err;
-    if (host)
+    if (host && !(flags & CL_MEM_USE_HOST_PTR))
         flags |= CL_MEM_COPY_HOST_PTR;
     *out = clCreateBuffer(ctx->cl_ctx, flags, bytes ? bytes : 16, (void *)host, &err);
     if (err != CL_SUCCESS) {

@@ -173,7 +173,7 @@ struct pn_context_impl {
     cl_command_queue queue;
     cl_device_id device;
     char build_options[512];
-    int bvh_width; /* 4, or 2 for the binary BVH layout (PENUMBRA_BVH_WIDTH) */
+    int bvh_width; /* 4, or 2 for the binary BVH layout, 8 for the 8-wide one (PENUMBRA_BVH_WIDTH) */
     pn_error_callback callback;
     void *callback_user;
     pn_program_entry programs[PN_MAX_PROGRAMS];
@@ -200,6 +200,8 @@ pn_status pn_context_table(pn_context ctx, const void *key, size_t floats, void 
 pn_status pn_set_args(pn_context ctx, cl_kernel kernel, const char *name, int count, const size_t *sizes,
                       const void *const *values);
 pn_status pn_enqueue_1d(pn_context ctx, cl_kernel kernel, const char *name, size_t items, size_t local);
+/* host: copied into the new buffer (CL_MEM_COPY_HOST_PTR), or used in place
+ * when flags hold CL_MEM_USE_HOST_PTR. */
 pn_status pn_alloc(pn_context ctx, size_t bytes, cl_mem_flags flags, const void *host, cl_mem *out,
                    const char *what);
 /* Enqueues a copy of `bytes` host bytes into `buffer` without waiting: the

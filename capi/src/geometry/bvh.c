@@ -426,30 +426,54 @@ static double node_half_area(const pn_bvh_node *n)
 }
 
 /* Fills slot k of w from binary node n (interior: child = the 4-wide index to come). */
-static void set_slot(pn_bvh4_node *w, int k, const pn_bvh_node *n, uint32_t child, uint32_t count)
+/* Wide nodes of W children (pn_bvh4_node, pn_bvh8_node) share one layout:
+ * eight arrays of W 32-bit words (lo_x, hi_x, lo_y, hi_y, lo_z, hi_z, child,
+ * count). The collapse writes them through these offsets. */
+static void set_word(unsigned char *node, int width, int array, int k, const void *value)
 {
-    w->lo_x[k] = n->lo[0];
-    w->lo_y[k] = n->lo[1];
-    w->lo_z[k] = n->lo[2];
-    w->hi_x[k] = n->hi[0];
-    w->hi_y[k] = n->hi[1];
-    w->hi_z[k] = n->hi[2];
-    w->child[k] = child;
-    w->count[k] = count;
+    memcpy(node + 4 * ((size_t)array * width + k), value, 4);
 }
 
-int pn_bvh4_collapse(const pn_bvh *bvh, pn_bvh4 *out)
+static void set_slot(unsigned char *node, int width, int k, const pn_bvh_node *n, uint32_t child, uint32_t count)
 {
-    memset(out, 0, sizeof(*out));
+    for (int a = 0; a < 3; ++a) {
+        set_word(node, width, 2 * a, k, &n->lo[a]);
+        set_word(node, width, 2 * a + 1, k, &n->hi[a]);
+    }
+    set_word(node, width, 6, k, &child);
+    set_word(node, width, 7, k, &count);
+}
+
+static void clear_node(unsigned char *node, int width)
+{
+    const float lo = INFINITY, hi = -INFINITY;
+    const uint32_t zero = 0;
+    for (int k = 0; k < width; ++k) {
+        for (int a = 0; a < 3; ++a) {
+            set_word(node, width, 2 * a, k, &lo);
+            set_word(node, width, 2 * a + 1, k, &hi);
+        }
+        set_word(node, width, 6, k, &zero);
+        set_word(node, width, 7, k, &zero);
+    }
+}
+
+/* The collapse of pn_bvh4_collapse for `width` (4 or 8) children per node;
+ * *nodes_out gets node_count nodes of 32 * width bytes. */
+static int collapse_wide(const pn_bvh *bvh, int width, void **nodes_out, uint32_t *count_out, uint32_t *depth_out)
+{
+    *nodes_out = NULL;
+    *count_out = *depth_out = 0;
     if (!bvh || !bvh->nodes || bvh->node_count == 0)
         return -1;
-    /* Every 4-wide node expands its own binary interior node (or is a
+    const size_t node_bytes = 32u * (size_t)width;
+    /* Every wide node expands its own binary interior node (or is a
      * single-leaf root), so there are at most max(1, (node_count - 1) / 2);
-     * each level of 4-wide nodes is at least one binary level deeper, so the
+     * each level of wide nodes is at least one binary level deeper, so the
      * depth stays within the binary one. */
     const uint32_t cap = bvh->node_count / 2 + 1;
-    pn_bvh4_node *nodes = malloc((size_t)cap * sizeof(pn_bvh4_node));
-    /* Work list: binary node to expand into the 4-wide node of the same position, and its depth. */
+    unsigned char *nodes = malloc((size_t)cap * node_bytes);
+    /* Work list: binary node to expand into the wide node of the same position, and its depth. */
     uint32_t *todo = malloc((size_t)cap * 2 * sizeof(uint32_t));
     if (!nodes || !todo) {
         free(nodes);
@@ -462,14 +486,14 @@ int pn_bvh4_collapse(const pn_bvh *bvh, pn_bvh4 *out)
     for (uint32_t w = 0; w < count; ++w) {
         const pn_bvh_node *src = &bvh->nodes[todo[2 * w]];
         const uint32_t wdepth = todo[2 * w + 1];
-        uint32_t kids[4];
+        uint32_t kids[8];
         int n = 0;
         if (src->count > 0) {
             kids[n++] = todo[2 * w]; /* the root is a leaf */
         } else {
             kids[n++] = src->left_or_first;
             kids[n++] = src->left_or_first + 1;
-            while (n < 4) {
+            while (n < width) {
                 int best = -1;
                 double best_area = -1.0;
                 for (int k = 0; k < n; ++k) {
@@ -487,17 +511,12 @@ int pn_bvh4_collapse(const pn_bvh *bvh, pn_bvh4 *out)
                 kids[n++] = l + 1;
             }
         }
-        pn_bvh4_node *dst = &nodes[w];
-        for (int k = 0; k < 4; ++k) {
-            dst->lo_x[k] = dst->lo_y[k] = dst->lo_z[k] = INFINITY;
-            dst->hi_x[k] = dst->hi_y[k] = dst->hi_z[k] = -INFINITY;
-            dst->child[k] = 0;
-            dst->count[k] = 0;
-        }
+        unsigned char *dst = nodes + (size_t)w * node_bytes;
+        clear_node(dst, width);
         for (int k = 0; k < n; ++k) {
             const pn_bvh_node *c = &bvh->nodes[kids[k]];
             if (c->count > 0) {
-                set_slot(dst, k, c, c->left_or_first, c->count);
+                set_slot(dst, width, k, c, c->left_or_first, c->count);
                 continue;
             }
             if (count >= cap) { /* cannot happen by the bound above; never write past the array */
@@ -505,7 +524,7 @@ int pn_bvh4_collapse(const pn_bvh *bvh, pn_bvh4 *out)
                 free(todo);
                 return -1;
             }
-            set_slot(dst, k, c, count, 0);
+            set_slot(dst, width, k, c, count, 0);
             todo[2 * count] = kids[k];
             todo[2 * count + 1] = wdepth + 1;
             ++count;
@@ -514,11 +533,39 @@ int pn_bvh4_collapse(const pn_bvh *bvh, pn_bvh4 *out)
             depth = wdepth;
     }
     free(todo);
-    pn_bvh4_node *shrunk = realloc(nodes, (size_t)count * sizeof(pn_bvh4_node));
-    out->nodes = shrunk ? shrunk : nodes;
-    out->node_count = count;
-    out->depth = depth;
+    unsigned char *shrunk = realloc(nodes, (size_t)count * node_bytes);
+    *nodes_out = shrunk ? shrunk : nodes;
+    *count_out = count;
+    *depth_out = depth;
     return 0;
+}
+
+int pn_bvh4_collapse(const pn_bvh *bvh, pn_bvh4 *out)
+{
+    memset(out, 0, sizeof(*out));
+    void *nodes;
+    if (collapse_wide(bvh, 4, &nodes, &out->node_count, &out->depth) != 0)
+        return -1;
+    out->nodes = nodes;
+    return 0;
+}
+
+int pn_bvh8_collapse(const pn_bvh *bvh, pn_bvh8 *out)
+{
+    memset(out, 0, sizeof(*out));
+    void *nodes;
+    if (collapse_wide(bvh, 8, &nodes, &out->node_count, &out->depth) != 0)
+        return -1;
+    out->nodes = nodes;
+    return 0;
+}
+
+void pn_bvh8_free(pn_bvh8 *bvh)
+{
+    if (!bvh)
+        return;
+    free(bvh->nodes);
+    memset(bvh, 0, sizeof(*bvh));
 }
 
 void pn_bvh4_free(pn_bvh4 *bvh)

@@ -76,4 +76,24 @@ typedef struct pn_bvh4 {
 int pn_bvh4_collapse(const pn_bvh *bvh, pn_bvh4 *out);
 void pn_bvh4_free(pn_bvh4 *bvh);
 
+/* 8-wide node, 256 bytes = sixteen float4 (eight float8) on the device: the
+ * 4-wide node's layout with eight slots per array, tested with one float8
+ * slab test (PENUMBRA_BVH_WIDTH=8). */
+typedef struct pn_bvh8_node {
+    float lo_x[8], hi_x[8], lo_y[8], hi_y[8], lo_z[8], hi_z[8];
+    uint32_t child[8];
+    uint32_t count[8];
+} pn_bvh8_node;
+
+typedef struct pn_bvh8 {
+    pn_bvh8_node *nodes; /* node_count entries, malloc'ed */
+    uint32_t node_count;
+    uint32_t depth;      /* longest root-to-leaf path in 8-wide nodes, <= the binary depth */
+} pn_bvh8;
+
+/* pn_bvh4_collapse with up to eight children per node (the interior child
+ * of largest surface area opened until there are eight). */
+int pn_bvh8_collapse(const pn_bvh *bvh, pn_bvh8 *out);
+void pn_bvh8_free(pn_bvh8 *bvh);
+
 #endif

@@ -17,6 +17,7 @@ static void free_geometry(pn_mesh mesh)
     free(mesh->leaf_normals);
     pn_bvh_free(&mesh->bvh);
     pn_bvh4_free(&mesh->wide);
+    pn_bvh8_free(&mesh->wide8);
     mesh->positions = mesh->normals = mesh->leaf_tris = mesh->leaf_normals = NULL;
     mesh->indices = NULL;
 }
@@ -184,7 +185,9 @@ pn_status pn_mesh_do_commit(pn_mesh mesh)
     /* The kernels walk the 4-wide form; the binary one stays for host users
      * (fiv_bake's winding tree) and the binary layout (PENUMBRA_BVH_WIDTH=2). */
     pn_bvh4 wide = {0};
-    if (pn_bvh4_collapse(&bvh, &wide) != 0) {
+    pn_bvh8 wide8 = {0};
+    if (pn_bvh4_collapse(&bvh, &wide) != 0 || (ctx->bvh_width == 8 && pn_bvh8_collapse(&bvh, &wide8) != 0)) {
+        pn_bvh4_free(&wide);
         pn_bvh_free(&bvh);
         free(tris);
         free(nrms);
@@ -215,10 +218,12 @@ pn_status pn_mesh_do_commit(pn_mesh mesh)
     }
     pn_bvh_free(&mesh->bvh);
     pn_bvh4_free(&mesh->wide);
+    pn_bvh8_free(&mesh->wide8);
     free(mesh->leaf_tris);
     free(mesh->leaf_normals);
     mesh->bvh = bvh;
     mesh->wide = wide;
+    mesh->wide8 = wide8;
     mesh->leaf_tris = tris;
     mesh->leaf_normals = nrms;
     mesh->content_hash = pn_hash_bytes(pn_hash_bytes(PN_HASH_SEED, mesh->positions, 12u * (size_t)mesh->vertex_count),

@@ -5,6 +5,7 @@
 #include "geometry/geometry.h"
 
 #include <math.h>
+#include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -390,8 +391,9 @@ static pn_status gather_meshes(pn_scene scene)
         return PN_ERROR_OUT_OF_MEMORY;
     size_t nodes = 0, tris = 0;
     bool any_normals = false;
-    const bool wide = ctx->bvh_width == 4;
-    const size_t node_size = wide ? sizeof(pn_bvh4_node) : sizeof(pn_bvh_node);
+    const int width = ctx->bvh_width;
+    const size_t node_size =
+        width == 8 ? sizeof(pn_bvh8_node) : width == 4 ? sizeof(pn_bvh4_node) : sizeof(pn_bvh_node);
     for (uint32_t i = 0; i < scene->instance_count; ++i) {
         pn_mesh m = scene->instances[i].mesh;
         if (!m)
@@ -410,7 +412,7 @@ static pn_status gather_meshes(pn_scene scene)
         slots[count].version = m->version;
         slots[count].node_offset = (uint32_t)nodes;
         slots[count].tri_offset = (uint32_t)tris;
-        nodes += wide ? m->wide.node_count : m->bvh.node_count;
+        nodes += width == 8 ? m->wide8.node_count : width == 4 ? m->wide.node_count : m->bvh.node_count;
         tris += m->triangle_count;
         any_normals = any_normals || m->leaf_normals;
         ++count;
@@ -434,9 +436,12 @@ static pn_status gather_meshes(pn_scene scene)
         st = PN_ERROR_OUT_OF_MEMORY;
     for (uint32_t k = 0; !st && k < count; ++k) {
         pn_mesh m = slots[k].mesh;
-        memcpy((char *)hnodes + (size_t)slots[k].node_offset * node_size,
-               wide ? (const void *)m->wide.nodes : (const void *)m->bvh.nodes,
-               (size_t)(wide ? m->wide.node_count : m->bvh.node_count) * node_size);
+        const void *src = width == 8 ? (const void *)m->wide8.nodes
+                          : width == 4 ? (const void *)m->wide.nodes
+                                       : (const void *)m->bvh.nodes;
+        memcpy((char *)hnodes + (size_t)slots[k].node_offset * node_size, src,
+               (size_t)(width == 8 ? m->wide8.node_count : width == 4 ? m->wide.node_count : m->bvh.node_count) *
+                   node_size);
         memcpy(htris + 12 * (size_t)slots[k].tri_offset, m->leaf_tris, (size_t)m->triangle_count * 12 * sizeof(float));
         if (hnrm) {
             float *dst = hnrm + 12 * (size_t)slots[k].tri_offset;
@@ -547,10 +552,13 @@ pn_status pn_scene_do_commit(pn_scene scene)
         }
     }
     pn_bvh4 wide_tlas = {0};
+    pn_bvh8 wide8_tlas = {0};
     if (!st && live && pn_bvh_build(boxes, live, 2, &tlas) != 0)
         st = pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building the instance BVH");
     /* The kernels walk the TLAS in the BLAS' layout. */
     if (!st && live && ctx->bvh_width == 4 && pn_bvh4_collapse(&tlas, &wide_tlas) != 0)
+        st = pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building the instance BVH");
+    if (!st && live && ctx->bvh_width == 8 && pn_bvh8_collapse(&tlas, &wide8_tlas) != 0)
         st = pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building the instance BVH");
     for (uint32_t slot = 0; !st && slot < live; ++slot) {
         const pn_instance *inst = &scene->instances[ids[tlas.order[slot]]];
@@ -564,16 +572,27 @@ pn_status pn_scene_do_commit(pn_scene scene)
         r[29] = inst->material.roughness;
         r[30] = (float)inst->material.lobe;
         r[31] = inst->material.shininess_v;
-        uint32_t offs[4] = {ms->node_offset, ms->tri_offset, inst->mesh->leaf_normals ? 1u : 0u, inst->id};
+        /* Flags (kernels/common/raytrace.cl, PN_INST_FLAG_*): 1 vertex normals, 2 a world_to_object whose
+         * linear part is exactly the identity (the walk reuses the world ray's direction). */
+        const float *w = inst->world_to_object;
+        const bool translation = w[0] == 1.0f && w[1] == 0.0f && w[2] == 0.0f && w[4] == 0.0f && w[5] == 1.0f &&
+                                 w[6] == 0.0f && w[8] == 0.0f && w[9] == 0.0f && w[10] == 1.0f;
+        uint32_t offs[4] = {ms->node_offset, ms->tri_offset,
+                            (inst->mesh->leaf_normals ? 1u : 0u) | (translation ? 2u : 0u), inst->id};
         memcpy(r + 32, offs, sizeof offs);
         memcpy(r + 36, inst->material.tangent, 3 * sizeof(float));
         r[39] = 0.0f;
     }
     if (!st) {
-        const bool wide = ctx->bvh_width == 4;
-        const void *tlas_nodes = wide ? (const void *)wide_tlas.nodes : (const void *)tlas.nodes;
-        const size_t node_size = wide ? sizeof(pn_bvh4_node) : sizeof(pn_bvh_node);
-        size_t tlas_bytes = (live ? (size_t)(wide ? wide_tlas.node_count : tlas.node_count) : 1) * node_size;
+        const int width = ctx->bvh_width;
+        const void *tlas_nodes = width == 8   ? (const void *)wide8_tlas.nodes
+                                 : width == 4 ? (const void *)wide_tlas.nodes
+                                              : (const void *)tlas.nodes;
+        const size_t node_size =
+            width == 8 ? sizeof(pn_bvh8_node) : width == 4 ? sizeof(pn_bvh4_node) : sizeof(pn_bvh_node);
+        const uint32_t tlas_count =
+            width == 8 ? wide8_tlas.node_count : width == 4 ? wide_tlas.node_count : tlas.node_count;
+        size_t tlas_bytes = (live ? (size_t)tlas_count : 1) * node_size;
         size_t rec_bytes = (size_t)(live ? live : 1) * RECORD_FLOATS * sizeof(float);
         if (!(st = ensure_buffer(ctx, &scene->tlas, &scene->tlas_capacity, tlas_bytes, "the instance BVH")) &&
             !(st = ensure_buffer(ctx, &scene->records, &scene->records_capacity, rec_bytes, "instance records"))) {
@@ -589,6 +608,7 @@ pn_status pn_scene_do_commit(pn_scene scene)
     }
     pn_bvh_free(&tlas);
     pn_bvh4_free(&wide_tlas);
+    pn_bvh8_free(&wide8_tlas);
     free(boxes);
     free(ids);
     free(records);
@@ -632,6 +652,62 @@ pn_status pn_scene_set_kernel_args(pn_scene scene, cl_kernel kernel, const char 
 
 /* ---------------------------------------------------------------- queries */
 
+/* Index of the first ray with a non-finite origin or direction or a NaN bound
+ * (rays: 8 floats each, bounds at 3 and 7), or count when all are valid. The
+ * test works on the bits, branch-free over blocks of rays, so that it
+ * vectorises: the check reads every ray of every call. */
+static uint32_t first_bad_ray(const float *rays, uint32_t count)
+{
+    enum { BLOCK = 256 };
+    for (uint32_t b = 0; b < count; b += BLOCK) {
+        const uint32_t e = count - b < BLOCK ? count : b + BLOCK;
+        uint32_t bad = 0;
+        for (uint32_t i = b; i < e; ++i)
+            for (int c = 0; c < 8; ++c) {
+                uint32_t bits;
+                memcpy(&bits, rays + 8 * (size_t)i + c, sizeof bits);
+                bits &= 0x7fffffffu;
+                /* NaN: above the infinity pattern; an infinite origin or direction: equal to it. */
+                bad |= (uint32_t)(bits > 0x7f800000u) | (uint32_t)(c != 3 && c != 7 && bits == 0x7f800000u);
+            }
+        if (bad)
+            for (uint32_t i = b; i < e; ++i)
+                for (int c = 0; c < 8; ++c)
+                    if (isnan(rays[8 * (size_t)i + c]) || (c != 3 && c != 7 && !isfinite(rays[8 * (size_t)i + c])))
+                        return i;
+    }
+    return count;
+}
+
+/* A device buffer over `bytes` of caller memory at `host`: the memory itself
+ * (CL_MEM_USE_HOST_PTR, no copy; on a CPU device the kernel reads and writes
+ * it in place) where `host` has the alignment the kernel's loads need, else
+ * a buffer of the library's own (holding a copy of `host` when copy_in).
+ * host may be NULL: a buffer of the library's own. *in_place says which. */
+static pn_status query_buffer(pn_context ctx, size_t bytes, cl_mem_flags flags, const void *host, size_t align,
+                              bool copy_in, cl_mem *out, bool *in_place, const char *what)
+{
+    *in_place = host && (uintptr_t)host % align == 0;
+    if (*in_place)
+        return pn_alloc(ctx, bytes, flags | CL_MEM_USE_HOST_PTR, host, out, what);
+    return pn_alloc(ctx, bytes, flags, copy_in ? host : NULL, out, what);
+}
+
+/* The results of buffer `mem` into `dst`: a blocking read, or for a buffer
+ * over dst itself a blocking map (which on a CPU device copies nothing). */
+static cl_int read_result(pn_context ctx, cl_mem mem, bool in_place, void *dst, size_t bytes)
+{
+    if (!in_place)
+        return clEnqueueReadBuffer(ctx->queue, mem, CL_TRUE, 0, bytes, dst, 0, NULL, NULL);
+    cl_int err;
+    void *p = clEnqueueMapBuffer(ctx->queue, mem, CL_TRUE, CL_MAP_READ, 0, bytes, 0, NULL, NULL, &err);
+    if (err != CL_SUCCESS)
+        return err;
+    if (p != dst)
+        memcpy(dst, p, bytes);
+    return clEnqueueUnmapMemObject(ctx->queue, mem, p, 0, NULL, NULL);
+}
+
 pn_status pn_scene_do_query(pn_scene scene, const float *rays, uint32_t count, float *t, uint32_t *instance,
                             uint32_t *triangle, uint8_t *occluded)
 {
@@ -639,22 +715,26 @@ pn_status pn_scene_do_query(pn_scene scene, const float *rays, uint32_t count, f
     pn_status st = pn_scene_ready(scene, false);
     if (st || count == 0)
         return st;
-    for (uint32_t i = 0; i < count; ++i)
-        for (int c = 0; c < 8; ++c)
-            if (isnan(rays[8 * (size_t)i + c]) || (c != 3 && c != 7 && !isfinite(rays[8 * (size_t)i + c])))
-                return pn_fail(ctx, PN_ERROR_INVALID_VALUE, "ray %u has a non-finite origin or direction, or a NaN bound", i);
+    const uint32_t bad = first_bad_ray(rays, count);
+    if (bad < count)
+        return pn_fail(ctx, PN_ERROR_INVALID_VALUE, "ray %u has a non-finite origin or direction, or a NaN bound", bad);
     const bool any = occluded != NULL;
     const char *name = any ? "occluded_rays" : "intersect_rays";
     cl_kernel k;
     if ((st = pn_context_kernel(ctx, "raycast", name, &k)))
         return st;
+    /* The rays and the result arrays are used in place where aligned (the
+     * kernel loads rays as float4): no per-call copies of them. */
     cl_mem drays = NULL, out0 = NULL, out1 = NULL, out2 = NULL;
+    bool in0 = false, in1 = false, in2 = false, in_rays;
     const size_t n = count;
-    st = pn_alloc(ctx, n * 32, CL_MEM_READ_ONLY, rays, &drays, "rays");
+    st = query_buffer(ctx, n * 32, CL_MEM_READ_ONLY, rays, 16, true, &drays, &in_rays, "rays");
     if (!st)
-        st = pn_alloc(ctx, any ? n : n * 4, CL_MEM_WRITE_ONLY, NULL, &out0, "ray results");
-    if (!st && !any && !(st = pn_alloc(ctx, n * 4, CL_MEM_WRITE_ONLY, NULL, &out1, "ray results")))
-        st = pn_alloc(ctx, n * 4, CL_MEM_WRITE_ONLY, NULL, &out2, "ray results");
+        st = query_buffer(ctx, any ? n : n * 4, CL_MEM_WRITE_ONLY, any ? (void *)occluded : (void *)t, any ? 1 : 4,
+                          false, &out0, &in0, "ray results");
+    if (!st && !any && !(st = query_buffer(ctx, n * 4, CL_MEM_WRITE_ONLY, instance, 4, false, &out1, &in1,
+                                           "ray results")))
+        st = query_buffer(ctx, n * 4, CL_MEM_WRITE_ONLY, triangle, 4, false, &out2, &in2, "ray results");
     const cl_int cn = (cl_int)count;
     if (!st)
         st = pn_scene_set_kernel_args(scene, k, name, 0);
@@ -671,16 +751,18 @@ pn_status pn_scene_do_query(pn_scene scene, const float *rays, uint32_t count, f
         st = pn_enqueue_1d(ctx, k, name, n, 64);
     cl_int err = CL_SUCCESS;
     if (!st && any)
-        err = clEnqueueReadBuffer(ctx->queue, out0, CL_TRUE, 0, n, occluded, 0, NULL, NULL);
+        err = read_result(ctx, out0, in0, occluded, n);
     if (!st && !any && t)
-        err = clEnqueueReadBuffer(ctx->queue, out0, CL_TRUE, 0, n * 4, t, 0, NULL, NULL);
+        err = read_result(ctx, out0, in0, t, n * 4);
     if (!st && !any && instance && err == CL_SUCCESS)
-        err = clEnqueueReadBuffer(ctx->queue, out1, CL_TRUE, 0, n * 4, instance, 0, NULL, NULL);
+        err = read_result(ctx, out1, in1, instance, n * 4);
     if (!st && !any && triangle && err == CL_SUCCESS)
-        err = clEnqueueReadBuffer(ctx->queue, out2, CL_TRUE, 0, n * 4, triangle, 0, NULL, NULL);
+        err = read_result(ctx, out2, in2, triangle, n * 4);
     if (!st && err != CL_SUCCESS)
         st = pn_fail_cl(ctx, err, "reading ray query results");
-    if (!st && !any && !t && !instance && !triangle)
+    /* Nothing may still use the caller's memory when the call returns (the
+     * unmaps above are enqueued, and without outputs the kernel is). */
+    if (!st || in_rays || in0 || in1 || in2)
         clFinish(ctx->queue);
     pn_mem_release(&drays);
     pn_mem_release(&out0);
