@@ -104,6 +104,82 @@ def test_one_domain_holds_all_the_power(ctx, box_scene):
     twin_check(dict(s, domains=one), r, got[..., :3])
 
 
+def split_sun_sky(width=128, height=64):
+    """A blue gradient sky with a 4-texel sun (150 against ~0.5): the
+    decomposition splits the sun across 4 domains at N = 128, each holding
+    ~0.04 of the power (below strong_share 0.2) but ~5x the mean domain power
+    (the rest ~1.2x); returns the map and the sun's texels."""
+    img = np.empty((height, width, 3), np.float32)
+    v = (np.arange(height) + 0.5) / height
+    img[...] = (0.3 + 0.7 * (1 - v))[:, None, None] * np.array([0.5, 0.7, 1.0], np.float32)
+    yy, xx = np.mgrid[0:height, 0:width]
+    disk = (yy + 0.5 - 16) ** 2 + (xx + 0.5 - 40) ** 2 < 1.5**2
+    img[disk] = 150.0
+    return img, disk
+
+
+def test_split_sun_gets_the_large_maps_at_n128(ctx, box_scene):
+    """At N = 128 the sun's power is split across several domains, none of
+    which holds strong_share of it: strong_ratio (x the mean domain power)
+    still gives exactly the sun's domains the large maps, and the image is the
+    twin's. strong_ratio 0 (the share alone, the rule before) gives none."""
+    s = box_scene
+    img, disk = split_sun_sky()
+    dom = d64.decompose(img, 128, seed=1)
+    doms = dm.domain_array(dom.centres, dom.radiance, cap_radius=dom.cap_radius, solid_angle=dom.solid_angle)
+    sun = np.unique(dom.assign[disk.ravel()])  # the domains holding the sun's texels (twin's assignment)
+    p = np.asarray(doms, np.float64)[:, 4:7] @ LUMA
+    assert len(sun) >= 3 and (p[sun] < 0.2 * p.sum()).all()  # the case: split, each below the share
+    got, r = render(ctx, s["scene"], s["gb"], doms, resolution=16, strong_resolution=48, specular=0)
+    sides = dm.map_resolutions(r, s["scene"])
+    want = np.full(128, 16)
+    want[sun] = 48
+    assert sides.tolist() == want.tolist()
+    twin_check(dict(s, domains=doms), r, got[..., :3])
+    _, r0 = render(ctx, s["scene"], s["gb"], doms, resolution=16, strong_resolution=48, strong_ratio=0.0)
+    assert (dm.map_resolutions(r0, s["scene"]) == 16).all()
+
+
+@pytest.mark.parametrize("n", [16, 128])
+def test_constant_map_has_no_strong_domain(ctx, box_scene, n):
+    """A constant map: every domain holds about the mean power, so none is
+    strong at the defaults (strong_share 0.2, strong_ratio 4) for N >= 5."""
+    s = box_scene
+    doms = domains_of(procedural.constant(1.0, 64, 32), n)
+    _, r = render(ctx, s["scene"], s["gb"], doms, resolution=16, strong_resolution=48)
+    assert (dm.map_resolutions(r, s["scene"]) == 16).all()
+
+
+def test_n1_map_is_strong(ctx, box_scene):
+    """N = 1 (the mean is the total: strong_ratio alone never makes it
+    strong): strong_share makes its one map strong, at any strong_ratio."""
+    s = box_scene
+    one = domains_of(procedural.constant(1.0, 64, 32), 1)
+    for ratio in (0.0, 4.0, 1e6):
+        got, r = render(ctx, s["scene"], s["gb"], one, resolution=16, strong_resolution=48, strong_ratio=ratio,
+                        specular=0)
+        assert dm.map_resolutions(r, s["scene"]).tolist() == [48]
+    twin_check(dict(s, domains=one), r, got[..., :3])
+    _, r = render(ctx, s["scene"], s["gb"], one, resolution=16, strong_resolution=48, strong_share=1.0, strong_ratio=0.0)
+    assert dm.map_resolutions(r, s["scene"]).tolist() == [48]
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_strong_ratio_is_times_the_mean(ctx, box_scene, k):
+    """strong_ratio set just below the k-th most powerful domain's power over
+    the mean (strong_share 1: the share alone makes none strong) makes
+    exactly the k most powerful domains strong."""
+    s = box_scene
+    p = np.asarray(s["domains"], np.float64)[:, 4:7] @ LUMA
+    ratio = np.sort(p / p.mean())[::-1]
+    assert ratio[k - 1] > ratio[k] * (1 + 1e-4)  # no tie at the threshold
+    _, r = render(ctx, s["scene"], s["gb"], s["domains"], resolution=16, strong_resolution=48, strong_share=1.0,
+                  strong_ratio=float(ratio[k - 1] * (1 - 1e-5)))
+    want = np.full(len(p), 16)
+    want[np.argsort(-p)[:k]] = 48
+    assert dm.map_resolutions(r, s["scene"]).tolist() == want.tolist()
+
+
 def test_receiver_outside_every_footprint_with_an_atlas(ctx, box_scene):
     """A caller's G-buffer pixel far outside the scene is lit by every domain
     above it, whatever the size of their maps."""

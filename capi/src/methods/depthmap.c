@@ -23,11 +23,13 @@
 #define TABLE_MIN_EXPONENT_DEFAULT 32 /* below it the cap quadrature is closer (docs/depthmap.md, measured) */
 #define STRONG_RESOLUTION_DEFAULT 256 /* strong domains' map side (0: none; docs/depthmap.md, measured) */
 #define STRONG_SHARE_DEFAULT 0.2      /* a domain with this share of the power is strong (the sun; docs/depthmap.md) */
+#define STRONG_RATIO_DEFAULT 4.0      /* or with this many times the mean domain power (any N; docs/depthmap.md, measured) */
 #define DM_MAX_SIDE 4096              /* largest map side, the renderer's or the caller's */
 
 enum { P_BACKGROUND, P_DIRECTIONS, P_SEED, P_RESOLUTION, P_MAP_RENDERER, P_BIAS, P_SLOPE_BIAS, P_PCF, P_SPECULAR,
        P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS, P_SKIP_POWER, P_HALF_MAPS, P_FIT,
-       P_TABLE_MIN_EXPONENT, P_STRONG_RESOLUTION, P_STRONG_SHARE };
+       P_TABLE_MIN_EXPONENT, P_STRONG_RESOLUTION, P_STRONG_SHARE,
+       P_STRONG_RATIO };
 
 static const pn_param_desc params[] = {
     PN_PARAM_BACKGROUND,
@@ -66,11 +68,14 @@ static const pn_param_desc params[] = {
      "specular 3: lobes of this equivalent Phong exponent and sharper use the table, broader ones the cap "
      "quadrature (docs/depthmap.md, measured)."},
     {"strong_resolution", PN_PARAM_INT, PN_PARAM_PLAN, STRONG_RESOLUTION_DEFAULT, 0, DM_MAX_SIDE, "texels",
-     "Map side of the strong domains (each holding at least strong_share of the power) when above resolution, all "
-     "maps packed in one atlas; 0: every map resolution (docs/depthmap.md, measured)."},
+     "Map side of the strong domains (strong_share or strong_ratio) when above resolution, all maps packed in one "
+     "atlas; 0: every map resolution (docs/depthmap.md, measured)."},
     {"strong_share", PN_PARAM_FLOAT, PN_PARAM_PLAN, STRONG_SHARE_DEFAULT, 0, 1, "of the power",
      "A domain whose power (luminance of its radiance) is at least this share of the total gets strong_resolution "
      "(when that is set)."},
+    {"strong_ratio", PN_PARAM_FLOAT, PN_PARAM_PLAN, STRONG_RATIO_DEFAULT, 0, 1e6, "x the mean",
+     "So does a domain whose power is at least this many times the mean domain power (total / N: holds at any N, "
+     "where the sun splits across domains); 0: strong_share alone (docs/depthmap.md, measured)."},
 };
 
 _Static_assert(sizeof params / sizeof params[0] <= PN_MAX_METHOD_PARAMS,
@@ -499,7 +504,7 @@ static pn_status plan_skip(pn_renderer r)
 
 /* The atlas of the maps shaded with: the caller's sides, or per domain
  * `resolution`, strong_resolution for a domain holding strong_share of the
- * power; then the first texel of each drawn map in a dispatch over them.
+ * power or strong_ratio times the mean domain power; then the first texel of each drawn map in a dispatch over them.
  * Uploaded when changed. */
 static pn_status plan_atlas(pn_renderer r)
 {
@@ -514,7 +519,7 @@ static pn_status plan_atlas(pn_renderer r)
         return PN_ERROR_OUT_OF_MEMORY;
     }
     const uint32_t base = (uint32_t)r->params[P_RESOLUTION], strong = (uint32_t)r->params[P_STRONG_RESOLUTION];
-    const double share = r->params[P_STRONG_SHARE];
+    const double share = r->params[P_STRONG_SHARE], ratio = r->params[P_STRONG_RATIO];
     if (strong && strong < 8) {
         free(atlas);
         free(starts);
@@ -524,12 +529,18 @@ static pn_status plan_atlas(pn_renderer r)
     double total_power = 0.0;
     for (uint32_t m = 0; m < n; ++m)
         total_power += domain_power(s->domains + m);
+    /* A domain is strong at share * total or ratio * mean, whichever is lower
+     * (ratio 0: the share alone). The share alone misses the sun at large N,
+     * where it splits across several domains none of which reaches it. */
+    double threshold = share * total_power;
+    if (ratio > 0.0 && n && ratio * total_power / n < threshold)
+        threshold = ratio * total_power / n;
     size_t texels = 0;
     for (uint32_t m = 0; m < maps; ++m) {
         uint32_t side = base;
         if (s->supplied_count)
             side = s->supplied_res[m]; /* check_supplied: one per domain */
-        else if (strong > base && m < n && total_power > 0.0 && domain_power(s->domains + m) >= share * total_power)
+        else if (strong > base && m < n && total_power > 0.0 && domain_power(s->domains + m) >= threshold)
             side = strong; /* never smaller than the others */
         atlas[2 * m] = (uint32_t)texels;
         atlas[2 * m + 1] = side;
