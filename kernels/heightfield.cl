@@ -353,6 +353,48 @@ inline float8 hf_horizon_pyramid_row(global const float *pyr, global const int4 
     HF_WINDOW_END(w0, w1, w2, best, count)
 }
 
+/* hf_horizon_pyramid_row for partial updates: the running maximum before
+ * sample c ls (c = 1 .. ncp, ls the level step) is kept in cp[cpi + c - 1]
+ * of each of the `lanes` first lanes; start > 0 resumes at sample start (a
+ * checkpoint, >= 3) from the kept maximum best0, the window refilled from
+ * the three samples before it (which read nothing changed: the same
+ * floats). The same arithmetic as hf_horizon_pyramid_row, so the same
+ * result. */
+inline float8 hf_horizon_pyramid_row_cp(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                                        const float8 *hp, float ref, float8 u0, float v0, float cu, float cv,
+                                        float inv_wm1, float inv_dm1, int start, float8 best0, global float *cp,
+                                        int8 cpi, int lanes, int ncp)
+{
+    float8 w0 = 0.0f, w1 = 0.0f, w2 = 0.0f, best = start ? best0 : -M_PI_2_F;
+    int count = start;
+    const int ls = (int)geom.s5, m0 = start ? start - 3 : 0;
+    const float sr = exp2(1.0f / geom.s5);
+    float d = geom.s6;
+    for (int m = 0; m < m0; ++m)
+        d *= sr;
+    for (int m = m0; m < grid.z; ++m, d *= sr) {
+        if (m > start && m % ls == 0 && m / ls <= ncp) {
+            float b[HF_ROW];
+            vstore8(best, 0, b);
+            const int idx[HF_ROW] = {cpi.s0, cpi.s1, cpi.s2, cpi.s3, cpi.s4, cpi.s5, cpi.s6, cpi.s7};
+            for (int l = 0; l < lanes; ++l)
+                cp[(size_t)idx[l] + m / ls - 1] = b[l];
+        }
+        const int k = clamp(m - grid.w, 0, grid.z - 1);
+        const float8 h = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0 + d * cu, v0 + d * cv, inv_wm1,
+                                                   inv_dm1, ref);
+        const float8 w3 = hf_atan8((h - hp[k]) * (1.0f / (36.0f * d)));
+        if (m < start) {
+            w0 = w1;
+            w1 = w2;
+            w2 = w3;
+            continue;
+        }
+        HF_WINDOW_STEP(w0, w1, w2, w3, best, count)
+    }
+    HF_WINDOW_END(w0, w1, w2, best, count)
+}
+
 /* Partial updates (docs/heightfield.md, "Dynamic terrain"): changed[k] is
  * the box (a0, b0, a1, b1), inclusive, of level k's values that a local edit
  * changed (a0 > a1: none), changed[levels] the vertices whose normals did.
@@ -370,12 +412,13 @@ inline bool hf_taps_meet(float lo, float hi, int n, int c0, int c1)
     return t0 <= c1 && t1 >= c0;
 }
 
-/* Whether a row group's search along (cu, cv) (lanes' u in [ulo, uhi], row
- * v0) reads a changed value: one box test per sample; d = 0 (cu = cv = 0
- * and one sample per level) tests the receivers' own H_k(p). */
-inline bool hf_row_reads_changed(global const int4 *levels, global const int4 *changed, int4 grid, float8 geom,
-                                 float ulo, float uhi, float v0, float cu, float cv, float inv_wm1, float inv_dm1,
-                                 int receiver)
+/* The first sample of a row group's search along (cu, cv) (lanes' u in
+ * [ulo, uhi], row v0) that reads a changed value, grid.z if none: one box
+ * test per sample. receiver: the first sample whose level's H_k at the
+ * receivers changed (d = 0, one test per level). */
+inline int hf_row_first_changed(global const int4 *levels, global const int4 *changed, int4 grid, float8 geom,
+                                float ulo, float uhi, float v0, float cu, float cv, float inv_wm1, float inv_dm1,
+                                int receiver)
 {
     const float sr = exp2(1.0f / geom.s5);
     float d = receiver ? 0.0f : geom.s6;
@@ -389,51 +432,76 @@ inline bool hf_row_reads_changed(global const int4 *levels, global const int4 *c
         const float sa = (float)lev.y * inv_wm1, sb = (float)lev.z * inv_dm1;
         const float a0 = (ulo + d * cu) * sa, a1 = (uhi + d * cu) * sa, b = (v0 + d * cv) * sb;
         if (hf_taps_meet(fmin(a0, a1), fmax(a0, a1), lev.y, c.x, c.z) && hf_taps_meet(b, b, lev.z, c.y, c.w))
-            return true;
+            return receiver ? (k ? k + grid.w : 0) : m; /* level k's first sample */
     }
-    return false;
+    return grid.z;
 }
 
 /* Environment horizons (clamped at 0) of the row group starting at vertex
  * gid: om[lane * n_phi + k] for the lanes inside the row (lanes past its
  * end repeat its last vertex and are not stored). update 0: all searched;
- * 1: all searched and kept in `horizons` (n_phi per vertex); 2: only the
- * azimuths whose search reads a changed value (`changed`) are searched and
- * kept, the others read from `horizons`. Returns how many were searched. */
+ * 1: all searched, kept in `horizons` (n_phi per vertex) with their
+ * checkpoints (`cp`, ncp per vertex and azimuth); 2: only the azimuths
+ * whose search reads a changed value (`changed`) are searched again, from
+ * the last checkpoint before the first such sample, the others read from
+ * `horizons`. Returns how many were searched. */
 inline int hf_row_env_horizons(global const float *pyr, global const int4 *levels, int4 grid, float8 geom, int gid,
-                                int n_phi, int update, global const int4 *changed, global float *horizons, float *om)
+                               int n_phi, int update, global const int4 *changed, global float *horizons,
+                               global float *cp, int ncp, float *om)
 {
     const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
-    const int i0 = gid % grid.x, lanes = min(HF_ROW, grid.x - i0);
+    const int i0 = gid % grid.x, lanes = min(HF_ROW, grid.x - i0), ls = (int)geom.s5;
     const float8 u0 = convert_float8(min(i0 + (int8)(0, 1, 2, 3, 4, 5, 6, 7), grid.x - 1));
     const float v0 = (float)(gid / grid.x), ref = pyr[gid];
-    const bool all = update != 2 ||
-                     hf_row_reads_changed(levels, changed, grid, geom, u0.s0, u0.s7, v0, 0.0f, 0.0f, inv_wm1, inv_dm1, 1);
+    const int first_receiver =
+        update != 2 ? 0
+                    : hf_row_first_changed(levels, changed, grid, geom, u0.s0, u0.s7, v0, 0.0f, 0.0f, inv_wm1, inv_dm1,
+                                           1);
     float8 hp[HF_MAX_LEVELS];
     const int top = max(grid.z - 1 - grid.w, 0);
     for (int k = 0; k <= top; ++k)
         hp[k] = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0, v0, inv_wm1, inv_dm1, ref);
     const float dphi = 2.0f * M_PI_F / (float)n_phi;
+    const int8 lane_vertex = gid + min((int8)(0, 1, 2, 3, 4, 5, 6, 7), lanes - 1);
     int searched = 0;
     for (int k = 0; k < n_phi; ++k) {
         float s, c;
         s = sincos(dphi * (float)k, &c);
-        if (!all && !hf_row_reads_changed(levels, changed, grid, geom, u0.s0, u0.s7, v0, c / geom.s3, -s / geom.s4,
-                                          inv_wm1, inv_dm1, 0)) {
+        float h[HF_ROW];
+        if (!update) {
+            vstore8(fmax(hf_horizon_pyramid_row(pyr, levels, grid, geom, hp, ref, u0, v0, c / geom.s3, -s / geom.s4,
+                                                inv_wm1, inv_dm1),
+                         0.0f),
+                    0, h);
+            for (int l = 0; l < lanes; ++l)
+                om[l * n_phi + k] = h[l];
+            ++searched;
+            continue;
+        }
+        const int first = update != 2 ? 0
+                                      : min(first_receiver,
+                                            hf_row_first_changed(levels, changed, grid, geom, u0.s0, u0.s7, v0,
+                                                                 c / geom.s3, -s / geom.s4, inv_wm1, inv_dm1, 0));
+        if (first >= grid.z) {
             for (int l = 0; l < lanes; ++l)
                 om[l * n_phi + k] = horizons[(size_t)(gid + l) * n_phi + k];
             continue;
         }
         ++searched;
-        float h[HF_ROW];
-        vstore8(fmax(hf_horizon_pyramid_row(pyr, levels, grid, geom, hp, ref, u0, v0, c / geom.s3, -s / geom.s4,
-                                            inv_wm1, inv_dm1),
+        const int8 cpi = (lane_vertex * n_phi + k) * ncp;
+        /* resume at the last checkpoint at or before the first changed sample */
+        const int ck = min(first / ls, ncp), start = ck * ls >= 3 ? ck * ls : 0;
+        float8 best0 = 0.0f;
+        if (start)
+            best0 = (float8)(cp[cpi.s0 + ck - 1], cp[cpi.s1 + ck - 1], cp[cpi.s2 + ck - 1], cp[cpi.s3 + ck - 1],
+                             cp[cpi.s4 + ck - 1], cp[cpi.s5 + ck - 1], cp[cpi.s6 + ck - 1], cp[cpi.s7 + ck - 1]);
+        vstore8(fmax(hf_horizon_pyramid_row_cp(pyr, levels, grid, geom, hp, ref, u0, v0, c / geom.s3, -s / geom.s4,
+                                               inv_wm1, inv_dm1, start, best0, cp, cpi, lanes, ncp),
                      0.0f),
                 0, h);
         for (int l = 0; l < lanes; ++l) {
             om[l * n_phi + k] = h[l];
-            if (update)
-                horizons[(size_t)(gid + l) * n_phi + k] = h[l];
+            horizons[(size_t)(gid + l) * n_phi + k] = h[l];
         }
     }
     return searched;
@@ -790,7 +858,7 @@ kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid
                    int exact, global const float *table, global const float *m, float8 cosine_zh, int split,
                    global const float4 *up_irradiance, int up_size, global const float *u,
                    global const float4 *sun, int suns, global float4 *out_env, global float4 *out_total,
-                   int update, global const int4 *changed, global float *horizons)
+                   int update, global const int4 *changed, global float *horizons, global float *cp, int ncp)
 {
     /* update (hf_row_env_horizons): 0 every vertex; 1 every vertex, horizons
      * kept; 2 a partial update: only what reads a changed value is searched
@@ -805,7 +873,7 @@ kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid
     if (exact)
         count = hf_vertex_env_horizons(pyr, levels, grid, geom, gid, n_phi, update, changed, horizons, om);
     else {
-        count = hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, update, changed, horizons, om);
+        count = hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, update, changed, horizons, cp, ncp, om);
         lanes = min(HF_ROW, grid.x - gid % grid.x);
     }
     const int4 nbox = update == 2 ? changed[grid.z] : (int4)(1, 1, 0, 0);
@@ -965,7 +1033,7 @@ kernel void hf_probe(global const float *pyr, global const int4 *levels, int4 gr
     float om[HF_ROW * HF_MAX_AZIMUTHS];
     int lanes = 1;
     if (env && !exact) {
-        hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, 0, 0, 0, om);
+        hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, 0, 0, 0, 0, 0, om);
         lanes = min(HF_ROW, grid.x - gid % grid.x);
     } else
         hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, exact, limit, env, om);
@@ -1003,13 +1071,15 @@ kernel void hf_searched(global const int4 *levels, int4 grid, float8 geom, int n
     if (!all && exact)
         all = c.x <= c.z && u0.s0 >= (float)c.x && u0.s0 <= (float)c.z && v0 >= (float)c.y && v0 <= (float)c.w;
     else if (!all)
-        all = hf_row_reads_changed(levels, changed, grid, geom, u0.s0, u0.s7, v0, 0.0f, 0.0f, inv_wm1, inv_dm1, 1);
+        all = hf_row_first_changed(levels, changed, grid, geom, u0.s0, u0.s7, v0, 0.0f, 0.0f, inv_wm1, inv_dm1, 1) <
+              grid.z;
     for (int k = 0; k < n_phi; ++k) {
         float s, cs;
         s = sincos(dphi * (float)k, &cs);
         const bool hit = all || (exact ? hf_ray_meets(u0.s0, v0, cs / geom.s3, -s / geom.s4, c)
-                                       : hf_row_reads_changed(levels, changed, grid, geom, u0.s0, u0.s7, v0,
-                                                              cs / geom.s3, -s / geom.s4, inv_wm1, inv_dm1, 0));
+                                       : hf_row_first_changed(levels, changed, grid, geom, u0.s0, u0.s7, v0,
+                                                              cs / geom.s3, -s / geom.s4, inv_wm1, inv_dm1, 0) <
+                                             grid.z);
         for (int l = 0; l < lanes; ++l)
             out[(size_t)(gid + l) * n_phi + k] = hit ? 1.0f : 0.0f;
     }

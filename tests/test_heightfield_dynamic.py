@@ -49,9 +49,10 @@ def crater(h: np.ndarray, cx: float, cz: float, radius: float, depth: float):
 
 
 def full(ctx, env, heights, lights=(), **params):
-    """A fresh field, scene and renderer on `heights`: the full recompute."""
+    """A fresh field, scene and renderer on `heights`: the full recompute, by default by the
+    passes that keep nothing (partial_update = 0)."""
     rig = Rig(ctx, heights, env, height_scale=HEIGHT_SCALE, lights=lights)
-    r = pn.Renderer(ctx, "heightfield", **params)
+    r = pn.Renderer(ctx, "heightfield", **{"partial_update": 0, **params})
     out = {w: r.read_output(rig.scene, w, rig.instance) for w in OUTPUTS}
     for li in range(len(lights)):
         out[f"light{li}"] = r.read_output(rig.scene, "light", rig.instance, li)

@@ -17,6 +17,7 @@
 #define MAX_FIELDS 16
 #define MAX_SUN 256          /* sun texels lit as directional lights */
 #define SUN_FLOATS 12        /* per sun texel: 3 float4 (kernels/heightfield.cl, hf_sun) */
+#define KEEP_MAX_BYTES ((size_t)512 << 20) /* partial_update: the most kept state per field */
 
 enum { P_BACKGROUND, P_LEVEL_STEP, P_LEVEL_OFFSET, P_AZIMUTHS, P_BANDS, P_EXACT_HORIZON, P_LIGHT_THRESHOLD,
        P_EXACT_UNOCCLUDED, P_SUN_THRESHOLD, P_LIGHT_VISIBILITY, P_RECONSTRUCTION, P_PARTIAL_UPDATE };
@@ -42,8 +43,9 @@ static const pn_param_desc params[] = {
     {"reconstruction", PN_PARAM_INT, PN_PARAM_PLAN, 0, 0, 1, "",
      "Pyramid levels: 0 the seed's approximating B-spline, 1 interpolating."},
     {"partial_update", PN_PARAM_INT, PN_PARAM_PLAN, 1, 0, 1, "",
-     "1: keep the env horizons (azimuths x 4 bytes per vertex) so that a local edit "
-     "(pn_heightfield_set_heights_region) recomputes only what it can change; 0: every frame recomputes all."},
+     "1: keep the env horizons and search checkpoints (azimuths x (1 + (levels - 1) / level_step) floats per "
+     "vertex, where that is at most 512 MiB per field) so that a local edit (pn_heightfield_set_heights_region) "
+     "recomputes only what it can change; 0: every frame recomputes all."},
 };
 
 enum { OUT_ENV, OUT_LIGHT, OUT_TOTAL, OUT_ENV_HORIZONS, OUT_LIGHT_HORIZONS, OUT_ENV_VISIBILITY, OUT_LIGHT_VISIBILITY,
@@ -84,7 +86,8 @@ typedef struct pn_hf_state {
      * for, and per level the box of values changed since (HF_MAX_LEVELS + 1:
      * the normals' box last). */
     pn_heightfield owner;
-    cl_mem horizons, changed;
+    cl_mem horizons, changed, checkpoints;
+    size_t checkpoint_floats;
     cl_int last_update;       /* the last env pass's mode (hf_env); `changed` holds its boxes */
     size_t horizon_floats;
     bool pass_valid;
@@ -131,7 +134,7 @@ static void destroy(pn_renderer r)
     for (int i = 0; i < MAX_FIELDS; ++i) {
         pn_hf_state *s = &c->fields[i];
         cl_mem *mems[] = {&s->pyr, &s->levels, &s->normals, &s->albedo, &s->out_env, &s->out_lights, &s->out_total,
-                          &s->horizons, &s->changed};
+                          &s->horizons, &s->changed, &s->checkpoints};
         for (size_t k = 0; k < sizeof mems / sizeof mems[0]; ++k)
             pn_mem_release(mems[k]);
     }
@@ -578,7 +581,8 @@ static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf
     s->owner = hf;
     clear_pending(s);
     if (!st) {
-        cl_mem *mems[] = {&s->pyr, &s->levels, &s->normals, &s->albedo, &s->out_env, &s->out_total, &s->horizons};
+        cl_mem *mems[] = {&s->pyr, &s->levels, &s->normals, &s->albedo, &s->out_env, &s->out_total, &s->horizons,
+                          &s->checkpoints};
         for (size_t k = 0; k < sizeof mems / sizeof mems[0]; ++k)
             pn_mem_release(mems[k]);
     }
@@ -736,6 +740,21 @@ static void remember_outputs(pn_context ctx, pn_hf_cache *c, pn_scene scene, con
     c->outputs_valid = true;
 }
 
+/* Checkpoints of the pyramid search kept per vertex and azimuth (hf_env):
+ * before samples ls, 2 ls, ... < levels. */
+static int checkpoint_count(const pn_hf_state *s)
+{
+    const int n = s->grid.s[2], ls = (int)s->geom.s[5];
+    return (n - 1) / ls > 0 ? (n - 1) / ls : 1;
+}
+
+/* Bytes kept for partial updates: horizons and checkpoints. */
+static size_t keep_bytes(const pn_hf_state *s, const pn_hf_settings *set, size_t base)
+{
+    return pn_mul_size(pn_mul_size(base, (size_t)set->azimuths, sizeof(float)),
+                       set->exact ? 1u : 1u + (size_t)checkpoint_count(s), 1);
+}
+
 /* The env pass's update mode (hf_env) for field state s: the horizon store
  * allocated, and with a partial update (2) the pending changed boxes
  * uploaded. */
@@ -751,6 +770,16 @@ static pn_status prepare_update(pn_context ctx, pn_hf_state *s, pn_scene scene, 
                            "the kept height-field horizons")))
             return st;
         s->horizon_floats = floats;
+    }
+    /* the pyramid search's running maximum every ls samples (exact mode: none) */
+    const size_t cps = set->exact ? 1 : pn_mul_size(floats, (size_t)checkpoint_count(s), 1);
+    if (!s->checkpoints || s->checkpoint_floats != cps) {
+        pn_mem_release(&s->checkpoints);
+        s->pass_valid = false;
+        if ((st = pn_alloc(ctx, pn_mul_size(cps, sizeof(float), 1), CL_MEM_READ_WRITE, NULL, &s->checkpoints,
+                           "the kept height-field search checkpoints")))
+            return st;
+        s->checkpoint_floats = cps;
     }
     if (!s->changed && (st = pn_alloc(ctx, sizeof s->pending, CL_MEM_READ_ONLY, NULL, &s->changed,
                                       "the changed pyramid boxes")))
@@ -789,20 +818,24 @@ static pn_status run_passes(pn_context ctx, pn_hf_cache *c, pn_scene scene, cons
          * pass was for the same settings and env, its horizons kept) redoes
          * only what the pending changed boxes reach. */
         cl_int update = 0;
-        if (set->partial_update && (st = prepare_update(ctx, s, scene, set, base, &update)))
+        if (set->partial_update && keep_bytes(s, set, base) <= KEEP_MAX_BYTES &&
+            (st = prepare_update(ctx, s, scene, set, base, &update)))
             return st;
         s->pass_valid = false;
         cl_mem changed = s->changed ? s->changed : s->levels, horizons = s->horizons ? s->horizons : s->out_env;
+        cl_mem checkpoints = s->checkpoints ? s->checkpoints : s->out_env;
+        const cl_int ncp = checkpoint_count(s);
         size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof s->grid, sizeof s->geom, sizeof(cl_mem),
                           sizeof(cl_mem), sizeof has_albedo, sizeof n_phi, sizeof nb, sizeof exact, sizeof(cl_mem),
                           sizeof(cl_mem), sizeof czh, sizeof split, sizeof(cl_mem), sizeof up_size, sizeof(cl_mem),
                           sizeof(cl_mem), sizeof suns, sizeof(cl_mem), sizeof(cl_mem), sizeof update, sizeof(cl_mem),
-                          sizeof(cl_mem)};
+                          sizeof(cl_mem), sizeof(cl_mem), sizeof ncp};
         const void *vals[] = {&s->pyr, &s->levels, &s->grid, &s->geom, &s->normals, &s->albedo, &has_albedo, &n_phi,
                               &nb, &exact, &c->env_table, &c->m, &czh, &split, &c->up_irradiance, &up_size, &c->u_buf,
-                              &sun, &suns, &s->out_env, &s->out_total, &update, &changed, &horizons};
+                              &sun, &suns, &s->out_env, &s->out_total, &update, &changed, &horizons, &checkpoints,
+                              &ncp};
         s->last_update = 0;
-        if ((st = pn_set_args(ctx, kenv, "hf_env", 24, sizes, vals)) ||
+        if ((st = pn_set_args(ctx, kenv, "hf_env", 26, sizes, vals)) ||
             (st = pn_enqueue_1d(ctx, kenv, "hf_env", base, 64)))
             return st;
         s->last_update = update;
