@@ -444,10 +444,12 @@ inline int hf_row_first_changed(global const int4 *levels, global const int4 *ch
  * checkpoints (`cp`, ncp per vertex and azimuth); 2: only the azimuths
  * whose search reads a changed value (`changed`) are searched again, from
  * the last checkpoint before the first such sample, the others read from
- * `horizons`. Returns how many were searched. */
+ * `horizons`. Returns how many were searched; *moved gets bit l set where
+ * lane l's horizons differ (bit for bit) from the kept ones (update 2) or
+ * every lane's (otherwise). */
 inline int hf_row_env_horizons(global const float *pyr, global const int4 *levels, int4 grid, float8 geom, int gid,
                                int n_phi, int update, global const int4 *changed, global float *horizons,
-                               global float *cp, int ncp, float *om)
+                               global float *cp, int ncp, float *om, int *moved)
 {
     const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
     const int i0 = gid % grid.x, lanes = min(HF_ROW, grid.x - i0), ls = (int)geom.s5;
@@ -464,6 +466,7 @@ inline int hf_row_env_horizons(global const float *pyr, global const int4 *level
     const float dphi = 2.0f * M_PI_F / (float)n_phi;
     const int8 lane_vertex = gid + min((int8)(0, 1, 2, 3, 4, 5, 6, 7), lanes - 1);
     int searched = 0;
+    *moved = update == 2 ? 0 : (1 << HF_ROW) - 1;
     for (int k = 0; k < n_phi; ++k) {
         float s, c;
         s = sincos(dphi * (float)k, &c);
@@ -500,8 +503,11 @@ inline int hf_row_env_horizons(global const float *pyr, global const int4 *level
                      0.0f),
                 0, h);
         for (int l = 0; l < lanes; ++l) {
+            global float *kept = horizons + (size_t)(gid + l) * n_phi + k;
+            if (as_uint(*kept) != as_uint(h[l]))
+                *moved |= 1 << l;
             om[l * n_phi + k] = h[l];
-            horizons[(size_t)(gid + l) * n_phi + k] = h[l];
+            *kept = h[l];
         }
     }
     return searched;
@@ -626,8 +632,9 @@ inline bool hf_ray_meets(float u0, float v0, float cu, float cv, int4 c)
  * modes of hf_row_env_horizons; returns how many were marched. */
 inline int hf_vertex_env_horizons(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
                                    int gid, int n_phi, int update, global const int4 *changed,
-                                   global float *horizons, float *om)
+                                   global float *horizons, float *om, int *moved)
 {
+    *moved = update != 2;
     if (update != 2) {
         hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, 1, INFINITY, 1, om);
         for (int k = 0; update && k < n_phi; ++k)
@@ -649,6 +656,8 @@ inline int hf_vertex_env_horizons(global const float *pyr, global const int4 *le
         ++searched;
         const float h = hf_horizon_exact_at(pyr, grid, geom, gid, dphi * (float)k, INFINITY);
         om[k] = fmax(h, 0.0f);
+        if (as_uint(horizons[(size_t)gid * n_phi + k]) != as_uint(om[k]))
+            *moved = 1;
         horizons[(size_t)gid * n_phi + k] = om[k];
     }
     return searched;
@@ -862,25 +871,27 @@ kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid
 {
     /* update (hf_row_env_horizons): 0 every vertex; 1 every vertex, horizons
      * kept; 2 a partial update: only what reads a changed value is searched
-     * again, and only vertices with such an azimuth or a changed normal are
-     * shaded again; the others keep out_env (and restart the total from it).
+     * again, and only vertices whose horizons came out different (bit for
+     * bit) or whose normal changed are shaded again; the others keep out_env
+     * (and restart the total from it).
      * hf_searched tells which azimuths a partial update searched. */
     const int gid = get_global_id(0);
     if (gid >= grid.x * grid.y || !hf_row_leader(gid, grid, exact))
         return;
     float om[HF_ROW * HF_MAX_AZIMUTHS];
-    int lanes = 1, count;
+    int lanes = 1, moved;
     if (exact)
-        count = hf_vertex_env_horizons(pyr, levels, grid, geom, gid, n_phi, update, changed, horizons, om);
+        hf_vertex_env_horizons(pyr, levels, grid, geom, gid, n_phi, update, changed, horizons, om, &moved);
     else {
-        count = hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, update, changed, horizons, cp, ncp, om);
+        hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, update, changed, horizons, cp, ncp, om, &moved);
         lanes = min(HF_ROW, grid.x - gid % grid.x);
     }
     const int4 nbox = update == 2 ? changed[grid.z] : (int4)(1, 1, 0, 0);
     const int j = gid / grid.x;
     for (int l = 0; l < lanes; ++l) {
         const int i = gid % grid.x + l;
-        if (update == 2 && !count && !(i >= nbox.x && i <= nbox.z && j >= nbox.y && j <= nbox.w)) {
+        /* the same horizons (bit for bit) and normal: the same radiance */
+        if (update == 2 && !(moved >> l & 1) && !(i >= nbox.x && i <= nbox.z && j >= nbox.y && j <= nbox.w)) {
             out_total[gid + l] = out_env[gid + l];
             continue;
         }
@@ -1033,7 +1044,8 @@ kernel void hf_probe(global const float *pyr, global const int4 *levels, int4 gr
     float om[HF_ROW * HF_MAX_AZIMUTHS];
     int lanes = 1;
     if (env && !exact) {
-        hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, 0, 0, 0, 0, 0, om);
+        int moved;
+        hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, 0, 0, 0, 0, 0, om, &moved);
         lanes = min(HF_ROW, grid.x - gid % grid.x);
     } else
         hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, exact, limit, env, om);

@@ -94,6 +94,7 @@ typedef struct pn_hf_state {
     pn_hf_settings pass_settings;
     uint64_t pass_env;
     cl_int4 pending[HF_MAX_LEVELS + 1];
+    cl_int4 levels_host[HF_MAX_LEVELS]; /* what `levels` holds */
 } pn_hf_state;
 
 typedef struct pn_hf_cache {
@@ -477,15 +478,13 @@ static pn_status update_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf,
     const size_t base = (size_t)w * d;
     pn_status st = PN_SUCCESS;
     if (box[0] <= box[2]) {
-        cl_int4 *levels = malloc((size_t)n * sizeof *levels), *boxes = malloc((size_t)n * sizeof *boxes);
+        const cl_int4 *levels = s->levels_host;
+        cl_int4 *boxes = malloc((size_t)n * sizeof *boxes);
         const size_t bw = box[2] - box[0] + 1, bh = box[3] - box[1] + 1;
         float *rect = malloc(bw * bh * sizeof(float));
-        if (!levels || !boxes || !rect)
+        if (!boxes || !rect)
             st = pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for a height-field update");
         cl_int err = CL_SUCCESS;
-        if (!st)
-            err = clEnqueueReadBuffer(ctx->queue, s->levels, CL_TRUE, 0, (size_t)n * sizeof *levels, levels, 0, NULL,
-                                      NULL);
         for (size_t j = 0; !st && err == CL_SUCCESS && j < bh; ++j)
             for (size_t i = 0; i < bw; ++i)
                 rect[j * bw + i] = hf->placement.height_scale * hf->heights[(box[1] + j) * w + box[0] + i];
@@ -514,7 +513,6 @@ static pn_status update_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf,
             const cl_int4 nb = {{(cl_int)box[0] - 1, (cl_int)box[1] - 1, (cl_int)box[2] + 1, (cl_int)box[3] + 1}};
             box_union4(&s->pending[n], nb);
         }
-        free(levels);
         free(boxes);
         free(rect);
     }
@@ -572,6 +570,7 @@ static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf
         total += (size_t)(levels[k].s[1] + 1) * (levels[k].s[2] + 1);
     }
     s->pyramid_floats = total;
+    memcpy(s->levels_host, levels, (size_t)n * sizeof *levels);
     float *heights = malloc(base * sizeof(float));
     pn_status st = heights ? PN_SUCCESS : pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for the world heights");
     for (size_t k = 0; !st && k < base; ++k)
@@ -787,9 +786,11 @@ static pn_status prepare_update(pn_context ctx, pn_hf_state *s, pn_scene scene, 
     *update = 1;
     if (!s->pass_valid || memcmp(&s->pass_settings, set, sizeof *set) || s->pass_env != scene->env->version)
         return PN_SUCCESS;
-    cl_int err = clEnqueueWriteBuffer(ctx->queue, s->changed, CL_TRUE, 0, sizeof s->pending, s->pending, 0, NULL, NULL);
-    if (err != CL_SUCCESS)
-        return pn_fail_cl(ctx, err, "uploading the changed pyramid boxes");
+    /* A new buffer made from the boxes (execute only enqueues: no blocking
+     * write; the old one lives on until the kernels that read it are done). */
+    pn_mem_release(&s->changed);
+    if ((st = pn_alloc(ctx, sizeof s->pending, CL_MEM_READ_ONLY, s->pending, &s->changed, "the changed pyramid boxes")))
+        return st;
     *update = 2;
     return PN_SUCCESS;
 }
@@ -995,7 +996,8 @@ static pn_status read_output(pn_renderer r, pn_scene scene, int what, uint32_t i
             return st;
         size_t sizes[] = {sizeof(cl_mem), sizeof s->grid, sizeof s->geom, sizeof n_phi, sizeof exact, sizeof update,
                           sizeof(cl_mem), sizeof(cl_mem)};
-        const void *vals[] = {&s->levels, &s->grid, &s->geom, &n_phi, &exact, &update, &s->changed, &temp};
+        cl_mem changed = s->changed ? s->changed : s->levels; /* none kept: update 0, every lane */
+        const void *vals[] = {&s->levels, &s->grid, &s->geom, &n_phi, &exact, &update, &changed, &temp};
         if ((st = pn_set_args(ctx, k, "hf_searched", 8, sizes, vals)) ||
             (st = pn_enqueue_1d(ctx, k, "hf_searched", base, 64))) {
             pn_mem_release(&temp);
