@@ -27,7 +27,8 @@ the field's height range) dug into the fBm field of the terrain bench scene
 set_heights of the whole field) against the partial update (execute after
 set_heights(region=...) of the crater's box) and a full frame without kept
 horizons (partial_update = 0), interleaved in one process, medians of the
-rounds, with the load; the lanes the partial update searched, measured.
+rounds, with the load; the lanes the partial update searched and the
+vertices it shades again (those whose horizons or normal changed), measured.
 
     python bench/heightfield_dynamic.py [fractions|speed|all] [--size 257] [--rounds 5]
         [--out bench/results/heightfield_dynamic]
@@ -313,10 +314,18 @@ def speed(n: int = 257, rounds: int = 5, params: dict | None = None) -> dict:
                     searched = r.read_output(scene, "env_searched", inst)
                 else:
                     t[kind].append(timed(lambda: (field.set_heights(h2), frame(r))))
+        # the vertices the partial update shades again: horizons changed bit for bit (or normals)
+        field.set_heights(h)
+        before = (plain.read_output(scene, "env_horizons", inst), plain.read_output(scene, "normals", inst))
+        field.set_heights(h2)
+        after = (plain.read_output(scene, "env_horizons", inst), plain.read_output(scene, "normals", inst))
+        shaded = ((before[0].view(np.uint32) != after[0].view(np.uint32)).any(axis=-1) |
+                  (before[1] != after[1]).any(axis=-1))
         med = {k: (statistics.median(x[0] for x in v), statistics.median(x[1] for x in v)) for k, v in t.items()}
         res["positions"][name] = {
             "edit_box": [x0, y0, w, hh], "lanes_searched": float(searched.mean()),
             "vertices_searched": float((searched > 0).any(axis=-1).mean()),
+            "vertices_shaded_again": float(shaded.mean()),
             **{f"{k}_wall_ms": 1e3 * med[k][0] for k in kinds}, **{f"{k}_cpu_ms": 1e3 * med[k][1] for k in kinds},
             "partial_over_full_wall": med["partial"][0] / med["full"][0],
             "partial_over_full_cpu": med["partial"][1] / med["full"][1],
