@@ -95,9 +95,9 @@ def level_rects(W: int, D: int, ls: int, rect) -> list[tuple[int, int, int, int]
             if n_new == n_prev:
                 return lo, hi
             # a changes iff |a ru - q hu| < ru for a changed q: a in (lo hu / ru - 1, hi hu / ru + 1);
-            # 1e-3 of slack for the float kernel's weights at the support's edge
+            # 0.01 of slack for the float kernel's weights at the support's edge
             hu, ru = base / n_prev, base / n_new
-            return (max(0, math.ceil(lo * hu / ru - 1.0 - 1e-3)), min(n_new, math.floor(hi * hu / ru + 1.0 + 1e-3)))
+            return (max(0, math.ceil(lo * hu / ru - 1.0 - 1e-2)), min(n_new, math.floor(hi * hu / ru + 1.0 + 1e-2)))
 
         a0, a1 = grow(a0, a1, cp, c, W - 1)
         b0, b1 = grow(b0, b1, ep, e, D - 1)
@@ -207,7 +207,10 @@ def fractions(n: int = 257, ls: int = 4, lo: float = 4.0, n_phi: int = 32) -> di
         cells = hf64.level_cells(W, D, ls)
         _, L = hf64.sample_plan(len(cells), ls, lo, sx)
         used = sorted(set(L.tolist()))
-        share = lambda r, k: 0.0 if r is None else (r[2] - r[0] + 1) * (r[3] - r[1] + 1) / ((cells[k][0] + 1) * (cells[k][1] + 1))  # noqa: E731
+
+        def share(r, k):
+            return 0.0 if r is None else (r[2] - r[0] + 1) * (r[3] - r[1] + 1) / ((cells[k][0] + 1) * (cells[k][1] + 1))
+
         for k in range(len(cells)):
             e, g = exact[k], grown[k]
             assert e is None or (g[0] <= e[0] and g[1] <= e[1] and g[2] >= e[2] and g[3] >= e[3]), (k, e, g)

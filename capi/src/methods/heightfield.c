@@ -411,7 +411,8 @@ static void changed_levels(const cl_int4 *levels, int n, uint32_t w, uint32_t d,
                 if (np == nn)
                     continue;
                 const double span = axis ? (double)d - 1.0 : (double)w - 1.0, hu = span / np, ru = span / nn;
-                const double lo = ceil(b.s[axis] * hu / ru - 1.0 - 1e-2), hi = floor(b.s[2 + axis] * hu / ru + 1.0 + 1e-2);
+                const double lo = ceil(b.s[axis] * hu / ru - 1.0 - 1e-2);
+                const double hi = floor(b.s[2 + axis] * hu / ru + 1.0 + 1e-2);
                 b.s[axis] = (cl_int)(lo < 0.0 ? 0.0 : lo);
                 b.s[2 + axis] = (cl_int)(hi > nn ? nn : hi);
             }
