@@ -258,3 +258,15 @@ def test_bad_regions_are_refused(ctx, env, base_heights):
     # refused edits leave the field as it was: a frame equals the original's
     r = pn.Renderer(ctx, "heightfield")
     np.testing.assert_array_equal(r.read_output(rig.scene, "env", rig.instance), full(ctx, env, base_heights)["env"])
+
+
+def test_more_edits_than_the_field_remembers(ctx, env, base_heights):
+    """The field keeps the boxes of its last 16 region commits: a renderer 16 commits behind
+    still updates in part, one 17 behind recomputes all; both equal a full recompute."""
+    for commits, partial in ((16, True), (17, False)):
+        s = Session(ctx, env, base_heights)
+        for q in range(commits):
+            s.edit(30 + q % 3, 30, s.h[30:32, 30 + q % 3:32 + q % 3] + np.float32(0.01))
+        got = s.frame()
+        assert_same(got, full(ctx, env, s.h), f"{commits} commits behind")
+        assert (got["env_searched"].mean() < 1.0) == partial
