@@ -66,6 +66,9 @@ class Session:
         self.ctx, self.env, self.lights, self.params = ctx, env, lights, params
         self.h = heights.copy()
         self.rig = Rig(ctx, heights, env, height_scale=HEIGHT_SCALE, lights=lights)
+        # a field keeps what partial updates need once it has had a local edit: one that
+        # changes nothing, before the first frame
+        self.rig.field.set_heights(heights[:1, :1], region=(0, 0))
         self.r = pn.Renderer(ctx, "heightfield", **params)
         self.frame()
 
@@ -270,3 +273,18 @@ def test_more_edits_than_the_field_remembers(ctx, env, base_heights):
         got = s.frame()
         assert_same(got, full(ctx, env, s.h), f"{commits} commits behind")
         assert (got["env_searched"].mean() < 1.0) == partial
+
+
+def test_fields_without_local_edits_keep_nothing(ctx, env, base_heights):
+    """A field that never had a region edit keeps nothing (its frames cost as before); its
+    first local edit gives a full frame that starts keeping, the next one a partial update."""
+    rig = Rig(ctx, base_heights, env, height_scale=HEIGHT_SCALE)
+    r = pn.Renderer(ctx, "heightfield")
+    assert (r.read_output(rig.scene, "env_searched", rig.instance) == 1).all()
+    h = base_heights.copy()
+    for step, partial in ((0, False), (1, True)):
+        h[20:23, 20 + step:23 + step] += np.float32(0.2)
+        rig.field.set_heights(h[20:23, 20 + step:23 + step], region=(20 + step, 20))
+        assert (r.read_output(rig.scene, "env_searched", rig.instance).mean() < 1.0) == partial
+        assert_same({"env": r.read_output(rig.scene, "env", rig.instance)}, {"env": full(ctx, env, h)["env"]},
+                    f"edit {step}")

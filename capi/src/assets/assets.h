@@ -71,6 +71,7 @@ struct pn_heightfield_impl {
     /* Local edits (pn_heightfield_set_heights_region), so that a renderer can
      * update only what they change. Boxes are (x0, y0, x1, y1), inclusive;
      * x0 > x1: empty. */
+    bool regional;            /* has had region edits: renderers keep what partial updates need */
     bool edit_full;           /* an uncommitted change other than region edits */
     uint32_t edit_box[4];     /* uncommitted region edits */
     /* The last commits that were region edits only, newest first: the heights

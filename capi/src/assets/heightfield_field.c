@@ -95,6 +95,7 @@ pn_status pn_heightfield_do_set_heights_region(pn_heightfield hf, uint32_t x0, u
     for (uint32_t j = 0; j < depth; ++j)
         memcpy(hf->heights + (size_t)(y0 + j) * hf->width + x0, heights + (size_t)j * width, width * sizeof(float));
     box_union(hf->edit_box, x0, y0, x0 + width - 1, y0 + depth - 1);
+    hf->regional = true;
     hf->committed = false;
     return PN_SUCCESS;
 }

@@ -43,9 +43,9 @@ static const pn_param_desc params[] = {
     {"reconstruction", PN_PARAM_INT, PN_PARAM_PLAN, 0, 0, 1, "",
      "Pyramid levels: 0 the seed's approximating B-spline, 1 interpolating."},
     {"partial_update", PN_PARAM_INT, PN_PARAM_PLAN, 1, 0, 1, "",
-     "1: keep the env horizons and search checkpoints (azimuths x (1 + (levels - 1) / level_step) floats per "
-     "vertex, where that is at most 512 MiB per field) so that a local edit (pn_heightfield_set_heights_region) "
-     "recomputes only what it can change; 0: every frame recomputes all."},
+     "1: for fields that have had local edits (pn_heightfield_set_heights_region), keep the env horizons and "
+     "search checkpoints (azimuths x (1 + (levels - 1) / level_step) floats per vertex, where that is at most "
+     "512 MiB per field) so that the next edit recomputes only what it can change; 0: every frame recomputes all."},
 };
 
 enum { OUT_ENV, OUT_LIGHT, OUT_TOTAL, OUT_ENV_HORIZONS, OUT_LIGHT_HORIZONS, OUT_ENV_VISIBILITY, OUT_LIGHT_VISIBILITY,
@@ -820,7 +820,8 @@ static pn_status run_passes(pn_context ctx, pn_hf_cache *c, pn_scene scene, cons
          * pass was for the same settings and env, its horizons kept) redoes
          * only what the pending changed boxes reach. */
         cl_int update = 0;
-        if (set->partial_update && keep_bytes(s, set, base) <= KEEP_MAX_BYTES &&
+        /* Kept only for fields that have had local edits: the others' frames cost as before. */
+        if (set->partial_update && hf->regional && keep_bytes(s, set, base) <= KEEP_MAX_BYTES &&
             (st = prepare_update(ctx, s, scene, set, base, &update)))
             return st;
         s->pass_valid = false;
