@@ -15,7 +15,7 @@ DOCS_PIP := "sphinx>=7" "myst-parser>=2"
 export DRJIT_LIBLLVM_PATH ?= /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
 SOURCES := $(shell find capi kernels python cmake -type f) CMakeLists.txt pyproject.toml
 
-.PHONY: all deps venv install demo test test-c test-python fuzz fuzz-c fuzz-python docs bench bench-roofline bench-fiv-scaling bench-heightfield-speed bench-rays clean
+.PHONY: all deps venv install demo test test-c test-python fuzz fuzz-c fuzz-python docs bench bench-roofline bench-fiv-scaling bench-heightfield-speed bench-heightfield-dynamic bench-rays clean
 
 all: install
 
@@ -126,6 +126,11 @@ bench: install bench-roofline
 HF_BASELINE ?= 9b774a1
 bench-heightfield-speed: install
 	$(PY) bench/heightfield_speed.py --baseline $(HF_BASELINE)
+
+# Dynamic terrain: what a 5 % crater can change (numpy model) and the partial update against a
+# full frame in one process (257²): bench/results/heightfield_dynamic/.
+bench-heightfield-dynamic: install
+	$(PY) bench/heightfield_dynamic.py all --size 257 --rounds 3
 
 # The machine's peak FMA FLOP/s and memory bandwidth under the OpenCL runtime in use, the
 # roofline docs/performance.md measures every kernel against: bench/results/roofline/.

@@ -59,12 +59,14 @@ inline float hf_level_sample(global const float *pyr, int4 lev, float u, float v
     return dot(wb, rows);
 }
 
-kernel void hf_decimate(global float *pyr, int4 src, int4 dst, float wm1, float dm1)
+kernel void hf_decimate(global float *pyr, int4 src, int4 dst, float wm1, float dm1, int4 rect)
 {
+    /* rect: the values (a, b) = (rect.x, rect.y) + (0 .. rect.z - 1, 0 .. rect.w - 1) of the level
+     * (the whole level, or the box a local edit can change: the same arithmetic either way). */
     const int gid = get_global_id(0), row = dst.y + 1;
-    if (gid >= row * (dst.z + 1))
+    if (gid >= rect.z * rect.w)
         return;
-    const int a = gid % row, b = gid / row;
+    const int a = rect.x + gid % rect.z, b = rect.y + gid / rect.z;
     /* Distances in base units; the tent's radius is the destination spacing. */
     const float ru = wm1 / (float)dst.y, rv = dm1 / (float)dst.z, hu = wm1 / (float)src.y, hv = dm1 / (float)src.z;
     const float u = (float)a * ru, v = (float)b * rv;
@@ -83,7 +85,7 @@ kernel void hf_decimate(global float *pyr, int4 src, int4 dst, float wm1, float 
             wsum += w;
         }
     }
-    pyr[dst.x + gid] = anchor + sum / wsum;
+    pyr[dst.x + b * row + a] = anchor + sum / wsum;
 }
 
 /* Interpolating reconstruction: solves, along one row (rows = 1) or column
@@ -351,32 +353,164 @@ inline float8 hf_horizon_pyramid_row(global const float *pyr, global const int4 
     HF_WINDOW_END(w0, w1, w2, best, count)
 }
 
+/* hf_horizon_pyramid_row for partial updates: the running maximum before
+ * sample c ls (c = 1 .. ncp, ls the level step) is kept in cp[cpi + c - 1]
+ * of each of the `lanes` first lanes; start > 0 resumes at sample start (a
+ * checkpoint, >= 3) from the kept maximum best0, the window refilled from
+ * the three samples before it (which read nothing changed: the same
+ * floats). The same arithmetic as hf_horizon_pyramid_row, so the same
+ * result. */
+inline float8 hf_horizon_pyramid_row_cp(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                                        const float8 *hp, float ref, float8 u0, float v0, float cu, float cv,
+                                        float inv_wm1, float inv_dm1, int start, float8 best0, global float *cp,
+                                        int8 cpi, int lanes, int ncp)
+{
+    float8 w0 = 0.0f, w1 = 0.0f, w2 = 0.0f, best = start ? best0 : -M_PI_2_F;
+    int count = start;
+    const int ls = (int)geom.s5, m0 = start ? start - 3 : 0;
+    const float sr = exp2(1.0f / geom.s5);
+    float d = geom.s6;
+    for (int m = 0; m < m0; ++m)
+        d *= sr;
+    for (int m = m0; m < grid.z; ++m, d *= sr) {
+        if (m > start && m % ls == 0 && m / ls <= ncp) {
+            float b[HF_ROW];
+            vstore8(best, 0, b);
+            const int idx[HF_ROW] = {cpi.s0, cpi.s1, cpi.s2, cpi.s3, cpi.s4, cpi.s5, cpi.s6, cpi.s7};
+            for (int l = 0; l < lanes; ++l)
+                cp[(size_t)idx[l] + m / ls - 1] = b[l];
+        }
+        const int k = clamp(m - grid.w, 0, grid.z - 1);
+        const float8 h = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0 + d * cu, v0 + d * cv, inv_wm1,
+                                                   inv_dm1, ref);
+        const float8 w3 = hf_atan8((h - hp[k]) * (1.0f / (36.0f * d)));
+        if (m < start) {
+            w0 = w1;
+            w1 = w2;
+            w2 = w3;
+            continue;
+        }
+        HF_WINDOW_STEP(w0, w1, w2, w3, best, count)
+    }
+    HF_WINDOW_END(w0, w1, w2, best, count)
+}
+
+/* Partial updates (docs/heightfield.md, "Dynamic terrain"): changed[k] is
+ * the box (a0, b0, a1, b1), inclusive, of level k's values that a local edit
+ * changed (a0 > a1: none), changed[levels] the vertices whose normals did.
+ * A search reads only B-spline taps, so a lane whose taps all miss the boxes
+ * gives the same floats as before. Whether the taps of level coordinates
+ * [lo, hi] along one axis (indices floor - 1 .. floor + 2, clamped to the
+ * level's n + 1 values) meet [c0, c1]: the coordinates are taken
+ * HF_TAP_SLACK wider, for the rounding of another evaluation order. */
+#ifndef HF_TAP_SLACK /* a build option only to test that the tests catch a narrower mask */
+#define HF_TAP_SLACK 0.01f
+#endif
+inline bool hf_taps_meet(float lo, float hi, int n, int c0, int c1)
+{
+    const int t0 = clamp((int)floor(lo - HF_TAP_SLACK) - 1, 0, n), t1 = clamp((int)floor(hi + HF_TAP_SLACK) + 2, 0, n);
+    return t0 <= c1 && t1 >= c0;
+}
+
+/* The first sample of a row group's search along (cu, cv) (lanes' u in
+ * [ulo, uhi], row v0) that reads a changed value, grid.z if none: one box
+ * test per sample. receiver: the first sample whose level's H_k at the
+ * receivers changed (d = 0, one test per level). */
+inline int hf_row_first_changed(global const int4 *levels, global const int4 *changed, int4 grid, float8 geom,
+                                float ulo, float uhi, float v0, float cu, float cv, float inv_wm1, float inv_dm1,
+                                int receiver)
+{
+    const float sr = exp2(1.0f / geom.s5);
+    float d = receiver ? 0.0f : geom.s6;
+    const int count = receiver ? max(grid.z - grid.w, 1) : grid.z;
+    for (int m = 0; m < count; ++m, d *= sr) {
+        const int k = receiver ? m : clamp(m - grid.w, 0, grid.z - 1);
+        const int4 c = changed[k];
+        if (c.x > c.z)
+            continue;
+        const int4 lev = levels[k];
+        const float sa = (float)lev.y * inv_wm1, sb = (float)lev.z * inv_dm1;
+        const float a0 = (ulo + d * cu) * sa, a1 = (uhi + d * cu) * sa, b = (v0 + d * cv) * sb;
+        if (hf_taps_meet(fmin(a0, a1), fmax(a0, a1), lev.y, c.x, c.z) && hf_taps_meet(b, b, lev.z, c.y, c.w))
+            return receiver ? (k ? k + grid.w : 0) : m; /* level k's first sample */
+    }
+    return grid.z;
+}
+
 /* Environment horizons (clamped at 0) of the row group starting at vertex
  * gid: om[lane * n_phi + k] for the lanes inside the row (lanes past its
- * end repeat its last vertex and are not stored). */
-inline void hf_row_env_horizons(global const float *pyr, global const int4 *levels, int4 grid, float8 geom, int gid,
-                                int n_phi, float *om)
+ * end repeat its last vertex and are not stored). update 0: all searched;
+ * 1: all searched, kept in `horizons` (n_phi per vertex) with their
+ * checkpoints (`cp`, ncp per vertex and azimuth); 2: only the azimuths
+ * whose search reads a changed value (`changed`) are searched again, from
+ * the last checkpoint before the first such sample, the others read from
+ * `horizons`. Returns how many were searched; *moved gets bit l set where
+ * lane l's horizons differ (bit for bit) from the kept ones (update 2) or
+ * every lane's (otherwise). */
+inline int hf_row_env_horizons(global const float *pyr, global const int4 *levels, int4 grid, float8 geom, int gid,
+                               int n_phi, int update, global const int4 *changed, global float *horizons,
+                               global float *cp, int ncp, float *om, int *moved)
 {
     const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
-    const int i0 = gid % grid.x, lanes = min(HF_ROW, grid.x - i0);
+    const int i0 = gid % grid.x, lanes = min(HF_ROW, grid.x - i0), ls = (int)geom.s5;
     const float8 u0 = convert_float8(min(i0 + (int8)(0, 1, 2, 3, 4, 5, 6, 7), grid.x - 1));
     const float v0 = (float)(gid / grid.x), ref = pyr[gid];
+    const int first_receiver =
+        update != 2 ? 0
+                    : hf_row_first_changed(levels, changed, grid, geom, u0.s0, u0.s7, v0, 0.0f, 0.0f, inv_wm1, inv_dm1,
+                                           1);
     float8 hp[HF_MAX_LEVELS];
     const int top = max(grid.z - 1 - grid.w, 0);
     for (int k = 0; k <= top; ++k)
         hp[k] = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0, v0, inv_wm1, inv_dm1, ref);
     const float dphi = 2.0f * M_PI_F / (float)n_phi;
+    const int8 lane_vertex = gid + min((int8)(0, 1, 2, 3, 4, 5, 6, 7), lanes - 1);
+    int searched = 0;
+    *moved = update == 2 ? 0 : (1 << HF_ROW) - 1;
     for (int k = 0; k < n_phi; ++k) {
         float s, c;
         s = sincos(dphi * (float)k, &c);
         float h[HF_ROW];
-        vstore8(fmax(hf_horizon_pyramid_row(pyr, levels, grid, geom, hp, ref, u0, v0, c / geom.s3, -s / geom.s4,
-                                            inv_wm1, inv_dm1),
+        if (!update) {
+            vstore8(fmax(hf_horizon_pyramid_row(pyr, levels, grid, geom, hp, ref, u0, v0, c / geom.s3, -s / geom.s4,
+                                                inv_wm1, inv_dm1),
+                         0.0f),
+                    0, h);
+            for (int l = 0; l < lanes; ++l)
+                om[l * n_phi + k] = h[l];
+            ++searched;
+            continue;
+        }
+        const int first = update != 2 ? 0
+                                      : min(first_receiver,
+                                            hf_row_first_changed(levels, changed, grid, geom, u0.s0, u0.s7, v0,
+                                                                 c / geom.s3, -s / geom.s4, inv_wm1, inv_dm1, 0));
+        if (first >= grid.z) {
+            for (int l = 0; l < lanes; ++l)
+                om[l * n_phi + k] = horizons[(size_t)(gid + l) * n_phi + k];
+            continue;
+        }
+        ++searched;
+        const int8 cpi = (lane_vertex * n_phi + k) * ncp;
+        /* resume at the last checkpoint at or before the first changed sample */
+        const int ck = min(first / ls, ncp), start = ck * ls >= 3 ? ck * ls : 0;
+        float8 best0 = 0.0f;
+        if (start)
+            best0 = (float8)(cp[cpi.s0 + ck - 1], cp[cpi.s1 + ck - 1], cp[cpi.s2 + ck - 1], cp[cpi.s3 + ck - 1],
+                             cp[cpi.s4 + ck - 1], cp[cpi.s5 + ck - 1], cp[cpi.s6 + ck - 1], cp[cpi.s7 + ck - 1]);
+        vstore8(fmax(hf_horizon_pyramid_row_cp(pyr, levels, grid, geom, hp, ref, u0, v0, c / geom.s3, -s / geom.s4,
+                                               inv_wm1, inv_dm1, start, best0, cp, cpi, lanes, ncp),
                      0.0f),
                 0, h);
-        for (int l = 0; l < lanes; ++l)
+        for (int l = 0; l < lanes; ++l) {
+            global float *kept = horizons + (size_t)(gid + l) * n_phi + k;
+            if (as_uint(*kept) != as_uint(h[l]))
+                *moved |= 1 << l;
             om[l * n_phi + k] = h[l];
+            *kept = h[l];
+        }
     }
+    return searched;
 }
 
 /* The exact-horizon mode: the base field (bilinear) marched in steps of s0 / 2
@@ -467,6 +601,66 @@ inline void hf_vertex_horizons(global const float *pyr, global const int4 *level
         const float h = hf_horizon_exact_at(pyr, grid, geom, gid, dphi * (float)k, limit);
         om[k] = env ? fmax(h, 0.0f) : h;
     }
+}
+
+/* Whether the exact march from (u0, v0) along (cu, cv) can read a changed
+ * height: a bilinear read at u touches columns floor(u) and floor(u) + 1,
+ * so the segment from the vertex onwards is tested against the changed
+ * box grown by one cell (and HF_TAP_SLACK), slab by slab. */
+inline bool hf_ray_meets(float u0, float v0, float cu, float cv, int4 c)
+{
+    if (c.x > c.z)
+        return false;
+    const float lo[2] = {(float)c.x - 1.0f - HF_TAP_SLACK, (float)c.y - 1.0f - HF_TAP_SLACK};
+    const float hi[2] = {(float)c.z + 1.0f + HF_TAP_SLACK, (float)c.w + 1.0f + HF_TAP_SLACK};
+    const float p[2] = {u0, v0}, dir[2] = {cu, cv};
+    float t0 = 0.0f, t1 = INFINITY;
+    for (int a = 0; a < 2; ++a) {
+        if (fabs(dir[a]) < 1e-20f) {
+            if (p[a] < lo[a] || p[a] > hi[a])
+                return false;
+            continue;
+        }
+        const float ta = (lo[a] - p[a]) / dir[a], tb = (hi[a] - p[a]) / dir[a];
+        t0 = fmax(t0, fmin(ta, tb));
+        t1 = fmin(t1, fmax(ta, tb));
+    }
+    return t0 <= t1;
+}
+
+/* The exact mode's environment horizons of vertex gid with the update
+ * modes of hf_row_env_horizons; returns how many were marched. */
+inline int hf_vertex_env_horizons(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                                   int gid, int n_phi, int update, global const int4 *changed,
+                                   global float *horizons, float *om, int *moved)
+{
+    *moved = update != 2;
+    if (update != 2) {
+        hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, 1, INFINITY, 1, om);
+        for (int k = 0; update && k < n_phi; ++k)
+            horizons[(size_t)gid * n_phi + k] = om[k];
+        return n_phi;
+    }
+    const float u0 = (float)(gid % grid.x), v0 = (float)(gid / grid.x), dphi = 2.0f * M_PI_F / (float)n_phi;
+    const int4 c = changed[0];
+    /* the receiver's own height: every azimuth */
+    const bool all = c.x <= c.z && u0 >= (float)c.x && u0 <= (float)c.z && v0 >= (float)c.y && v0 <= (float)c.w;
+    int searched = 0;
+    for (int k = 0; k < n_phi; ++k) {
+        float s, cs;
+        s = sincos(dphi * (float)k, &cs);
+        if (!all && !hf_ray_meets(u0, v0, cs / geom.s3, -s / geom.s4, c)) {
+            om[k] = horizons[(size_t)gid * n_phi + k];
+            continue;
+        }
+        ++searched;
+        const float h = hf_horizon_exact_at(pyr, grid, geom, gid, dphi * (float)k, INFINITY);
+        om[k] = fmax(h, 0.0f);
+        if (as_uint(horizons[(size_t)gid * n_phi + k]) != as_uint(om[k]))
+            *moved = 1;
+        horizons[(size_t)gid * n_phi + k] = om[k];
+    }
+    return searched;
 }
 
 /* SH vectors in float16 chunks (coefficient q = 16 chunk + lane; 6 bands:
@@ -672,22 +866,38 @@ kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid
                    global const float4 *normals, global const float *albedo, int has_albedo, int n_phi, int nb,
                    int exact, global const float *table, global const float *m, float8 cosine_zh, int split,
                    global const float4 *up_irradiance, int up_size, global const float *u,
-                   global const float4 *sun, int suns, global float4 *out_env, global float4 *out_total)
+                   global const float4 *sun, int suns, global float4 *out_env, global float4 *out_total,
+                   int update, global const int4 *changed, global float *horizons, global float *cp, int ncp)
 {
+    /* update (hf_row_env_horizons): 0 every vertex; 1 every vertex, horizons
+     * kept; 2 a partial update: only what reads a changed value is searched
+     * again, and only vertices whose horizons came out different (bit for
+     * bit) or whose normal changed are shaded again; the others keep out_env
+     * (and restart the total from it).
+     * hf_searched tells which azimuths a partial update searched. */
     const int gid = get_global_id(0);
     if (gid >= grid.x * grid.y || !hf_row_leader(gid, grid, exact))
         return;
     float om[HF_ROW * HF_MAX_AZIMUTHS];
-    int lanes = 1;
+    int lanes = 1, moved;
     if (exact)
-        hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, exact, INFINITY, 1, om);
+        hf_vertex_env_horizons(pyr, levels, grid, geom, gid, n_phi, update, changed, horizons, om, &moved);
     else {
-        hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, om);
+        hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, update, changed, horizons, cp, ncp, om, &moved);
         lanes = min(HF_ROW, grid.x - gid % grid.x);
     }
-    for (int l = 0; l < lanes; ++l)
+    const int4 nbox = update == 2 ? changed[grid.z] : (int4)(1, 1, 0, 0);
+    const int j = gid / grid.x;
+    for (int l = 0; l < lanes; ++l) {
+        const int i = gid % grid.x + l;
+        /* the same horizons (bit for bit) and normal: the same radiance */
+        if (update == 2 && !(moved >> l & 1) && !(i >= nbox.x && i <= nbox.z && j >= nbox.y && j <= nbox.w)) {
+            out_total[gid + l] = out_env[gid + l];
+            continue;
+        }
         hf_env_vertex(gid + l, om + l * n_phi, normals, albedo, has_albedo, n_phi, nb, table, m, cosine_zh, split,
                       up_irradiance, up_size, u, sun, suns, out_env, out_total);
+    }
 }
 
 /* Cap of light (centre c, radius r) seen from p: s = 1 - cos α (2 inside the light). */
@@ -834,7 +1044,8 @@ kernel void hf_probe(global const float *pyr, global const int4 *levels, int4 gr
     float om[HF_ROW * HF_MAX_AZIMUTHS];
     int lanes = 1;
     if (env && !exact) {
-        hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, om);
+        int moved;
+        hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, 0, 0, 0, 0, 0, om, &moved);
         lanes = min(HF_ROW, grid.x - gid % grid.x);
     } else
         hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, exact, limit, env, om);
@@ -850,6 +1061,39 @@ kernel void hf_probe(global const float *pyr, global const int4 *levels, int4 gr
         hf_visibility(o, n_phi, table, nb, env ? 0.0f : -M_PI_2_F, v);
         for (int q = 0; q < nb * nb; ++q)
             out[g * nb * nb + q] = v[q];
+    }
+}
+
+/* Which lanes the last env pass searched again (1) or kept (0), n_phi per
+ * vertex, from the boxes and mode it ran with: the same tests as
+ * hf_row_env_horizons and hf_vertex_env_horizons (for the tests and the
+ * benchmark of partial updates). */
+kernel void hf_searched(global const int4 *levels, int4 grid, float8 geom, int n_phi, int exact, int update,
+                        global const int4 *changed, global float *out)
+{
+    const int gid = get_global_id(0);
+    if (gid >= grid.x * grid.y || !hf_row_leader(gid, grid, exact))
+        return;
+    const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
+    const float dphi = 2.0f * M_PI_F / (float)n_phi, v0 = (float)(gid / grid.x);
+    const int i0 = gid % grid.x, lanes = exact ? 1 : min(HF_ROW, grid.x - i0);
+    const float8 u0 = convert_float8(min(i0 + (int8)(0, 1, 2, 3, 4, 5, 6, 7), grid.x - 1));
+    const int4 c = changed[0];
+    bool all = update != 2;
+    if (!all && exact)
+        all = c.x <= c.z && u0.s0 >= (float)c.x && u0.s0 <= (float)c.z && v0 >= (float)c.y && v0 <= (float)c.w;
+    else if (!all)
+        all = hf_row_first_changed(levels, changed, grid, geom, u0.s0, u0.s7, v0, 0.0f, 0.0f, inv_wm1, inv_dm1, 1) <
+              grid.z;
+    for (int k = 0; k < n_phi; ++k) {
+        float s, cs;
+        s = sincos(dphi * (float)k, &cs);
+        const bool hit = all || (exact ? hf_ray_meets(u0.s0, v0, cs / geom.s3, -s / geom.s4, c)
+                                       : hf_row_first_changed(levels, changed, grid, geom, u0.s0, u0.s7, v0,
+                                                              cs / geom.s3, -s / geom.s4, inv_wm1, inv_dm1, 0) <
+                                             grid.z);
+        for (int l = 0; l < lanes; ++l)
+            out[(size_t)(gid + l) * n_phi + k] = hit ? 1.0f : 0.0f;
     }
 }
 

@@ -592,6 +592,13 @@ PN_API pn_status pn_heightfield_retain(pn_heightfield hf);
 PN_API pn_status pn_heightfield_release(pn_heightfield hf);
 /* Copies the heights; width, depth >= 2; NaN/Inf are refused (count and first position). */
 PN_API pn_status pn_heightfield_set_heights(pn_heightfield hf, const float *heights, uint32_t width, uint32_t depth);
+/* A local edit: replaces the width x depth heights (row-major) of columns
+ * x0 .. x0 + width - 1, rows y0 .. y0 + depth - 1 (inside the field; NaN/Inf
+ * refused). After the commit, a `heightfield` renderer that rendered the
+ * field before updates only what the edited box can change (pyramid levels
+ * and horizon lanes), equal bit for bit to a full recompute. */
+PN_API pn_status pn_heightfield_set_heights_region(pn_heightfield hf, uint32_t x0, uint32_t y0, uint32_t width,
+                                                   uint32_t depth, const float *heights);
 /* Default: origin 0, size (width - 1, depth - 1), height_scale 1. */
 PN_API pn_status pn_heightfield_set_placement(pn_heightfield hf, const pn_heightfield_placement *placement);
 /* Per-vertex RGB albedo in [0, 1] (width * depth * 3 floats), multiplied into

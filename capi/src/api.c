@@ -926,6 +926,14 @@ pn_status pn_heightfield_set_heights(pn_heightfield hf, const float *heights, ui
     return st;
 }
 
+pn_status pn_heightfield_set_heights_region(pn_heightfield hf, uint32_t x0, uint32_t y0, uint32_t width,
+                                            uint32_t depth, const float *heights)
+{
+    ENTER(hf, PN_MAGIC_HEIGHTFIELD, "height field");
+    CHECK_PTR(hf->obj.ctx, heights);
+    return pn_heightfield_do_set_heights_region(hf, x0, y0, width, depth, heights);
+}
+
 pn_status pn_heightfield_set_placement(pn_heightfield hf, const pn_heightfield_placement *placement)
 {
     ENTER(hf, PN_MAGIC_HEIGHTFIELD, "height field");

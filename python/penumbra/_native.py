@@ -234,6 +234,7 @@ _SIGNATURES = {
     "pn_fiv_read": [_H, _P, _size],
     "pn_heightfield_create": [_H, _OUT], "pn_heightfield_release": [_H],
     "pn_heightfield_set_heights": [_H, _P, _u32, _u32],
+    "pn_heightfield_set_heights_region": [_H, _u32, _u32, _u32, _u32, _P],
     "pn_heightfield_set_placement": [_H, ctypes.POINTER(HeightfieldPlacement)],
     "pn_heightfield_set_albedo": [_H, _P, _size],
     "pn_heightfield_commit": [_H],

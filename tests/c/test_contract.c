@@ -2331,6 +2331,8 @@ static void test_heightfield(pn_context ctx)
                  "no heights", NULL);
     expect_error("1 x 5 heights", pn_heightfield_set_heights(hf, heights, 1, 5), PN_ERROR_INVALID_SIZE, ctx,
                  "at least 2 x 2", NULL);
+    expect_error("region edit without heights", pn_heightfield_set_heights_region(hf, 0, 0, 1, 1, heights),
+                 PN_ERROR_NOT_COMMITTED, ctx, "no heights yet", NULL);
     heights[7] = NAN;
     heights[9] = INFINITY;
     expect_error("NaN height", pn_heightfield_set_heights(hf, heights, 5, 4), PN_ERROR_INVALID_ARGUMENT, ctx,
@@ -2340,6 +2342,24 @@ static void test_heightfield(pn_context ctx)
     expect_error("zero height-field size", pn_heightfield_set_placement(hf, &bad), PN_ERROR_INVALID_ARGUMENT, ctx,
                  "size[1]", NULL);
     expect_ok("pn_heightfield_set_heights", pn_heightfield_set_heights(hf, heights, 5, 4), ctx);
+    expect_error("NULL height field: pn_heightfield_set_heights_region",
+                 pn_heightfield_set_heights_region(NULL, 0, 0, 1, 1, heights), PN_ERROR_NULL_HANDLE, NULL,
+                 "pn_heightfield_set_heights_region", NULL);
+    expect_error("NULL region heights", pn_heightfield_set_heights_region(hf, 0, 0, 1, 1, NULL),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "'heights' is NULL", NULL);
+    expect_error("empty region", pn_heightfield_set_heights_region(hf, 0, 0, 0, 2, heights), PN_ERROR_INVALID_SIZE,
+                 ctx, "empty region", NULL);
+    expect_error("region past the field", pn_heightfield_set_heights_region(hf, 3, 1, 3, 2, heights),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "columns 3..5, rows 1..2", "5 x 4", NULL);
+    expect_error("region starting past the field", pn_heightfield_set_heights_region(hf, 0, 4, 1, 1, heights),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "outside", NULL);
+    expect_error("region overflowing uint32", pn_heightfield_set_heights_region(hf, 2, 0, UINT32_MAX, 1, heights),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "outside", NULL);
+    heights[3] = NAN;
+    expect_error("NaN in a region", pn_heightfield_set_heights_region(hf, 1, 2, 2, 2, heights),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "1 non-finite", "row 3, column 2", NULL);
+    heights[3] = 0.0f;
+    expect_ok("pn_heightfield_set_heights_region", pn_heightfield_set_heights_region(hf, 1, 2, 2, 2, heights), ctx);
     float albedo[60];
     for (int i = 0; i < 60; ++i)
         albedo[i] = 1.0f;

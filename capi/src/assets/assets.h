@@ -57,6 +57,8 @@ pn_status pn_fiv_write_file(pn_fiv fiv, const char *path);
 
 /* ------------------------------------------------------------ height fields */
 
+#define PN_HF_HISTORY 16
+
 struct pn_heightfield_impl {
     pn_object obj;
     uint32_t width, depth;    /* columns (x), rows (z) */
@@ -66,10 +68,29 @@ struct pn_heightfield_impl {
     bool committed;
     uint64_t version;         /* a new pn_next_version() at each commit */
     float hmin, hmax;         /* of the heights, at commit */
+    /* Local edits (pn_heightfield_set_heights_region), so that a renderer can
+     * update only what they change. Boxes are (x0, y0, x1, y1), inclusive;
+     * x0 > x1: empty. */
+    bool regional;            /* has had region edits: renderers keep what partial updates need */
+    bool edit_full;           /* an uncommitted change other than region edits */
+    uint32_t edit_box[4];     /* uncommitted region edits */
+    /* The last commits that were region edits only, newest first: the heights
+     * of commit k's version differ from those of history_from[k] only in
+     * history_box[k]. A commit with any other change empties it. */
+    uint32_t history_count;
+    uint64_t history_from[PN_HF_HISTORY];
+    uint32_t history_box[PN_HF_HISTORY][4];
 };
 
 pn_status pn_heightfield_new(pn_context ctx, pn_heightfield *out);
 pn_status pn_heightfield_do_set_heights(pn_heightfield hf, const float *heights, uint32_t width, uint32_t depth);
+pn_status pn_heightfield_do_set_heights_region(pn_heightfield hf, uint32_t x0, uint32_t y0, uint32_t width,
+                                               uint32_t depth, const float *heights);
+/* Whether the committed heights differ from those of the field's committed
+ * version `from` only inside `box` (x0, y0, x1, y1 inclusive; x0 > x1: no
+ * change at all); false when that is not known (other changes, or an old
+ * version). */
+bool pn_heightfield_changed_since(pn_heightfield hf, uint64_t from, uint32_t box[4]);
 pn_status pn_heightfield_do_set_placement(pn_heightfield hf, const pn_heightfield_placement *placement);
 pn_status pn_heightfield_do_set_albedo(pn_heightfield hf, const float *rgb, size_t count);
 pn_status pn_heightfield_do_commit(pn_heightfield hf);

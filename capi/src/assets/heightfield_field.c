@@ -52,7 +52,73 @@ pn_status pn_heightfield_do_set_heights(pn_heightfield hf, const float *heights,
     hf->width = width;
     hf->depth = depth;
     hf->committed = false;
+    hf->edit_full = true;
     return PN_SUCCESS;
+}
+
+static void box_union(uint32_t *box, uint32_t x0, uint32_t y0, uint32_t x1, uint32_t y1)
+{
+    if (box[0] > box[2]) {
+        box[0] = x0, box[1] = y0, box[2] = x1, box[3] = y1;
+        return;
+    }
+    box[0] = x0 < box[0] ? x0 : box[0];
+    box[1] = y0 < box[1] ? y0 : box[1];
+    box[2] = x1 > box[2] ? x1 : box[2];
+    box[3] = y1 > box[3] ? y1 : box[3];
+}
+
+pn_status pn_heightfield_do_set_heights_region(pn_heightfield hf, uint32_t x0, uint32_t y0, uint32_t width,
+                                               uint32_t depth, const float *heights)
+{
+    pn_context ctx = hf->obj.ctx;
+    if (!hf->heights)
+        return pn_fail(ctx, PN_ERROR_NOT_COMMITTED,
+                       "pn_heightfield_set_heights_region: the height field has no heights yet (pn_heightfield_set_heights)");
+    if (!width || !depth)
+        return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "pn_heightfield_set_heights_region: an empty region (%u x %u heights)",
+                       width, depth);
+    if (x0 >= hf->width || y0 >= hf->depth || width > hf->width - x0 || depth > hf->depth - y0)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                       "pn_heightfield_set_heights_region: columns %u..%llu, rows %u..%llu are outside the %u x %u "
+                       "height field", x0, (unsigned long long)x0 + width - 1, y0,
+                       (unsigned long long)y0 + depth - 1, hf->width, hf->depth);
+    const size_t n = (size_t)width * depth;
+    size_t bad = 0, first = 0;
+    for (size_t k = 0; k < n; ++k)
+        if (!isfinite(heights[k]) && bad++ == 0)
+            first = k;
+    if (bad)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                       "height-field region has %zu non-finite heights (NaN or Inf), the first at row %zu, column %zu "
+                       "of the field", bad, y0 + first / width, x0 + first % width);
+    for (uint32_t j = 0; j < depth; ++j)
+        memcpy(hf->heights + (size_t)(y0 + j) * hf->width + x0, heights + (size_t)j * width, width * sizeof(float));
+    box_union(hf->edit_box, x0, y0, x0 + width - 1, y0 + depth - 1);
+    hf->regional = true;
+    hf->committed = false;
+    return PN_SUCCESS;
+}
+
+bool pn_heightfield_changed_since(pn_heightfield hf, uint64_t from, uint32_t box[4])
+{
+    if (!hf->committed || !from)
+        return false;
+    uint32_t u[4] = {1, 1, 0, 0}; /* empty */
+    if (from == hf->version) {
+        memcpy(box, u, sizeof u);
+        return true;
+    }
+    for (uint32_t k = 0; k < hf->history_count; ++k) {
+        const uint32_t *b = hf->history_box[k];
+        if (b[0] <= b[2])
+            box_union(u, b[0], b[1], b[2], b[3]);
+        if (hf->history_from[k] == from) {
+            memcpy(box, u, sizeof u);
+            return true;
+        }
+    }
+    return false;
 }
 
 pn_status pn_heightfield_do_set_placement(pn_heightfield hf, const pn_heightfield_placement *p)
@@ -71,6 +137,7 @@ pn_status pn_heightfield_do_set_placement(pn_heightfield hf, const pn_heightfiel
                        (double)p->height_scale);
     hf->placement = *p;
     hf->committed = false;
+    hf->edit_full = true;
     return PN_SUCCESS;
 }
 
@@ -81,6 +148,7 @@ pn_status pn_heightfield_do_set_albedo(pn_heightfield hf, const float *rgb, size
         free(hf->albedo);
         hf->albedo = NULL;
         hf->committed = false;
+        hf->edit_full = true;
         return PN_SUCCESS;
     }
     const size_t n = (size_t)hf->width * hf->depth * 3;
@@ -101,6 +169,7 @@ pn_status pn_heightfield_do_set_albedo(pn_heightfield hf, const float *rgb, size
     free(hf->albedo);
     hf->albedo = copy;
     hf->committed = false;
+    hf->edit_full = true;
     return PN_SUCCESS;
 }
 
@@ -114,6 +183,23 @@ pn_status pn_heightfield_do_commit(pn_heightfield hf)
         hf->hmin = fminf(hf->hmin, hf->heights[k]);
         hf->hmax = fmaxf(hf->hmax, hf->heights[k]);
     }
+    /* What changed since the last commit: region edits only (or nothing) are
+     * recorded, so that a renderer a few commits behind knows where the
+     * heights differ from those it has. */
+    const uint64_t old = hf->version;
+    if (hf->edit_full || !old) {
+        hf->history_count = 0;
+    } else {
+        const uint32_t n = hf->history_count < PN_HF_HISTORY ? hf->history_count + 1 : PN_HF_HISTORY;
+        memmove(hf->history_from + 1, hf->history_from, (n - 1) * sizeof hf->history_from[0]);
+        memmove(hf->history_box + 1, hf->history_box, (n - 1) * sizeof hf->history_box[0]);
+        hf->history_from[0] = old;
+        memcpy(hf->history_box[0], hf->edit_box, sizeof hf->history_box[0]);
+        hf->history_count = n;
+    }
+    hf->edit_full = false;
+    hf->edit_box[0] = hf->edit_box[1] = 1; /* empty */
+    hf->edit_box[2] = hf->edit_box[3] = 0;
     hf->version = pn_next_version();
     hf->committed = true;
     return PN_SUCCESS;
@@ -211,6 +297,7 @@ pn_status pn_heightfield_new(pn_context ctx, pn_heightfield *out)
     if (!hf)
         return PN_ERROR_OUT_OF_MEMORY;
     hf->placement.height_scale = 1.0f;
+    hf->edit_box[0] = hf->edit_box[1] = 1; /* empty */
     *out = hf;
     return PN_SUCCESS;
 }

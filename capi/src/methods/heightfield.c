@@ -17,9 +17,10 @@
 #define MAX_FIELDS 16
 #define MAX_SUN 256          /* sun texels lit as directional lights */
 #define SUN_FLOATS 12        /* per sun texel: 3 float4 (kernels/heightfield.cl, hf_sun) */
+#define KEEP_MAX_BYTES ((size_t)512 << 20) /* partial_update: the most kept state per field */
 
 enum { P_BACKGROUND, P_LEVEL_STEP, P_LEVEL_OFFSET, P_AZIMUTHS, P_BANDS, P_EXACT_HORIZON, P_LIGHT_THRESHOLD,
-       P_EXACT_UNOCCLUDED, P_SUN_THRESHOLD, P_LIGHT_VISIBILITY, P_RECONSTRUCTION };
+       P_EXACT_UNOCCLUDED, P_SUN_THRESHOLD, P_LIGHT_VISIBILITY, P_RECONSTRUCTION, P_PARTIAL_UPDATE };
 
 static const pn_param_desc params[] = {
     PN_PARAM_BACKGROUND,
@@ -41,10 +42,14 @@ static const pn_param_desc params[] = {
      "Spherical lights: 1 horizon test x exact cap irradiance, 0 the seed's SH wedges."},
     {"reconstruction", PN_PARAM_INT, PN_PARAM_PLAN, 0, 0, 1, "",
      "Pyramid levels: 0 the seed's approximating B-spline, 1 interpolating."},
+    {"partial_update", PN_PARAM_INT, PN_PARAM_PLAN, 1, 0, 1, "",
+     "1: for fields that have had local edits (pn_heightfield_set_heights_region), keep the env horizons and "
+     "search checkpoints (azimuths x (1 + (levels - 1) / level_step) floats per vertex, where that is at most "
+     "512 MiB per field) so that the next edit recomputes only what it can change; 0: every frame recomputes all."},
 };
 
 enum { OUT_ENV, OUT_LIGHT, OUT_TOTAL, OUT_ENV_HORIZONS, OUT_LIGHT_HORIZONS, OUT_ENV_VISIBILITY, OUT_LIGHT_VISIBILITY,
-       OUT_NORMALS };
+       OUT_NORMALS, OUT_ENV_SEARCHED };
 
 static const pn_output_desc outputs[] = {
     {"env", "float4 per vertex: outgoing radiance from the environment (rgb, 1)."},
@@ -55,11 +60,14 @@ static const pn_output_desc outputs[] = {
     {"env_visibility", "bands^2 floats per vertex: SH visibility."},
     {"light_visibility", "bands^2 floats per vertex: SH visibility for light `index`."},
     {"normals", "float4 per vertex: the method's world normal."},
+    {"env_searched", "azimuths floats per vertex: 1 where the last env pass searched the horizon again, 0 where it "
+                     "kept it (partial_update = 1: after a local edit only what can read a changed height is "
+                     "searched; a vertex with every azimuth kept keeps its radiance unless its normal changed)."},
 };
 
 /* The method's settings, from the renderer's parameters. */
 typedef struct pn_hf_settings {
-    int level_step, azimuths, bands, exact, exact_unoccluded, light_visibility, reconstruction;
+    int level_step, azimuths, bands, exact, exact_unoccluded, light_visibility, reconstruction, partial_update;
     float level_offset, light_threshold, sun_threshold;
 } pn_hf_settings;
 
@@ -73,6 +81,20 @@ typedef struct pn_hf_state {
     bool has_albedo;
     uint32_t light_capacity;
     cl_mem pyr, levels, normals, albedo, out_env, out_lights, out_total;
+    /* Partial updates (partial_update = 1): the field the pyramid was built
+     * from, the env horizons of the last env pass and what that pass was
+     * for, and per level the box of values changed since (HF_MAX_LEVELS + 1:
+     * the normals' box last). */
+    pn_heightfield owner;
+    cl_mem horizons, changed, checkpoints;
+    size_t checkpoint_floats;
+    cl_int last_update;       /* the last env pass's mode (hf_env); `changed` holds its boxes */
+    size_t horizon_floats;
+    bool pass_valid;
+    pn_hf_settings pass_settings;
+    uint64_t pass_env;
+    cl_int4 pending[HF_MAX_LEVELS + 1];
+    cl_int4 levels_host[HF_MAX_LEVELS]; /* what `levels` holds */
 } pn_hf_state;
 
 typedef struct pn_hf_cache {
@@ -112,7 +134,8 @@ static void destroy(pn_renderer r)
     pn_hf_cache *c = r->state;
     for (int i = 0; i < MAX_FIELDS; ++i) {
         pn_hf_state *s = &c->fields[i];
-        cl_mem *mems[] = {&s->pyr, &s->levels, &s->normals, &s->albedo, &s->out_env, &s->out_lights, &s->out_total};
+        cl_mem *mems[] = {&s->pyr, &s->levels, &s->normals, &s->albedo, &s->out_env, &s->out_lights, &s->out_total,
+                          &s->horizons, &s->changed, &s->checkpoints};
         for (size_t k = 0; k < sizeof mems / sizeof mems[0]; ++k)
             pn_mem_release(mems[k]);
     }
@@ -370,6 +393,137 @@ static int level_count(int ls, uint32_t w, uint32_t d)
     return (int)ceil(ls * log2((double)res) - 1e-9) + 1;
 }
 
+/* Per level the box (a0, b0, a1, b1), inclusive, of the values that a change
+ * of the base heights inside `box` can reach: level k's value a averages the
+ * values q of level k - 1 with |u_q - u_a| < ru (the tent's radius, level k's
+ * spacing), i.e. a in (lo hu / ru - 1, hi hu / ru + 1) along each axis (0.01
+ * of slack for the float weights at the support's edge); where the cell
+ * counts are equal the axis is not filtered. Empty boxes have a0 > a1. */
+static void changed_levels(const cl_int4 *levels, int n, uint32_t w, uint32_t d, const uint32_t box[4], cl_int4 *out)
+{
+    out[0].s[0] = (cl_int)box[0], out[0].s[1] = (cl_int)box[1], out[0].s[2] = (cl_int)box[2],
+    out[0].s[3] = (cl_int)box[3];
+    for (int k = 1; k < n; ++k) {
+        cl_int4 b = out[k - 1];
+        if (b.s[0] <= b.s[2])
+            for (int axis = 0; axis < 2; ++axis) {
+                const int np = levels[k - 1].s[1 + axis], nn = levels[k].s[1 + axis];
+                if (np == nn)
+                    continue;
+                const double span = axis ? (double)d - 1.0 : (double)w - 1.0, hu = span / np, ru = span / nn;
+                const double lo = ceil(b.s[axis] * hu / ru - 1.0 - 1e-2);
+                const double hi = floor(b.s[2 + axis] * hu / ru + 1.0 + 1e-2);
+                b.s[axis] = (cl_int)(lo < 0.0 ? 0.0 : lo);
+                b.s[2 + axis] = (cl_int)(hi > nn ? nn : hi);
+            }
+        out[k] = b;
+    }
+}
+
+static void box_union4(cl_int4 *a, cl_int4 b)
+{
+    if (b.s[0] > b.s[2])
+        return;
+    if (a->s[0] > a->s[2]) {
+        *a = b;
+        return;
+    }
+    for (int q = 0; q < 2; ++q) {
+        a->s[q] = b.s[q] < a->s[q] ? b.s[q] : a->s[q];
+        a->s[2 + q] = b.s[2 + q] > a->s[2 + q] ? b.s[2 + q] : a->s[2 + q];
+    }
+}
+
+static void clear_pending(pn_hf_state *s)
+{
+    const cl_int4 none = {{1, 1, 0, 0}};
+    for (int k = 0; k <= HF_MAX_LEVELS; ++k)
+        s->pending[k] = none;
+}
+
+/* Runs hf_decimate on box `r` (a0, b0, a1, b1) of level q. */
+static pn_status decimate(pn_context ctx, cl_kernel k, pn_hf_state *s, const cl_int4 *levels, int q, cl_int4 r,
+                          cl_float wm1, cl_float dm1)
+{
+    if (r.s[0] > r.s[2] || r.s[1] > r.s[3])
+        return PN_SUCCESS;
+    const cl_int4 rect = {{r.s[0], r.s[1], r.s[2] - r.s[0] + 1, r.s[3] - r.s[1] + 1}};
+    size_t sizes[] = {sizeof(cl_mem), sizeof(cl_int4), sizeof(cl_int4), sizeof wm1, sizeof dm1, sizeof rect};
+    const void *vals[] = {&s->pyr, &levels[q - 1], &levels[q], &wm1, &dm1, &rect};
+    pn_status st = pn_set_args(ctx, k, "hf_decimate", 6, sizes, vals);
+    return st ? st : pn_enqueue_1d(ctx, k, "hf_decimate", (size_t)rect.s[2] * (size_t)rect.s[3], 64);
+}
+
+static pn_status run_normals(pn_context ctx, pn_hf_state *s, size_t base)
+{
+    cl_kernel k;
+    pn_status st = pn_context_kernel(ctx, "heightfield", "hf_normals", &k);
+    if (st)
+        return st;
+    size_t sizes[] = {sizeof(cl_mem), sizeof s->grid, sizeof s->geom, sizeof(cl_mem)};
+    const void *vals[] = {&s->pyr, &s->grid, &s->geom, &s->normals};
+    if (!(st = pn_set_args(ctx, k, "hf_normals", 4, sizes, vals)))
+        st = pn_enqueue_1d(ctx, k, "hf_normals", base, 64);
+    return st;
+}
+
+/* A local edit (pn_heightfield_set_heights_region) since the pyramid's
+ * version: the box's world heights uploaded, only the values of each level
+ * that the box can change decimated again (the same arithmetic as a full
+ * build, so the same floats), the normals, and the changed boxes added to
+ * the pending ones of the next env pass. */
+static pn_status update_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf, const uint32_t box[4])
+{
+    const uint32_t w = hf->width, d = hf->depth;
+    const int n = s->grid.s[2];
+    const size_t base = (size_t)w * d;
+    pn_status st = PN_SUCCESS;
+    if (box[0] <= box[2]) {
+        const cl_int4 *levels = s->levels_host;
+        cl_int4 *boxes = malloc((size_t)n * sizeof *boxes);
+        const size_t bw = box[2] - box[0] + 1, bh = box[3] - box[1] + 1;
+        float *rect = malloc(bw * bh * sizeof(float));
+        if (!boxes || !rect)
+            st = pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for a height-field update");
+        cl_int err = CL_SUCCESS;
+        for (size_t j = 0; !st && err == CL_SUCCESS && j < bh; ++j)
+            for (size_t i = 0; i < bw; ++i)
+                rect[j * bw + i] = hf->placement.height_scale * hf->heights[(box[1] + j) * w + box[0] + i];
+        /* the world heights, and level 0 (the same values after them) */
+        for (int copy = 0; !st && err == CL_SUCCESS && copy < 2; ++copy) {
+            const size_t origin[3] = {(copy * base + box[0]) * sizeof(float), box[1], 0}, host[3] = {0, 0, 0};
+            const size_t region[3] = {bw * sizeof(float), bh, 1};
+            err = clEnqueueWriteBufferRect(ctx->queue, s->pyr, CL_TRUE, origin, host, region, w * sizeof(float), 0,
+                                           bw * sizeof(float), 0, rect, 0, NULL, NULL);
+        }
+        if (!st && err != CL_SUCCESS)
+            st = pn_fail_cl(ctx, err, "uploading a height-field region");
+        cl_kernel k;
+        if (!st)
+            changed_levels(levels, n, w, d, box, boxes);
+        if (!st)
+            st = pn_context_kernel(ctx, "heightfield", "hf_decimate", &k);
+        const cl_float wm1 = (cl_float)(w - 1), dm1 = (cl_float)(d - 1);
+        for (int q = 1; !st && q < n; ++q)
+            st = decimate(ctx, k, s, levels, q, boxes[q], wm1, dm1);
+        if (!st)
+            st = run_normals(ctx, s, base);
+        for (int q = 0; !st && q < n; ++q)
+            box_union4(&s->pending[q], boxes[q]);
+        if (!st) { /* normals: central differences reach one vertex further */
+            const cl_int4 nb = {{(cl_int)box[0] - 1, (cl_int)box[1] - 1, (cl_int)box[2] + 1, (cl_int)box[3] + 1}};
+            box_union4(&s->pending[n], nb);
+        }
+        free(boxes);
+        free(rect);
+    }
+    if (!st)
+        s->version = hf->version;
+    else
+        s->version = 0, s->pass_valid = false; /* rebuilt in full next time */
+    return st;
+}
+
 /* Pyramid (level 0 = world heights, then tent decimation on the device),
  * normals and albedo of field i, rebuilt when the field or ls changes. */
 static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf, const pn_hf_settings *set)
@@ -393,6 +547,14 @@ static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf
     s->grid.s[3] = (cl_int)lround(set->level_step * set->level_offset);
     if (s->version == hf->version && s->level_step == set->level_step && s->reconstruction == set->reconstruction)
         return PN_SUCCESS;
+    /* A local edit since: only what it changes. The interpolating
+     * reconstruction solves along whole rows and columns of every level (any
+     * edit changes them all): rebuilt in full. */
+    uint32_t box[4];
+    if (set->partial_update && !set->reconstruction && s->owner == hf && s->version &&
+        s->level_step == set->level_step && s->reconstruction == 0 && s->has_albedo == (hf->albedo != NULL) &&
+        pn_heightfield_changed_since(hf, s->version, box))
+        return update_field(ctx, s, hf, box);
     cl_int4 *levels = malloc((size_t)n * sizeof *levels);
     if (!levels)
         return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for the pyramid levels");
@@ -409,13 +571,18 @@ static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf
         total += (size_t)(levels[k].s[1] + 1) * (levels[k].s[2] + 1);
     }
     s->pyramid_floats = total;
+    memcpy(s->levels_host, levels, (size_t)n * sizeof *levels);
     float *heights = malloc(base * sizeof(float));
     pn_status st = heights ? PN_SUCCESS : pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for the world heights");
     for (size_t k = 0; !st && k < base; ++k)
         heights[k] = hf->placement.height_scale * hf->heights[k];
     s->version = 0;
+    s->pass_valid = false;
+    s->owner = hf;
+    clear_pending(s);
     if (!st) {
-        cl_mem *mems[] = {&s->pyr, &s->levels, &s->normals, &s->albedo, &s->out_env, &s->out_total};
+        cl_mem *mems[] = {&s->pyr, &s->levels, &s->normals, &s->albedo, &s->out_env, &s->out_total, &s->horizons,
+                          &s->checkpoints};
         for (size_t k = 0; k < sizeof mems / sizeof mems[0]; ++k)
             pn_mem_release(mems[k]);
     }
@@ -439,10 +606,8 @@ static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf
     if (!st)
         st = pn_context_kernel(ctx, "heightfield", "hf_decimate", &k);
     for (int q = 1; !st && q < n; ++q) {
-        size_t sizes[] = {sizeof(cl_mem), sizeof(cl_int4), sizeof(cl_int4), sizeof wm1, sizeof dm1};
-        const void *vals[] = {&s->pyr, &levels[q - 1], &levels[q], &wm1, &dm1};
-        if (!(st = pn_set_args(ctx, k, "hf_decimate", 5, sizes, vals)))
-            st = pn_enqueue_1d(ctx, k, "hf_decimate", (size_t)(levels[q].s[1] + 1) * (levels[q].s[2] + 1), 64);
+        const cl_int4 whole = {{0, 0, levels[q].s[1], levels[q].s[2]}};
+        st = decimate(ctx, k, s, levels, q, whole, wm1, dm1);
     }
     /* Interpolating reconstruction: every level's values become the control
      * points whose B-spline passes through them (rows, then columns). */
@@ -457,12 +622,8 @@ static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf
                 st = pn_enqueue_1d(ctx, k, "hf_prefilter", lines, 16);
         }
     free(levels);
-    if (!st && !(st = pn_context_kernel(ctx, "heightfield", "hf_normals", &k))) {
-        size_t sizes[] = {sizeof(cl_mem), sizeof s->grid, sizeof s->geom, sizeof(cl_mem)};
-        const void *vals[] = {&s->pyr, &s->grid, &s->geom, &s->normals};
-        if (!(st = pn_set_args(ctx, k, "hf_normals", 4, sizes, vals)))
-            st = pn_enqueue_1d(ctx, k, "hf_normals", base, 64);
-    }
+    if (!st)
+        st = run_normals(ctx, s, base);
     if (!st) {
         s->version = hf->version;
         s->level_step = set->level_step;
@@ -479,7 +640,7 @@ static pn_hf_settings hf_settings(pn_renderer r)
     pn_hf_settings s = {(int)r->params[P_LEVEL_STEP], (int)r->params[P_AZIMUTHS], (int)r->params[P_BANDS],
                         (int)r->params[P_EXACT_HORIZON], (int)r->params[P_EXACT_UNOCCLUDED],
                         (int)r->params[P_LIGHT_VISIBILITY], (int)r->params[P_RECONSTRUCTION],
-                        (float)r->params[P_LEVEL_OFFSET], (float)r->params[P_LIGHT_THRESHOLD],
+                        (int)r->params[P_PARTIAL_UPDATE], (float)r->params[P_LEVEL_OFFSET], (float)r->params[P_LIGHT_THRESHOLD],
                         (float)r->params[P_SUN_THRESHOLD]};
     return s;
 }
@@ -579,6 +740,62 @@ static void remember_outputs(pn_context ctx, pn_hf_cache *c, pn_scene scene, con
     c->outputs_valid = true;
 }
 
+/* Checkpoints of the pyramid search kept per vertex and azimuth (hf_env):
+ * before samples ls, 2 ls, ... < levels. */
+static int checkpoint_count(const pn_hf_state *s)
+{
+    const int n = s->grid.s[2], ls = (int)s->geom.s[5];
+    return (n - 1) / ls > 0 ? (n - 1) / ls : 1;
+}
+
+/* Bytes kept for partial updates: horizons and checkpoints. */
+static size_t keep_bytes(const pn_hf_state *s, const pn_hf_settings *set, size_t base)
+{
+    return pn_mul_size(pn_mul_size(base, (size_t)set->azimuths, sizeof(float)),
+                       set->exact ? 1u : 1u + (size_t)checkpoint_count(s), 1);
+}
+
+/* The env pass's update mode (hf_env) for field state s: the horizon store
+ * allocated, and with a partial update (2) the pending changed boxes
+ * uploaded. */
+static pn_status prepare_update(pn_context ctx, pn_hf_state *s, pn_scene scene, const pn_hf_settings *set,
+                                size_t base, cl_int *update)
+{
+    pn_status st;
+    const size_t floats = pn_mul_size(base, (size_t)set->azimuths, 1);
+    if (!s->horizons || s->horizon_floats != floats) {
+        pn_mem_release(&s->horizons);
+        s->pass_valid = false;
+        if ((st = pn_alloc(ctx, pn_mul_size(floats, sizeof(float), 1), CL_MEM_READ_WRITE, NULL, &s->horizons,
+                           "the kept height-field horizons")))
+            return st;
+        s->horizon_floats = floats;
+    }
+    /* the pyramid search's running maximum every ls samples (exact mode: none) */
+    const size_t cps = set->exact ? 1 : pn_mul_size(floats, (size_t)checkpoint_count(s), 1);
+    if (!s->checkpoints || s->checkpoint_floats != cps) {
+        pn_mem_release(&s->checkpoints);
+        s->pass_valid = false;
+        if ((st = pn_alloc(ctx, pn_mul_size(cps, sizeof(float), 1), CL_MEM_READ_WRITE, NULL, &s->checkpoints,
+                           "the kept height-field search checkpoints")))
+            return st;
+        s->checkpoint_floats = cps;
+    }
+    if (!s->changed && (st = pn_alloc(ctx, sizeof s->pending, CL_MEM_READ_ONLY, NULL, &s->changed,
+                                      "the changed pyramid boxes")))
+        return st;
+    *update = 1;
+    if (!s->pass_valid || memcmp(&s->pass_settings, set, sizeof *set) || s->pass_env != scene->env->version)
+        return PN_SUCCESS;
+    /* A new buffer made from the boxes (execute only enqueues: no blocking
+     * write; the old one lives on until the kernels that read it are done). */
+    pn_mem_release(&s->changed);
+    if ((st = pn_alloc(ctx, sizeof s->pending, CL_MEM_READ_ONLY, s->pending, &s->changed, "the changed pyramid boxes")))
+        return st;
+    *update = 2;
+    return PN_SUCCESS;
+}
+
 static pn_status run_passes(pn_context ctx, pn_hf_cache *c, pn_scene scene, const pn_hf_settings *set)
 {
     pn_status st;
@@ -599,16 +816,38 @@ static pn_status run_passes(pn_context ctx, pn_hf_cache *c, pn_scene scene, cons
         const cl_int has_albedo = s->has_albedo, split = set->exact_unoccluded, up_size = c->up_size;
         const cl_int suns = c->sun_count;
         cl_mem sun = c->sun ? c->sun : c->u_buf; /* any valid buffer when there is no sun */
+        /* Partial updates: update 1 keeps the horizons; 2 (the last env
+         * pass was for the same settings and env, its horizons kept) redoes
+         * only what the pending changed boxes reach. */
+        cl_int update = 0;
+        /* Kept only for fields that have had local edits: the others' frames cost as before. */
+        if (set->partial_update && hf->regional && keep_bytes(s, set, base) <= KEEP_MAX_BYTES &&
+            (st = prepare_update(ctx, s, scene, set, base, &update)))
+            return st;
+        s->pass_valid = false;
+        cl_mem changed = s->changed ? s->changed : s->levels, horizons = s->horizons ? s->horizons : s->out_env;
+        cl_mem checkpoints = s->checkpoints ? s->checkpoints : s->out_env;
+        const cl_int ncp = checkpoint_count(s);
         size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof s->grid, sizeof s->geom, sizeof(cl_mem),
                           sizeof(cl_mem), sizeof has_albedo, sizeof n_phi, sizeof nb, sizeof exact, sizeof(cl_mem),
                           sizeof(cl_mem), sizeof czh, sizeof split, sizeof(cl_mem), sizeof up_size, sizeof(cl_mem),
-                          sizeof(cl_mem), sizeof suns, sizeof(cl_mem), sizeof(cl_mem)};
+                          sizeof(cl_mem), sizeof suns, sizeof(cl_mem), sizeof(cl_mem), sizeof update, sizeof(cl_mem),
+                          sizeof(cl_mem), sizeof(cl_mem), sizeof ncp};
         const void *vals[] = {&s->pyr, &s->levels, &s->grid, &s->geom, &s->normals, &s->albedo, &has_albedo, &n_phi,
                               &nb, &exact, &c->env_table, &c->m, &czh, &split, &c->up_irradiance, &up_size, &c->u_buf,
-                              &sun, &suns, &s->out_env, &s->out_total};
-        if ((st = pn_set_args(ctx, kenv, "hf_env", 21, sizes, vals)) ||
+                              &sun, &suns, &s->out_env, &s->out_total, &update, &changed, &horizons, &checkpoints,
+                              &ncp};
+        s->last_update = 0;
+        if ((st = pn_set_args(ctx, kenv, "hf_env", 26, sizes, vals)) ||
             (st = pn_enqueue_1d(ctx, kenv, "hf_env", base, 64)))
             return st;
+        s->last_update = update;
+        if (update) {
+            s->pass_valid = true;
+            s->pass_settings = *set;
+            s->pass_env = scene->env->version;
+            clear_pending(s);
+        }
         if (s->light_capacity < lights) {
             pn_mem_release(&s->out_lights);
             s->light_capacity = 0;
@@ -722,6 +961,9 @@ static pn_status read_output(pn_renderer r, pn_scene scene, int what, uint32_t i
     case OUT_LIGHT_VISIBILITY:
         per = (size_t)set->bands * set->bands;
         break;
+    case OUT_ENV_SEARCHED:
+        per = (size_t)set->azimuths;
+        break;
     default:
         return pn_fail(ctx, PN_ERROR_INTERNAL, "unknown height-field output %d", what);
     }
@@ -741,6 +983,29 @@ static pn_status read_output(pn_renderer r, pn_scene scene, int what, uint32_t i
         offset = what == OUT_LIGHT ? light * base * 16 : 0;
     } else if (what == OUT_NORMALS) {
         src = s->normals;
+    } else if (what == OUT_ENV_SEARCHED) {
+        if (!set->partial_update)
+            return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "height-field output env_searched needs partial_update = 1");
+        if (!outputs_current(c, scene, set)) {
+            if ((st = run_passes(ctx, c, scene, set)))
+                return st;
+            remember_outputs(ctx, c, scene, set);
+        }
+        cl_kernel k;
+        const cl_int n_phi = set->azimuths, exact = set->exact, update = s->last_update;
+        if ((st = pn_context_kernel(ctx, "heightfield", "hf_searched", &k)) ||
+            (st = pn_alloc(ctx, need, CL_MEM_READ_WRITE, NULL, &temp, "a height-field probe")))
+            return st;
+        size_t sizes[] = {sizeof(cl_mem), sizeof s->grid, sizeof s->geom, sizeof n_phi, sizeof exact, sizeof update,
+                          sizeof(cl_mem), sizeof(cl_mem)};
+        cl_mem changed = s->changed ? s->changed : s->levels; /* none kept: update 0, every lane */
+        const void *vals[] = {&s->levels, &s->grid, &s->geom, &n_phi, &exact, &update, &changed, &temp};
+        if ((st = pn_set_args(ctx, k, "hf_searched", 8, sizes, vals)) ||
+            (st = pn_enqueue_1d(ctx, k, "hf_searched", base, 64))) {
+            pn_mem_release(&temp);
+            return st;
+        }
+        src = temp;
     } else {
         cl_kernel k;
         const bool env = what == OUT_ENV_HORIZONS || what == OUT_ENV_VISIBILITY;

@@ -60,12 +60,24 @@ class HeightFieldHandle(_Handle):
             raise InputError(f"heights must be a 2D array (rows along z, columns along x), got shape {h.shape}")
         return h
 
-    def set_heights(self, heights) -> None:
-        """New heights of the same size (a new frame of a dynamic terrain)."""
+    def set_heights(self, heights, region: tuple[int, int] | None = None) -> None:
+        """New heights (a new frame of a dynamic terrain), committed. ``region=None``: the whole
+        field, of the same size. ``region=(x0, y0)``: a local edit, ``heights`` (rows along z,
+        columns along x) replaces columns x0 .. x0 + W' - 1 and rows y0 .. y0 + D' - 1; the next
+        frame of a renderer that drew the field updates only what the edit can change
+        (pn_heightfield_set_heights_region, docs/heightfield.md "Dynamic terrain")."""
         h = self._heights(heights)
-        if h.shape != self.shape:
-            raise InputError(f"new heights have shape {h.shape}, the field is {self.shape}")
-        self._call("pn_heightfield_set_heights", self._h, _ptr(h), h.shape[1], h.shape[0])
+        if region is None:
+            if h.shape != self.shape:
+                raise InputError(f"new heights have shape {h.shape}, the field is {self.shape}")
+            self._call("pn_heightfield_set_heights", self._h, _ptr(h), h.shape[1], h.shape[0])
+        else:
+            x0, y0 = (int(v) for v in region)
+            depth, width = self.shape
+            if x0 < 0 or y0 < 0 or x0 + h.shape[1] > width or y0 + h.shape[0] > depth or not h.size:
+                raise InputError(f"a region of {h.shape[1]} x {h.shape[0]} heights at column {x0}, row {y0} is "
+                                 f"not inside the {width} x {depth} field")
+            self._call("pn_heightfield_set_heights_region", self._h, x0, y0, h.shape[1], h.shape[0], _ptr(h))
         self._call("pn_heightfield_commit", self._h)
 
     def mesh(self) -> Mesh:
@@ -85,7 +97,7 @@ def output_shape(renderer, scene, output: str, instance: int) -> tuple[int, ...]
     if hf is None:
         raise InputError(f"instance {instance} has no height field attached")
     depth, width = hf.shape
-    if output.endswith("_horizons"):
+    if output.endswith("_horizons") or output == "env_searched":
         k = renderer.get("azimuths")
     elif output.endswith("_visibility"):
         k = renderer.get("bands") ** 2
