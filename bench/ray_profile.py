@@ -45,7 +45,8 @@ SCENES = {
     "indoor_contact": REPO / "bench/scenes/indoor_contact.toml",
 }
 # Layouts compared; each gets its own context, built with these variables set.
-LAYOUTS = {"binary": {"PENUMBRA_BVH_WIDTH": "2"}, "wide": {}, "wide8": {"PENUMBRA_BVH_WIDTH": "8"}}
+LAYOUTS = {"binary": {"PENUMBRA_BVH_WIDTH": "2"}, "wide": {}, "wide8": {"PENUMBRA_BVH_WIDTH": "8"},
+           "soa": {"PENUMBRA_TRI_SOA": "1"}, "soa8": {"PENUMBRA_BVH_WIDTH": "8", "PENUMBRA_TRI_SOA": "1"}}
 
 
 def context(env: dict) -> penumbra.Context:
@@ -166,7 +167,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--rounds", type=int, default=7)
-    ap.add_argument("--layouts", default=",".join(LAYOUTS), help="subset of " + ",".join(LAYOUTS))
+    ap.add_argument("--layouts", default="binary,wide,wide8", help="subset of " + ",".join(LAYOUTS))
     ap.add_argument("--json", default="")
     args = ap.parse_args(argv)
     layouts = {}

@@ -322,6 +322,55 @@ PN_TRACE_INLINE bool pn_leaf_triangles(const pn_ray_shear *shear, float tmin, gl
     return found;
 }
 
+#ifdef PN_TRI_SOA
+/* A leaf's triangles four at a time (PN_TRI_SOA; capi/src/geometry/scene.c
+ * writes the block: nine float4 of vertex coordinates, lane k the leaf's
+ * k-th triangle, then (first slot, count) as uint bits). Each lane does
+ * pn_ray_triangle's operations in its order, without contraction, so t, u
+ * and v are bit-identical; of the lanes hit in (tmin, hit->t) the nearest
+ * wins and among equal t the lowest lane, as in pn_leaf_triangles' loop
+ * (any hit: the lowest lane hit). */
+PN_TRACE_INLINE bool pn_leaf_soa(const pn_ray_shear *s, float tmin, global const float4 *block, uint slot,
+                                 uint tri_base, pn_hit *hit, bool any_hit)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    uint4 ids = as_uint4(block[9]);
+    PN_STAT(hit, tests, ids.y);
+    /* pn_permute on the coordinate index: (kx, ky, kz). */
+    int kx = s->kz == 0 ? 1 : (s->kz == 1 ? 2 : 0), ky = s->kz == 0 ? 2 : (s->kz == 1 ? 0 : 1);
+    int px = s->swap ? ky : kx, py = s->swap ? kx : ky, pz = s->kz;
+    float4 Ax = block[px] - s->org.x, Ay = block[py] - s->org.y, Az = block[pz] - s->org.z;
+    float4 Bx = block[3 + px] - s->org.x, By = block[3 + py] - s->org.y, Bz = block[3 + pz] - s->org.z;
+    float4 Cx = block[6 + px] - s->org.x, Cy = block[6 + py] - s->org.y, Cz = block[6 + pz] - s->org.z;
+    float4 ax = Ax - s->sx * Az, ay = Ay - s->sy * Az;
+    float4 bx = Bx - s->sx * Bz, by = By - s->sy * Bz;
+    float4 cx = Cx - s->sx * Cz, cy = Cy - s->sy * Cz;
+    float4 U = cx * by - cy * bx;
+    float4 V = ax * cy - ay * cx;
+    float4 W = bx * ay - by * ax;
+    int4 ok = !((U < 0.0f | V < 0.0f | W < 0.0f) & (U > 0.0f | V > 0.0f | W > 0.0f));
+    float4 det = U + V + W;
+    float4 T = s->sz * (U * Az + V * Bz + W * Cz);
+    float4 t = T / det;
+    ok &= (det != 0.0f) & (t > tmin) & (t < hit->t) & ((int4)(0, 1, 2, 3) < (int4)(ids.y));
+    if (!any(ok))
+        return false;
+    if (!any_hit) {
+        float4 tc = select((float4)(INFINITY), t, ok);
+        float m = fmin(fmin(tc.x, tc.y), fmin(tc.z, tc.w));
+        ok &= tc == m;
+    }
+    uint k = ok.x ? 0 : (ok.y ? 1 : (ok.z ? 2 : 3));
+    float dk = det[k];
+    hit->t = t[k];
+    hit->u = V[k] / dk;
+    hit->v = W[k] / dk;
+    hit->slot = slot;
+    hit->tri = tri_base + ids.x + k;
+    return true;
+}
+#endif
+
 #if PN_BVH_WIDTH == 2
 PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir,
                                    const pn_ray_slab *world, float tmin, pn_hit *hit, bool any_hit)
@@ -588,6 +637,9 @@ PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, f
     uint4 offs = as_uint4(inst[PN_INST_OFFSETS]);
     global const float4 *nodes = scene.blas + PN_NODE_F4 * offs.x;
     global const float4 *tris = scene.tris + 3 * offs.y;
+#ifdef PN_TRI_SOA
+    (void)tris; /* the leaves' blocks follow the nodes */
+#endif
     float3 d;
     pn_ray_slab ray = pn_instance_ray(inst, offs.z, org, dir, world, &d);
     float3 o = ray.org;
@@ -615,7 +667,11 @@ PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, f
                 shear = pn_make_shear(o, d);
                 sheared = true;
             }
+#ifdef PN_TRI_SOA
+            if (pn_leaf_soa(&shear, tmin, nodes + first, slot, offs.y, hit, any_hit)) {
+#else
             if (pn_leaf_triangles(&shear, tmin, tris, first, count, slot, offs.y, hit, any_hit)) {
+#endif
                 found = true;
                 if (any_hit)
                     return true;

@@ -156,6 +156,15 @@ pn_status pn_context_new(const char *config, cl_context cl_ctx, cl_command_queue
             return pn_fail(NULL, PN_ERROR_BAD_CONFIG, "PENUMBRA_BVH_WIDTH='%s' must be 2, 4 or 8", width_env);
         bvh_width = width_env[0] - '0';
     }
+    /* PENUMBRA_TRI_SOA=1: the wide layouts test a leaf's triangles four at a
+     * time from structure-of-arrays blocks (scene.c, raytrace.cl). */
+    int tri_soa = 0;
+    const char *soa_env = getenv("PENUMBRA_TRI_SOA");
+    if (soa_env && *soa_env) {
+        if (strcmp(soa_env, "0") && strcmp(soa_env, "1"))
+            return pn_fail(NULL, PN_ERROR_BAD_CONFIG, "PENUMBRA_TRI_SOA='%s' must be 0 or 1", soa_env);
+        tri_soa = soa_env[0] == '1' && bvh_width != 2;
+    }
     pn_context ctx = calloc(1, sizeof *ctx);
     if (!ctx)
         return pn_fail(NULL, PN_ERROR_OUT_OF_MEMORY, "out of memory creating a context");
@@ -203,8 +212,9 @@ pn_status pn_context_new(const char *config, cl_context cl_ctx, cl_command_queue
     }
     const char *extra = getenv("PENUMBRA_CL_BUILD_OPTIONS");
     ctx->bvh_width = bvh_width;
-    snprintf(ctx->build_options, sizeof ctx->build_options, "-cl-std=CL1.2 -DPN_BVH_WIDTH=%d %s %s", bvh_width,
-             req.build_options, extra ? extra : "");
+    ctx->tri_soa = tri_soa;
+    snprintf(ctx->build_options, sizeof ctx->build_options, "-cl-std=CL1.2 -DPN_BVH_WIDTH=%d%s %s %s", bvh_width,
+             tri_soa ? " -DPN_TRI_SOA" : "", req.build_options, extra ? extra : "");
     /* Every call on the context's objects holds its lock; recursive, so that
      * callbacks run under it may call the library again. */
     pthread_mutexattr_t attr;

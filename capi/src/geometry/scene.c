@@ -379,6 +379,57 @@ float pn_scene_scale(pn_scene scene)
 
 /* ----------------------------------------------------------------- commit */
 
+/* PN_TRI_SOA (ctx->tri_soa): each leaf of a wide BLAS also gets a block of
+ * PN_SOA_BLOCK_F4 float4 after the mesh's nodes: its (at most four, the
+ * build's leaf size) triangles' nine vertex coordinates as float4 lanes
+ * (v0.x, v0.y, v0.z, v1.x, ... v2.z; unused lanes 0) and then (first
+ * triangle slot, count, 0, 0) as uint bits. The leaf's child field then
+ * holds the block's float4 offset from the mesh's first node
+ * (raytrace.cl, pn_leaf_soa). */
+#define PN_SOA_BLOCK_F4 10
+
+static uint32_t wide_leaf_count(const void *nodes, uint32_t node_count, int width, size_t node_size)
+{
+    uint32_t leaves = 0;
+    for (uint32_t i = 0; i < node_count; ++i) {
+        const uint32_t *cnt = (const uint32_t *)((const char *)nodes + i * node_size) + 7 * width;
+        for (int j = 0; j < width; ++j)
+            leaves += cnt[j] > 0;
+    }
+    return leaves;
+}
+
+/* Node-sized units the blocks of a mesh with `leaves` leaves take. */
+static size_t soa_units(uint32_t leaves, size_t node_size)
+{
+    return ((size_t)leaves * PN_SOA_BLOCK_F4 * 16 + node_size - 1) / node_size;
+}
+
+/* Writes the blocks after the node_count nodes at dst and points the leaves
+ * at them; leaf_tris: the mesh's triangles in leaf order (3 float4 each). */
+static void write_soa_blocks(char *dst, uint32_t node_count, int width, size_t node_size, const float *leaf_tris)
+{
+    const uint32_t base = (uint32_t)(node_count * (node_size / 16));
+    float *blocks = (float *)(dst + (size_t)node_count * node_size);
+    uint32_t leaf = 0;
+    for (uint32_t i = 0; i < node_count; ++i) {
+        uint32_t *child = (uint32_t *)(dst + i * node_size) + 6 * width, *cnt = child + width;
+        for (int j = 0; j < width; ++j) {
+            if (!cnt[j])
+                continue;
+            float *b = blocks + 4 * PN_SOA_BLOCK_F4 * (size_t)leaf;
+            memset(b, 0, 4 * PN_SOA_BLOCK_F4 * sizeof(float));
+            for (uint32_t lane = 0; lane < cnt[j] && lane < 4; ++lane)
+                for (int v = 0; v < 3; ++v)
+                    for (int c = 0; c < 3; ++c)
+                        b[4 * (3 * v + c) + lane] = leaf_tris[12 * ((size_t)child[j] + lane) + 4 * v + c];
+            uint32_t ids[4] = {child[j], cnt[j], 0, 0};
+            memcpy(b + 36, ids, sizeof ids);
+            child[j] = base + PN_SOA_BLOCK_F4 * leaf++;
+        }
+    }
+}
+
 /* Concatenates the BLAS nodes, triangles and normals of every mesh in use,
  * unless the same meshes at the same versions are already on the device. */
 static pn_status gather_meshes(pn_scene scene)
@@ -413,6 +464,10 @@ static pn_status gather_meshes(pn_scene scene)
         slots[count].node_offset = (uint32_t)nodes;
         slots[count].tri_offset = (uint32_t)tris;
         nodes += width == 8 ? m->wide8.node_count : width == 4 ? m->wide.node_count : m->bvh.node_count;
+        if (ctx->tri_soa)
+            nodes += soa_units(width == 8 ? wide_leaf_count(m->wide8.nodes, m->wide8.node_count, 8, node_size)
+                                          : wide_leaf_count(m->wide.nodes, m->wide.node_count, 4, node_size),
+                               node_size);
         tris += m->triangle_count;
         any_normals = any_normals || m->leaf_normals;
         ++count;
@@ -439,9 +494,11 @@ static pn_status gather_meshes(pn_scene scene)
         const void *src = width == 8 ? (const void *)m->wide8.nodes
                           : width == 4 ? (const void *)m->wide.nodes
                                        : (const void *)m->bvh.nodes;
-        memcpy((char *)hnodes + (size_t)slots[k].node_offset * node_size, src,
-               (size_t)(width == 8 ? m->wide8.node_count : width == 4 ? m->wide.node_count : m->bvh.node_count) *
-                   node_size);
+        const uint32_t nc = width == 8 ? m->wide8.node_count : width == 4 ? m->wide.node_count : m->bvh.node_count;
+        memcpy((char *)hnodes + (size_t)slots[k].node_offset * node_size, src, (size_t)nc * node_size);
+        if (ctx->tri_soa)
+            write_soa_blocks((char *)hnodes + (size_t)slots[k].node_offset * node_size, nc, width, node_size,
+                             m->leaf_tris);
         memcpy(htris + 12 * (size_t)slots[k].tri_offset, m->leaf_tris, (size_t)m->triangle_count * 12 * sizeof(float));
         if (hnrm) {
             float *dst = hnrm + 12 * (size_t)slots[k].tri_offset;
