@@ -697,23 +697,24 @@ def test_uncommitted_scene_raises(ctx, soup):
 
 def layout_context(monkeypatch, width):
     """A context whose kernels walk the BVH layout `width` (read at creation);
-    "4soa" / "8soa": that width with leaf triangles tested four at a time
-    from structure-of-arrays blocks (PENUMBRA_TRI_SOA=1)."""
+    "4plain" / "8plain": that width with leaf triangles tested one by one
+    (PENUMBRA_TRI_SOA=0) instead of four at a time from structure-of-arrays
+    blocks (the wide layouts' default)."""
     import penumbra
 
-    soa = width.endswith("soa")
+    plain = width.endswith("plain")
     monkeypatch.setenv("PENUMBRA_BVH_WIDTH", width[0])
-    if soa:
-        monkeypatch.setenv("PENUMBRA_TRI_SOA", "1")
+    if plain:
+        monkeypatch.setenv("PENUMBRA_TRI_SOA", "0")
     try:
         return penumbra.Context()
     finally:
         monkeypatch.delenv("PENUMBRA_BVH_WIDTH")
-        if soa:
+        if plain:
             monkeypatch.delenv("PENUMBRA_TRI_SOA")
 
 
-@pytest.mark.parametrize("width", ["2", "8", "4soa", "8soa"])
+@pytest.mark.parametrize("width", ["2", "8", "4plain", "8plain"])
 def test_bvh_layouts_give_identical_answers(ctx, monkeypatch, two_level_rays, width):
     """The 4-wide layout (default), the binary one (PENUMBRA_BVH_WIDTH=2) and
     the 8-wide one (PENUMBRA_BVH_WIDTH=8) have the same leaves and box tests,
@@ -871,7 +872,7 @@ def test_queries_on_unaligned_caller_memory(soup):
     assert np.isfinite(t_ref).any() and occ_ref.any()  # not vacuous
 
 
-@pytest.mark.parametrize("width", ["2", "8", "4soa", "8soa"])
+@pytest.mark.parametrize("width", ["2", "8", "4plain", "8plain"])
 def test_bvh_layouts_identical_on_hard_rays(ctx, monkeypatch, soup, width):
     """Every layout gives the default (4-wide) one's answers bit for bit on
     the hard cases: edge-on and axis-parallel rays, rays starting inside
@@ -910,7 +911,7 @@ def test_bvh_layouts_identical_on_hard_rays(ctx, monkeypatch, soup, width):
             # grid-aligned rays (index >= 1500) cross the sphere's edges; a
             # tie keeps t and the instance equal (checked above and below).
             tie = (a != b) & (answers[0][k - 2] == answers[1][k - 2]) & (answers[0][k - 1] == answers[1][k - 1])
-            if width == "4soa":
+            if width == "4plain":
                 # Same leaves visited in the same order, and within a leaf
                 # the lowest lane wins a tie as the first triangle does.
                 assert not tie.any(), f"{tie.sum()} tied rays report another triangle"

@@ -323,7 +323,8 @@ PN_TRACE_INLINE bool pn_leaf_triangles(const pn_ray_shear *shear, float tmin, gl
 }
 
 #ifdef PN_TRI_SOA
-/* A leaf's triangles four at a time (PN_TRI_SOA; capi/src/geometry/scene.c
+/* A leaf's triangles four at a time (PN_TRI_SOA, set by the host for the wide
+ * layouts unless PENUMBRA_TRI_SOA=0; capi/src/geometry/scene.c
  * writes the block: nine float4 of vertex coordinates, lane k the leaf's
  * k-th triangle, then (first slot, count) as uint bits). Each lane does
  * pn_ray_triangle's operations in its order, without contraction, so t, u

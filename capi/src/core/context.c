@@ -156,9 +156,10 @@ pn_status pn_context_new(const char *config, cl_context cl_ctx, cl_command_queue
             return pn_fail(NULL, PN_ERROR_BAD_CONFIG, "PENUMBRA_BVH_WIDTH='%s' must be 2, 4 or 8", width_env);
         bvh_width = width_env[0] - '0';
     }
-    /* PENUMBRA_TRI_SOA=1: the wide layouts test a leaf's triangles four at a
-     * time from structure-of-arrays blocks (scene.c, raytrace.cl). */
-    int tri_soa = 0;
+    /* The wide layouts test a leaf's triangles four at a time from
+     * structure-of-arrays blocks (scene.c, raytrace.cl: -DPN_TRI_SOA);
+     * PENUMBRA_TRI_SOA=0 tests them one by one instead, to time the two. */
+    int tri_soa = bvh_width != 2;
     const char *soa_env = getenv("PENUMBRA_TRI_SOA");
     if (soa_env && *soa_env) {
         if (strcmp(soa_env, "0") && strcmp(soa_env, "1"))

@@ -174,7 +174,7 @@ struct pn_context_impl {
     cl_device_id device;
     char build_options[512];
     int bvh_width; /* 4, or 2 for the binary BVH layout, 8 for the 8-wide one (PENUMBRA_BVH_WIDTH) */
-    int tri_soa;   /* wide layouts: leaf triangles as 4-lane SoA blocks (PENUMBRA_TRI_SOA=1, -DPN_TRI_SOA) */
+    int tri_soa;   /* wide layouts: leaf triangles as 4-lane SoA blocks (default; PENUMBRA_TRI_SOA=0 off; -DPN_TRI_SOA) */
     pn_error_callback callback;
     void *callback_user;
     pn_program_entry programs[PN_MAX_PROGRAMS];
