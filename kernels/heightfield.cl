@@ -710,6 +710,27 @@ inline void hf_visibility(const float *om, int n_phi, global const float *table,
 {
     const int nc = nb * nb, nch = (nc + 15) / 16;
     const float scale = (float)(HF_TABLE - 1) / (0.5f * M_PI_F - lo), dphi = 2.0f * M_PI_F / (float)n_phi;
+    /* cos mφ_k and sign(m) sin |m|φ_k per chunk lane, turned from wedge to
+     * wedge by the fixed step δ = dphi (a rotation of each lane's pair:
+     * cos, sin of |m|δ from one sincos and the recurrence over m that
+     * pn_sh_zrotate uses), instead of a sincos, the recurrence over m and
+     * the lane shuffles per wedge. φ_0 = 0: cos 1, sin 0. */
+    float sn, cs;
+    sn = sincos(dphi, &cs);
+    float cm[8] = {1.0f, cs, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}, sm[8] = {0.0f, sn, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    for (int m = 2; m < PN_SH_MAX_BANDS; ++m) {
+        cm[m] = cm[m - 1] * cs - sm[m - 1] * sn;
+        sm[m] = sm[m - 1] * cs + cm[m - 1] * sn;
+    }
+    const float8 c8 = vload8(0, cm), s8 = vload8(0, sm);
+    const float16 dc0 = shuffle(c8, HF_ABS_M0), dc1 = shuffle(c8, HF_ABS_M1), dc2 = shuffle(c8, HF_ABS_M2);
+    const float16 ds0 = shuffle(s8, HF_ABS_M0) * HF_SIGN_M0, ds1 = shuffle(s8, HF_ABS_M1) * HF_SIGN_M1,
+                  ds2 = shuffle(s8, HF_ABS_M2) * HF_SIGN_M2;
+    /* lanes past 6 bands (|m| 7) stay 0 */
+    float16 rc0 = select((float16)(1.0f), (float16)(0.0f), HF_ABS_M0 == 7u),
+            rc1 = select((float16)(1.0f), (float16)(0.0f), HF_ABS_M1 == 7u),
+            rc2 = select((float16)(1.0f), (float16)(0.0f), HF_ABS_M2 == 7u);
+    float16 rs0 = 0.0f, rs1 = 0.0f, rs2 = 0.0f;
     float16 a0 = 0.0f, a1 = 0.0f, a2 = 0.0f, b0 = 0.0f, b1 = 0.0f, b2 = 0.0f;
     for (int k = 0; k < n_phi; ++k) {
         const float fa = clamp((om[k] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
@@ -718,27 +739,22 @@ inline void hf_visibility(const float *om, int n_phi, global const float *table,
         const float ta = fa - (float)ia, tb = fb - (float)ib;
         global const float *t00 = table + (ia * HF_TABLE + ib) * nc, *t01 = t00 + nc;
         global const float *t10 = t00 + HF_TABLE * nc, *t11 = t10 + nc;
-        /* cos mφ, sin mφ for m = 0 .. 5 by the recurrence pn_sh_zrotate uses. */
-        float sn, cs;
-        sn = sincos(dphi * (float)k, &cs);
-        float cm[8] = {1.0f, cs, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f}, sm[8] = {0.0f, sn, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
-        for (int m = 2; m < PN_SH_MAX_BANDS; ++m) {
-            cm[m] = cm[m - 1] * cs - sm[m - 1] * sn;
-            sm[m] = sm[m - 1] * cs + cm[m - 1] * sn;
-        }
-        const float8 c8 = vload8(0, cm), s8 = vload8(0, sm);
-#define HF_WEDGE_CHUNK(q, a, b, ABS_M, SIGN_M)                                                                  \
+        /* (c, s) -> (c cos|m|δ - s sign sin|m|δ, s cos|m|δ + c sign sin|m|δ); sign² = 1 where sin|m|δ != 0 */
+#define HF_WEDGE_CHUNK(q, a, b, rc, rs, dc, ds)                                                                 \
     {                                                                                                           \
         const float16 x = mix(mix(hf_sh_chunk(t00, nc, q), hf_sh_chunk(t01, nc, q), tb),                        \
                               mix(hf_sh_chunk(t10, nc, q), hf_sh_chunk(t11, nc, q), tb), ta);                   \
-        a += shuffle(c8, ABS_M) * x;                                                                            \
-        b += shuffle(s8, ABS_M) * SIGN_M * x;                                                                   \
+        a += rc * x;                                                                                            \
+        b += rs * x;                                                                                            \
+        const float16 rn = rc * dc - rs * ds;                                                                   \
+        rs = rs * dc + rc * ds;                                                                                 \
+        rc = rn;                                                                                                \
     }
-        HF_WEDGE_CHUNK(0, a0, b0, HF_ABS_M0, HF_SIGN_M0)
+        HF_WEDGE_CHUNK(0, a0, b0, rc0, rs0, dc0, ds0)
         if (nch > 1)
-            HF_WEDGE_CHUNK(1, a1, b1, HF_ABS_M1, HF_SIGN_M1)
+            HF_WEDGE_CHUNK(1, a1, b1, rc1, rs1, dc1, ds1)
         if (nch > 2)
-            HF_WEDGE_CHUNK(2, a2, b2, HF_ABS_M2, HF_SIGN_M2)
+            HF_WEDGE_CHUNK(2, a2, b2, rc2, rs2, dc2, ds2)
 #undef HF_WEDGE_CHUNK
     }
     float a[16 * HF_SH_CHUNKS], b[16 * HF_SH_CHUNKS];
