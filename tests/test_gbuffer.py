@@ -483,3 +483,43 @@ def test_render_gbuffer_size_mismatch_raises(ctx, gb_scene, smooth_env):
     gb_scene["scene"].render_gbuffer(gb)
     with pytest.raises(InputError):
         Renderer(ctx, "unshadowed").execute(scene, gb, Image(ctx, w, h + 1))
+
+
+@pytest.mark.parametrize("defect", ["nan_position", "inf_position", "nan_normal"])
+def test_unvalidated_bad_pixels_do_not_crash_any_method(ctx, defect):
+    """A caller's G-buffer is checked only by validate(): a NaN or Inf in it
+    must still not crash a method. The reference once traced rays from a NaN
+    position straight into a stack overflow (the slab tests entered empty child
+    slots); pn_trace now makes such a ray miss. The bad pixel's value is
+    unspecified; every other pixel must be the one of the clean G-buffer."""
+    scene = Scene(ctx)
+    scene.set_envmap(EnvMap(ctx, np.ones((16, 32, 3), np.float32), face_size=4))
+    plane, box = procedural.plane((8.0, 8.0)), procedural.box()
+    keep = [Mesh(ctx, plane.vertices, plane.faces), Mesh(ctx, box.vertices, box.faces)]
+    scene.add(keep[0], None, Material(albedo=(0.5, 0.5, 0.5)))
+    scene.add(keep[1], np.float32([[1, 0, 0, 0], [0, 1, 0, 1], [0, 0, 1, 0]]), Material(albedo=(0.5, 0.5, 0.5)))
+    scene.set_camera(Camera(position=(0.0, 6.0, 0.01), look_at=(0.0, 0.0, 0.0), fov_deg=30.0, resolution=(9, 9)))
+    scene.commit()
+    gb = GBuffer(ctx, 9, 9)
+    scene.render_gbuffer(gb)
+    planes = {p: gb.read(p) for p in ("position", "normal")}
+    assert planes["normal"].shape[:2] == (9, 9)
+    methods = ("reference", "depthmap", "fiv", "isg", "unshadowed")
+    clean = {}
+    for m in methods:
+        img = Image(ctx, 9, 9)
+        Renderer(ctx, m).execute(scene, gb, img)
+        clean[m] = img.read()
+    plane_name, channel, value = {"nan_position": ("position", 0, np.nan), "inf_position": ("position", 1, np.inf),
+                                  "nan_normal": ("normal", 1, np.nan)}[defect]
+    bad = planes[plane_name].copy()
+    bad[4, 4, channel] = value
+    gb.write(plane_name, bad)
+    with pytest.raises(InputError, match=r"\(x=4, y=4\)"):
+        gb.validate()
+    others = np.ones((9, 9), bool)
+    others[4, 4] = False
+    for m in methods:
+        img = Image(ctx, 9, 9)
+        Renderer(ctx, m).execute(scene, gb, img)
+        np.testing.assert_array_equal(img.read()[others], clean[m][others], err_msg=f"{m}, {defect}")

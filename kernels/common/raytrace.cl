@@ -694,13 +694,23 @@ PN_TRACE_INLINE void pn_clear_hit(pn_hit *hit, float tmax)
 #endif
 }
 
+inline bool pn_ray_is_finite(float3 org, float3 dir)
+{
+    return isfinite(org.x) && isfinite(org.y) && isfinite(org.z) && isfinite(dir.x) && isfinite(dir.y) &&
+           isfinite(dir.z);
+}
+
 #if PN_BVH_WIDTH == 2
 /* Closest (any_hit = false) or any (any_hit = true) intersection with the
  * scene in (tmin, tmax). hit->t is INFINITY-free only when true is returned. */
 PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float tmin, float tmax, pn_hit *hit, bool any_hit)
 {
     pn_clear_hit(hit, tmax);
-    if (scene.instance_count == 0)
+    /* A ray made on the device from unchecked data (a caller's G-buffer is
+     * only checked by pn_gbuffer_validate) may hold NaN or Inf: the slab
+     * tests would then enter empty child slots and overflow the stack. Such
+     * a ray misses. */
+    if (scene.instance_count == 0 || !pn_ray_is_finite(org, dir))
         return false;
     /* One instance: its BLAS root box test does the TLAS root's job. */
     if (scene.instance_count == 1)
@@ -758,7 +768,11 @@ PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float
 PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float tmin, float tmax, pn_hit *hit, bool any_hit)
 {
     pn_clear_hit(hit, tmax);
-    if (scene.instance_count == 0)
+    /* A ray made on the device from unchecked data (a caller's G-buffer is
+     * only checked by pn_gbuffer_validate) may hold NaN or Inf: the slab
+     * tests would then enter empty child slots and overflow the stack. Such
+     * a ray misses. */
+    if (scene.instance_count == 0 || !pn_ray_is_finite(org, dir))
         return false;
     /* One instance: its BLAS root node does the TLAS root's job. */
     if (scene.instance_count == 1)
