@@ -8,7 +8,7 @@ For every scene, in one process:
   build of the kernels (-DPN_RAY_STATS, which reports the counts in place
   of the hit ids);
 * time per ray: penumbra with each BVH layout (PENUMBRA_BVH_WIDTH=2, the
-  binary BVH, the default 4-wide one, and PENUMBRA_BVH_WIDTH=8; plain and
+  binary BVH, =4 the 4-wide one, and =8 the default 8-wide one; plain and
   plain8: 4- and 8-wide with PENUMBRA_TRI_SOA=0) and Embree (embreex, 1 thread) on
   the same rays, in interleaved rounds (per round and query, one timed
   call of each tracer back to back, each after an untimed one; order
@@ -46,8 +46,10 @@ SCENES = {
     "indoor_contact": REPO / "bench/scenes/indoor_contact.toml",
 }
 # Layouts compared; each gets its own context, built with these variables set.
-LAYOUTS = {"binary": {"PENUMBRA_BVH_WIDTH": "2"}, "wide": {}, "wide8": {"PENUMBRA_BVH_WIDTH": "8"},
-           "plain": {"PENUMBRA_TRI_SOA": "0"}, "plain8": {"PENUMBRA_BVH_WIDTH": "8", "PENUMBRA_TRI_SOA": "0"}}
+LAYOUTS = {"binary": {"PENUMBRA_BVH_WIDTH": "2"}, "wide": {"PENUMBRA_BVH_WIDTH": "4"},
+           "wide8": {"PENUMBRA_BVH_WIDTH": "8"},
+           "plain": {"PENUMBRA_BVH_WIDTH": "4", "PENUMBRA_TRI_SOA": "0"},
+           "plain8": {"PENUMBRA_BVH_WIDTH": "8", "PENUMBRA_TRI_SOA": "0"}}
 
 
 def context(env: dict) -> penumbra.Context:

@@ -147,9 +147,11 @@ pn_status pn_context_new(const char *config, cl_context cl_ctx, cl_command_queue
     pn_status st = parse_config(config, &req);
     if (st)
         return st;
-    /* PENUMBRA_BVH_WIDTH=2 selects the binary BVH layout in the kernels, to
-     * time it against the default 4-wide one (bench/ray_profile.py). */
-    int bvh_width = 4;
+    /* The kernels walk 8-wide nodes by default (the fastest layout on shadow
+     * and primary rays, docs/performance.md); PENUMBRA_BVH_WIDTH=2 or 4
+     * selects the binary or 4-wide layout, to time them against it
+     * (bench/ray_profile.py). */
+    int bvh_width = 8;
     const char *width_env = getenv("PENUMBRA_BVH_WIDTH");
     if (width_env && *width_env) {
         if (strcmp(width_env, "2") && strcmp(width_env, "4") && strcmp(width_env, "8"))

@@ -20,8 +20,8 @@ struct pn_mesh_impl {
     uint64_t version;        /* a new pn_next_version() at each commit */
     uint64_t content_hash;   /* of positions and indices (commit) */
     pn_bvh bvh;
-    pn_bvh4 wide;            /* bvh collapsed to 4-wide nodes: what the kernels walk */
-    pn_bvh8 wide8;           /* 8-wide nodes, built for contexts with PENUMBRA_BVH_WIDTH=8 only */
+    pn_bvh4 wide;            /* bvh collapsed to 4-wide nodes, for contexts with PENUMBRA_BVH_WIDTH=4 only */
+    pn_bvh8 wide8;           /* 8-wide nodes: what the kernels walk by default */
     float bounds_lo[3], bounds_hi[3];
     /* Triangles in BVH leaf order, gathered by every scene that uses the mesh. */
     float *leaf_tris;        /* 12 floats per triangle (3 float4) */

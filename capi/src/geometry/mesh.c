@@ -182,11 +182,13 @@ pn_status pn_mesh_do_commit(pn_mesh mesh)
         return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building the BVH of a %u-triangle mesh", nt);
     }
     free(boxes);
-    /* The kernels walk the 4-wide form; the binary one stays for host users
+    /* The kernels walk the context's wide form (8-wide by default, 4-wide
+     * under PENUMBRA_BVH_WIDTH=4); the binary one stays for host users
      * (fiv_bake's winding tree) and the binary layout (PENUMBRA_BVH_WIDTH=2). */
     pn_bvh4 wide = {0};
     pn_bvh8 wide8 = {0};
-    if (pn_bvh4_collapse(&bvh, &wide) != 0 || (ctx->bvh_width == 8 && pn_bvh8_collapse(&bvh, &wide8) != 0)) {
+    if ((ctx->bvh_width == 4 && pn_bvh4_collapse(&bvh, &wide) != 0) ||
+        (ctx->bvh_width == 8 && pn_bvh8_collapse(&bvh, &wide8) != 0)) {
         pn_bvh4_free(&wide);
         pn_bvh_free(&bvh);
         free(tris);
