@@ -433,19 +433,27 @@ def test_tiny_object_on_a_huge_floor(ctx):
     assert (got[shadow][:, 0] == 0).all() and (got[lit][:, 0] > 0).all()
 
 
-def test_receiver_outside_every_footprint(ctx, box_scene):
-    """A caller's G-buffer pixel far outside the scene is lit by every domain above it."""
-    s = box_scene
-    planes = {k: v.copy() for k, v in s["planes"].items()}
+def gbuffer_with_a_far_receiver(ctx, planes):
+    """The scene's G-buffer with pixel (0, 0) moved far outside every map's
+    footprint: an up-facing receiver at (50, -20, 30)."""
+    from penumbra import GBuffer
+
+    planes = {k: v.copy() for k, v in planes.items()}
     planes["position"][0, 0] = [50.0, -20.0, 30.0, 1.0]
     planes["normal"][0, 0] = [0.0, 1.0, 0.0, 0.0]
     planes["instance"][0, 0] = 0
     planes["albedo"][0, 0] = [0.5, 0.5, 0.5, 0.0]
-    from penumbra import GBuffer
-
-    gb = GBuffer(ctx, 32, 24)
+    h, w = planes["instance"].shape
+    gb = GBuffer(ctx, w, h)
     for name, plane in planes.items():
         gb.write(name, plane)
+    return gb
+
+
+def test_receiver_outside_every_footprint(ctx, box_scene):
+    """A caller's G-buffer pixel far outside the scene is lit by every domain above it."""
+    s = box_scene
+    gb = gbuffer_with_a_far_receiver(ctx, s["planes"])
     got, _ = render(ctx, s["scene"], gb, s["domains"])
     free, _ = render(ctx, s["scene"], gb, s["domains"], visibility=0)
     assert got[0, 0, 0] > 0 and np.allclose(got[0, 0], free[0, 0], rtol=1e-6)

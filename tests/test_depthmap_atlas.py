@@ -10,11 +10,12 @@ import depthmap64 as d64
 import numpy as np
 import pyopencl as cl
 import pytest
-from test_depthmap import box_scene, domains_of, quantise16, render, sky  # noqa: F401  (fixtures)
+from test_depthmap import (box_scene, domains_of, gbuffer_with_a_far_receiver, quantise16, render,  # noqa: F401
+                           sky)  # (box_scene is a fixture)
 from test_reference import make_scene, xform
 from tolerances import DEPTHMAP_DEPTH_ATOL, DEPTHMAP_SHADE_RTOL
 
-from penumbra import BACKGROUND, GBuffer, Image, InputError, Material, PenumbraError, Renderer, procedural
+from penumbra import BACKGROUND, Image, InputError, Material, PenumbraError, Renderer, procedural
 from penumbra.methods import depthmap as dm
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
@@ -184,14 +185,7 @@ def test_receiver_outside_every_footprint_with_an_atlas(ctx, box_scene):
     """A caller's G-buffer pixel far outside the scene is lit by every domain
     above it, whatever the size of their maps."""
     s = box_scene
-    planes = {k: v.copy() for k, v in s["planes"].items()}
-    planes["position"][0, 0] = [50.0, -20.0, 30.0, 1.0]
-    planes["normal"][0, 0] = [0.0, 1.0, 0.0, 0.0]
-    planes["instance"][0, 0] = 0
-    planes["albedo"][0, 0] = [0.5, 0.5, 0.5, 0.0]
-    gb = GBuffer(ctx, 32, 24)
-    for name, plane in planes.items():
-        gb.write(name, plane)
+    gb = gbuffer_with_a_far_receiver(ctx, s["planes"])
     share, _ = strongest(s["domains"], 3)
     got, _ = render(ctx, s["scene"], gb, s["domains"], resolution=16, strong_resolution=96, strong_share=share)
     free, _ = render(ctx, s["scene"], gb, s["domains"], visibility=0)

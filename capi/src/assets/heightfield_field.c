@@ -18,6 +18,17 @@ static void destroy_heightfield(pn_object *o)
     free(hf->albedo);
 }
 
+/* The number of NaN or Inf heights among n, and the index of the first. */
+static size_t count_nonfinite(const float *heights, size_t n, size_t *first)
+{
+    size_t bad = 0;
+    *first = 0;
+    for (size_t k = 0; k < n; ++k)
+        if (!isfinite(heights[k]) && bad++ == 0)
+            *first = k;
+    return bad;
+}
+
 pn_status pn_heightfield_do_set_heights(pn_heightfield hf, const float *heights, uint32_t width, uint32_t depth)
 {
     pn_context ctx = hf->obj.ctx;
@@ -31,10 +42,8 @@ pn_status pn_heightfield_do_set_heights(pn_heightfield hf, const float *heights,
     pn_status cap = pn_check_bytes(ctx, pn_mul_size(n, sizeof(float), 4), "a height field's heights");
     if (cap)
         return cap;
-    size_t bad = 0, first = 0;
-    for (size_t k = 0; k < n; ++k)
-        if (!isfinite(heights[k]) && bad++ == 0)
-            first = k;
+    size_t first;
+    const size_t bad = count_nonfinite(heights, n, &first);
     if (bad)
         return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
                        "height field has %zu non-finite heights (NaN or Inf), the first at row %zu, column %zu", bad,
@@ -84,10 +93,8 @@ pn_status pn_heightfield_do_set_heights_region(pn_heightfield hf, uint32_t x0, u
                        "height field", x0, (unsigned long long)x0 + width - 1, y0,
                        (unsigned long long)y0 + depth - 1, hf->width, hf->depth);
     const size_t n = (size_t)width * depth;
-    size_t bad = 0, first = 0;
-    for (size_t k = 0; k < n; ++k)
-        if (!isfinite(heights[k]) && bad++ == 0)
-            first = k;
+    size_t first;
+    const size_t bad = count_nonfinite(heights, n, &first);
     if (bad)
         return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
                        "height-field region has %zu non-finite heights (NaN or Inf), the first at row %zu, column %zu "
