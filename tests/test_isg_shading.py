@@ -305,6 +305,23 @@ kernel void mark_test(global const float4 *position, global const float4 *normal
 """
 
 
+def run_mark_kernel(ctx, queue, kernel, lead, pos, nrm, ids, axes, n_lams, tail):
+    """Runs a patch-marking test kernel, one work-item per (receiver, lobe):
+    kernel(*lead, pos, nrm, ids, axes, n_lams, *tail, out) with the arrays
+    uploaded as read-only buffers (pos and nrm widened to float4); returns
+    the (cases, 25) words it wrote (the mask rows, then the count)."""
+    mf = cl.mem_flags
+    ro = lambda a: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))  # noqa: E731
+    f4 = lambda a: np.c_[a, np.zeros(len(a))].astype(np.float32)  # noqa: E731
+    cases = len(pos) * n_lams
+    out = np.empty((cases, 25), np.uint32)
+    obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
+    args = [ro(a) if isinstance(a, np.ndarray) and a.ndim > 0 else a for a in tail]
+    kernel(queue, (cases,), None, *lead, ro(f4(pos)), ro(f4(nrm)), ro(ids), ro(axes), np.int32(n_lams), *args, obuf)
+    cl.enqueue_copy(queue, out, obuf)
+    return out
+
+
 @pytest.mark.parametrize("grid", [2, 5, 16, 17, 24])
 def test_patch_marks_match_twin(cl_pair, build_test_kernel, grid):
     """The kernel's patch marks (16 rows or columns per test, up to 24 of them) are the
@@ -324,16 +341,10 @@ def test_patch_marks_match_twin(cl_pair, build_test_kernel, grid):
     nrm = np.array([unit(rng.normal(size=3)) for _ in range(24)])
     ids = rng.integers(0, 4, 24).astype(np.uint32)
     sp, ow, nodes = sphere_tree(spheres.tolist(), owners.tolist())
-    mf = cl.mem_flags
-    ro = lambda a: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))  # noqa: E731
-    f4 = lambda a: np.c_[a, np.zeros(len(a))].astype(np.float32)  # noqa: E731
     cases = len(pos) * len(lams)
-    out = np.empty((cases, 25), np.uint32)
-    obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
     k = cl.Kernel(build_test_kernel(MARK_SOURCE), "mark_test")
-    k(queue, (cases,), None, ro(f4(pos)), ro(f4(nrm)), ro(ids), ro(axes), np.int32(len(lams)), ro(sp), ro(ow),
-      np.int32(len(sp)), ro(nodes), np.int32(grid), np.int32(1), obuf)
-    cl.enqueue_copy(queue, out, obuf)
+    out = run_mark_kernel(ctx, queue, k, (), pos, nrm, ids, axes, len(lams),
+                          (sp, ow, np.int32(len(sp)), nodes, np.int32(grid), np.int32(1)))
     bits = (out[:, :grid, None] >> np.arange(grid, dtype=np.uint32)) & 1
     marked = ambiguous = 0
     for case in range(cases):
@@ -537,16 +548,10 @@ def test_lod_cut_marks_match_twin(cl_pair, build_test_kernel, lod):
     pos = np.c_[rng.uniform(-6, 6, 32), np.zeros(32), rng.uniform(-6, 6, 32)]
     nrm = np.array([unit([*rng.normal(scale=0.3, size=1), 1.0, *rng.normal(scale=0.3, size=1)]) for _ in range(32)])
     ids = np.zeros(32, np.uint32)
-    mf = cl.mem_flags
-    ro = lambda a: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))  # noqa: E731
-    f4 = lambda a: np.c_[a, np.zeros(len(a))].astype(np.float32)  # noqa: E731
     cases = len(pos) * len(lams)
-    out = np.empty((cases, 25), np.uint32)
-    obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
     k = cl.Kernel(build_test_kernel(LOD_MARK_SOURCE), "mark_lod_test")
-    k(queue, (cases,), None, np.float32(lod), ro(f4(pos)), ro(f4(nrm)), ro(ids), ro(axes), np.int32(len(lams)),
-      ro(sp), ro(ow), np.int32(len(sp)), ro(nodes), np.int32(16), np.int32(1), obuf)
-    cl.enqueue_copy(queue, out, obuf)
+    out = run_mark_kernel(ctx, queue, k, (np.float32(lod),), pos, nrm, ids, axes, len(lams),
+                          (sp, ow, np.int32(len(sp)), nodes, np.int32(16), np.int32(1)))
     bits = ((out[:, :16, None] >> np.arange(16, dtype=np.uint32)) & 1).astype(bool)
     spd, nd = sp.astype(np.float64), nodes.astype(np.float64)
     compared = extra = skipped = 0
@@ -658,21 +663,15 @@ def test_thin_shell_marks_match_twin_and_ray_hits(cl_pair, build_test_kernel, gr
     pos = np.r_[np.zeros((1, 3)), rng.uniform(-1.5, 1.5, (15, 3)) * [1.0, 0.3, 1.0]]
     nrm = np.array([[0.0, 1.0, 0.0]] + [unit(rng.normal(size=3) + [0.0, 1.0, 0.0]) for _ in range(15)])
     ids = rng.integers(0, 4, len(pos)).astype(np.uint32)
-    mf = cl.mem_flags
-    ro = lambda a: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))  # noqa: E731
-    f4 = lambda a: np.c_[a, np.zeros(len(a))].astype(np.float32)  # noqa: E731
     t4 = np.zeros((len(tris), 3, 4), np.float32)
     t4[..., :3] = tris
     tris32 = t4[..., :3].astype(np.float64)  # what the kernel sees
     cases = len(pos) * len(lams)
     checked = hits = 0
     for policy in (0, 1, 2):
-        out = np.empty((cases, 25), np.uint32)
-        obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
         k = cl.Kernel(build_test_kernel(SHELL_MARK_SOURCE), "mark_shell_test")
-        k(queue, (cases,), None, ro(f4(pos)), ro(f4(nrm)), ro(ids), ro(axes), np.int32(len(lams)), ro(t4),
-          ro(tri_ow), np.int32(len(tris)), np.int32(grid), np.int32(policy), obuf)
-        cl.enqueue_copy(queue, out, obuf)
+        out = run_mark_kernel(ctx, queue, k, (), pos, nrm, ids, axes, len(lams),
+                              (t4, tri_ow, np.int32(len(tris)), np.int32(grid), np.int32(policy)))
         bits = ((out[:, :grid, None] >> np.arange(grid, dtype=np.uint32)) & 1).astype(bool)
         for case in range(cases):
             q, li = divmod(case, len(lams))

@@ -755,6 +755,21 @@ static size_t keep_bytes(const pn_hf_state *s, const pn_hf_settings *set, size_t
                        set->exact ? 1u : 1u + (size_t)checkpoint_count(s), 1);
 }
 
+/* A kept device array of `want` floats: reallocated (and the kept pass
+ * invalidated) when its size changes. */
+static pn_status keep_floats(pn_context ctx, pn_hf_state *s, cl_mem *mem, size_t *have, size_t want,
+                             const char *what)
+{
+    if (*mem && *have == want)
+        return PN_SUCCESS;
+    pn_mem_release(mem);
+    s->pass_valid = false;
+    pn_status st = pn_alloc(ctx, pn_mul_size(want, sizeof(float), 1), CL_MEM_READ_WRITE, NULL, mem, what);
+    if (!st)
+        *have = want;
+    return st;
+}
+
 /* The env pass's update mode (hf_env) for field state s: the horizon store
  * allocated, and with a partial update (2) the pending changed boxes
  * uploaded. */
@@ -763,24 +778,13 @@ static pn_status prepare_update(pn_context ctx, pn_hf_state *s, pn_scene scene, 
 {
     pn_status st;
     const size_t floats = pn_mul_size(base, (size_t)set->azimuths, 1);
-    if (!s->horizons || s->horizon_floats != floats) {
-        pn_mem_release(&s->horizons);
-        s->pass_valid = false;
-        if ((st = pn_alloc(ctx, pn_mul_size(floats, sizeof(float), 1), CL_MEM_READ_WRITE, NULL, &s->horizons,
-                           "the kept height-field horizons")))
-            return st;
-        s->horizon_floats = floats;
-    }
+    if ((st = keep_floats(ctx, s, &s->horizons, &s->horizon_floats, floats, "the kept height-field horizons")))
+        return st;
     /* the pyramid search's running maximum every ls samples (exact mode: none) */
     const size_t cps = set->exact ? 1 : pn_mul_size(floats, (size_t)checkpoint_count(s), 1);
-    if (!s->checkpoints || s->checkpoint_floats != cps) {
-        pn_mem_release(&s->checkpoints);
-        s->pass_valid = false;
-        if ((st = pn_alloc(ctx, pn_mul_size(cps, sizeof(float), 1), CL_MEM_READ_WRITE, NULL, &s->checkpoints,
-                           "the kept height-field search checkpoints")))
-            return st;
-        s->checkpoint_floats = cps;
-    }
+    if ((st = keep_floats(ctx, s, &s->checkpoints, &s->checkpoint_floats, cps,
+                          "the kept height-field search checkpoints")))
+        return st;
     if (!s->changed && (st = pn_alloc(ctx, sizeof s->pending, CL_MEM_READ_ONLY, NULL, &s->changed,
                                       "the changed pyramid boxes")))
         return st;
