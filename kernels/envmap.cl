@@ -48,16 +48,40 @@ kernel void envmap_latlong_to_cube(global const float *latlong, int width, int h
  * looked up bilinearly in the full-resolution lat-long map (not the cube,
  * whose face size is chosen for lighting and would show as blocks), with the
  * map's rotation and intensity, alpha 0. Other pixels are left alone. Run by
- * the renderer after every method that has the `background` parameter. */
+ * the renderer after every method that has the `background` parameter.
+ * One work-item per 8 consecutive pixels (global size ceil(count / 8)): the
+ * direction, its rotation and the lookup's angles and indices in float8
+ * lanes, one pixel per lane (pn_latlong_bilinear8); a work-item with no
+ * background pixel stops after reading the 8 ids. */
+#define PN_BACKGROUND_LANES 8
 kernel void envmap_background(global const float4 *position, global const uint *instance_id, int count,
                               global const float *latlong, int width, int height, float2 rot, float intensity,
                               global float4 *image)
 {
-    int gid = get_global_id(0);
-    if (gid >= count || instance_id[gid] != PN_BACKGROUND)
+    int base = get_global_id(0) * PN_BACKGROUND_LANES;
+    if (base >= count)
         return;
-    float3 d = pn_rotate_y(normalize(position[gid].xyz), rot.x, -rot.y);
-    image[gid] = (float4)(intensity * pn_latlong_bilinear(latlong, width, height, d), 0.0f);
+    int live[PN_BACKGROUND_LANES], any_live = 0;
+    float lx[PN_BACKGROUND_LANES], ly[PN_BACKGROUND_LANES], lz[PN_BACKGROUND_LANES];
+    for (int l = 0; l < PN_BACKGROUND_LANES; ++l) {
+        int gid = base + l;
+        live[l] = gid < count && instance_id[gid] == PN_BACKGROUND;
+        any_live |= live[l];
+        float3 p = live[l] ? position[gid].xyz : (float3)(0.0f, 1.0f, 0.0f);
+        lx[l] = p.x, ly[l] = p.y, lz[l] = p.z;
+    }
+    if (!any_live)
+        return;
+    float8 px = vload8(0, lx), py = vload8(0, ly), pz = vload8(0, lz);
+    float8 inv = 1.0f / sqrt(px * px + py * py + pz * pz); /* normalize */
+    px *= inv, py *= inv, pz *= inv;
+    /* pn_rotate_y(d, rot.x, -rot.y) */
+    float8 dx = rot.x * px + -rot.y * pz, dz = rot.y * px + rot.x * pz;
+    float rgb[3 * PN_BACKGROUND_LANES];
+    pn_latlong_bilinear8(latlong, width, height, dx, py, dz, live, rgb);
+    for (int l = 0; l < PN_BACKGROUND_LANES; ++l)
+        if (live[l])
+            image[base + l] = (float4)(intensity * vload3(l, rgb), 0.0f);
 }
 
 /* Unit direction of each cube texel centre, w = its exact solid angle. */

@@ -312,27 +312,6 @@ kernel void bin_fiv_tiles(global const float4 *position, global const uint *inst
  * the same order. */
 #define PN_FIV_LANES 8
 
-/* pn_atan (common/math.cl), lane by lane. */
-PN_FIV_INLINE float8 pn_fiv_atan8(float8 x)
-{
-    const float8 a = fabs(x), t = select(a, 1.0f / a, a > 1.0f), t2 = t * t;
-    float8 p;
-    PN_ATAN_POLY(p, t2);
-    const float8 r = t * p;
-    return copysign(select(r, M_PI_2_F - r, a > 1.0f), x);
-}
-
-/* pn_atan2 (common/math.cl), lane by lane. */
-PN_FIV_INLINE float8 pn_fiv_atan2_8(float8 y, float8 x)
-{
-    const float8 ax = fabs(x), ay = fabs(y), hi = fmax(ax, ay), lo = fmin(ax, ay);
-    const float8 t = select((float8)(0.0f), lo / hi, hi > 0.0f);
-    float8 a = pn_fiv_atan8(t);
-    a = select(a, M_PI_2_F - a, ay > ax);
-    a = select(a, PN_PI - a, x < 0.0f);
-    return copysign(a, y);
-}
-
 /* pn_fiv_ln, lane by lane. */
 PN_FIV_INLINE float8 pn_fiv_ln8(float8 x)
 {
@@ -376,40 +355,6 @@ PN_FIV_INLINE float8 pn_fiv_gather8(global const float *base, int8 idx, int8 mas
     return vload8(0, v);
 }
 
-/* pn_cube_grid_lookup (common/sphere_maps.cl) for 8 unit directions: the
- * face and the cell (x0, y0, fx, fy) of each lane, from the same operations
- * as pn_dir_to_cube's branches, as selects (their mispredictions were most
- * of the lookup's cost); pn_fiv_cube_fetch then reads the 4 samples. */
-PN_FIV_INLINE void pn_fiv_cube_cell8(int n, float8 dx, float8 dy, float8 dz, int *face, int *x0, int *y0, float *fx,
-                                     float *fy)
-{
-    float8 ax = fabs(dx), ay = fabs(dy), az = fabs(dz);
-    int8 xm = (ax >= ay) & (ax >= az), ym = ~xm & (ay >= az);
-    float8 inv = 1.0f / select(select(az, ay, ym), ax, xm);
-    float8 a = select(select(select(-dx, dx, dz > 0.0f), dx, ym), select(dz, -dz, dx > 0.0f), xm) * inv;
-    float8 b = select(-dy, select(-dz, dz, dy > 0.0f), ym) * inv;
-    int8 f = select(select(select((int8)(5), (int8)(4), dz > 0.0f), select((int8)(3), (int8)(2), dy > 0.0f), ym),
-                    select((int8)(1), (int8)(0), dx > 0.0f), xm);
-    float8 x = clamp((a + 1.0f) * 0.5f * (float)(n - 1), 0.0f, (float)(n - 1));
-    float8 y = clamp((b + 1.0f) * 0.5f * (float)(n - 1), 0.0f, (float)(n - 1));
-    int8 ix = min(convert_int8(x), n - 2), iy = min(convert_int8(y), n - 2);
-    vstore8(f, 0, face);
-    vstore8(ix, 0, x0);
-    vstore8(iy, 0, y0);
-    vstore8(x - convert_float8(ix), 0, fx);
-    vstore8(y - convert_float8(iy), 0, fy);
-}
-
-/* The rest of pn_cube_grid_lookup for one lane. */
-PN_FIV_INLINE float3 pn_fiv_cube_fetch(global const float4 *grid, int n, int face, int x0, int y0, float fx, float fy)
-{
-    global const float4 *row0 = grid + (face * n + y0) * n + x0;
-    global const float4 *row1 = row0 + n;
-    float4 top = mix(row0[0], row0[1], fx);
-    float4 bottom = mix(row1[0], row1[1], fx);
-    return mix(top, bottom, fy).xyz;
-}
-
 /* pn_fiv_lookup's first half for 8 receivers (v_world per lane, the lanes
  * of `live` taken): the grid coordinates and fall-off of each lane, and the
  * lanes that go on to fetch samples (the others: not finite, or culled per
@@ -436,8 +381,8 @@ PN_FIV_INLINE int8 pn_fiv_index8(global const float4 *occ, global const uchar *f
             live &= ~(beyond & (bound * ((rho_max / rho) * (rho_max / rho)) < cull_floor));
         }
     }
-    float8 theta = pn_fiv_atan2_8(sqrt(vx * vx + vz * vz), vy);
-    float8 phi = pn_fiv_atan2_8(vz, vx);
+    float8 theta = pn_atan2_8(sqrt(vx * vx + vz * vz), vy);
+    float8 phi = pn_atan2_8(vz, vx);
     phi = select(phi, phi + PN_TWO_PI, phi < 0.0f);
     float8 fi = theta * (float)(n_theta - 1) * PN_INV_PI;
     float8 fj = phi * (float)n_phi * PN_INV_TWO_PI;
@@ -470,7 +415,7 @@ PN_FIV_INLINE float8 pn_fiv_lens8(float8 a, float8 b, float8 dist)
     float8 d2 = dist * dist, a2 = a * a, b2 = b * b;
     float8 k = (-dist + a + b) * (dist + a - b) * (dist - a + b) * (dist + a + b);
     float8 sk = sqrt(fmax(k, 0.0f));
-    float8 lens = a2 * pn_fiv_atan2_8(sk, d2 + a2 - b2) + b2 * pn_fiv_atan2_8(sk, d2 + b2 - a2) - 0.5f * sk;
+    float8 lens = a2 * pn_atan2_8(sk, d2 + a2 - b2) + b2 * pn_atan2_8(sk, d2 + b2 - a2) - 0.5f * sk;
     return select(select(lens, PN_PI * r * r, dist <= fabs(a - b)), (float8)(0.0f), dist >= a + b);
 }
 
@@ -511,13 +456,13 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     }
     int cface[PN_FIV_LANES], cx[PN_FIV_LANES], cy[PN_FIV_LANES];
     float cfx[PN_FIV_LANES], cfy[PN_FIV_LANES];
-    pn_fiv_cube_cell8(m, vload8(0, ln[0]), vload8(0, ln[1]), vload8(0, ln[2]), cface, cx, cy, cfx, cfy);
+    pn_cube_grid_cell8(m, vload8(0, ln[0]), vload8(0, ln[1]), vload8(0, ln[2]), cface, cx, cy, cfx, cfy);
     for (int l = 0; l < PN_FIV_LANES; ++l) {
         float3 e_tot = (float3)(0.0f), e_base = (float3)(0.0f);
         if (lactive[l]) {
             uint id = lid[l];
             float3 p = (float3)(lp[0][l], lp[1][l], lp[2][l]), n = (float3)(ln[0][l], ln[1][l], ln[2][l]);
-            e_tot = pn_fiv_cube_fetch(irradiance, m, cface[l], cx[l], cy[l], cfx[l], cfy[l]);
+            e_tot = pn_cube_grid_fetch(irradiance, m, cface[l], cx[l], cy[l], cfx[l], cfy[l]);
             e_base = e_tot;
             /* Self-shadowing: the pixel's own occluder, found by its id among all
              * of them (a tile's mask may leave it out when a G-buffer puts the

@@ -171,6 +171,24 @@ kernel void latlong_bilinear(global const float *map, int w, int h, global const
 { int i = get_global_id(0); out[i] = (float4)(pn_latlong_bilinear(map, w, h, d[i].xyz), 0.0f); }
 """
 
+# The 8-lane version (the background pass): 8 directions per work-item, every
+# third lane left out (its output must stay untouched, -1).
+BILINEAR8_SOURCE = """
+#include "common/sphere_maps.cl"
+kernel void latlong_bilinear(global const float *map, int w, int h, global const float4 *d, global float4 *out)
+{
+    int base = 8 * get_global_id(0), live[8];
+    float x[8], y[8], z[8], rgb[24];
+    for (int l = 0; l < 8; ++l) {
+        live[l] = (base + l) % 3 != 2;
+        x[l] = d[base + l].x, y[l] = d[base + l].y, z[l] = d[base + l].z;
+    }
+    pn_latlong_bilinear8(map, w, h, vload8(0, x), vload8(0, y), vload8(0, z), live, rgb);
+    for (int l = 0; l < 8; ++l)
+        out[base + l] = live[l] ? (float4)(vload3(l, rgb), 0.0f) : (float4)(-1.0f);
+}
+"""
+
 
 def special_directions():
     """The u = 0 seam from both sides, the poles, texel centres and edges of a 16 x 8 map."""
@@ -180,8 +198,10 @@ def special_directions():
     return latlong_to_dir64(u, v)
 
 
-def test_latlong_bilinear_matches_float64(cl_pair, build_test_kernel):
-    """pn_latlong_bilinear against the float64 twin on a map of random texels
+@pytest.mark.parametrize("lanes", [1, 8])
+def test_latlong_bilinear_matches_float64(cl_pair, build_test_kernel, lanes):
+    """pn_latlong_bilinear (lanes = 1) and pn_latlong_bilinear8 (lanes = 8,
+    some lanes left out) against the float64 twin on a map of random texels
     (so any addressing error shows), at random directions, the seam and the poles."""
     import pyopencl as cl
     from envmap64 import latlong_bilinear64
@@ -193,6 +213,8 @@ def test_latlong_bilinear_matches_float64(cl_pair, build_test_kernel):
     latlong = rng.uniform(0.0, 1.0, (h, w, 3)).astype(np.float32)
     d = rng.normal(size=(4096, 3))
     d = np.concatenate([special_directions(), d / np.linalg.norm(d, axis=1, keepdims=True)])
+    if lanes == 8:  # every special direction in a live lane (lanes 2, 5 of each 8 are left out)
+        d = np.repeat(d, 3, axis=0)[:(3 * len(d)) // 8 * 8]
     d4 = np.zeros((len(d), 4), np.float32)
     d4[:, :3] = d
     mf = cl.mem_flags
@@ -200,10 +222,15 @@ def test_latlong_bilinear_matches_float64(cl_pair, build_test_kernel):
     bd = cl.Buffer(cl_ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=d4)
     out = np.empty((len(d), 4), np.float32)
     bout = cl.Buffer(cl_ctx, mf.WRITE_ONLY, out.nbytes)
-    cl.Kernel(build_test_kernel(BILINEAR_SOURCE), "latlong_bilinear")(queue, (len(d),), None, bmap, np.int32(w),
-                                                                     np.int32(h), bd, bout)
+    src = BILINEAR_SOURCE if lanes == 1 else BILINEAR8_SOURCE
+    cl.Kernel(build_test_kernel(src), "latlong_bilinear")(queue, (len(d) // lanes,), None, bmap, np.int32(w),
+                                                          np.int32(h), bd, bout)
     cl.enqueue_copy(queue, out, bout)
     expect = latlong_bilinear64(latlong, d4[:, :3].astype(np.float64))
+    if lanes == 8:
+        live = np.arange(len(d)) % 3 != 2
+        assert (out[~live] == -1.0).all(), "a lane left out was written"
+        out, expect = out[live][::2], expect[live][::2]  # each direction once (in its first live copy)
     err = np.abs(out[:, :3] - expect).max()
     assert err < BACKGROUND_ATOL, f"max error {err:.3g}"
     # The documented points: the seam blends the last and first columns

@@ -7,6 +7,10 @@
 #define PN_INV_PI 0.31830988618379067154f
 #define PN_INV_TWO_PI 0.15915494309189533577f
 
+/* Forced inlining for the 8-lane helpers: PoCL leaves some inline
+ * functions as calls, passing their lane arrays through the stack. */
+#define PN_LANES_INLINE inline __attribute__((always_inline))
+
 /* Marks background pixels and ray misses (matches PN_BACKGROUND in penumbra.h). */
 #define PN_BACKGROUND 0xFFFFFFFFu
 
@@ -48,6 +52,28 @@ inline float pn_atan2(float y, float x)
     float a = pn_atan(t);
     a = ay > ax ? M_PI_2_F - a : a;
     a = x < 0.0f ? PN_PI - a : a;
+    return copysign(a, y);
+}
+
+/* pn_atan and pn_atan2 for 8 lanes, each lane doing the scalar code's
+ * operations in the same order (the kernels that shade 8 pixels per
+ * work-item: fiv.cl, unshadowed.cl, the background pass). */
+PN_LANES_INLINE float8 pn_atan8(float8 x)
+{
+    const float8 a = fabs(x), t = select(a, 1.0f / a, a > 1.0f), t2 = t * t;
+    float8 p;
+    PN_ATAN_POLY(p, t2);
+    const float8 r = t * p;
+    return copysign(select(r, M_PI_2_F - r, a > 1.0f), x);
+}
+
+PN_LANES_INLINE float8 pn_atan2_8(float8 y, float8 x)
+{
+    const float8 ax = fabs(x), ay = fabs(y), hi = fmax(ax, ay), lo = fmin(ax, ay);
+    const float8 t = select((float8)(0.0f), lo / hi, hi > 0.0f);
+    float8 a = pn_atan8(t);
+    a = select(a, M_PI_2_F - a, ay > ax);
+    a = select(a, PN_PI - a, x < 0.0f);
     return copysign(a, y);
 }
 

@@ -63,6 +63,42 @@ inline float3 pn_latlong_bilinear(global const float *latlong, int width, int he
     return mix(top, bottom, fy);
 }
 
+/* pn_latlong_bilinear for 8 unit directions, one per lane: the angles,
+ * texel indices and weights in float8 lanes (each lane the scalar code's
+ * operations in the same order), then per lane its 4 texels and the same
+ * mixes as the scalar code. Lanes outside `live` are not read; their
+ * directions may be anything. Writes lane l's radiance to rgb[3 l ..]. */
+PN_LANES_INLINE void pn_latlong_bilinear8(global const float *latlong, int width, int height, float8 dx, float8 dy,
+                                 float8 dz, const int *live, float *rgb)
+{
+    float8 u = pn_atan2_8(dx, -dz) * PN_INV_TWO_PI; /* [-1/2, 1/2] */
+    u = select(u, u + 1.0f, u < 0.0f);
+    u = select(u, (float8)(0.5f), (dx == 0.0f) & ~signbit(dz));
+    float8 v = pn_atan2_8(sqrt(dx * dx + dz * dz), dy) * PN_INV_PI;
+    float8 x = u * (float)width - 0.5f, y = v * (float)height - 0.5f;
+    int8 x0 = convert_int8(x + 1.0f) - 1, y0 = convert_int8(y + 1.0f) - 1;
+    float8 fx = clamp(x - convert_float8(x0), 0.0f, 1.0f), fy = clamp(y - convert_float8(y0), 0.0f, 1.0f);
+    int8 x1 = select(x0 + 1, x0 + 1 - width, x0 + 1 >= width);
+    x0 = select(x0, x0 + width, x0 < 0);
+    int8 y1 = min(y0 + 1, height - 1);
+    y0 = max(y0, 0);
+    int a00[8], a10[8], a01[8], a11[8];
+    float afx[8], afy[8];
+    vstore8(3 * (y0 * width + x0), 0, a00);
+    vstore8(3 * (y0 * width + x1), 0, a10);
+    vstore8(3 * (y1 * width + x0), 0, a01);
+    vstore8(3 * (y1 * width + x1), 0, a11);
+    vstore8(fx, 0, afx);
+    vstore8(fy, 0, afy);
+    for (int l = 0; l < 8; ++l) {
+        if (!live[l])
+            continue;
+        float3 top = mix(vload3(0, latlong + a00[l]), vload3(0, latlong + a10[l]), afx[l]);
+        float3 bottom = mix(vload3(0, latlong + a01[l]), vload3(0, latlong + a11[l]), afx[l]);
+        vstore3(mix(top, bottom, afy[l]), l, rgb);
+    }
+}
+
 /* Unnormalised direction of face coordinates (a, b) in [-1, 1]. */
 inline float3 pn_cube_to_dir(int face, float a, float b)
 {
@@ -156,6 +192,40 @@ inline float3 pn_cube_grid_lookup(global const float4 *grid, int n, float3 d)
     float y = clamp((b + 1.0f) * 0.5f * (float)(n - 1), 0.0f, (float)(n - 1));
     int x0 = min((int)x, n - 2), y0 = min((int)y, n - 2);
     float fx = x - (float)x0, fy = y - (float)y0;
+    global const float4 *row0 = grid + (face * n + y0) * n + x0;
+    global const float4 *row1 = row0 + n;
+    float4 top = mix(row0[0], row0[1], fx);
+    float4 bottom = mix(row1[0], row1[1], fx);
+    return mix(top, bottom, fy).xyz;
+}
+
+/* pn_cube_grid_lookup (above) for 8 unit directions: the
+ * face and the cell (x0, y0, fx, fy) of each lane, from the same operations
+ * as pn_dir_to_cube's branches, as selects (their mispredictions were most
+ * of the lookup's cost); pn_cube_grid_fetch then reads the 4 samples. */
+PN_LANES_INLINE void pn_cube_grid_cell8(int n, float8 dx, float8 dy, float8 dz, int *face, int *x0, int *y0, float *fx,
+                                     float *fy)
+{
+    float8 ax = fabs(dx), ay = fabs(dy), az = fabs(dz);
+    int8 xm = (ax >= ay) & (ax >= az), ym = ~xm & (ay >= az);
+    float8 inv = 1.0f / select(select(az, ay, ym), ax, xm);
+    float8 a = select(select(select(-dx, dx, dz > 0.0f), dx, ym), select(dz, -dz, dx > 0.0f), xm) * inv;
+    float8 b = select(-dy, select(-dz, dz, dy > 0.0f), ym) * inv;
+    int8 f = select(select(select((int8)(5), (int8)(4), dz > 0.0f), select((int8)(3), (int8)(2), dy > 0.0f), ym),
+                    select((int8)(1), (int8)(0), dx > 0.0f), xm);
+    float8 x = clamp((a + 1.0f) * 0.5f * (float)(n - 1), 0.0f, (float)(n - 1));
+    float8 y = clamp((b + 1.0f) * 0.5f * (float)(n - 1), 0.0f, (float)(n - 1));
+    int8 ix = min(convert_int8(x), n - 2), iy = min(convert_int8(y), n - 2);
+    vstore8(f, 0, face);
+    vstore8(ix, 0, x0);
+    vstore8(iy, 0, y0);
+    vstore8(x - convert_float8(ix), 0, fx);
+    vstore8(y - convert_float8(iy), 0, fy);
+}
+
+/* The rest of pn_cube_grid_lookup for one lane. */
+PN_LANES_INLINE float3 pn_cube_grid_fetch(global const float4 *grid, int n, int face, int x0, int y0, float fx, float fy)
+{
     global const float4 *row0 = grid + (face * n + y0) * n + x0;
     global const float4 *row1 = row0 + n;
     float4 top = mix(row0[0], row0[1], fx);

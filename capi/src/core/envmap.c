@@ -267,7 +267,8 @@ pn_status pn_envmap_enqueue_background(pn_envmap env, cl_mem position, cl_mem in
     const void *vals[] = {&position, &instance, &n, &env->latlong, &w, &h, &rot, &env->intensity, &image};
     if ((st = pn_set_args(ctx, k, "envmap_background", 9, sizes, vals)))
         return st;
-    return pn_enqueue_1d(ctx, k, "envmap_background", count, 64);
+    /* 8 consecutive pixels per work-item (vector lanes, kernels/envmap.cl). */
+    return pn_enqueue_1d(ctx, k, "envmap_background", ((size_t)count + 7) / 8, 16);
 }
 
 static float luminance(const float *rgb)

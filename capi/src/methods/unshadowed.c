@@ -24,7 +24,8 @@ pn_status pn_unshadowed_enqueue(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn
                           &m, &image->buffer};
     if ((st = pn_set_args(ctx, k, "shade_unshadowed", 8, sizes, vals)))
         return st;
-    return pn_enqueue_1d(ctx, k, "shade_unshadowed", (size_t)count, 64);
+    /* 8 consecutive pixels per work-item (vector lanes, kernels/unshadowed.cl). */
+    return pn_enqueue_1d(ctx, k, "shade_unshadowed", ((size_t)count + 7) / 8, 16);
 }
 
 static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image)
