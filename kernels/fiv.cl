@@ -52,13 +52,13 @@ typedef struct {
 
 PN_FIV_INLINE bool pn_fiv_sample(global const uchar *fields, uint offset, int half_precision, int index, pn_fiv3 *s)
 {
-    /* One 8-wide load and one scalar: X rgb, Y rgb, Z rg | Z b. */
+    /* Two 8-wide loads: X rgb, Y rgb, Z rg | Z b (the last of the second). */
     float8 a;
     float b;
     if (half_precision) {
         global const half *h = (global const half *)(fields + offset) + PN_FIV_FLOATS * index;
         a = vload_half8(0, h);
-        b = vload_half(8, h);
+        b = vload_half8(0, h + 1).s7; /* converted in hardware; a scalar vload_half is bit manipulation */
     } else {
         global const float *f = (global const float *)(fields + offset) + PN_FIV_FLOATS * index;
         a = vload8(0, f);
@@ -115,13 +115,18 @@ PN_FIV_INLINE int pn_fiv_dir_bin(float3 v, float rho)
     return bz * PN_FIV_BINS_P + bp;
 }
 
-/* Adds weight w times sample (k, i, j) to acc when the sample is valid. */
+/* Adds weight w times sample (k, i, j) to acc when the sample is valid;
+ * without a branch (an invalid sample adds 0 to both sums, and so does a
+ * valid one of weight 0: the same sums as skipping them). */
 PN_FIV_INLINE void pn_fiv_add(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k, int i,
                               int j, float w, pn_fiv3 *acc, float *wsum)
 {
     pn_fiv3 s;
-    if (w <= 0.0f || !pn_fiv_sample(fields, offset, hp, (k * n_theta + i) * n_phi + j, &s))
-        return;
+    bool valid = pn_fiv_sample(fields, offset, hp, (k * n_theta + i) * n_phi + j, &s);
+    w = valid ? w : 0.0f;
+    s.x = valid ? s.x : 0.0f;
+    s.y = valid ? s.y : 0.0f;
+    s.z = valid ? s.z : 0.0f;
     acc->x += w * s.x;
     acc->y += w * s.y;
     acc->z += w * s.z;
@@ -132,6 +137,8 @@ PN_FIV_INLINE void pn_fiv_add(global const uchar *fields, uint offset, int hp, i
 PN_FIV_INLINE void pn_fiv_shell(global const uchar *fields, uint offset, int hp, int n_theta, int n_phi, int k,
                                 float wk, int i0, float ti, int j0, int j1, float tj, pn_fiv3 *acc, float *wsum)
 {
+    if (wk <= 0.0f) /* beyond the grid the inner sphere's weight is 0: its taps are not read */
+        return;
     pn_fiv_add(fields, offset, hp, n_theta, n_phi, k, i0, j0, wk * (1.0f - ti) * (1.0f - tj), acc, wsum);
     pn_fiv_add(fields, offset, hp, n_theta, n_phi, k, i0, j1, wk * (1.0f - ti) * tj, acc, wsum);
     pn_fiv_add(fields, offset, hp, n_theta, n_phi, k, i0 + 1, j0, wk * ti * (1.0f - tj), acc, wsum);
