@@ -410,6 +410,76 @@ PN_FIV_INLINE int8 pn_fiv_index8(global const float4 *occ, global const uchar *f
     return live;
 }
 
+/* One sample of the shared cell for all lanes (pn_fiv_fetch8): weight w
+ * per lane times the sample's 9 values, added when the sample is valid. */
+PN_FIV_INLINE void pn_fiv_add8(global const uchar *fields, uint offset, int hp, int index, float8 w, float8 *acc,
+                               float8 *wsum)
+{
+    pn_fiv3 s;
+    if (!pn_fiv_sample(fields, offset, hp, index, &s))
+        return; /* the scalar code adds 0 to both sums: the same */
+    acc[0] += w * s.x.x, acc[1] += w * s.x.y, acc[2] += w * s.x.z;
+    acc[3] += w * s.y.x, acc[4] += w * s.y.y, acc[5] += w * s.y.z;
+    acc[6] += w * s.z.x, acc[7] += w * s.z.y, acc[8] += w * s.z.z;
+    *wsum += w;
+}
+
+/* pn_fiv_fetch for the lanes of `live` when they all interpolate in one
+ * cell (the same i0, j0 and k0), which 8 neighbouring pixels mostly do: each
+ * of the cell's samples is read once and its 9 values go to every lane
+ * (weights and sums in lanes, each lane the scalar code's operations in the
+ * same order). Writes fr (0 in the other lanes) and returns true; returns
+ * false, writing nothing, when the lanes span several cells or a lane would
+ * need the search for a valid sphere farther out (pn_fiv_fetch then goes lane
+ * by lane). */
+PN_FIV_INLINE bool pn_fiv_fetch8(global const float4 *occ, global const uchar *fields, float8 fi, float8 fj,
+                                 float8 fk, float8 falloff, int8 live, int trilinear, float fr[9][PN_FIV_LANES])
+{
+    uint offset = as_uint(occ[2].x);
+    int n_theta = as_int(occ[2].y), n_phi = as_int(occ[2].z), n_rho = as_int(occ[2].w);
+    int hp = as_int(occ[3].y);
+    if (!trilinear) {
+        fi = round(fi);
+        fj = round(fj);
+        fk = round(fk);
+    }
+    int8 i0 = min(convert_int8(fi), n_theta - 2), k0 = min(convert_int8(fk), n_rho - 2);
+    int8 jf = min(convert_int8(fj), n_phi - 1);
+    /* the first live lane's cell */
+    int8 first = select((int8)(PN_FIV_LANES), (int8)(0, 1, 2, 3, 4, 5, 6, 7), live);
+    first.s0123 = min(first.s0123, first.s4567);
+    first.s01 = min(first.s01, first.s23);
+    int l0 = min(first.s0, first.s1);
+    int ci[PN_FIV_LANES], ck[PN_FIV_LANES], cj[PN_FIV_LANES];
+    vstore8(i0, 0, ci), vstore8(k0, 0, ck), vstore8(jf, 0, cj);
+    int I0 = ci[l0], K0 = ck[l0], J0 = cj[l0];
+    if (any(live & ((i0 != I0) | (k0 != K0) | (jf != J0))))
+        return false;
+    float8 ti = clamp(fi - (float)I0, 0.0f, 1.0f), tk = clamp(fk - (float)K0, 0.0f, 1.0f);
+    float8 tj = clamp(fj - (float)J0, 0.0f, 1.0f);
+    int J1 = J0 + 1 < n_phi ? J0 + 1 : 0; /* the phi seam wraps */
+    float8 acc[9] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    float8 wsum = 0.0f;
+    for (int s = 0; s < 2; ++s) {
+        /* pn_fiv_shell: a lane whose sphere weight is 0 skips it, i.e. adds 0 */
+        float8 wk = s ? tk : 1.0f - tk;
+        if (!any(live & (wk > 0.0f)))
+            continue;
+        wk = select((float8)(0.0f), wk, wk > 0.0f);
+        int row0 = ((K0 + s) * n_theta + I0) * n_phi, row1 = row0 + n_phi;
+        pn_fiv_add8(fields, offset, hp, row0 + J0, wk * (1.0f - ti) * (1.0f - tj), acc, &wsum);
+        pn_fiv_add8(fields, offset, hp, row0 + J1, wk * (1.0f - ti) * tj, acc, &wsum);
+        pn_fiv_add8(fields, offset, hp, row1 + J0, wk * ti * (1.0f - tj), acc, &wsum);
+        pn_fiv_add8(fields, offset, hp, row1 + J1, wk * ti * tj, acc, &wsum);
+    }
+    if (any(live & (wsum <= 0.0f)))
+        return false;
+    float8 f = occ[3].z * falloff / wsum;
+    for (int c = 0; c < 9; ++c)
+        vstore8(select((float8)(0.0f), acc[c] * f, live), 0, fr[c]);
+    return true;
+}
+
 /* pn_lens_area, lane by lane, without its divides and acos: with
  * k = (-d + a + b)(d + a - b)(d - a + b)(d + a + b) = (2 d a)^2 - (d^2 + a^2 - b^2)^2,
  * acos((d^2 + a^2 - b^2) / (2 d a)) = atan2(sqrt(k), d^2 + a^2 - b^2) (both
@@ -546,6 +616,8 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
             for (int c = 0; c < 9; ++c)
                 vstore8((fi + fj + fk) * falloff, 0, fr[c]);
 #else
+            /* all lanes in one cell: its samples read once (pn_fiv_fetch8); else lane by lane */
+            if (!pn_fiv_fetch8(occ, fields, fi, fj, fk, falloff, take, trilinear, fr))
             {
                 float afi[PN_FIV_LANES], afj[PN_FIV_LANES], afk[PN_FIV_LANES], afo[PN_FIV_LANES];
                 int at[PN_FIV_LANES];

@@ -486,6 +486,32 @@ def test_lanes_at_image_edges(ctx, env, meshes, fields, h, w):
     assert np.array_equal(got, s.render(cull_threshold=0.1, tile_cull=0, overlap=1))
 
 
+def test_lanes_sharing_a_cell(ctx, env, meshes, fields):
+    """8 neighbouring pixels whose lookups fall in one cell of the field read
+    its samples once for all lanes (pn_fiv_fetch8, kernels/fiv.cl): rows of
+    16 pixels packed within a few thousandths of a unit, far beyond the grid,
+    inside it beside the sphere, and at the sphere's foot where samples inside
+    the geometry are invalid, and rows spread far enough apart that their
+    lanes span several cells (lane by lane); against the twin."""
+    rng = np.random.default_rng(8)
+    h, w = 16, 16
+    centres = [(12.0, 0.0, 7.0, 0.01), (1.1, 0.0, 0.3, 0.002), (0.04, 0.0, 0.03, 0.001), (0.9, 0.0, -0.6, 0.4)]
+    pos = np.zeros((h, w, 3))
+    for r in range(h):
+        cx, cy, cz, d = centres[r // 4]
+        pos[r, :, 0] = cx + np.linspace(-d, d, w)
+        pos[r, :, 2] = cz + d * (r % 4) / 4
+    tilt = np.radians(rng.uniform(0.0, 30.0, (h, w)))
+    az = rng.uniform(0.0, 2 * np.pi, (h, w))
+    nrm = np.stack([np.sin(tilt) * np.cos(az), np.cos(tilt), np.sin(tilt) * np.sin(az)], -1)
+    inst = np.full((h, w), 1000, np.uint32)
+    instances = [(fields["sphere"], meshes["sphere"][1], translate((0.0, 0.5, 0.0)))]
+    s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
+    for params in (dict(overlap=0), dict(overlap=1, partial=1), dict(overlap=2, trilinear=0)):
+        assert_matches_twin(s, params)
+    assert_matches_twin(s, dict(overlap=1), cull_threshold=0.1)
+
+
 def test_many_occluders_per_tile(ctx, env, meshes, fields):
     """40 small spheres over every pixel of a 20 x 12 image: two words of the
     tile masks, every lane of a work-item taking most occluders, more than 32
