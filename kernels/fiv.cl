@@ -410,13 +410,13 @@ PN_FIV_INLINE int8 pn_fiv_index8(global const float4 *occ, global const uchar *f
     return live;
 }
 
-/* One sample of the shared cell for all lanes (pn_fiv_fetch8): weight w
- * per lane times the sample's 9 values, added when the sample is valid. */
+/* One sample for all lanes (pn_fiv_fetch8): weight w per lane times the
+ * sample's 9 values, added when the sample is valid and some lane weighs it. */
 PN_FIV_INLINE void pn_fiv_add8(global const uchar *fields, uint offset, int hp, int index, float8 w, float8 *acc,
                                float8 *wsum)
 {
     pn_fiv3 s;
-    if (!pn_fiv_sample(fields, offset, hp, index, &s))
+    if (!any(w != 0.0f) || !pn_fiv_sample(fields, offset, hp, index, &s))
         return; /* the scalar code adds 0 to both sums: the same */
     acc[0] += w * s.x.x, acc[1] += w * s.x.y, acc[2] += w * s.x.z;
     acc[3] += w * s.y.x, acc[4] += w * s.y.y, acc[5] += w * s.y.z;
@@ -424,20 +424,41 @@ PN_FIV_INLINE void pn_fiv_add8(global const uchar *fields, uint offset, int hp, 
     *wsum += w;
 }
 
-/* pn_fiv_fetch for the lanes of `live` when they all interpolate in one
- * cell (the same i0, j0 and k0), which 8 neighbouring pixels mostly do: each
- * of the cell's samples is read once and its 9 values go to every lane
- * (weights and sums in lanes, each lane the scalar code's operations in the
- * same order). Writes fr (0 in the other lanes) and returns true; returns
- * false, writing nothing, when the lanes span several cells or a lane would
- * need the search for a valid sphere farther out (pn_fiv_fetch then goes lane
- * by lane). */
+/* Smallest and largest of the lanes of `live` (at least one). */
+PN_FIV_INLINE int2 pn_fiv_range8(int8 x, int8 live)
+{
+    int8 lo = select((int8)(INT_MAX), x, live), hi = select((int8)(INT_MIN), x, live);
+    lo.s0123 = min(lo.s0123, lo.s4567), hi.s0123 = max(hi.s0123, hi.s4567);
+    lo.s01 = min(lo.s01, lo.s23), hi.s01 = max(hi.s01, hi.s23);
+    return (int2)(min(lo.s0, lo.s1), max(hi.s0, hi.s1));
+}
+
+/* The weight of the sample at offset d (0, 1, 2) from the block's corner
+ * for a lane whose cell starts at offset o (0, 1) with fraction t: 1 - t at
+ * o, t at o + 1, 0 elsewhere. */
+PN_FIV_INLINE float8 pn_fiv_tap_weight8(int d, int8 o, float8 t)
+{
+    return select(select((float8)(0.0f), t, o + 1 == d), 1.0f - t, o == d);
+}
+
+/* pn_fiv_fetch for the lanes of `live` when their cells lie within a block
+ * of 2 x 2 x 2 cells (i0, j0 and k0 each within one of each other), which 8
+ * neighbouring pixels mostly do: each sample of the block (at most 3 x 3 x 3,
+ * 8 when the lanes share one cell) is read once and its 9 values go to every
+ * lane with that lane's trilinear weight, 0 where the sample is not one of
+ * the lane's 8 (weights and sums in lanes; per lane the scalar code's
+ * operations in its order, plus terms that add 0). Writes fr (0 in the other
+ * lanes) and returns true; returns false, writing nothing, when the lanes
+ * spread wider or a lane would need the search for a valid sphere farther
+ * out (pn_fiv_fetch then goes lane by lane). */
 PN_FIV_INLINE bool pn_fiv_fetch8(global const float4 *occ, global const uchar *fields, float8 fi, float8 fj,
                                  float8 fk, float8 falloff, int8 live, int trilinear, float fr[9][PN_FIV_LANES])
 {
     uint offset = as_uint(occ[2].x);
     int n_theta = as_int(occ[2].y), n_phi = as_int(occ[2].z), n_rho = as_int(occ[2].w);
     int hp = as_int(occ[3].y);
+    /* the other lanes' coordinates may be anything: 0 instead, weight 0 below */
+    fi = select((float8)(0.0f), fi, live), fj = select((float8)(0.0f), fj, live), fk = select((float8)(0.0f), fk, live);
     if (!trilinear) {
         fi = round(fi);
         fj = round(fj);
@@ -445,32 +466,33 @@ PN_FIV_INLINE bool pn_fiv_fetch8(global const float4 *occ, global const uchar *f
     }
     int8 i0 = min(convert_int8(fi), n_theta - 2), k0 = min(convert_int8(fk), n_rho - 2);
     int8 jf = min(convert_int8(fj), n_phi - 1);
-    /* the first live lane's cell */
-    int8 first = select((int8)(PN_FIV_LANES), (int8)(0, 1, 2, 3, 4, 5, 6, 7), live);
-    first.s0123 = min(first.s0123, first.s4567);
-    first.s01 = min(first.s01, first.s23);
-    int l0 = min(first.s0, first.s1);
-    int ci[PN_FIV_LANES], ck[PN_FIV_LANES], cj[PN_FIV_LANES];
-    vstore8(i0, 0, ci), vstore8(k0, 0, ck), vstore8(jf, 0, cj);
-    int I0 = ci[l0], K0 = ck[l0], J0 = cj[l0];
-    if (any(live & ((i0 != I0) | (k0 != K0) | (jf != J0))))
+    float8 ti = clamp(fi - convert_float8(i0), 0.0f, 1.0f), tk = clamp(fk - convert_float8(k0), 0.0f, 1.0f);
+    float8 tj = clamp(fj - convert_float8(jf), 0.0f, 1.0f);
+    int2 ri = pn_fiv_range8(i0, live), rk = pn_fiv_range8(k0, live), rj = pn_fiv_range8(jf, live);
+    if (ri.y - ri.x > 1 || rk.y - rk.x > 1)
         return false;
-    float8 ti = clamp(fi - (float)I0, 0.0f, 1.0f), tk = clamp(fk - (float)K0, 0.0f, 1.0f);
-    float8 tj = clamp(fj - (float)J0, 0.0f, 1.0f);
-    int J1 = J0 + 1 < n_phi ? J0 + 1 : 0; /* the phi seam wraps */
+    int j_lo = rj.x;
+    if (rj.y - rj.x > 1) { /* across the phi seam: the block from n_phi - 1 to 0 */
+        if (rj.y != n_phi - 1 || rj.x != 0 || any(live & (jf != 0) & (jf != n_phi - 1)))
+            return false;
+        j_lo = n_phi - 1;
+    }
+    int8 oi = i0 - ri.x, ok = k0 - rk.x, oj = select(jf - j_lo, (int8)(1), jf != j_lo);
+    int ni = ri.y - ri.x + 2, nk = rk.y - rk.x + 2, nj = j_lo == rj.x ? rj.y - rj.x + 2 : 3;
     float8 acc[9] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
     float8 wsum = 0.0f;
-    for (int s = 0; s < 2; ++s) {
-        /* pn_fiv_shell: a lane whose sphere weight is 0 skips it, i.e. adds 0 */
-        float8 wk = s ? tk : 1.0f - tk;
-        if (!any(live & (wk > 0.0f)))
-            continue;
-        wk = select((float8)(0.0f), wk, wk > 0.0f);
-        int row0 = ((K0 + s) * n_theta + I0) * n_phi, row1 = row0 + n_phi;
-        pn_fiv_add8(fields, offset, hp, row0 + J0, wk * (1.0f - ti) * (1.0f - tj), acc, &wsum);
-        pn_fiv_add8(fields, offset, hp, row0 + J1, wk * (1.0f - ti) * tj, acc, &wsum);
-        pn_fiv_add8(fields, offset, hp, row1 + J0, wk * ti * (1.0f - tj), acc, &wsum);
-        pn_fiv_add8(fields, offset, hp, row1 + J1, wk * ti * tj, acc, &wsum);
+    for (int dk = 0; dk < nk; ++dk) {
+        /* pn_fiv_shell skips a sphere of weight 0: here it adds 0 */
+        float8 wk = pn_fiv_tap_weight8(dk, ok, tk);
+        wk = select((float8)(0.0f), wk, live & (wk > 0.0f));
+        for (int di = 0; di < ni; ++di) {
+            float8 wki = wk * pn_fiv_tap_weight8(di, oi, ti);
+            int row = ((rk.x + dk) * n_theta + ri.x + di) * n_phi;
+            for (int dj = 0; dj < nj; ++dj) {
+                int j = j_lo + dj >= n_phi ? j_lo + dj - n_phi : j_lo + dj;
+                pn_fiv_add8(fields, offset, hp, row + j, wki * pn_fiv_tap_weight8(dj, oj, tj), acc, &wsum);
+            }
+        }
     }
     if (any(live & (wsum <= 0.0f)))
         return false;
@@ -618,6 +640,10 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
 #else
             /* all lanes in one cell: its samples read once (pn_fiv_fetch8); else lane by lane */
             if (!pn_fiv_fetch8(occ, fields, fi, fj, fk, falloff, take, trilinear, fr))
+#ifdef PN_FIV_DBG
+            { for (int c = 0; c < 9; ++c) vstore8((float8)(1e6f), 0, fr[c]); }
+            if (0)
+#endif
             {
                 float afi[PN_FIV_LANES], afj[PN_FIV_LANES], afk[PN_FIV_LANES], afo[PN_FIV_LANES];
                 int at[PN_FIV_LANES];
