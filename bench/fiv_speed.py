@@ -45,7 +45,7 @@ def cpu_timed(fn, ctx) -> float:
 
 
 def measure(occluders: int, resolution: int, rounds: int, out: Path, build_options=("",), spread: bool = False,
-            cpu: bool = False) -> dict:
+            cpu: bool = False, variants: dict | None = None) -> dict:
     """ms of every variant, per round (round-robin, first round dropped); with
     several ``build_options`` (kernel build switches, e.g. -DPN_FIV_PROFILE=1)
     every variant runs under each of them in turn, keyed "variant[options]"."""
@@ -69,14 +69,15 @@ def measure(occluders: int, resolution: int, rounds: int, out: Path, build_optio
                                     cache=rel(out.parent / "fiv_scaling" / "cache" / "fiv")),
                                f"fiv speed: {occluders} bunnies (bench/fiv_speed.py)"))
     runs = {}
-    for opts in build_options:
+    variants = VARIANTS if variants is None else variants
+    for opts in build_options if variants else ():
         built = build_scene(load_scene(path), Context(f"build_options={opts}") if opts else Context())
         attach_fields(built)
         ctx = built.ctx
         gb, img = GBuffer(ctx, resolution, resolution), Image(ctx, resolution, resolution)
         built.scene.render_gbuffer(gb)
         ctx.finish()
-        for k, (m, kw) in VARIANTS.items():
+        for k, (m, kw) in variants.items():
             runs[f"{k}[{opts}]" if len(build_options) > 1 else k] = (built, gb, img, Renderer(ctx, m, **kw))
     times = {k: [] for k in runs}
     for r in range(rounds + 1):
@@ -85,6 +86,33 @@ def measure(occluders: int, resolution: int, rounds: int, out: Path, build_optio
             if r:
                 times[k].append(t)
     return times
+
+
+def count_lane_by_lane(occluders: int, resolution: int, out: Path, spread: bool = False) -> dict:
+    """The receiver pixels whose sample fetch goes lane by lane, not through
+    the shared fetch of neighbouring lanes (pn_fiv_fetch8): the pixels whose
+    image changes in a build with PN_FIV_PROFILE=3, which marks them."""
+    import numpy as np
+
+    from penumbra.core import Context, GBuffer, Image, Renderer
+    from penumbra.methods.fiv import attach_fields
+    from penumbra.render import build_scene
+    from penumbra.scenefile import load_scene
+
+    measure(occluders, resolution, 0, out, spread=spread, variants={})  # writes the scene file
+    path = out / "scenes" / f"{'spread' if spread else 'bunnies'}_{occluders}.toml"
+    images = []
+    for opts in ("", "-DPN_FIV_PROFILE=3"):
+        built = build_scene(load_scene(path), Context(f"build_options={opts}") if opts else Context())
+        attach_fields(built)
+        gb, img = GBuffer(built.ctx, resolution, resolution), Image(built.ctx, resolution, resolution)
+        built.scene.render_gbuffer(gb)
+        Renderer(built.ctx, "fiv", background=0, overlap=0).execute(built.scene, gb, img)
+        built.ctx.finish()
+        images.append(img.read()[..., :3])
+    receivers = int((gb.read("instance") != 0xFFFFFFFF).sum())
+    lane_by_lane = int((images[0] != images[1]).any(axis=-1).sum())
+    return {"receiver_pixels": receivers, "lane_by_lane_pixels": lane_by_lane, "share": lane_by_lane / receivers}
 
 
 def table(times: dict) -> list[str]:
@@ -106,12 +134,17 @@ def main() -> None:
     ap.add_argument("--build-options", action="append", default=None,
                     help="kernel build switches; give it twice or more to time the builds against each other")
     ap.add_argument("--cpu", action="store_true", help="time by the process's CPU time, not the wall clock")
+    ap.add_argument("--count-lane-by-lane", action="store_true",
+                    help="count the pixels whose sample fetch goes lane by lane (PN_FIV_PROFILE=3) and stop")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     out = Path(args.out)
     if args.variants:
         for k in set(VARIANTS) - set(args.variants.split(",")):
             del VARIANTS[k]
+    if args.count_lane_by_lane:
+        print(json.dumps(count_lane_by_lane(args.occluders, args.resolution, out, args.spread)))
+        return
     if args.child:
         print(json.dumps(measure(args.occluders, args.resolution, args.rounds, out, spread=args.spread, cpu=args.cpu)))
         return

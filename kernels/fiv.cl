@@ -17,7 +17,9 @@
  *
  * PN_FIV_PROFILE (a build option, bench/fiv_profile.py) stops the work early
  * to time the phases apart: 1 = no lookup (a constant field), 2 = the
- * lookup's indices and weights but no sample fetched. 0 (default) = all.
+ * lookup's indices and weights but no sample fetched, 3 = the lanes that the
+ * shared fetch (pn_fiv_fetch8) does not serve get a huge FIV instead of
+ * theirs (to count them). 0 (default) = all.
  *
  * Occluder record, 4 float4 (capi/src/fiv.c):
  *   [0] centre xyz (world), bounding radius R (world)
@@ -640,8 +642,11 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
 #else
             /* all lanes in one cell: its samples read once (pn_fiv_fetch8); else lane by lane */
             if (!pn_fiv_fetch8(occ, fields, fi, fj, fk, falloff, take, trilinear, fr))
-#ifdef PN_FIV_DBG
-            { for (int c = 0; c < 9; ++c) vstore8((float8)(1e6f), 0, fr[c]); }
+#if PN_FIV_PROFILE == 3
+            { /* mark the lanes that would go lane by lane (counted by bench/fiv_profile.py) */
+                for (int c = 0; c < 9; ++c)
+                    vstore8((float8)(1e6f), 0, fr[c]);
+            }
             if (0)
 #endif
             {

@@ -487,28 +487,43 @@ def test_lanes_at_image_edges(ctx, env, meshes, fields, h, w):
 
 
 def test_lanes_sharing_a_cell(ctx, env, meshes, fields):
-    """8 neighbouring pixels whose lookups fall in one cell of the field read
-    its samples once for all lanes (pn_fiv_fetch8, kernels/fiv.cl): rows of
-    16 pixels packed within a few thousandths of a unit, far beyond the grid,
-    inside it beside the sphere, and at the sphere's foot where samples inside
-    the geometry are invalid, and rows spread far enough apart that their
-    lanes span several cells (lane by lane); against the twin."""
+    """8 neighbouring pixels whose lookups fall within a block of 2 x 2 x 2
+    cells of the field read its samples once for all lanes (pn_fiv_fetch8,
+    kernels/fiv.cl): rows of 16 pixels packed within a few thousandths of a
+    unit far beyond the grid, inside it beside the sphere, at the sphere's
+    foot where samples inside the geometry are invalid, across the phi seam
+    (a row along z through z = 0 on the -x side), rows spanning neighbouring
+    cells, and rows spread so far that their lanes go lane by lane; against
+    the twin, and bit for bit against the same pixels shaded one per
+    work-item."""
     rng = np.random.default_rng(8)
-    h, w = 16, 16
-    centres = [(12.0, 0.0, 7.0, 0.01), (1.1, 0.0, 0.3, 0.002), (0.04, 0.0, 0.03, 0.001), (0.9, 0.0, -0.6, 0.4)]
+    patches = [((12.0, 0.0, 7.0), 0, 0.01), ((1.1, 0.0, 0.3), 0, 0.002), ((0.04, 0.0, 0.03), 0, 0.001),
+               ((-1.5, 0.0, 0.0025), 2, 0.005), ((0.8, 0.0, 0.5), 0, 0.05), ((0.9, 0.0, -0.6), 0, 0.4)]
+    rows, w = 3, 16
+    h = rows * len(patches)
     pos = np.zeros((h, w, 3))
     for r in range(h):
-        cx, cy, cz, d = centres[r // 4]
-        pos[r, :, 0] = cx + np.linspace(-d, d, w)
-        pos[r, :, 2] = cz + d * (r % 4) / 4
+        centre, axis, d = patches[r // rows]
+        pos[r] = centre
+        pos[r, :, axis] += np.linspace(-d, d, w)
+        pos[r, :, 2 - axis] += d * (r % rows) / rows
+    assert (pos[9:12, :8, 2] < 0).any() and (pos[9:12, :8, 2] > 0).any()  # a work-item's lanes straddle z = 0
     tilt = np.radians(rng.uniform(0.0, 30.0, (h, w)))
     az = rng.uniform(0.0, 2 * np.pi, (h, w))
     nrm = np.stack([np.sin(tilt) * np.cos(az), np.cos(tilt), np.sin(tilt) * np.sin(az)], -1)
     inst = np.full((h, w), 1000, np.uint32)
     instances = [(fields["sphere"], meshes["sphere"][1], translate((0.0, 0.5, 0.0)))]
     s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
+    # The same pixels one per work-item (7 background pixels after each): no
+    # lane shares anything, so each lane is the scalar order of operations.
+    alone = [np.zeros((h, 8 * w, 3)), np.zeros((h, 8 * w, 3)), np.full((h, 8 * w), BACKGROUND, np.uint32)]
+    for plane, src in zip(alone, (pos, nrm, inst)):
+        plane[:, ::8] = src
+    s1 = FivScene(ctx, env, fields, instances, tuple(alone))
     for params in (dict(overlap=0), dict(overlap=1, partial=1), dict(overlap=2, trilinear=0)):
-        assert_matches_twin(s, params)
+        got = assert_matches_twin(s, params)
+        lone = s1.render(cull_threshold=0.0, **params)[:, ::8]
+        assert np.array_equal(got, lone), params  # the same operations, so the same bits
     assert_matches_twin(s, dict(overlap=1), cull_threshold=0.1)
 
 
