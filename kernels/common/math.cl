@@ -71,7 +71,12 @@ PN_LANES_INLINE float8 pn_atan2_8(float8 y, float8 x)
 {
     const float8 ax = fabs(x), ay = fabs(y), hi = fmax(ax, ay), lo = fmin(ax, ay);
     const float8 t = select((float8)(0.0f), lo / hi, hi > 0.0f);
-    float8 a = pn_atan8(t);
+    /* pn_atan8(t) for t in [0, 1]: its branch for t > 1 (a divide in every
+     * lane) is never taken, and t >= +0 needs no copysign */
+    const float8 t2 = t * t;
+    float8 a;
+    PN_ATAN_POLY(a, t2);
+    a = t * a;
     a = select(a, M_PI_2_F - a, ay > ax);
     a = select(a, PN_PI - a, x < 0.0f);
     return copysign(a, y);
