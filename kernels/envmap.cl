@@ -67,14 +67,12 @@ kernel void envmap_background(global const float4 *position, global const uint *
         int gid = base + l;
         live[l] = gid < count && instance_id[gid] == PN_BACKGROUND;
         any_live |= live[l];
-        float3 p = live[l] ? position[gid].xyz : (float3)(0.0f, 1.0f, 0.0f);
+        float3 p = live[l] ? normalize(position[gid].xyz) : (float3)(0.0f, 1.0f, 0.0f);
         lx[l] = p.x, ly[l] = p.y, lz[l] = p.z;
     }
     if (!any_live)
         return;
     float8 px = vload8(0, lx), py = vload8(0, ly), pz = vload8(0, lz);
-    float8 inv = 1.0f / sqrt(px * px + py * py + pz * pz); /* normalize */
-    px *= inv, py *= inv, pz *= inv;
     /* pn_rotate_y(d, rot.x, -rot.y) */
     float8 dx = rot.x * px + -rot.y * pz, dz = rot.y * px + rot.x * pz;
     float rgb[3 * PN_BACKGROUND_LANES];
