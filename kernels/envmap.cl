@@ -49,10 +49,11 @@ kernel void envmap_latlong_to_cube(global const float *latlong, int width, int h
  * whose face size is chosen for lighting and would show as blocks), with the
  * map's rotation and intensity, alpha 0. Other pixels are left alone. Run by
  * the renderer after every method that has the `background` parameter.
- * One work-item per 8 consecutive pixels (global size ceil(count / 8)): the
- * direction, its rotation and the lookup's angles and indices in float8
- * lanes, one pixel per lane (pn_latlong_bilinear8); a work-item with no
- * background pixel stops after reading the 8 ids. */
+ * One work-item per 8 consecutive pixels (global size ceil(count / 8)): each
+ * lane's direction normalised as one pixel's was, then its rotation and the
+ * lookup's angles and indices in float8 lanes, one pixel per lane
+ * (pn_latlong_bilinear8; the same bits as the scalar pass); a work-item with
+ * no background pixel stops after reading the 8 ids. */
 #define PN_BACKGROUND_LANES 8
 kernel void envmap_background(global const float4 *position, global const uint *instance_id, int count,
                               global const float *latlong, int width, int height, float2 rot, float intensity,
