@@ -29,6 +29,7 @@ Run from the repository root:
 from __future__ import annotations
 
 import copy
+import json
 import os
 import sys
 import time
@@ -40,6 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import harness  # noqa: E402
 from harness import Experiment, Runner, Suite, f4, generated_by, log  # noqa: E402
 
+from penumbra.imageio import write_png  # noqa: E402
 from penumbra.render import build_scene, render  # noqa: E402
 from penumbra.scenefile import parse_scene  # noqa: E402
 
@@ -133,7 +135,7 @@ def exp_a(run: IsgRunner) -> dict:
     return {"rows": rows}
 
 
-REF_CPU = {}  # reference part -> process CPU seconds of its render (this run; cached parts absent)
+REF_CPU = {}  # reference part -> process CPU seconds of its render (kept in the cache's .json)
 
 
 def fig12_truth_parts(run: IsgRunner, res, visibility: int = 1, coarse_only: bool = False) -> dict:
@@ -170,6 +172,12 @@ def fig12_truth_parts(run: IsgRunner, res, visibility: int = 1, coarse_only: boo
                 return img
 
             img, wall = run.references.get(key, draw)
+            meta = run.references.path(key).with_suffix(".json")  # the render's CPU s kept beside the cached image
+            rec = json.loads(meta.read_text()) if meta.exists() else {}
+            tag = f"{part}{face}v{visibility}"
+            if tag in REF_CPU and "cpu_s" not in rec:
+                meta.write_text(json.dumps({**rec, "cpu_s": REF_CPU[tag]}))
+            REF_CPU.setdefault(tag, rec.get("cpu_s", float("nan")))
             parts[(part, face)] = img
             log(f"  reference {part} face {face} visibility {visibility}: {wall:.0f} s wall"
                 f" (load {os.getloadavg()[0]:.1f})")
@@ -221,6 +229,7 @@ def exp_b(run: IsgRunner) -> dict:
     res = run.res()
     parts = fig12_truth_parts(run, res)
     fd, fs = run.faces_d[-1], run.faces_s[-1]
+    strips = []
     out = {"res": list(res), "faces_d": run.faces_d, "faces_s": run.faces_s, "scenes": {}, "convergence": {}}
     for label, ks_bunny in (("ks=0.5", 0.5), ("ks=0.01", 0.01)):
         built = run.build(fig12_table(res, ks_bunny))
@@ -237,7 +246,7 @@ def exp_b(run: IsgRunner) -> dict:
             p: float(np.sqrt(np.mean((coarse[p][mask] - truth[p][mask]) ** 2)) / rms_t) for p in truth}
         log(f"  {label}: truth coarse vs fine {out['convergence'][label]}")
         rows, images = [], {}
-        variants = FIG12_VARIANTS if label == "ks=0.5" else FIG12_VARIANTS[:3] + [FIG12_VARIANTS[4]]
+        variants = FIG12_VARIANTS if label == "ks=0.5" else FIG12_VARIANTS[:5]
         for vlabel, params, opts in variants:
             b = built if not opts else run.build(fig12_table(res, ks_bunny, env_face=opts["env_face"]))
             c0 = time.process_time()
@@ -251,10 +260,12 @@ def exp_b(run: IsgRunner) -> dict:
         brk = {}
         for part in ("diffuse", "specular"):
             bp = run.build(fig12_table(res, ks_bunny, part))
-            img = render(bp, "isg", frames=1, warmup=False).image[..., :3]
-            brk[part] = float(np.sqrt(np.mean((img[mask] - truth[part][mask]) ** 2)) / rms_t)
             brk[part + "_share"] = float(np.sqrt(np.mean(truth[part][mask] ** 2)) / rms_t)
-            images[f"isg {part} only"] = img
+            for tag, params in (("", {}), (" N=256", {"spheres": 256})):
+                img = render(bp, "isg", frames=1, warmup=False, **params).image[..., :3]
+                brk[part + tag] = float(np.sqrt(np.mean((img[mask] - truth[part][mask]) ** 2)) / rms_t)
+                if not tag:
+                    images[f"isg {part} only"] = img
         rows_u = None
         if run.unshadowed:
             # unshadowed: the coarse grids (their shadowed twins' convergence is above)
@@ -275,8 +286,16 @@ def exp_b(run: IsgRunner) -> dict:
         self_check = float(np.abs(images["isg diffuse only"] + images["isg specular only"] - base.image[..., :3])[mask].max())
         out["scenes"][label] = {"rows": rows, "breakdown": brk, "unshadowed_truth": rows_u,
                                 "isg_parts_sum_max_abs": self_check}
+        # The seed's layout: truth | isg defaults | isg N = 256 | 4 x |N = 256 - truth|, one row per k_s.
+        shown = np.where(mask[..., None], truth["total"], images["defaults (K 32, N 64, M 16)"])
+        best = images["N=256"]
+        strips.append((np.concatenate([shown, images["defaults (K 32, N 64, M 16)"], best,
+                                       4.0 * np.abs(best - truth["total"]) * mask[..., None]], axis=1),
+                       harness.exposure(truth["total"], mask)))
         run.pictures.set(f"fig12_{label}", truth["total"], {k: images[k] for k in
                                                             ("defaults (K 32, N 64, M 16)",) if k in images}, mask)
+    exp = strips[0][1]
+    write_png(run.out / "fig12_strip.png", np.concatenate([st for st, _ in strips], axis=0), exp)
     out["reference_cpu_s"] = dict(REF_CPU)
     return out
 
