@@ -7,7 +7,8 @@ the Stanford bunny (Oded Stein's 3k version) on a floor under the Pisa light
 probe, a camera at 112 x 84 (quick 64 x 48; the 2 shared cores of this machine set the size). Ground truth: `reference` at
 face_size 64 (the seed's 6 x 64 x 64 rays per pixel), sun_supersampling 4.
 Errors are relative RMS (docs/metrics.md: RMSE / RMS of the reference) over
-the surface pixels (G-buffer instance != background).
+the surface pixels (G-buffer instance != background). Experiment b has its
+own truth: a diffuse and a specular part on their own grids (fig12_truth_parts).
 
   a  sphere sets of the bunny by N: outside / missed volume shares, build time
   b  the seed's Fig. 12: bunny and floor Phong (glossiness 1000), k_s = 0.5 on
