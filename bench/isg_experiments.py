@@ -284,7 +284,8 @@ def exp_b(run: IsgRunner) -> dict:
         rows.append({"label": "unshadowed (no specular, no shadows)", "params": {},
                      **harness.metrics(truth["total"], unsh, mask, ("rel_rms", "nrmse", "max_abs", "bias")),
                      "cpu_s": float("nan")})
-        self_check = float(np.abs(images["isg diffuse only"] + images["isg specular only"] - base.image[..., :3])[mask].max())
+        parts_sum = images["isg diffuse only"] + images["isg specular only"]
+        self_check = float(np.abs(parts_sum - base.image[..., :3])[mask].max())
         out["scenes"][label] = {"rows": rows, "breakdown": brk, "unshadowed_truth": rows_u,
                                 "isg_parts_sum_max_abs": self_check}
         # The seed's layout: truth | isg defaults | isg N = 256 | 4 x |N = 256 - truth|, one row per k_s.
@@ -370,7 +371,7 @@ def report(results: dict) -> str:
         lines += ["## b. Fig. 12 (Phong 1000; seed: 3.2 % and 4.6 %)", "",
                   f"{b['res'][0]} x {b['res'][1]} pixels; truth: diffuse part at cube faces {b['faces_d']}, "
                   f"specular part at {b['faces_s']} (the last of each is the truth); reference CPU s: "
-                  f"{ {k: round(v) for k, v in b.get('reference_cpu_s', {}).items()} }", ""]
+                  f"{ {k: round(v) if v == v else None for k, v in b.get('reference_cpu_s', {}).items()} }", ""]
         for k, sc in b["scenes"].items():
             lines += [f"{k} (seed {100 * SEED_FIG12[k]:.1f} %):", ""] + _table(
                 sc["rows"], err_cols + [("cpu_s", "CPU s")]) + [""]
