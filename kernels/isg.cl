@@ -26,10 +26,12 @@
  *
  * Self-occlusion (the receiver's own instance's spheres; `self_occlusion`):
  *   0  ignored;
- *   1  used, except spheres that contain the receiver point or touch it
- *      (distance < radius * (1 + PN_ISG_TOUCH)): a receiver on the surface of
- *      its own proxy would otherwise see half its sky cut by the sphere it
- *      sits in (the "dark disc");
+ *   1  used, except spheres that contain the receiver point or nearly touch
+ *      it (distance < radius * (1 + PN_ISG_SELF_MARGIN)): a receiver on the
+ *      surface of its own proxy would otherwise see half its sky cut by the
+ *      sphere it sits in (the "dark disc"), and one just outside a sphere
+ *      that pokes out of the surface next to it a dark arc (the margin;
+ *      docs/isg.md section 9, "The seed's Fig. 12");
  *   2  all used.
  * A sphere of another instance that contains the receiver occludes every
  * patch (the receiver is inside that occluder).
@@ -47,6 +49,12 @@
 #define PN_ISG_LANES 32 /* two float16 */
 #define PN_ISG_WINDOW_SIGMAS 3.0f
 #define PN_ISG_TOUCH 1e-3f
+/* Own spheres within this share of their radius of the receiver are skipped
+ * under self_occlusion 1 (measured on the seed's Fig. 12 bunny: 0.1-0.3 best;
+ * build option -DPN_ISG_SELF_MARGIN=1e-3f gives the earlier rule, = PN_ISG_TOUCH). */
+#ifndef PN_ISG_SELF_MARGIN
+#define PN_ISG_SELF_MARGIN 0.2f
+#endif
 /* The seed's cosine lobe (after [WRG*09]). */
 #define PN_ISG_COS_SHARPNESS 2.133f
 #define PN_ISG_COS_AMPLITUDE 1.170f
@@ -187,6 +195,8 @@ inline int pn_isg_mark_sphere_rows(const pn_isg_grid *pg, float cos_cone, float 
     if (dot(v, n) <= -r) /* wholly behind the receiver plane */
         return 0;
     if (own && self_occlusion == 0)
+        return 0;
+    if (own && self_occlusion == 1 && d2 <= r * r * (1.0f + PN_ISG_SELF_MARGIN) * (1.0f + PN_ISG_SELF_MARGIN))
         return 0;
     if (d2 <= r * r * (1.0f + PN_ISG_TOUCH) * (1.0f + PN_ISG_TOUCH))
         return own && self_occlusion == 1 ? 0 : -1; /* inside an occluder */

@@ -18,6 +18,7 @@ from isg64 import HALF_PI, as_sgs, isg_exact_grid, sg_cosine_exact, sg_hemispher
 
 WINDOW_SIGMAS = 3.0
 TOUCH = 1e-3
+SELF_MARGIN = 0.2  # kernels/isg.cl PN_ISG_SELF_MARGIN: own spheres this near are skipped (policy 1)
 COS_SHARPNESS, COS_AMPLITUDE = 2.133, 1.170
 LOBE_PHONG, LOBE_BLINN_PHONG, LOBE_GGX, LOBE_ASHIKHMIN_SHIRLEY = 0, 1, 2, 3
 MIN_COS_VIEW = 1e-4
@@ -115,6 +116,8 @@ def patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, 
             return False
         own = own_id == self_id
         if own and self_occlusion == 0:
+            return False
+        if own and self_occlusion == 1 and v @ v <= (r * (1.0 + SELF_MARGIN)) ** 2:
             return False
         if v @ v <= (r * (1.0 + TOUCH)) ** 2:
             return not (own and self_occlusion == 1)

@@ -32,8 +32,8 @@ static const pn_param_desc params[] = {
     {"patch_grid", PN_PARAM_INT, PN_PARAM_FRAME, 16, 2, 24, "patches per side",
      "M: each lobe's visibility window is cut into M x M ISG patches (16: 256 patches)."},
     {"self_occlusion", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 2, "",
-     "Own spheres of the receiver's instance: 0 ignored, 1 used except those containing or touching the "
-     "receiver, 2 all used."},
+     "Own spheres of the receiver's instance: 0 ignored, 1 used except those containing the receiver or "
+     "within 0.2 of their radius of it, 2 all used."},
     {"specular_shadows", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
      "1: the specular term is shadowed (patch by patch or by its product lobes' visibility), 0: unshadowed."},
     {"env_sharpness", PN_PARAM_FLOAT, PN_PARAM_FRAME, 100, 0, 1e9, "",
