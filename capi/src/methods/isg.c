@@ -22,7 +22,9 @@ enum {
     P_ENV_SHARPNESS,
     P_SPHERE_TREE,
     P_SPECULAR_MODE,
-    P_LOD
+    P_LOD,
+    P_SHARED_GRID,
+    P_SHARED_SHARPNESS
 };
 
 static const pn_param_desc params[] = {
@@ -50,6 +52,13 @@ static const pn_param_desc params[] = {
      "LOD cut of the sphere tree: a node wholly in front of the receiver whose bounding sphere subtends less "
      "than lod patch steps of a lobe's window occludes with that sphere instead of its spheres (0: off, the "
      "exact walk; needs sphere_tree 1 and self_occlusion 1 or 2; docs/isg.md section 8)."},
+    {"shared_grid", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 31, "patches per side",
+     "M_s: the diffuse light of the lobes no sharper than shared_sharpness is shadowed by one marking per "
+     "pixel of an M_s x M_s grid over the receiver's hemisphere (their summed radiance read per occluded "
+     "patch) instead of one marking per lobe (0: off, every lobe its own window; docs/isg.md section 8)."},
+    {"shared_sharpness", PN_PARAM_FLOAT, PN_PARAM_FRAME, 200, 0, 1e9, "",
+     "With shared_grid > 0: light lobes at most this sharp go through the shared hemisphere grid, sharper "
+     "ones (a sun) keep their own patch window."},
 };
 
 static const pn_param_desc bake_params[] = {
@@ -71,6 +80,11 @@ typedef struct state {
     uint32_t *tri_owners;     /* host: instance id per triangle */
     size_t tri_capacity, device_tri_capacity;
     cl_mem device_tris, device_tri_owners;
+    pn_sg_lobe *host_lobes;   /* host copy of `lobes` (the shared grid's lobe cube) */
+    cl_mem lobe_cube;         /* vertex-grid cube of the shared lobes' summed radiance */
+    uint64_t cube_env_version; /* env map, K and sharpness that `lobe_cube` was built for */
+    int cube_lobe_count;
+    float cube_sharpness;
 } state;
 
 static bool is_sphere_set(const pn_attachment *a)
@@ -258,9 +272,14 @@ static pn_status plan(pn_renderer r, pn_scene scene)
         pn_mem_release(&s->lobes);
         st = pn_alloc(ctx, (size_t)k * sizeof *lobes, CL_MEM_READ_ONLY, lobes, &s->lobes, "the env map's SG lobes");
     }
-    free(lobes);
-    if (!st)
-        s->lobe_count = k, s->env_version = env->version;
+    if (st) {
+        free(lobes);
+        return st;
+    }
+    free(s->host_lobes);
+    s->host_lobes = lobes;
+    s->lobe_count = k, s->env_version = env->version;
+    pn_mem_release(&s->lobe_cube); /* rebuilt for the new lobes at execute */
     return st;
 }
 
@@ -502,6 +521,60 @@ static pn_status sphere_tree(pn_renderer r, uint32_t n, size_t *node_count)
     return PN_SUCCESS;
 }
 
+/* The shared hemisphere grid's light (kernels/isg.cl pn_isg_shared_occluded):
+ * L_b(d) = sum over the lobes no sharper than `sharpness` of
+ * amplitude exp(lambda (d.axis - 1)), on a vertex-grid cube (face f holds
+ * LOBE_CUBE_N^2 samples at a_i = -1 + 2 i / (LOBE_CUBE_N - 1), direction as
+ * pn_cube_to_dir of kernels/common/sphere_maps.cl), read bilinearly. 65 a
+ * side: at most 0.031 rad between samples, under a third of the width
+ * 1/sqrt(lambda) of a lobe of lambda 100. Rebuilt when the lobes or the
+ * sharpness change. Twin: tests/isg_shading64.py lobe_cube. */
+enum { LOBE_CUBE_N = 65 };
+
+static void cube_to_dir(int face, float a, float b, float d[3])
+{
+    const float v[6][3] = {{1.0f, -b, -a}, {-1.0f, -b, a}, {a, 1.0f, b}, {a, -1.0f, -b}, {a, -b, 1.0f}, {-a, -b, -1.0f}};
+    const float inv = 1.0f / sqrtf(v[face][0] * v[face][0] + v[face][1] * v[face][1] + v[face][2] * v[face][2]);
+    for (int c = 0; c < 3; ++c)
+        d[c] = v[face][c] * inv;
+}
+
+static pn_status lobe_cube(pn_renderer r, float sharpness)
+{
+    state *s = r->state;
+    pn_context ctx = r->obj.ctx;
+    if (s->lobe_cube && s->cube_env_version == s->env_version && s->cube_lobe_count == s->lobe_count &&
+        s->cube_sharpness == sharpness)
+        return PN_SUCCESS;
+    const size_t n = LOBE_CUBE_N, count = 6 * n * n;
+    float *cube = pn_malloc(ctx, pn_mul_size(count, 4, sizeof(float)), "the shared lobes' cube");
+    if (!cube)
+        return PN_ERROR_OUT_OF_MEMORY;
+    for (int f = 0; f < 6; ++f)
+        for (size_t j = 0; j < n; ++j)
+            for (size_t i = 0; i < n; ++i) {
+                float d[3], rgb[3] = {0.0f, 0.0f, 0.0f};
+                cube_to_dir(f, -1.0f + 2.0f * (float)i / (float)(n - 1), -1.0f + 2.0f * (float)j / (float)(n - 1), d);
+                for (int k = 0; k < s->lobe_count; ++k) {
+                    const pn_sg_lobe *g = &s->host_lobes[k];
+                    if (!(g->sharpness <= sharpness))
+                        continue;
+                    const float e = expf(g->sharpness * (d[0] * g->axis[0] + d[1] * g->axis[1] + d[2] * g->axis[2] - 1.0f));
+                    for (int c = 0; c < 3; ++c)
+                        rgb[c] += g->amplitude[c] * e;
+                }
+                float *out = cube + 4 * (((size_t)f * n + j) * n + i);
+                out[0] = rgb[0], out[1] = rgb[1], out[2] = rgb[2], out[3] = 0.0f;
+            }
+    pn_mem_release(&s->lobe_cube);
+    const pn_status st =
+        pn_alloc(ctx, count * 4 * sizeof(float), CL_MEM_READ_ONLY, cube, &s->lobe_cube, "the shared lobes' cube");
+    free(cube);
+    if (!st)
+        s->cube_env_version = s->env_version, s->cube_lobe_count = s->lobe_count, s->cube_sharpness = sharpness;
+    return st;
+}
+
 static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image)
 {
     pn_context ctx = r->obj.ctx;
@@ -577,19 +650,24 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const cl_int gamma_count = g ? g->count : 1;
     const cl_float lambda0 = GAMMA_LAMBDA0;
     const cl_mem gamma = g ? g->gamma : s->lobes, gamma_levels = g ? g->levels : s->lobes;
+    const cl_int shared_grid = (cl_int)r->params[P_SHARED_GRID], cube_n = LOBE_CUBE_N;
+    const cl_float shared_sharpness = (cl_float)r->params[P_SHARED_SHARPNESS];
+    if (shared_grid > 0 && (st = lobe_cube(r, shared_sharpness)))
+        return st;
+    const cl_mem cube_buf = shared_grid > 0 ? s->lobe_cube : s->lobes; /* unread when off */
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count,
                       sizeof(cl_mem), sizeof n, sizeof(cl_mem), sizeof lobes, sizeof(cl_mem),
                       sizeof(cl_mem), sizeof spheres, sizeof(cl_mem), sizeof use_tree, sizeof lod, sizeof(cl_mem), sizeof(cl_mem), sizeof triangles, sizeof grid, sizeof self, sizeof spec, sizeof env_sharpness, sizeof camera,
                       sizeof(cl_mem), sizeof mode, sizeof(cl_mem), sizeof(cl_mem), sizeof gamma_count, sizeof lambda0,
-                      sizeof(cl_mem)};
+                      sizeof shared_grid, sizeof shared_sharpness, sizeof(cl_mem), sizeof cube_n, sizeof(cl_mem)};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->cube, &n, &s->lobes, &lobes,
                           &s->device_spheres, &s->device_owners, &spheres, &s->device_nodes, &use_tree, &lod, &s->device_tris, &s->device_tri_owners,
                           &triangles, &grid, &self,
                           &spec, &env_sharpness, &camera, &table, &mode, &gamma, &gamma_levels, &gamma_count,
-                          &lambda0, &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_isg", 31, sizes, vals)))
+                          &lambda0, &shared_grid, &shared_sharpness, &cube_buf, &cube_n, &image->buffer};
+    if ((st = pn_set_args(ctx, k, "shade_isg", 35, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_isg", (size_t)count, 64);
 }
@@ -598,6 +676,8 @@ static void destroy(pn_renderer r)
 {
     state *s = r->state;
     pn_mem_release(&s->lobes);
+    pn_mem_release(&s->lobe_cube);
+    free(s->host_lobes);
     pn_mem_release(&s->device_spheres);
     pn_mem_release(&s->device_owners);
     pn_mem_release(&s->device_nodes);
