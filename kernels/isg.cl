@@ -696,8 +696,8 @@ inline float3 pn_isg_env_specular(pn_sg b, float3 p, float3 n, uint self_id, int
 
 /* The shared hemisphere grid (`shared_grid` M_s > 0; docs/isg.md section 8):
  * the diffuse light of every lobe no sharper than `shared_sharpness`, summed
- * into one radiance L_b (the vertex-grid cube `lobe_cube`, built by the host
- * from those lobes, capi/src/methods/isg.c lobe_cube), is shadowed by one
+ * into one radiance L_b (the first vertex-grid cube of `lobe_cube`, built by
+ * isg_lobe_cubes when the lobes change), is shadowed by one
  * marking per pixel rather than one per lobe: the receiver's hemisphere is the
  * ISG-frame window of the axis n with w = pi/2 (theta, phi in [0, pi], each cut
  * into M_s), its patches marked as a lobe's are (pn_isg_mark: spheres, tree,
@@ -705,8 +705,10 @@ inline float3 pn_isg_env_specular(pn_sg b, float3 p, float3 n, uint self_id, int
  *   O = sum over marked patches of L_b(d_ij) (n . d_ij) Omega_ij
  * with n . d_ij = sin theta_i sin phi_j and the patch's exact solid angle
  * Omega_ij = step (cos theta_i0 - cos theta_i1) = 2 step sin(step / 2) sin theta_i.
- * Returns O (RGB); the caller subtracts it from the lobes' closed-form
- * irradiance. */
+ * Returns O (RGB); the caller subtracts it from the same lobes' unshadowed
+ * irradiance E_b(n) (their closed forms pn_sg_irradiance summed, read from the
+ * second cube of isg_lobe_cubes: one lookup per pixel instead of a closed form
+ * per lobe). */
 inline float3 pn_isg_shared_occluded(float3 p, float3 n, uint self_id, int self_occlusion,
                                      global const float4 *spheres, global const uint *owners, int sphere_count,
                                      global const float4 *nodes, const pn_isg_tree *tree, int grid,
@@ -736,6 +738,33 @@ inline float3 pn_isg_shared_occluded(float3 p, float3 n, uint self_id, int self_
         occluded += (si * si) * row;
     }
     return (2.0f * pg.step * sin(0.5f * pg.step)) * occluded;
+}
+
+/* The shared hemisphere grid's two vertex-grid cubes (n vertices a side, face f
+ * at a_i = -1 + 2 i / (n - 1) as pn_cube_grid_lookup reads them), over the
+ * lobes no sharper than `sharpness`: out[0, 6 n^2) their summed radiance
+ * L_b(d) = sum amplitude e^{lambda (d.axis - 1)}, out[6 n^2, 12 n^2) their
+ * summed unshadowed irradiance E_b(n) = sum pn_sg_irradiance (docs/isg.md
+ * section 8). Built by the host (capi/src/methods/isg.c lobe_cubes) when the
+ * lobes or the sharpness change. */
+kernel void isg_lobe_cubes(global const float4 *lobes, int lobe_count, float sharpness, int n, global float4 *out)
+{
+    const int gid = get_global_id(0), count = 6 * n * n;
+    if (gid >= count)
+        return;
+    const int f = gid / (n * n), j = (gid / n) % n, i = gid % n;
+    const float step = 2.0f / (float)(n - 1);
+    const float3 d = normalize(pn_cube_to_dir(f, -1.0f + (float)i * step, -1.0f + (float)j * step));
+    float3 l = (float3)(0.0f), e = (float3)(0.0f);
+    for (int k = 0; k < lobe_count; ++k) {
+        const pn_sg g = pn_sg_load(lobes, k);
+        if (!(g.sharpness <= sharpness))
+            continue;
+        l += g.amplitude * pn_sg_eval(d, g.axis, g.sharpness);
+        e += pn_sg_irradiance(g, d);
+    }
+    out[gid] = (float4)(l, 0.0f);
+    out[count + gid] = (float4)(e, 0.0f);
 }
 
 kernel void shade_isg(global const float4 *position, global const float4 *normal, global const float4 *albedo,
@@ -782,7 +811,10 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
     const bool env_specular = brdf_count == 1 && brdf[0].sharpness >= env_sharpness;
     /* Inside an occluder every shadowed lobe's V is 0 (pn_isg_mark would find it per lobe). */
     const bool inside = pn_isg_inside(p, n, id, self_occlusion, spheres, owners, sphere_count, nodes, &tree);
-    float3 diffuse = (float3)(0.0f), specular = (float3)(0.0f), shared = (float3)(0.0f);
+    float3 diffuse = (float3)(0.0f), specular = (float3)(0.0f);
+    /* The shared lobes' unshadowed irradiance: the second cube of isg_lobe_cubes. */
+    const float3 shared = shared_grid > 0 ? pn_cube_grid_lookup(lobe_cube + 6 * lobe_cube_n * lobe_cube_n, lobe_cube_n, n)
+                                          : (float3)(0.0f);
     if (env_specular && !(inside && specular_shadows))
         specular = pn_isg_env_specular(brdf[0], p, n, id, specular_shadows ? self_occlusion : 0, spheres, owners,
                                        specular_shadows ? sphere_count : 0, nodes, &spec_tree, grid, table, cube,
@@ -790,10 +822,9 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
                                        specular_mode, gamma, gamma_levels, gamma_count, gamma_lambda0);
     for (int k = 0; k < lobe_count; ++k) {
         const pn_sg g = pn_sg_load(lobes, k);
-        const float3 e = pn_sg_irradiance(g, n);
-        if (shared_grid > 0 && g.sharpness <= shared_sharpness)
-            shared += e; /* shadowed below, by the shared hemisphere grid */
-        else if (e.x > 0.0f || e.y > 0.0f || e.z > 0.0f)
+        const bool own_window = shared_grid <= 0 || g.sharpness > shared_sharpness; /* else in `shared` */
+        const float3 e = own_window ? pn_sg_irradiance(g, n) : (float3)(0.0f);
+        if (e.x > 0.0f || e.y > 0.0f || e.z > 0.0f)
             diffuse += e * (inside ? 0.0f
                                    : pn_isg_visibility(pn_sg_product(g, cosine), p, n, id, self_occlusion, spheres,
                                                        owners, sphere_count, nodes, &tree, grid, table));

@@ -63,8 +63,8 @@ def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=
     spheres through the sphere tree (the method's default), 0 the flat loop over them. gamma: (levels,
     tables) of the prefiltered env (specular_mode 1; penumbra.methods.isg.gamma_levels layout), None:
     specular_mode 0. lod: the LOD cut (0: off). triangles: thin-shell triangles (T, 3, 3) world space,
-    their owners triangle_owners. shared: (M_s, shared_sharpness) of the shared hemisphere grid (its lobe
-    cube from the twin's lobe_cube, as the host builds it), None: off."""
+    their owners triangle_owners. shared: (M_s, shared_sharpness) of the shared hemisphere grid (its two
+    cubes built by isg_lobe_cubes, as the host does), None: off."""
     ctx, queue = cl_pair
     n = len(pixels)
     f4 = lambda rows: np.ascontiguousarray(np.array(rows, np.float32).reshape(n, 4))  # noqa: E731
@@ -93,9 +93,8 @@ def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=
     tris[:len(triangles), :, :3] = np.asarray(triangles, np.float32).reshape(-1, 3, 3)
     tri_ow = np.zeros(max(len(triangles), 1), np.uint32)
     tri_ow[:len(triangles)] = np.asarray(triangle_owners, np.uint32)
-    lcube = np.zeros((6 * LOBE_CUBE_N ** 2, 4), np.float32)
-    if shared:
-        lcube[:, :3] = lobe_cube(lobes, shared[1])
+    lcube = device_lobe_cubes(cl_pair, build_test_kernel, lb, shared[1]) if shared else \
+        cl.Buffer(ctx, mf.READ_ONLY, 16)
     out = np.empty((n, 4), np.float32)
     obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
     k = cl.Kernel(build_test_kernel(SOURCE), "shade_isg")
@@ -104,8 +103,20 @@ def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=
       np.int32(self_occlusion), np.int32(specular_shadows), np.float32(env_sharpness),
       np.array([*camera, 0.0], np.float32), ro(table32()), np.int32(mode), ro(gbuf), ro(lv), np.int32(count),
       np.float32(lambda0), np.int32(shared[0] if shared else 0), np.float32(shared[1] if shared else 0.0),
-      ro(lcube), np.int32(LOBE_CUBE_N), obuf)
+      lcube, np.int32(LOBE_CUBE_N), obuf)
     cl.enqueue_copy(queue, out, obuf)
+    return out
+
+
+def device_lobe_cubes(cl_pair, build_test_kernel, lobes8, sharpness, n=LOBE_CUBE_N):
+    """isg_lobe_cubes on the device: a buffer of 12 n^2 float4 (L_b, then E_b), as the method builds it.
+    lobes8: (K, 8) float32, the device layout."""
+    ctx, queue = cl_pair
+    mf = cl.mem_flags
+    out = cl.Buffer(ctx, mf.READ_WRITE, 12 * n * n * 16)
+    k = cl.Kernel(build_test_kernel(SOURCE), "isg_lobe_cubes")
+    k(queue, (6 * n * n,), None, cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(lobes8)),
+      np.int32(len(lobes8)), np.float32(sharpness), np.int32(n), out)
     return out
 
 
@@ -808,6 +819,34 @@ def test_shared_grid_matches_twin(cl_pair, build_test_kernel, grid, sharpness, p
         free = twin(px, LOBES, [], [], self_occlusion=policy)
         assert (want < 0.9 * free).any()
         assert np.abs(want - per_lobe).max() < 0.1 * free.max()
+
+
+@pytest.mark.parametrize("sharpness", [1e30, 100.0])
+def test_lobe_cubes_match_twin(cl_pair, build_test_kernel, sharpness):
+    """isg_lobe_cubes: L_b at every vertex against the twin's float64 lobe_cube, E_b at sampled vertices
+    against the exact SG x clamped cosine summed over the same lobes (the closed form's 0.4 % and float32),
+    and both read back through the twin's bilinear lookup off the vertices."""
+    ctx, queue = cl_pair
+    lb = np.zeros((len(LOBES), 8), np.float32)
+    lb[:, :4], lb[:, 4:7] = LOBES[:, :4], LOBES[:, 4:7]
+    buf = device_lobe_cubes(cl_pair, build_test_kernel, lb, sharpness)
+    got = np.empty((12 * LOBE_CUBE_N ** 2, 4), np.float32)
+    cl.enqueue_copy(queue, got, buf)
+    want_l = lobe_cube(LOBES, sharpness)
+    np.testing.assert_allclose(got[:len(want_l), :3], want_l, rtol=1e-4, atol=1e-6 * want_l.max())
+    from isg_shading64 import gamma_vertices, grid_lookup, irradiance
+    d = gamma_vertices(LOBE_CUBE_N)
+    keep = [lobe for lobe in LOBES if lobe[3] <= sharpness]
+    # The closed form's bound, 0.40 % of E(1) per lobe (docs/isg.md 3.3), summed over the lobes (+ float32).
+    bound = 0.0041 * sum(np.asarray(lobe[4:7]) * irradiance(lobe[:3], lobe[3], 1.0, lobe[:3]) for lobe in keep)
+    for v in np.random.default_rng(5).choice(len(d), 40, replace=False):
+        want = sum(irradiance(lobe[:3], lobe[3], lobe[4:7], d[v]) for lobe in keep)
+        assert (np.abs(got[len(want_l) + v, :3] - want) <= bound).all(), (got[len(want_l) + v, :3], want, bound)
+    e_cube = got[len(want_l):, :3].astype(np.float64)
+    for u in np.random.default_rng(6).normal(size=(30, 3)):  # between vertices: E_b is smooth, bilinear is close
+        u = u / np.linalg.norm(u)
+        want = sum(irradiance(lobe[:3], lobe[3], lobe[4:7], u) for lobe in keep)
+        assert (np.abs(grid_lookup(e_cube, LOBE_CUBE_N, u) - want) <= bound + 2e-3 * want).all()
 
 
 def test_shared_grid_wrong_solid_angle_or_cosine_fails():

@@ -80,8 +80,7 @@ typedef struct state {
     uint32_t *tri_owners;     /* host: instance id per triangle */
     size_t tri_capacity, device_tri_capacity;
     cl_mem device_tris, device_tri_owners;
-    pn_sg_lobe *host_lobes;   /* host copy of `lobes` (the shared grid's lobe cube) */
-    cl_mem lobe_cube;         /* vertex-grid cube of the shared lobes' summed radiance */
+    cl_mem lobe_cube;         /* the shared lobes' two vertex-grid cubes (isg_lobe_cubes) */
     uint64_t cube_env_version; /* env map, K and sharpness that `lobe_cube` was built for */
     int cube_lobe_count;
     float cube_sharpness;
@@ -272,14 +271,11 @@ static pn_status plan(pn_renderer r, pn_scene scene)
         pn_mem_release(&s->lobes);
         st = pn_alloc(ctx, (size_t)k * sizeof *lobes, CL_MEM_READ_ONLY, lobes, &s->lobes, "the env map's SG lobes");
     }
-    if (st) {
-        free(lobes);
+    free(lobes);
+    if (st)
         return st;
-    }
-    free(s->host_lobes);
-    s->host_lobes = lobes;
     s->lobe_count = k, s->env_version = env->version;
-    pn_mem_release(&s->lobe_cube); /* rebuilt for the new lobes at execute */
+    s->cube_lobe_count = 0; /* the shared lobes' cubes: rebuilt for the new lobes at execute */
     return st;
 }
 
@@ -521,58 +517,37 @@ static pn_status sphere_tree(pn_renderer r, uint32_t n, size_t *node_count)
     return PN_SUCCESS;
 }
 
-/* The shared hemisphere grid's light (kernels/isg.cl pn_isg_shared_occluded):
- * L_b(d) = sum over the lobes no sharper than `sharpness` of
- * amplitude exp(lambda (d.axis - 1)), on a vertex-grid cube (face f holds
- * LOBE_CUBE_N^2 samples at a_i = -1 + 2 i / (LOBE_CUBE_N - 1), direction as
- * pn_cube_to_dir of kernels/common/sphere_maps.cl), read bilinearly. 65 a
- * side: at most 0.031 rad between samples, under a third of the width
- * 1/sqrt(lambda) of a lobe of lambda 100. Rebuilt when the lobes or the
- * sharpness change. Twin: tests/isg_shading64.py lobe_cube. */
+/* The shared hemisphere grid's two cubes (kernels/isg.cl isg_lobe_cubes: the
+ * summed radiance L_b and unshadowed irradiance E_b of the lobes no sharper
+ * than `sharpness`), LOBE_CUBE_N vertices a side: at most 0.031 rad between
+ * samples, under a third of the width 1/sqrt(lambda) of a lobe of lambda 100.
+ * Rebuilt on the device when the lobes or the sharpness change. */
 enum { LOBE_CUBE_N = 65 };
 
-static void cube_to_dir(int face, float a, float b, float d[3])
-{
-    const float v[6][3] = {{1.0f, -b, -a}, {-1.0f, -b, a}, {a, 1.0f, b}, {a, -1.0f, -b}, {a, -b, 1.0f}, {-a, -b, -1.0f}};
-    const float inv = 1.0f / sqrtf(v[face][0] * v[face][0] + v[face][1] * v[face][1] + v[face][2] * v[face][2]);
-    for (int c = 0; c < 3; ++c)
-        d[c] = v[face][c] * inv;
-}
-
-static pn_status lobe_cube(pn_renderer r, float sharpness)
+static pn_status lobe_cubes(pn_renderer r, float sharpness)
 {
     state *s = r->state;
     pn_context ctx = r->obj.ctx;
     if (s->lobe_cube && s->cube_env_version == s->env_version && s->cube_lobe_count == s->lobe_count &&
         s->cube_sharpness == sharpness)
         return PN_SUCCESS;
-    const size_t n = LOBE_CUBE_N, count = 6 * n * n;
-    float *cube = pn_malloc(ctx, pn_mul_size(count, 4, sizeof(float)), "the shared lobes' cube");
-    if (!cube)
-        return PN_ERROR_OUT_OF_MEMORY;
-    for (int f = 0; f < 6; ++f)
-        for (size_t j = 0; j < n; ++j)
-            for (size_t i = 0; i < n; ++i) {
-                float d[3], rgb[3] = {0.0f, 0.0f, 0.0f};
-                cube_to_dir(f, -1.0f + 2.0f * (float)i / (float)(n - 1), -1.0f + 2.0f * (float)j / (float)(n - 1), d);
-                for (int k = 0; k < s->lobe_count; ++k) {
-                    const pn_sg_lobe *g = &s->host_lobes[k];
-                    if (!(g->sharpness <= sharpness))
-                        continue;
-                    const float e = expf(g->sharpness * (d[0] * g->axis[0] + d[1] * g->axis[1] + d[2] * g->axis[2] - 1.0f));
-                    for (int c = 0; c < 3; ++c)
-                        rgb[c] += g->amplitude[c] * e;
-                }
-                float *out = cube + 4 * (((size_t)f * n + j) * n + i);
-                out[0] = rgb[0], out[1] = rgb[1], out[2] = rgb[2], out[3] = 0.0f;
-            }
-    pn_mem_release(&s->lobe_cube);
-    const pn_status st =
-        pn_alloc(ctx, count * 4 * sizeof(float), CL_MEM_READ_ONLY, cube, &s->lobe_cube, "the shared lobes' cube");
-    free(cube);
-    if (!st)
-        s->cube_env_version = s->env_version, s->cube_lobe_count = s->lobe_count, s->cube_sharpness = sharpness;
-    return st;
+    const size_t count = 6 * (size_t)LOBE_CUBE_N * LOBE_CUBE_N;
+    cl_kernel k;
+    pn_status st;
+    if (!s->lobe_cube &&
+        (st = pn_alloc(ctx, 2 * count * 16, CL_MEM_READ_WRITE, NULL, &s->lobe_cube, "the shared lobes' cubes")))
+        return st;
+    if ((st = pn_context_kernel(ctx, "isg", "isg_lobe_cubes", &k)))
+        return st;
+    const cl_int lobes = s->lobe_count, n = LOBE_CUBE_N;
+    const cl_float sh = sharpness;
+    size_t sizes[] = {sizeof(cl_mem), sizeof lobes, sizeof sh, sizeof n, sizeof(cl_mem)};
+    const void *vals[] = {&s->lobes, &lobes, &sh, &n, &s->lobe_cube};
+    if ((st = pn_set_args(ctx, k, "isg_lobe_cubes", 5, sizes, vals)) ||
+        (st = pn_enqueue_1d(ctx, k, "isg_lobe_cubes", count, 64)))
+        return st;
+    s->cube_env_version = s->env_version, s->cube_lobe_count = s->lobe_count, s->cube_sharpness = sharpness;
+    return PN_SUCCESS;
 }
 
 static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image)
@@ -652,7 +627,7 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const cl_mem gamma = g ? g->gamma : s->lobes, gamma_levels = g ? g->levels : s->lobes;
     const cl_int shared_grid = (cl_int)r->params[P_SHARED_GRID], cube_n = LOBE_CUBE_N;
     const cl_float shared_sharpness = (cl_float)r->params[P_SHARED_SHARPNESS];
-    if (shared_grid > 0 && (st = lobe_cube(r, shared_sharpness)))
+    if (shared_grid > 0 && (st = lobe_cubes(r, shared_sharpness)))
         return st;
     const cl_mem cube_buf = shared_grid > 0 ? s->lobe_cube : s->lobes; /* unread when off */
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count,
@@ -677,7 +652,6 @@ static void destroy(pn_renderer r)
     state *s = r->state;
     pn_mem_release(&s->lobes);
     pn_mem_release(&s->lobe_cube);
-    free(s->host_lobes);
     pn_mem_release(&s->device_spheres);
     pn_mem_release(&s->device_owners);
     pn_mem_release(&s->device_nodes);
