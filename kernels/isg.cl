@@ -694,7 +694,7 @@ inline float3 pn_isg_env_specular(pn_sg b, float3 p, float3 n, uint self_id, int
     return b.amplitude * pn_sg_hemisphere_integral(b.sharpness) * sum;
 }
 
-/* The shared hemisphere grid (`shared_grid` M_s > 0; docs/isg.md section 8):
+/* The shared hemisphere grid (`shared_grid` M_s > 0; docs/isg.md section 9):
  * the diffuse light of every lobe no sharper than `shared_sharpness`, summed
  * into one radiance L_b (the first vertex-grid cube of `lobe_cube`, built by
  * isg_lobe_cubes when the lobes change), is shadowed by one
@@ -721,7 +721,10 @@ inline float3 pn_isg_shared_occluded(float3 p, float3 n, uint self_id, int self_
     pn_isg_grid pg;
     pn_isg_grid_init(hemi, grid, &pg);
     uint mask[PN_ISG_MAX_SHARED];
-    if (pn_isg_mark(&pg, p, n, self_id, self_occlusion, spheres, owners, sphere_count, nodes, tree, mask) <= 0)
+    /* No LOD cut here: its threshold is in patch steps, and this grid's are a broad lobe's (pi / M_s). */
+    pn_isg_tree exact = *tree;
+    exact.lod = 0.0f;
+    if (pn_isg_mark(&pg, p, n, self_id, self_occlusion, spheres, owners, sphere_count, nodes, &exact, mask) <= 0)
         return (float3)(0.0f); /* nothing marked (inside an occluder: ruled out by the caller) */
     float3 occluded = (float3)(0.0f);
     for (int i = 0; i < grid; ++i) {
@@ -745,7 +748,7 @@ inline float3 pn_isg_shared_occluded(float3 p, float3 n, uint self_id, int self_
  * lobes no sharper than `sharpness`: out[0, 6 n^2) their summed radiance
  * L_b(d) = sum amplitude e^{lambda (d.axis - 1)}, out[6 n^2, 12 n^2) their
  * summed unshadowed irradiance E_b(n) = sum pn_sg_irradiance (docs/isg.md
- * section 8). Built by the host (capi/src/methods/isg.c lobe_cubes) when the
+ * section 9). Built by the host (capi/src/methods/isg.c lobe_cubes) when the
  * lobes or the sharpness change. */
 kernel void isg_lobe_cubes(global const float4 *lobes, int lobe_count, float sharpness, int n, global float4 *out)
 {

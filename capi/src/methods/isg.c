@@ -38,7 +38,7 @@ static const pn_param_desc params[] = {
      "receiver, 2 all used."},
     {"specular_shadows", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
      "1: the specular term is shadowed (patch by patch or by its product lobes' visibility), 0: unshadowed."},
-    {"env_sharpness", PN_PARAM_FLOAT, PN_PARAM_FRAME, 100, 0, 1e9, "",
+    {"env_sharpness", PN_PARAM_FLOAT, PN_PARAM_FRAME, 10, 0, 1e9, "",
      "BRDF lobes at least this sharp take the specular_mode path (the env on their own visible patches); "
      "broader ones use the SG lobe products."},
     {"sphere_tree", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
@@ -51,11 +51,12 @@ static const pn_param_desc params[] = {
     {"lod", PN_PARAM_FLOAT, PN_PARAM_FRAME, 0, 0, 16, "patch steps",
      "LOD cut of the sphere tree: a node wholly in front of the receiver whose bounding sphere subtends less "
      "than lod patch steps of a lobe's window occludes with that sphere instead of its spheres (0: off, the "
-     "exact walk; needs sphere_tree 1 and self_occlusion 1 or 2; docs/isg.md section 8)."},
-    {"shared_grid", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 31, "patches per side",
+     "exact walk; needs sphere_tree 1 and self_occlusion 1 or 2; per-lobe windows only, not the shared grid; "
+     "docs/isg.md section 8)."},
+    {"shared_grid", PN_PARAM_INT, PN_PARAM_FRAME, 16, 0, 31, "patches per side",
      "M_s: the diffuse light of the lobes no sharper than shared_sharpness is shadowed by one marking per "
      "pixel of an M_s x M_s grid over the receiver's hemisphere (their summed radiance read per occluded "
-     "patch) instead of one marking per lobe (0: off, every lobe its own window; docs/isg.md section 8)."},
+     "patch) instead of one marking per lobe (0: off, every lobe its own window; docs/isg.md section 9)."},
     {"shared_sharpness", PN_PARAM_FLOAT, PN_PARAM_FRAME, 200, 0, 1e9, "",
      "With shared_grid > 0: light lobes at most this sharp go through the shared hemisphere grid, sharper "
      "ones (a sun) keep their own patch window."},
