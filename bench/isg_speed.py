@@ -117,6 +117,8 @@ class Kernel:
                 self.table,
                 # specular_mode 0 (the patches; Gamma_L unread: the table stands in for its buffers)
                 *((np.int32(0), self.table, self.table, np.int32(1), np.float32(1.0)) if not kernels else ()),
+                # shared_grid 0: the per-lobe windows (the lobe cubes unread: the table stands in for them)
+                *((np.int32(0), np.float32(200.0), self.table, np.int32(2)) if not kernels else ()),
                 self.out, *extra_args]
         self.queue.finish()
         t0, c0 = time.perf_counter(), time.process_time()

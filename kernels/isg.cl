@@ -46,6 +46,8 @@
 #include "common/sphere_maps.cl"
 
 #define PN_ISG_MAX_GRID 24
+/* The shared hemisphere grid (shared_grid; pn_isg_shared_occluded) may be finer: one 32-bit word per row. */
+#define PN_ISG_MAX_SHARED 31
 #define PN_ISG_LANES 32 /* two float16 */
 #define PN_ISG_WINDOW_SIGMAS 3.0f
 #define PN_ISG_TOUCH 1e-3f
@@ -431,7 +433,7 @@ inline int pn_isg_mark_spheres(const pn_isg_grid *pg, float3 p, float3 n, uint s
 {
     /* The window's cone: its corners lie within w * sqrt(2) of the axis. */
     const float cone = fmin((0.5f * PN_PI - pg->lo) * 1.41421356f, PN_PI), cos_cone = cos(cone), sin_cone = sin(cone);
-    for (int i = 0; i < PN_ISG_MAX_GRID; ++i)
+    for (int i = 0; i < pg->grid; ++i)
         mask[i] = 0u;
     int any = 0;
     if (sphere_count <= 0)
@@ -702,6 +704,82 @@ inline float3 pn_isg_env_specular(pn_sg b, float3 p, float3 n, uint self_id, int
     return b.amplitude * pn_sg_hemisphere_integral(b.sharpness) * sum;
 }
 
+/* The shared hemisphere grid (`shared_grid` M_s > 0; docs/isg.md section 9):
+ * the diffuse light of every lobe no sharper than `shared_sharpness`, summed
+ * into one radiance L_b (the first vertex-grid cube of `lobe_cube`, built by
+ * isg_lobe_cubes when the lobes change), is shadowed by one
+ * marking per pixel rather than one per lobe: the receiver's hemisphere is the
+ * ISG-frame window of the axis n with w = pi/2 (theta, phi in [0, pi], each cut
+ * into M_s), its patches marked as a lobe's are (pn_isg_mark: spheres, tree,
+ * LOD cut, thin shells, self-occlusion alike), and the occluded irradiance is
+ *   O = sum over marked patches of L_b(d_ij) (n . d_ij) Omega_ij
+ * with n . d_ij = sin theta_i sin phi_j and the patch's exact solid angle
+ * Omega_ij = step (cos theta_i0 - cos theta_i1) = 2 step sin(step / 2) sin theta_i.
+ * Returns O (RGB); the caller subtracts it from the same lobes' unshadowed
+ * irradiance E_b(n) (their closed forms pn_sg_irradiance summed, read from the
+ * second cube of isg_lobe_cubes: one lookup per pixel instead of a closed form
+ * per lobe). */
+inline float3 pn_isg_shared_occluded(float3 p, float3 n, uint self_id, int self_occlusion,
+                                     global const float4 *spheres, global const uint *owners, int sphere_count,
+                                     global const float4 *nodes, const pn_isg_tree *tree, int grid,
+                                     global const float4 *lobe_cube, int lobe_cube_n)
+{
+    pn_sg hemi;
+    hemi.axis = n;
+    hemi.sharpness = 0.0f; /* window pi/2: the whole front hemisphere */
+    hemi.amplitude = (float3)(1.0f);
+    pn_isg_grid pg;
+    pn_isg_grid_init(hemi, grid, &pg);
+    uint mask[PN_ISG_MAX_SHARED];
+    /* No LOD cut here: its threshold is in patch steps, and this grid's are a broad lobe's (pi / M_s). */
+    pn_isg_tree exact = *tree;
+    exact.lod = 0.0f;
+    if (pn_isg_mark(&pg, p, n, self_id, self_occlusion, spheres, owners, sphere_count, nodes, &exact, mask) <= 0)
+        return (float3)(0.0f); /* nothing marked (inside an occluder: ruled out by the caller) */
+    float3 occluded = (float3)(0.0f);
+    for (int i = 0; i < grid; ++i) {
+        uint f = mask[i];
+        if (f == 0u)
+            continue;
+        const float si = pg.sin_c[i], ci = pg.cos_c[i];
+        const float3 rx = si * pg.x, ry = ci * pg.y, rz = si * pg.z;
+        float3 row = (float3)(0.0f);
+        for (; f != 0u; f &= f - 1u) {
+            const int j = pn_isg_ctz(f);
+            row += pg.sin_c[j] * pn_cube_grid_lookup(lobe_cube, lobe_cube_n, pg.cos_c[j] * rx + ry + pg.sin_c[j] * rz);
+        }
+        occluded += (si * si) * row;
+    }
+    return (2.0f * pg.step * sin(0.5f * pg.step)) * occluded;
+}
+
+/* The shared hemisphere grid's two vertex-grid cubes (n vertices a side, face f
+ * at a_i = -1 + 2 i / (n - 1) as pn_cube_grid_lookup reads them), over the
+ * lobes no sharper than `sharpness`: out[0, 6 n^2) their summed radiance
+ * L_b(d) = sum amplitude e^{lambda (d.axis - 1)}, out[6 n^2, 12 n^2) their
+ * summed unshadowed irradiance E_b(n) = sum pn_sg_irradiance (docs/isg.md
+ * section 9). Built by the host (capi/src/methods/isg.c lobe_cubes) when the
+ * lobes or the sharpness change. */
+kernel void isg_lobe_cubes(global const float4 *lobes, int lobe_count, float sharpness, int n, global float4 *out)
+{
+    const int gid = get_global_id(0), count = 6 * n * n;
+    if (gid >= count)
+        return;
+    const int f = gid / (n * n), j = (gid / n) % n, i = gid % n;
+    const float step = 2.0f / (float)(n - 1);
+    const float3 d = normalize(pn_cube_to_dir(f, -1.0f + (float)i * step, -1.0f + (float)j * step));
+    float3 l = (float3)(0.0f), e = (float3)(0.0f);
+    for (int k = 0; k < lobe_count; ++k) {
+        const pn_sg g = pn_sg_load(lobes, k);
+        if (!(g.sharpness <= sharpness))
+            continue;
+        l += g.amplitude * pn_sg_eval(d, g.axis, g.sharpness);
+        e += pn_sg_irradiance(g, d);
+    }
+    out[gid] = (float4)(l, 0.0f);
+    out[count + gid] = (float4)(e, 0.0f);
+}
+
 kernel void shade_isg(global const float4 *position, global const float4 *normal, global const float4 *albedo,
                       global const float4 *material, global const uint *instance_id, int count,
                       global const float4 *cube, int n_cube, global const float4 *lobes,
@@ -710,7 +788,8 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
                       global const uint *triangle_owners, int triangle_count,
                       int grid, int self_occlusion, int specular_shadows, float env_sharpness, float4 camera,
                       global const float *table, int specular_mode, global const float4 *gamma,
-                      global const int *gamma_levels, int gamma_count, float gamma_lambda0, global float4 *image)
+                      global const int *gamma_levels, int gamma_count, float gamma_lambda0, int shared_grid,
+                      float shared_sharpness, global const float4 *lobe_cube, int lobe_cube_n, global float4 *image)
 {
     const int gid = get_global_id(0);
     if (gid >= count)
@@ -746,6 +825,9 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
     /* Inside an occluder every shadowed lobe's V is 0 (pn_isg_mark would find it per lobe). */
     const bool inside = pn_isg_inside(p, n, id, self_occlusion, spheres, owners, sphere_count, nodes, &tree);
     float3 diffuse = (float3)(0.0f), specular = (float3)(0.0f);
+    /* The shared lobes' unshadowed irradiance: the second cube of isg_lobe_cubes. */
+    const float3 shared = shared_grid > 0 ? pn_cube_grid_lookup(lobe_cube + 6 * lobe_cube_n * lobe_cube_n, lobe_cube_n, n)
+                                          : (float3)(0.0f);
     if (env_specular && !(inside && specular_shadows))
         specular = pn_isg_env_specular(brdf[0], p, n, id, specular_shadows ? self_occlusion : 0, spheres, owners,
                                        specular_shadows ? sphere_count : 0, nodes, &spec_tree, grid, table, cube,
@@ -753,7 +835,8 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
                                        specular_mode, gamma, gamma_levels, gamma_count, gamma_lambda0);
     for (int k = 0; k < lobe_count; ++k) {
         const pn_sg g = pn_sg_load(lobes, k);
-        const float3 e = pn_sg_irradiance(g, n);
+        const bool own_window = shared_grid <= 0 || g.sharpness > shared_sharpness; /* else in `shared` */
+        const float3 e = own_window ? pn_sg_irradiance(g, n) : (float3)(0.0f);
         if (e.x > 0.0f || e.y > 0.0f || e.z > 0.0f)
             diffuse += e * (inside ? 0.0f
                                    : pn_isg_visibility(pn_sg_product(g, cosine), p, n, id, self_occlusion, spheres,
@@ -768,6 +851,10 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
                                                                        sphere_count, nodes, &tree, grid, table));
         }
     }
+    if ((shared.x > 0.0f || shared.y > 0.0f || shared.z > 0.0f) && !inside)
+        diffuse += fmax(shared - pn_isg_shared_occluded(p, n, id, self_occlusion, spheres, owners, sphere_count, nodes,
+                                                        &tree, shared_grid, lobe_cube, lobe_cube_n),
+                        0.0f);
     const float3 c = m.albedo * PN_INV_PI * diffuse + m.ks * specular;
     image[gid] = (float4)(fmax(c, 0.0f), 1.0f);
 }

@@ -365,15 +365,52 @@ def env_specular(axis, lam, mu, p, n, self_id, self_occlusion, spheres, owners, 
     return np.asarray(mu, np.float64) * float(sg_hemisphere_integral(lam)) * out
 
 
+LOBE_CUBE_N = 65  # capi/src/methods/isg.c LOBE_CUBE_N
+
+
+def lobe_cube(lobes, sharpness: float, n: int = LOBE_CUBE_N) -> np.ndarray:
+    """The host's lobe_cube: sum over the lobes (K, 7) with lambda <= sharpness of mu e^{lambda (d.axis - 1)}
+    at every vertex d of a vertex-grid cube of n a side (6 n n, 3), in float64."""
+    d = gamma_vertices(n)
+    out = np.zeros((len(d), 3))
+    for lobe in np.asarray(lobes, np.float64):
+        if lobe[3] <= sharpness:
+            out += np.exp(lobe[3] * (d @ lobe[:3] - 1.0))[:, None] * lobe[4:7]
+    return out
+
+
+def shared_occluded(p, n, self_id, self_occlusion, spheres, owners, grid, cube, cube_n=LOBE_CUBE_N, tree=None,
+                    shells=None, light=None):
+    """(O, inside) of pn_isg_shared_occluded: the receiver's hemisphere as the window of axis n with w = pi/2
+    (patch_mask at lambda 0), O = sum over marked patches of L_b(d) (n.d) Omega, Omega the patch's solid angle
+    (delta phi (cos theta0 - cos theta1), theta from the frame's y axis), L_b the bilinear lookup of ``cube``
+    (grid_lookup), or ``light(d)`` when given (the exact lobe sum, for the cube's error)."""
+    p, n = np.asarray(p, np.float64), np.asarray(n, np.float64)
+    mask, inside = patch_mask(n, 0.0, p, n, self_id, self_occlusion, spheres, owners, grid, tree, shells)
+    if inside or not mask.any():
+        return np.zeros(3), inside
+    x, y = frame(n)
+    step = math.pi / grid
+    out = np.zeros(3)
+    for i, j in zip(*np.nonzero(mask)):
+        th, ph = (i + 0.5) * step, (j + 0.5) * step
+        d = math.sin(th) * (math.cos(ph) * x + math.sin(ph) * n) + math.cos(th) * y
+        omega = step * (math.cos(i * step) - math.cos((i + 1) * step))
+        rad = light(d) if light is not None else grid_lookup(cube, cube_n, d)
+        out += rad * float(d @ n) * omega
+    return out, False
+
+
 def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, grid, self_occlusion=1,
           specular_shadows=1, env_sharpness=math.inf, face_rgb=None, gamma=None, tree=None,
-          shells=None) -> np.ndarray:
+          shells=None, shared=None) -> np.ndarray:
     """One pixel of shade_isg. lobes: (K, 7) axis xyz, sharpness, amplitude rgb;
     face_rgb: the env cube as one RGB per face (used by the env specular path,
     for BRDF lobes at least env_sharpness sharp); gamma: (levels, tables) of
     Gamma_L for specular_mode 1 (None: specular_mode 0); tree: (nodes, lod) of the LOD cut, the spheres
     in penumbra.methods.isg.sphere_tree's order (patch_mask); shells: (triangles (T, 3, 3), owners) of
-    the thin shells."""
+    the thin shells; shared: (M_s, shared_sharpness, cube) of the shared hemisphere grid (shared_occluded;
+    None: off), cube from lobe_cube(lobes, shared_sharpness)."""
     p, n = np.asarray(p, np.float64), np.asarray(n, np.float64)
     n = n / np.linalg.norm(n)
     diffuse, specular = np.zeros(3), np.zeros(3)
@@ -387,10 +424,13 @@ def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, g
             specular = env_specular(b_axis, b_lam, b_mu, p, n, self_id, self_occlusion if specular_shadows else 0,
                                     spheres if specular_shadows else [], owners, grid, face_rgb, gamma,
                                     tree if specular_shadows else None, shells if specular_shadows else None)
+    shared_e = np.zeros(3)
     for lobe in np.asarray(lobes, np.float64):
         axis, lam, mu = lobe[:3], lobe[3], lobe[4:7]
         e = irradiance(axis, lam, mu, n)
-        if (e > 0).any():
+        if shared is not None and lam <= shared[1]:
+            shared_e += e
+        elif (e > 0).any():
             m_axis, m_lam, _ = sg_product(axis, lam, 1.0, n, COS_SHARPNESS, COS_AMPLITUDE)
             diffuse += e * visibility(m_axis, float(m_lam), p, n, self_id, self_occlusion, spheres, owners, grid,
                                       tree, shells)
@@ -402,6 +442,10 @@ def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, g
                                shells) \
                     if specular_shadows else 1.0
                 specular += s * v
+    if shared is not None and (shared_e > 0).any():
+        o, inside = shared_occluded(p, n, self_id, self_occlusion, spheres, owners, shared[0], shared[2], tree=tree,
+                                    shells=shells)
+        diffuse += 0.0 if inside else np.maximum(shared_e - o, 0.0)
     return np.maximum(np.asarray(albedo, np.float64) / math.pi * diffuse + ks * specular, 0.0)
 
 

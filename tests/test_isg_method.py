@@ -72,6 +72,34 @@ def test_floor_under_a_sphere_in_a_constant_env_is_analytic(ctx):
     assert rel_rms(want[near, None], got[floor][near, :1]) < 0.02
 
 
+@pytest.mark.parametrize("grid", [16, 31])
+def test_shared_grid_through_the_library(ctx, grid):
+    """shared_grid through the C method (its host-built lobe cube): the floor under a sphere in a constant env
+    against the closed form, as the per-lobe windows are checked above; with a sunny sky, close to the
+    per-lobe image and to the reference; out-of-range values refused."""
+    s = build(ctx, procedural.constant(1.0, 64, 32), translate(0.0, 1.6, 0.0, 0.5))
+    got = render(ctx, s, lobes=32, patch_grid=16, shared_grid=grid)
+    pos = s["gb"].read("position")[..., :3].astype(np.float64)
+    floor = s["gb"].read("instance") == s["ids"][0]
+    v = np.array([0.0, 1.6, 0.0]) - pos[floor]
+    d = np.linalg.norm(v, axis=1)
+    want = 0.6 / math.pi * math.pi * (1.0 - (0.5 / d) ** 2 * (v[:, 1] / d))
+    near = d < 3.0
+    assert np.max(np.abs(got[floor][near, 0] - want[near])) < 0.05 * want.max()
+    assert rel_rms(want[near, None], got[floor][near, :1]) < 0.02
+    sky = build(ctx, procedural.sky(64, 32, sun_radiance=20.0, sun_angular_radius_deg=6.0),
+                translate(0.3, 1.2, 0.0, 0.6))
+    fl = sky["gb"].read("instance") == sky["ids"][0]
+    shared, per_lobe = render(ctx, sky, shared_grid=grid), render(ctx, sky, shared_grid=0)
+    ref = render(ctx, sky, "reference", face_size=16)
+    assert rel_rms(ref[fl], shared[fl]) < 0.08
+    assert rel_rms(per_lobe[fl], shared[fl]) < 0.03
+    assert not np.array_equal(shared, per_lobe)  # the switch does reach the kernel
+    for bad in (-1, 32):
+        with pytest.raises(PenumbraError, match="shared_grid"):
+            Renderer(ctx, "isg", shared_grid=bad)
+
+
 def test_moving_the_occluder_moves_the_shadow_and_isg_tracks_the_reference(ctx):
     env = procedural.sky(64, 32, sun_radiance=20.0, sun_angular_radius_deg=6.0)
     a = build(ctx, env, translate(-0.8, 1.2, 0.0, 0.6))
@@ -137,19 +165,21 @@ def test_lod_cut_through_the_library(ctx):
     patches (a node's cap holds its spheres' caps), so it only darkens; against
     the reference its error stays within 0.3 points of the exact walk's at
     lod 4 (measured: 7.96 % exact, 7.97 % at lod 4, 8.26 % at lod 8, 9.18 % at
-    16; the bound is 3x the lod-4 change; docs/isg.md section 9); out-of-range
-    values are refused."""
+    16; the bound is 3x the lod-4 change; docs/isg.md section 9), with the per-lobe windows
+    (shared_grid 0); the shared hemisphere grid's marking takes no cut (the flat loop's image with the
+    cut at 16); out-of-range values are refused."""
     rng = np.random.default_rng(11)
     c = np.repeat(np.c_[rng.uniform(-3, 3, 25), rng.uniform(0.2, 1.5, 25), rng.uniform(-3, 3, 25)], 8, axis=0)
     spheres = np.c_[c + rng.uniform(-0.2, 0.2, c.shape), rng.uniform(0.03, 0.1, len(c))].tolist()
     s = build(ctx, procedural.sky(64, 32, sun_radiance=20.0, sun_angular_radius_deg=6.0),
               translate(0.0, 0.0, 0.0, 1.0), spheres=spheres,
               material=Material(albedo=(0.5, 0.5, 0.5), specular=0.3, shininess=300.0))
-    exact = render(ctx, s)
-    np.testing.assert_array_equal(render(ctx, s, lod=0.0), exact)
-    np.testing.assert_array_equal(render(ctx, s, sphere_tree=0), exact)
+    exact = render(ctx, s, shared_grid=0)  # the cut acts on the per-lobe windows only
+    np.testing.assert_array_equal(render(ctx, s, lod=0.0, shared_grid=0), exact)
+    np.testing.assert_array_equal(render(ctx, s, sphere_tree=0, shared_grid=0), exact)
+    np.testing.assert_array_equal(render(ctx, s, lod=16.0, sphere_tree=1), render(ctx, s, lod=16.0, sphere_tree=0))
     floor = s["gb"].read("instance") == s["ids"][0]
-    cut = {lod: render(ctx, s, lod=lod) for lod in (2.0, 4.0, 16.0)}
+    cut = {lod: render(ctx, s, lod=lod, shared_grid=0) for lod in (2.0, 4.0, 16.0)}
     for img in cut.values():
         assert (img <= exact * (1 + 1e-5) + 1e-6).all()
     assert (cut[4.0] != exact).any() and rel_rms(exact[floor], cut[16.0][floor]) > 0.01  # the cut is taken

@@ -22,7 +22,9 @@ enum {
     P_ENV_SHARPNESS,
     P_SPHERE_TREE,
     P_SPECULAR_MODE,
-    P_LOD
+    P_LOD,
+    P_SHARED_GRID,
+    P_SHARED_SHARPNESS
 };
 
 static const pn_param_desc params[] = {
@@ -36,7 +38,7 @@ static const pn_param_desc params[] = {
      "within 0.2 of their radius of it, 2 all used."},
     {"specular_shadows", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
      "1: the specular term is shadowed (patch by patch or by its product lobes' visibility), 0: unshadowed."},
-    {"env_sharpness", PN_PARAM_FLOAT, PN_PARAM_FRAME, 100, 0, 1e9, "",
+    {"env_sharpness", PN_PARAM_FLOAT, PN_PARAM_FRAME, 10, 0, 1e9, "",
      "BRDF lobes at least this sharp take the specular_mode path (the env on their own visible patches); "
      "broader ones use the SG lobe products."},
     {"sphere_tree", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
@@ -49,7 +51,15 @@ static const pn_param_desc params[] = {
     {"lod", PN_PARAM_FLOAT, PN_PARAM_FRAME, 0, 0, 16, "patch steps",
      "LOD cut of the sphere tree: a node wholly in front of the receiver whose bounding sphere subtends less "
      "than lod patch steps of a lobe's window occludes with that sphere instead of its spheres (0: off, the "
-     "exact walk; needs sphere_tree 1 and self_occlusion 1 or 2; docs/isg.md section 8)."},
+     "exact walk; needs sphere_tree 1 and self_occlusion 1 or 2; per-lobe windows only, not the shared grid; "
+     "docs/isg.md section 8)."},
+    {"shared_grid", PN_PARAM_INT, PN_PARAM_FRAME, 16, 0, 31, "patches per side",
+     "M_s: the diffuse light of the lobes no sharper than shared_sharpness is shadowed by one marking per "
+     "pixel of an M_s x M_s grid over the receiver's hemisphere (their summed radiance read per occluded "
+     "patch) instead of one marking per lobe (0: off, every lobe its own window; docs/isg.md section 9)."},
+    {"shared_sharpness", PN_PARAM_FLOAT, PN_PARAM_FRAME, 200, 0, 1e9, "",
+     "With shared_grid > 0: light lobes at most this sharp go through the shared hemisphere grid, sharper "
+     "ones (a sun) keep their own patch window."},
 };
 
 static const pn_param_desc bake_params[] = {
@@ -71,6 +81,10 @@ typedef struct state {
     uint32_t *tri_owners;     /* host: instance id per triangle */
     size_t tri_capacity, device_tri_capacity;
     cl_mem device_tris, device_tri_owners;
+    cl_mem lobe_cube;         /* the shared lobes' two vertex-grid cubes (isg_lobe_cubes) */
+    uint64_t cube_env_version; /* env map, K and sharpness that `lobe_cube` was built for */
+    int cube_lobe_count;
+    float cube_sharpness;
 } state;
 
 static bool is_sphere_set(const pn_attachment *a)
@@ -259,8 +273,10 @@ static pn_status plan(pn_renderer r, pn_scene scene)
         st = pn_alloc(ctx, (size_t)k * sizeof *lobes, CL_MEM_READ_ONLY, lobes, &s->lobes, "the env map's SG lobes");
     }
     free(lobes);
-    if (!st)
-        s->lobe_count = k, s->env_version = env->version;
+    if (st)
+        return st;
+    s->lobe_count = k, s->env_version = env->version;
+    s->cube_lobe_count = 0; /* the shared lobes' cubes: rebuilt for the new lobes at execute */
     return st;
 }
 
@@ -502,6 +518,39 @@ static pn_status sphere_tree(pn_renderer r, uint32_t n, size_t *node_count)
     return PN_SUCCESS;
 }
 
+/* The shared hemisphere grid's two cubes (kernels/isg.cl isg_lobe_cubes: the
+ * summed radiance L_b and unshadowed irradiance E_b of the lobes no sharper
+ * than `sharpness`), LOBE_CUBE_N vertices a side: at most 0.031 rad between
+ * samples, under a third of the width 1/sqrt(lambda) of a lobe of lambda 100.
+ * Rebuilt on the device when the lobes or the sharpness change. */
+enum { LOBE_CUBE_N = 65 };
+
+static pn_status lobe_cubes(pn_renderer r, float sharpness)
+{
+    state *s = r->state;
+    pn_context ctx = r->obj.ctx;
+    if (s->lobe_cube && s->cube_env_version == s->env_version && s->cube_lobe_count == s->lobe_count &&
+        s->cube_sharpness == sharpness)
+        return PN_SUCCESS;
+    const size_t count = 6 * (size_t)LOBE_CUBE_N * LOBE_CUBE_N;
+    cl_kernel k;
+    pn_status st;
+    if (!s->lobe_cube &&
+        (st = pn_alloc(ctx, 2 * count * 16, CL_MEM_READ_WRITE, NULL, &s->lobe_cube, "the shared lobes' cubes")))
+        return st;
+    if ((st = pn_context_kernel(ctx, "isg", "isg_lobe_cubes", &k)))
+        return st;
+    const cl_int lobes = s->lobe_count, n = LOBE_CUBE_N;
+    const cl_float sh = sharpness;
+    size_t sizes[] = {sizeof(cl_mem), sizeof lobes, sizeof sh, sizeof n, sizeof(cl_mem)};
+    const void *vals[] = {&s->lobes, &lobes, &sh, &n, &s->lobe_cube};
+    if ((st = pn_set_args(ctx, k, "isg_lobe_cubes", 5, sizes, vals)) ||
+        (st = pn_enqueue_1d(ctx, k, "isg_lobe_cubes", count, 64)))
+        return st;
+    s->cube_env_version = s->env_version, s->cube_lobe_count = s->lobe_count, s->cube_sharpness = sharpness;
+    return PN_SUCCESS;
+}
+
 static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image)
 {
     pn_context ctx = r->obj.ctx;
@@ -577,19 +626,24 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const cl_int gamma_count = g ? g->count : 1;
     const cl_float lambda0 = GAMMA_LAMBDA0;
     const cl_mem gamma = g ? g->gamma : s->lobes, gamma_levels = g ? g->levels : s->lobes;
+    const cl_int shared_grid = (cl_int)r->params[P_SHARED_GRID], cube_n = LOBE_CUBE_N;
+    const cl_float shared_sharpness = (cl_float)r->params[P_SHARED_SHARPNESS];
+    if (shared_grid > 0 && (st = lobe_cubes(r, shared_sharpness)))
+        return st;
+    const cl_mem cube_buf = shared_grid > 0 ? s->lobe_cube : s->lobes; /* unread when off */
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count,
                       sizeof(cl_mem), sizeof n, sizeof(cl_mem), sizeof lobes, sizeof(cl_mem),
                       sizeof(cl_mem), sizeof spheres, sizeof(cl_mem), sizeof use_tree, sizeof lod, sizeof(cl_mem), sizeof(cl_mem), sizeof triangles, sizeof grid, sizeof self, sizeof spec, sizeof env_sharpness, sizeof camera,
                       sizeof(cl_mem), sizeof mode, sizeof(cl_mem), sizeof(cl_mem), sizeof gamma_count, sizeof lambda0,
-                      sizeof(cl_mem)};
+                      sizeof shared_grid, sizeof shared_sharpness, sizeof(cl_mem), sizeof cube_n, sizeof(cl_mem)};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->cube, &n, &s->lobes, &lobes,
                           &s->device_spheres, &s->device_owners, &spheres, &s->device_nodes, &use_tree, &lod, &s->device_tris, &s->device_tri_owners,
                           &triangles, &grid, &self,
                           &spec, &env_sharpness, &camera, &table, &mode, &gamma, &gamma_levels, &gamma_count,
-                          &lambda0, &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_isg", 31, sizes, vals)))
+                          &lambda0, &shared_grid, &shared_sharpness, &cube_buf, &cube_n, &image->buffer};
+    if ((st = pn_set_args(ctx, k, "shade_isg", 35, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_isg", (size_t)count, 64);
 }
@@ -598,6 +652,7 @@ static void destroy(pn_renderer r)
 {
     state *s = r->state;
     pn_mem_release(&s->lobes);
+    pn_mem_release(&s->lobe_cube);
     pn_mem_release(&s->device_spheres);
     pn_mem_release(&s->device_owners);
     pn_mem_release(&s->device_nodes);
