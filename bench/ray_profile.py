@@ -17,7 +17,12 @@ For every scene, in one process:
 * checks that every layout gives Embree's hit/miss answers and the binary
   layout's hit distances.
 
-    python bench/ray_profile.py [--scenes bunny_sunny,...] [--rounds 7] [--json out.json]
+  With --packed LAYOUT, that layout is also timed through the 8-float ray
+  entry points (pn_scene_intersect / pn_scene_occluded on rays Scene packs),
+  the host path Scene.intersect / occluded took before the ray-array entry
+  points, and its answers are compared with the arrays path's.
+
+    python bench/ray_profile.py [--scenes bunny_sunny,...] [--rounds 7] [--json out.json] [--packed wide8]
 """
 
 from __future__ import annotations
@@ -88,7 +93,24 @@ def timed(fn, calls: int = 1) -> float:
     return (time.perf_counter() - t0) / calls
 
 
-def profile_scene(name: str, rounds: int, layouts: dict) -> dict:
+def packed_query(scene, o, d, any_hit: bool):
+    """Scene.intersect / Scene.occluded as they were before the ray-array entry
+    points: rays packed into 8 floats (origin, tmin, direction, tmax) for
+    pn_scene_intersect / pn_scene_occluded."""
+    from penumbra.core import Scene
+
+    rays = Scene._rays(o, d, 0.0, np.inf)
+    n = len(rays)
+    if any_hit:
+        out = np.empty(n, np.uint8)
+        scene._call("pn_scene_occluded", scene._h, rays.ctypes.data, n, out.ctypes.data)
+        return out.view(bool)
+    t, inst, tri = np.empty(n, np.float32), np.empty(n, np.uint32), np.empty(n, np.uint32)
+    scene._call("pn_scene_intersect", scene._h, rays.ctypes.data, n, t.ctypes.data, inst.ctypes.data, tri.ctypes.data)
+    return t, inst, tri
+
+
+def profile_scene(name: str, rounds: int, layouts: dict, packed: str = "") -> dict:
     desc = load_scene(str(SCENES[name]))
     builts = {k: build_scene(desc, context(env)) for k, env in layouts.items()}
     first = next(iter(builts.values()))
@@ -103,6 +125,12 @@ def profile_scene(name: str, rounds: int, layouts: dict) -> dict:
     em_hit = em.run(po, pd, query="INTERSECT", output=1)["primID"] != -1
     em_occ = em.run(so, sd, query="OCCLUDED") != -1
     t_ref = first.scene.intersect(po, pd)[0]
+    if packed:
+        pt, pi, ptri = packed_query(builts[packed].scene, po, pd, False)
+        ct, ci, ctri = builts[packed].scene.intersect(po, pd)
+        res["packed_differs"] = {"primary": int(((pt != ct) | (pi != ci) | (ptri != ctri)).sum()),
+                                 "shadow": int((packed_query(builts[packed].scene, so, sd, True)
+                                                != builts[packed].scene.occluded(so, sd)).sum())}
     for k, b in builts.items():
         t = b.scene.intersect(po, pd)[0]
         occ = b.scene.occluded(so, sd)
@@ -124,6 +152,15 @@ def profile_scene(name: str, rounds: int, layouts: dict) -> dict:
         jobs[k] = {"primary": (lambda s=s: s.intersect(po, pd)), "shadow": (lambda s=s: s.occluded(so, sd)),
                    "primary_miss": (lambda s=s, o=far(n_p), d=away(n_p): s.intersect(o, d)),
                    "shadow_miss": (lambda s=s, o=far(n_s), d=away(n_s): s.occluded(o, d))}
+    if packed:
+        # The same layout through the 8-float ray entry points (Scene packs
+        # origins, directions and bounds first): the host path before the
+        # ray-array entry points, for A/B in this run.
+        s = builts[packed].scene
+        jobs["packed"] = {"primary": (lambda s=s: packed_query(s, po, pd, False)),
+                          "shadow": (lambda s=s: packed_query(s, so, sd, True)),
+                          "primary_miss": (lambda s=s, o=far(n_p), d=away(n_p): packed_query(s, o, d, False)),
+                          "shadow_miss": (lambda s=s, o=far(n_s), d=away(n_s): packed_query(s, o, d, True))}
     times = {k: {q: [] for q in v} for k, v in jobs.items()}
     order = list(jobs)
     queries = ["primary", "shadow", "primary_miss", "shadow_miss"]
@@ -158,6 +195,12 @@ def profile_scene(name: str, rounds: int, layouts: dict) -> dict:
             # Per-round ratios, then their median: robust to load changing between rounds.
             L[f"{q}_vs_embree_rounds"] = statistics.median(
                 e / p for e, p in zip(times["embree"][q], times[k][q]))
+    if packed:
+        res["packed"] = {q: {"ms": med["packed"][q] * 1e3, "miss_ms": med["packed"][f"{q}_miss"] * 1e3,
+                             "vs_embree_rounds": statistics.median(
+                                 e / p for e, p in zip(times["embree"][q], times["packed"][q])),
+                             "arrays_over_packed": statistics.median(
+                                 p / a for p, a in zip(times["packed"][q], times[packed][q]))} for q in rays_n}
     if len(builts) > 1:
         # The last layout against each other one: medians of per-round time ratios.
         *others, last = list(builts)
@@ -172,6 +215,7 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=7)
     ap.add_argument("--layouts", default="binary,wide,wide8", help="subset of " + ",".join(LAYOUTS))
     ap.add_argument("--json", default="")
+    ap.add_argument("--packed", default="", help="also time this layout through the 8-float ray entry points")
     args = ap.parse_args(argv)
     layouts = {}
     for k in args.layouts.split(","):
@@ -182,7 +226,7 @@ def main(argv=None) -> int:
     print(f"load: {load}")
     out = {"load_before": load, "scenes": []}
     for name in args.scenes.split(","):
-        r = profile_scene(name, args.rounds, layouts)
+        r = profile_scene(name, args.rounds, layouts, args.packed)
         out["scenes"].append(r)
         print(f"\n{name}: {r['triangles']} triangles, {r['rays']['primary']} primary, {r['rays']['shadow']} shadow rays;"
               f" Embree {r['embree_mrays_per_s']['primary']:.2f} / {r['embree_mrays_per_s']['shadow']:.2f} Mrays/s")
@@ -198,6 +242,13 @@ def main(argv=None) -> int:
                   f" {w['shadow']['triangles_per_ray']:.1f} tris/ray |"
                   f" mismatches {L['primary_mismatches_vs_embree']}/{L['shadow_mismatches_vs_embree']},"
                   f" t differs {L['primary_t_differs_from_first_layout']}")
+        if args.packed:
+            P = r["packed"]
+            print(f"  packed  primary {P['primary']['ms']:.2f} ms (miss-only {P['primary']['miss_ms']:.2f})"
+                  f" x{P['primary']['vs_embree_rounds']:.2f} Embree | shadow {P['shadow']['ms']:.2f} ms (miss-only"
+                  f" {P['shadow']['miss_ms']:.2f}) x{P['shadow']['vs_embree_rounds']:.2f} Embree | arrays/packed"
+                  f" speed-up primary {P['primary']['arrays_over_packed']:.2f}x shadow"
+                  f" {P['shadow']['arrays_over_packed']:.2f}x | answers differ {r['packed_differs']}")
         for a, sp in r.get("speedup", {}).items():
             print(f"  {list(layouts)[-1]}/{a} speed-up (per-round median): primary {sp['primary']:.2f}x,"
                   f" shadow {sp['shadow']:.2f}x")

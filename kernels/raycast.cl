@@ -112,6 +112,50 @@ kernel void occluded_rays(PN_SCENE_ARGS, global const float4 *rays, int count, g
     occluded[gid] = pn_trace(scene, o.xyz, d.xyz, o.w, d.w, &hit, true) ? 1 : 0;
 }
 
+/* intersect_rays and occluded_rays on rays given as origin and direction
+ * arrays (3 floats per ray) with one tmin and tmax: the same trace, so the
+ * same answers, without the host packing rays into two float4. */
+kernel void intersect_ray_arrays(PN_SCENE_ARGS, global const float *origins, global const float *directions,
+                                 float tmin, float tmax, int count, global float *t_out, global uint *instance_out,
+                                 global uint *triangle_out)
+{
+    int gid = get_global_id(0);
+    if (gid >= count)
+        return;
+    float3 o = vload3(gid, origins), d = vload3(gid, directions);
+    pn_scene_view scene = pn_make_scene_view(tlas, instances, blas, tris, instance_count);
+    pn_hit hit;
+#ifdef PN_RAY_STATS
+    bool found = pn_trace(scene, o, d, tmin, tmax, &hit, PN_RAY_STATS == 2);
+    t_out[gid] = (float)hit.nodes;
+    (void)found;
+    instance_out[gid] = hit.boxes;
+    triangle_out[gid] = hit.tests;
+    return;
+#endif
+    if (pn_trace(scene, o, d, tmin, tmax, &hit, false)) {
+        t_out[gid] = hit.t;
+        instance_out[gid] = as_uint4(instances[hit.slot * PN_INSTANCE_STRIDE + PN_INST_OFFSETS]).w;
+        triangle_out[gid] = as_uint(tris[3 * hit.tri].w);
+    } else {
+        t_out[gid] = INFINITY;
+        instance_out[gid] = PN_BACKGROUND;
+        triangle_out[gid] = PN_BACKGROUND;
+    }
+}
+
+kernel void occluded_ray_arrays(PN_SCENE_ARGS, global const float *origins, global const float *directions,
+                                float tmin, float tmax, int count, global uchar *occluded)
+{
+    int gid = get_global_id(0);
+    if (gid >= count)
+        return;
+    float3 o = vload3(gid, origins), d = vload3(gid, directions);
+    pn_scene_view scene = pn_make_scene_view(tlas, instances, blas, tris, instance_count);
+    pn_hit hit;
+    occluded[gid] = pn_trace(scene, o, d, tmin, tmax, &hit, true) ? 1 : 0;
+}
+
 /* Checks every foreground pixel of a G-buffer in three classes: [0] a
  * position or normal that is not finite, or a zero normal; [1] an albedo that
  * is NaN, Inf or negative, or k_s outside [0, 1]; [2] a material whose

@@ -923,3 +923,126 @@ def test_bvh_layouts_identical_on_hard_rays(ctx, monkeypatch, soup, width):
     assert np.isfinite(t).mean() > 0.2 and np.isfinite(t_cut).any() and (np.isfinite(t) & ~np.isfinite(t_cut)).any()
     assert len(np.unique(inst[np.isfinite(t)])) >= 6  # the instances, the soup and the deep mesh are hit
     assert np.isfinite(soup_t).mean() > 0.3
+
+
+# --------------------------------------------------------------------------- (h) ray arrays
+
+
+def packed_query(scene, o, d, tmin, tmax):
+    """The 8-float ray entry points (pn_scene_intersect / pn_scene_occluded) on (o, d, tmin, tmax)."""
+    rays = Scene._rays(o, d, tmin, tmax)
+    n = len(rays)
+    t, inst, tri, occ = np.empty(n, np.float32), np.empty(n, np.uint32), np.empty(n, np.uint32), np.empty(n, np.uint8)
+    scene._call("pn_scene_intersect", scene._h, rays.ctypes.data, n, t.ctypes.data, inst.ctypes.data, tri.ctypes.data)
+    scene._call("pn_scene_occluded", scene._h, rays.ctypes.data, n, occ.ctypes.data)
+    return t, inst, tri, occ.view(bool)
+
+
+@pytest.mark.parametrize("bounds", [(0.0, np.inf), (1.5, 7.0), (0.0, 0.0), (-np.inf, np.inf)])
+def test_ray_arrays_identical_to_packed_rays(ctx, bounds):
+    """Scene.intersect / occluded with one tmin and tmax pass the origin and
+    direction arrays as they are (pn_scene_intersect_arrays /
+    pn_scene_occluded_arrays): answers equal the packed 8-float rays' bit
+    for bit, on the hard rays and a scene of translated, rotated and scaled
+    instances."""
+    rng = np.random.default_rng(23)
+    o, d = hard_rays(rng)
+    o, d = o.astype(np.float32), d.astype(np.float32)
+    meshes, transforms = translated_setup(ctx)
+    scene = Scene(ctx)
+    for name, m in transforms:
+        scene.add(meshes[name][0], m)
+    scene.add(meshes["sphere"][0], affine(np.diag([1.2, 0.8, 1.0]), [0.0, 3.0, 0.0]))
+    scene.commit()
+    tmin, tmax = bounds
+    t, inst, tri = scene.intersect(o, d, tmin=tmin, tmax=tmax)
+    occ = scene.occluded(o, d, tmin=tmin, tmax=tmax)
+    t_ref, inst_ref, tri_ref, occ_ref = packed_query(scene, o, d, tmin, tmax)
+    assert np.array_equal(t, t_ref) and np.array_equal(inst, inst_ref) and np.array_equal(tri, tri_ref)
+    assert np.array_equal(occ, occ_ref)
+    if tmax > tmin:
+        assert np.isfinite(t).sum() > len(t) // 10 and (~occ).any()  # not vacuous
+    else:
+        assert not np.isfinite(t).any() and not occ.any()
+
+
+def test_ray_arrays_on_unaligned_and_strided_memory(soup):
+    """Arrays at odd addresses (copied by the library) and strided or
+    float64 inputs (converted by Scene) give the aligned arrays' answers."""
+    scene = soup["scene"]
+    o, d = soup["origins"][:300].astype(np.float32), soup["directions"][:300].astype(np.float32)
+    t_ref, inst_ref, tri_ref = scene.intersect(o, d)
+    occ_ref = scene.occluded(o, d)
+    n = len(o)
+    for misalign in (4, 8, 2, 1):
+        oa, da = at_offset(12 * n, misalign), at_offset(12 * n, (misalign * 3) % 16)
+        oa[:] = o.reshape(-1).view(np.uint8)
+        da[:] = d.reshape(-1).view(np.uint8)
+        t, inst, tri, occ = (at_offset(4 * n, misalign), at_offset(4 * n, misalign), at_offset(4 * n, misalign),
+                             at_offset(n, misalign))
+        scene._call("pn_scene_intersect_arrays", scene._h, oa.ctypes.data, da.ctypes.data, n, 0.0, np.inf,
+                    t.ctypes.data, inst.ctypes.data, tri.ctypes.data)
+        scene._call("pn_scene_occluded_arrays", scene._h, oa.ctypes.data, da.ctypes.data, n, 0.0, np.inf,
+                    occ.ctypes.data)
+        assert np.array_equal(t.copy().view(np.float32), t_ref)
+        assert np.array_equal(inst.copy().view(np.uint32), inst_ref)
+        assert np.array_equal(tri.copy().view(np.uint32), tri_ref)
+        assert np.array_equal(occ.view(bool), occ_ref)
+    wide = np.zeros((n, 6), np.float32)
+    wide[:, ::2] = o
+    t, inst, tri = scene.intersect(wide[:, ::2], d.astype(np.float64))
+    assert np.array_equal(t, t_ref) and np.array_equal(tri, tri_ref)
+    assert np.isfinite(t_ref).any() and occ_ref.any()  # not vacuous
+
+
+@pytest.mark.parametrize("bad", [0, 255, 256, 999])
+def test_ray_arrays_bad_input_named(soup, bad):
+    """The arrays path checks every origin and direction (in blocks of 256)
+    and the two bounds: a bad ray is named, a NaN bound refused."""
+    rng = np.random.default_rng(bad)
+    o = rng.uniform(-1, 1, (1000, 3)).astype(np.float32)
+    d = unit(rng.normal(size=(1000, 3))).astype(np.float32)
+    for kind in ("nan_origin", "inf_origin", "inf_direction", "nan_direction"):
+        oo, dd = o.copy(), d.copy()
+        (oo if kind.endswith("origin") else dd)[bad, bad % 3] = np.nan if kind.startswith("nan") else -np.inf
+        for query in (soup["scene"].intersect, soup["scene"].occluded):
+            with pytest.raises(InputError, match=f"ray {bad} has a non-finite"):
+                query(oo, dd)
+    for tmin, tmax in ((np.nan, np.inf), (0.0, np.nan)):
+        for query in (soup["scene"].intersect, soup["scene"].occluded):
+            with pytest.raises(InputError, match="tmin or tmax is NaN"):
+                query(o, d, tmin=tmin, tmax=tmax)
+    soup["scene"].occluded(o, d)  # the unmodified rays pass
+
+
+def test_nearest_child_without_the_stack_identical(ctx, monkeypatch, soup):
+    """The 8-wide closest-hit walk visits the nearer of one or two entered
+    children next without pushing it (pn_push8); a build that pushes it as
+    well (-DPN_STACK_NEAREST) must give the same answers bit for bit,
+    triangle ids of exact ties included (the order of visits is the same):
+    hard rays over translated, rotated and scaled instances and a deep
+    mesh, with and without bounds, and the triangle soup."""
+    stacked = build_options_context(monkeypatch, "-DPN_STACK_NEAREST")
+    rng = np.random.default_rng(29)
+    o, d = hard_rays(rng)
+    so, sd = soup["origins"], soup["directions"]
+    tris = soup["tris"]
+    big = procedural.sphere(1.0, 5)
+    tmin = rng.uniform(0.0, 2.0, len(o)).astype(np.float32)
+    tmax = (tmin + rng.uniform(0.0, 8.0, len(o))).astype(np.float32)
+    answers = []
+    for c in (ctx, stacked):
+        meshes, transforms = two_level_setup(c)
+        scene = Scene(c)
+        for name, m in transforms:
+            scene.add(meshes[name][0], m)
+        scene.add(Mesh(c, big.vertices, big.faces), affine(np.diag([1.2, 0.8, 1.0]), [0.0, 3.0, 0.0]))
+        scene.commit()
+        soup_scene = single_instance_scene(c, tris.reshape(-1, 3), np.arange(3 * len(tris)).reshape(-1, 3))
+        answers.append((*scene.intersect(o, d), *scene.intersect(o, d, tmin=tmin, tmax=tmax),
+                        *soup_scene.intersect(so, sd), scene.occluded(o, d)))
+    for k, (a, b) in enumerate(zip(*answers)):
+        assert np.array_equal(a, b), f"answer {k}: {(a != b).sum()} rays differ"
+    t, inst = answers[0][0], answers[0][1]
+    assert np.isfinite(t).mean() > 0.2 and len(np.unique(inst[np.isfinite(t)])) >= 6  # not vacuous
+    assert np.isfinite(answers[0][6]).mean() > 0.3

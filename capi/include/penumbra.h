@@ -447,6 +447,16 @@ PN_API pn_status pn_scene_commit(pn_scene scene);
 PN_API pn_status pn_scene_intersect(pn_scene scene, const float *rays, uint32_t count, float *t,
                                     uint32_t *instance, uint32_t *triangle);
 PN_API pn_status pn_scene_occluded(pn_scene scene, const float *rays, uint32_t count, uint8_t *occluded);
+/* The same queries on rays given as two arrays of 3 floats per ray (origins,
+ * directions; read in place where 4-byte aligned, else copied) with one tmin
+ * and tmax for all (a NaN bound is an error): no packing into the 8-float
+ * layout. Answers are bit-identical to pn_scene_intersect /
+ * pn_scene_occluded on the packed rays. */
+PN_API pn_status pn_scene_intersect_arrays(pn_scene scene, const float *origins, const float *directions,
+                                           uint32_t count, float tmin, float tmax, float *t, uint32_t *instance,
+                                           uint32_t *triangle);
+PN_API pn_status pn_scene_occluded_arrays(pn_scene scene, const float *origins, const float *directions,
+                                          uint32_t count, float tmin, float tmax, uint8_t *occluded);
 
 /* -------------------------------------------------------------- G-buffer */
 

@@ -458,7 +458,8 @@ pn_status pn_scene_intersect(pn_scene scene, const float *rays, uint32_t count, 
     ENTER(scene, PN_MAGIC_SCENE, "scene");
     if (count)
         CHECK_PTR(scene->obj.ctx, rays);
-    return pn_scene_do_query(scene, rays, count, t, instance, triangle, NULL);
+    const pn_ray_input in = {rays, NULL, NULL, 0.0f, 0.0f};
+    return pn_scene_do_query(scene, &in, count, t, instance, triangle, NULL);
 }
 
 pn_status pn_scene_occluded(pn_scene scene, const float *rays, uint32_t count, uint8_t *occluded)
@@ -468,7 +469,33 @@ pn_status pn_scene_occluded(pn_scene scene, const float *rays, uint32_t count, u
         CHECK_PTR(scene->obj.ctx, rays);
         CHECK_PTR(scene->obj.ctx, occluded);
     }
-    return pn_scene_do_query(scene, rays, count, NULL, NULL, NULL, count ? occluded : NULL);
+    const pn_ray_input in = {rays, NULL, NULL, 0.0f, 0.0f};
+    return pn_scene_do_query(scene, &in, count, NULL, NULL, NULL, count ? occluded : NULL);
+}
+
+pn_status pn_scene_intersect_arrays(pn_scene scene, const float *origins, const float *directions, uint32_t count,
+                                   float tmin, float tmax, float *t, uint32_t *instance, uint32_t *triangle)
+{
+    ENTER(scene, PN_MAGIC_SCENE, "scene");
+    if (count) {
+        CHECK_PTR(scene->obj.ctx, origins);
+        CHECK_PTR(scene->obj.ctx, directions);
+    }
+    const pn_ray_input in = {NULL, origins, directions, tmin, tmax};
+    return pn_scene_do_query(scene, &in, count, t, instance, triangle, NULL);
+}
+
+pn_status pn_scene_occluded_arrays(pn_scene scene, const float *origins, const float *directions, uint32_t count,
+                                  float tmin, float tmax, uint8_t *occluded)
+{
+    ENTER(scene, PN_MAGIC_SCENE, "scene");
+    if (count) {
+        CHECK_PTR(scene->obj.ctx, origins);
+        CHECK_PTR(scene->obj.ctx, directions);
+        CHECK_PTR(scene->obj.ctx, occluded);
+    }
+    const pn_ray_input in = {NULL, origins, directions, tmin, tmax};
+    return pn_scene_do_query(scene, &in, count, NULL, NULL, NULL, count ? occluded : NULL);
 }
 
 pn_status pn_scene_render_gbuffer(pn_scene scene, pn_gbuffer gbuffer)

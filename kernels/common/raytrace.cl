@@ -534,13 +534,22 @@ inline float8 pn_ray_box8(const pn_ray_slab *r, float tmin, float tmax, global c
 }
 
 /* pn_push4 for the eight children of an 8-wide node. Closest hits: one or
- * two children entered (most nodes) go on nearest last without sorting,
- * more are sorted with the 19-comparator network for eight (measured: the
- * network alone made primary rays 0.68-0.78x the 4-wide walk; the shortcut
- * is 1.27-1.33x faster than it). */
+ * two children entered (most nodes) need no sorting: the farther goes on
+ * the stack and the nearer one is handed back (*have, *next_first,
+ * *next_count) for the walk to visit next without a store and a load of the
+ * stack (measured: primary rays 1.05-1.11x in CPU time; built with
+ * -DPN_STACK_NEAREST it is pushed too, as before, for A/B). The walk would
+ * pop it next anyway and its entry test against the hit distance, which
+ * has not changed since the node test, always passes, so the order of
+ * visits and every answer are the same. More than two entered children are
+ * sorted with the 19-comparator network for eight and all pushed (handing
+ * back their nearest too measured 0.99-1.01x) (measured: the network alone
+ * made primary rays 0.68-0.78x the 4-wide walk; the shortcut is
+ * 1.27-1.33x faster than it). */
 inline void pn_push8(float8 te, global const float4 *node, bool any_hit, uint *stack, uint *stack_n, float *stack_t,
-                     int *top)
+                     int *top, bool *have, uint *next_first, uint *next_count)
 {
+    *have = false;
     global const float8 *w = (global const float8 *)node;
     uint8 child = as_uint8(w[6]), cnt = as_uint8(w[7]);
     float t0 = te.s0, t1 = te.s1, t2 = te.s2, t3 = te.s3, t4 = te.s4, t5 = te.s5, t6 = te.s6, t7 = te.s7;
@@ -566,10 +575,17 @@ inline void pn_push8(float8 te, global const float4 *node, bool any_hit, uint *s
                 stack_n[sp] = near_a ? nb : na;
                 stack_t[sp] = near_a ? tb : ta;
                 sp += a != b;
+#ifndef PN_STACK_NEAREST
+                /* The nearer one is visited next without the stack. */
+                *have = true;
+                *next_first = near_a ? ca : cb;
+                *next_count = near_a ? na : nb;
+#else
                 stack[sp] = near_a ? ca : cb;
                 stack_n[sp] = near_a ? na : nb;
                 stack_t[sp] = near_a ? ta : tb;
                 ++sp;
+#endif
             }
             *top = sp;
             return;
@@ -614,13 +630,13 @@ inline void pn_push8(float8 te, global const float4 *node, bool any_hit, uint *s
 #if PN_BVH_WIDTH == 8
 #define PN_NODE_F4 16
 #define PN_WIDE_STACK (7 * PN_BVH_MAX_DEPTH + 1)
-#define PN_WIDE_TEST_PUSH(ray, tmin, tmax, n, any_hit, stack, stack_n, stack_t, sp)                                  \
-    pn_push8(pn_ray_box8(ray, tmin, tmax, n), n, any_hit, stack, stack_n, stack_t, sp)
+#define PN_WIDE_TEST_PUSH(ray, tmin, tmax, n, any_hit, stack, stack_n, stack_t, sp, have, nf, nc)                      \
+    pn_push8(pn_ray_box8(ray, tmin, tmax, n), n, any_hit, stack, stack_n, stack_t, sp, have, nf, nc)
 #else
 #define PN_NODE_F4 8
 #define PN_WIDE_STACK PN_BVH4_STACK
-#define PN_WIDE_TEST_PUSH(ray, tmin, tmax, n, any_hit, stack, stack_n, stack_t, sp)                                  \
-    pn_push4(pn_ray_box4(ray, tmin, tmax, n), n, any_hit, stack, stack_n, stack_t, sp)
+#define PN_WIDE_TEST_PUSH(ray, tmin, tmax, n, any_hit, stack, stack_n, stack_t, sp, have, nf, nc)                      \
+    (*(have) = false, pn_push4(pn_ray_box4(ray, tmin, tmax, n), n, any_hit, stack, stack_n, stack_t, sp))
 #endif
 
 /* Traverses one instance's 4-wide BLAS in object space (bvh.h, pn_bvh4_node).
@@ -630,7 +646,9 @@ inline void pn_push8(float8 te, global const float4 *node, bool any_hit, uint *s
  * children (leaves included) on one stack; for closest hits they go
  * farthest first, so the nearest is popped next, and a popped entry whose
  * entry distance lies beyond a hit found meanwhile is dropped (as in the
- * binary walk: only tmax can have changed since the test). */
+ * binary walk: only tmax can have changed since the test). The 8-wide push
+ * may hand the nearest child back instead (have): it is visited next, as
+ * the pop would have done. */
 PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, float3 dir,
                                    const pn_ray_slab *world, float tmin, pn_hit *hit, bool any_hit)
 {
@@ -654,12 +672,23 @@ PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, f
         global const float4 *n = nodes + PN_NODE_F4 * node;
         PN_STAT(hit, nodes, 1);
         PN_STAT(hit, boxes, PN_BVH_WIDTH);
-        PN_WIDE_TEST_PUSH(&ray, tmin, hit->t, n, any_hit, stack, stack_n, stack_t, &sp);
+        bool have;
+        uint next_first, next_count;
+        PN_WIDE_TEST_PUSH(&ray, tmin, hit->t, n, any_hit, stack, stack_n, stack_t, &sp, &have, &next_first,
+                          &next_count);
         /* Next interior node; leaves on the way are tested here. */
         for (;;) {
-            if (!pn_pop(stack_t, &sp, any_hit, hit->t))
-                return found;
-            uint first = stack[sp], count = stack_n[sp];
+            uint first, count;
+            if (have) {
+                have = false;
+                first = next_first;
+                count = next_count;
+            } else {
+                if (!pn_pop(stack_t, &sp, any_hit, hit->t))
+                    return found;
+                first = stack[sp];
+                count = stack_n[sp];
+            }
             if (count == 0) {
                 node = first;
                 break;
@@ -787,11 +816,22 @@ PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float
         global const float4 *n = scene.tlas + PN_NODE_F4 * node;
         PN_STAT(hit, nodes, 1);
         PN_STAT(hit, boxes, PN_BVH_WIDTH);
-        PN_WIDE_TEST_PUSH(&ray, tmin, hit->t, n, any_hit, stack, stack_n, stack_t, &sp);
+        bool have;
+        uint next_first, next_count;
+        PN_WIDE_TEST_PUSH(&ray, tmin, hit->t, n, any_hit, stack, stack_n, stack_t, &sp, &have, &next_first,
+                          &next_count);
         for (;;) {
-            if (!pn_pop(stack_t, &sp, any_hit, hit->t))
-                return found;
-            uint first = stack[sp], count = stack_n[sp];
+            uint first, count;
+            if (have) {
+                have = false;
+                first = next_first;
+                count = next_count;
+            } else {
+                if (!pn_pop(stack_t, &sp, any_hit, hit->t))
+                    return found;
+                first = stack[sp];
+                count = stack_n[sp];
+            }
             if (count == 0) {
                 node = first;
                 break;

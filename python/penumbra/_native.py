@@ -194,6 +194,8 @@ _SIGNATURES = {
     "pn_scene_commit": [_H],
     "pn_scene_intersect": [_H, _P, _u32, _P, _P, _P],
     "pn_scene_occluded": [_H, _P, _u32, _P],
+    "pn_scene_intersect_arrays": [_H, _P, _P, _u32, ctypes.c_float, ctypes.c_float, _P, _P, _P],
+    "pn_scene_occluded_arrays": [_H, _P, _P, _u32, ctypes.c_float, ctypes.c_float, _P],
     "pn_scene_render_gbuffer": [_H, _H],
     "pn_gbuffer_create": [_H, _u32, _u32, _OUT],
     "pn_gbuffer_create_from_cl": [_H, _u32, _u32, ctypes.POINTER(ctypes.c_void_p), _OUT],

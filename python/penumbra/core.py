@@ -481,8 +481,28 @@ class Scene(_Handle):
         rays[:, :3], rays[:, 3], rays[:, 4:7], rays[:, 7] = o, tmin, d, tmax
         return rays
 
+    @staticmethod
+    def _ray_arrays(origins, directions):
+        """Origins and directions as (N, 3) float32 arrays, in place where they already are."""
+        o = _host(origins, np.float32, (3,), "origins")
+        d = _host(directions, np.float32, (3,), "directions")
+        if len(o) != len(d):
+            raise InputError(f"{len(o)} origins but {len(d)} directions")
+        return o, d
+
     def intersect(self, origins, directions, tmin=0.0, tmax=np.inf):
-        """Closest hits: (t, instance, triangle); t = inf and ids = BACKGROUND on a miss."""
+        """Closest hits: (t, instance, triangle); t = inf and ids = BACKGROUND on a miss.
+        tmin and tmax: one value for all rays, or one per ray."""
+        if np.ndim(tmin) == 0 and np.ndim(tmax) == 0:
+            # One bound for all: the arrays go to the C API as they are (pn_scene_intersect_arrays).
+            o, d = self._ray_arrays(origins, directions)
+            n = len(o)
+            t = np.empty(n, np.float32)
+            inst = np.empty(n, np.uint32)
+            tri = np.empty(n, np.uint32)
+            self._call("pn_scene_intersect_arrays", self._h, _ptr(o), _ptr(d), n, float(np.float32(tmin)),
+                       float(np.float32(tmax)), _ptr(t), _ptr(inst), _ptr(tri))
+            return t, inst, tri
         rays = self._rays(origins, directions, tmin, tmax)
         n = len(rays)
         t = np.empty(n, np.float32)
@@ -492,6 +512,13 @@ class Scene(_Handle):
         return t, inst, tri
 
     def occluded(self, origins, directions, tmin=0.0, tmax=np.inf) -> np.ndarray:
+        """Whether anything is hit in (tmin, tmax), per ray (bounds as in intersect)."""
+        if np.ndim(tmin) == 0 and np.ndim(tmax) == 0:
+            o, d = self._ray_arrays(origins, directions)
+            out = np.empty(len(o), np.uint8)
+            self._call("pn_scene_occluded_arrays", self._h, _ptr(o), _ptr(d), len(o), float(np.float32(tmin)),
+                       float(np.float32(tmax)), _ptr(out))
+            return out.view(bool)  # the kernel writes 0 or 1
         rays = self._rays(origins, directions, tmin, tmax)
         out = np.empty(len(rays), np.uint8)
         self._call("pn_scene_occluded", self._h, _ptr(rays), len(rays), _ptr(out))

@@ -459,6 +459,19 @@ static void test_null_pointers(pn_context ctx)
                  PN_ERROR_INVALID_ARGUMENT, ctx, "pn_scene_intersect", "rays", NULL);
     expect_error("pn_scene_occluded(occluded = NULL)", pn_scene_occluded(r.scene, ray, 1, NULL),
                  PN_ERROR_INVALID_ARGUMENT, ctx, "pn_scene_occluded", "occluded", NULL);
+    float org[3] = {0, 0, 3}, dir[3] = {0, 0, -1};
+    expect_error("pn_scene_intersect_arrays(origins = NULL)",
+                 pn_scene_intersect_arrays(r.scene, NULL, dir, 1, 0.0f, INFINITY, NULL, NULL, NULL),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_scene_intersect_arrays", "origins", NULL);
+    expect_error("pn_scene_intersect_arrays(directions = NULL)",
+                 pn_scene_intersect_arrays(r.scene, org, NULL, 1, 0.0f, INFINITY, NULL, NULL, NULL),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "pn_scene_intersect_arrays", "directions", NULL);
+    expect_error("pn_scene_occluded_arrays(occluded = NULL)",
+                 pn_scene_occluded_arrays(r.scene, org, dir, 1, 0.0f, INFINITY, NULL), PN_ERROR_INVALID_ARGUMENT,
+                 ctx, "pn_scene_occluded_arrays", "occluded", NULL);
+    expect_error("pn_scene_occluded_arrays(tmax = NaN)",
+                 pn_scene_occluded_arrays(r.scene, org, dir, 1, 0.0f, NAN, (uint8_t[1]){0}), PN_ERROR_INVALID_VALUE,
+                 ctx, "tmin or tmax", NULL);
     expect_error("pn_gbuffer_get_cl(buffer = NULL)", pn_gbuffer_get_cl(r.gbuffer, PN_GBUFFER_NORMAL, NULL),
                  PN_ERROR_INVALID_ARGUMENT, ctx, "pn_gbuffer_get_cl", "buffer", NULL);
     expect_error("pn_gbuffer_write(host = NULL)", pn_gbuffer_write(r.gbuffer, PN_GBUFFER_NORMAL, NULL, 8 * 8 * 16),
@@ -484,6 +497,10 @@ static void test_null_pointers(pn_context ctx)
     expect_ok("pn_scene_intersect with all outputs NULL", pn_scene_intersect(r.scene, ray, 1, NULL, NULL, NULL), ctx);
     expect_ok("pn_scene_intersect with count 0 and NULL rays", pn_scene_intersect(r.scene, NULL, 0, NULL, NULL, NULL),
               ctx);
+    expect_ok("pn_scene_intersect_arrays with all outputs NULL",
+              pn_scene_intersect_arrays(r.scene, org, dir, 1, 0.0f, INFINITY, NULL, NULL, NULL), ctx);
+    expect_ok("pn_scene_occluded_arrays with count 0 and NULL arrays",
+              pn_scene_occluded_arrays(r.scene, NULL, NULL, 0, 0.0f, INFINITY, NULL), ctx);
     rig_release(&r);
 }
 

@@ -106,7 +106,14 @@ pn_status pn_scene_do_commit(pn_scene scene);
 pn_status pn_scene_ready(pn_scene scene, bool need_env);
 /* Sets the six scene arguments (tlas ... instance count) starting at `first`. */
 pn_status pn_scene_set_kernel_args(pn_scene scene, cl_kernel kernel, const char *name, cl_uint first);
-pn_status pn_scene_do_query(pn_scene scene, const float *rays, uint32_t count, float *t, uint32_t *instance,
+/* The rays of a query: packed (8 floats per ray) when `rays` is set, else
+ * origins and directions (3 floats per ray) with one tmin and tmax. */
+typedef struct pn_ray_input {
+    const float *rays;
+    const float *origins, *directions;
+    float tmin, tmax;
+} pn_ray_input;
+pn_status pn_scene_do_query(pn_scene scene, const pn_ray_input *in, uint32_t count, float *t, uint32_t *instance,
                             uint32_t *triangle, uint8_t *occluded);
 pn_status pn_scene_do_render_gbuffer(pn_scene scene, pn_gbuffer gbuffer);
 pn_material pn_default_material(void);

@@ -736,6 +736,30 @@ static uint32_t first_bad_ray(const float *rays, uint32_t count)
     return count;
 }
 
+/* Index of the first ray whose origin or direction (3 floats each, separate
+ * arrays) is not finite, or count: first_bad_ray's test on these fields. */
+static uint32_t first_bad_vec3(const float *origins, const float *directions, uint32_t count)
+{
+    enum { BLOCK = 256 };
+    for (uint32_t b = 0; b < count; b += BLOCK) {
+        const uint32_t e = count - b < BLOCK ? count : b + BLOCK;
+        uint32_t bad = 0;
+        for (size_t i = 3 * (size_t)b; i < 3 * (size_t)e; ++i) {
+            uint32_t o, d;
+            memcpy(&o, origins + i, sizeof o);
+            memcpy(&d, directions + i, sizeof d);
+            /* Infinity or NaN: the exponent bits all set. */
+            bad |= (uint32_t)((o & 0x7f800000u) == 0x7f800000u) | (uint32_t)((d & 0x7f800000u) == 0x7f800000u);
+        }
+        if (bad)
+            for (uint32_t i = b; i < e; ++i)
+                for (int c = 0; c < 3; ++c)
+                    if (!isfinite(origins[3 * (size_t)i + c]) || !isfinite(directions[3 * (size_t)i + c]))
+                        return i;
+    }
+    return count;
+}
+
 /* A device buffer over `bytes` of caller memory at `host`: the memory itself
  * (CL_MEM_USE_HOST_PTR, no copy; on a CPU device the kernel reads and writes
  * it in place) where `host` has the alignment the kernel's loads need, else
@@ -750,81 +774,107 @@ static pn_status query_buffer(pn_context ctx, size_t bytes, cl_mem_flags flags, 
     return pn_alloc(ctx, bytes, flags, copy_in ? host : NULL, out, what);
 }
 
-/* The results of buffer `mem` into `dst`: a blocking read, or for a buffer
- * over dst itself a blocking map (which on a CPU device copies nothing). */
-static cl_int read_result(pn_context ctx, cl_mem mem, bool in_place, void *dst, size_t bytes)
+/* Enqueues the transfer of the results in `mem` to `dst` without waiting:
+ * a read, or for a buffer over dst itself a map (which on a CPU device
+ * copies nothing; *mapped gets the pointer, to be unmapped once the queue is
+ * done). The caller waits for the queue before it uses dst. */
+static cl_int enqueue_result(pn_context ctx, cl_mem mem, bool in_place, void *dst, size_t bytes, void **mapped)
 {
+    *mapped = NULL;
     if (!in_place)
-        return clEnqueueReadBuffer(ctx->queue, mem, CL_TRUE, 0, bytes, dst, 0, NULL, NULL);
+        return clEnqueueReadBuffer(ctx->queue, mem, CL_FALSE, 0, bytes, dst, 0, NULL, NULL);
     cl_int err;
-    void *p = clEnqueueMapBuffer(ctx->queue, mem, CL_TRUE, CL_MAP_READ, 0, bytes, 0, NULL, NULL, &err);
-    if (err != CL_SUCCESS)
-        return err;
-    if (p != dst)
-        memcpy(dst, p, bytes);
-    return clEnqueueUnmapMemObject(ctx->queue, mem, p, 0, NULL, NULL);
+    *mapped = clEnqueueMapBuffer(ctx->queue, mem, CL_FALSE, CL_MAP_READ, 0, bytes, 0, NULL, NULL, &err);
+    return err;
 }
 
-pn_status pn_scene_do_query(pn_scene scene, const float *rays, uint32_t count, float *t, uint32_t *instance,
+pn_status pn_scene_do_query(pn_scene scene, const pn_ray_input *in, uint32_t count, float *t, uint32_t *instance,
                             uint32_t *triangle, uint8_t *occluded)
 {
     pn_context ctx = scene->obj.ctx;
     pn_status st = pn_scene_ready(scene, false);
     if (st || count == 0)
         return st;
-    const uint32_t bad = first_bad_ray(rays, count);
+    const bool packed = in->rays != NULL;
+    const uint32_t bad = packed ? first_bad_ray(in->rays, count) : first_bad_vec3(in->origins, in->directions, count);
     if (bad < count)
         return pn_fail(ctx, PN_ERROR_INVALID_VALUE, "ray %u has a non-finite origin or direction, or a NaN bound", bad);
+    if (!packed && (isnan(in->tmin) || isnan(in->tmax)))
+        return pn_fail(ctx, PN_ERROR_INVALID_VALUE, "the rays' tmin or tmax is NaN");
     const bool any = occluded != NULL;
-    const char *name = any ? "occluded_rays" : "intersect_rays";
+    const char *name = any ? (packed ? "occluded_rays" : "occluded_ray_arrays")
+                           : (packed ? "intersect_rays" : "intersect_ray_arrays");
     cl_kernel k;
     if ((st = pn_context_kernel(ctx, "raycast", name, &k)))
         return st;
     /* The rays and the result arrays are used in place where aligned (the
-     * kernel loads rays as float4): no per-call copies of them. */
-    cl_mem drays = NULL, out0 = NULL, out1 = NULL, out2 = NULL;
-    bool in0 = false, in1 = false, in2 = false, in_rays;
+     * packed kernels load rays as float4, the others floats): no per-call
+     * copies of them. */
+    cl_mem in0 = NULL, in1 = NULL, out[3] = {NULL, NULL, NULL};
+    bool in0_place = false, in1_place = false, out_place[3] = {false, false, false};
     const size_t n = count;
-    st = query_buffer(ctx, n * 32, CL_MEM_READ_ONLY, rays, 16, true, &drays, &in_rays, "rays");
-    if (!st)
-        st = query_buffer(ctx, any ? n : n * 4, CL_MEM_WRITE_ONLY, any ? (void *)occluded : (void *)t, any ? 1 : 4,
-                          false, &out0, &in0, "ray results");
-    if (!st && !any && !(st = query_buffer(ctx, n * 4, CL_MEM_WRITE_ONLY, instance, 4, false, &out1, &in1,
-                                           "ray results")))
-        st = query_buffer(ctx, n * 4, CL_MEM_WRITE_ONLY, triangle, 4, false, &out2, &in2, "ray results");
+    if (packed)
+        st = query_buffer(ctx, n * 32, CL_MEM_READ_ONLY, in->rays, 16, true, &in0, &in0_place, "rays");
+    else if (!(st = query_buffer(ctx, n * 12, CL_MEM_READ_ONLY, in->origins, 4, true, &in0, &in0_place, "rays")))
+        st = query_buffer(ctx, n * 12, CL_MEM_READ_ONLY, in->directions, 4, true, &in1, &in1_place, "rays");
+    void *dst[3] = {any ? (void *)occluded : (void *)t, instance, triangle};
+    const size_t bytes[3] = {any ? n : n * 4, n * 4, n * 4};
+    for (int j = 0; !st && j < (any ? 1 : 3); ++j)
+        st = query_buffer(ctx, bytes[j], CL_MEM_WRITE_ONLY, dst[j], any ? 1 : 4, false, &out[j], &out_place[j],
+                          "ray results");
     const cl_int cn = (cl_int)count;
     if (!st)
         st = pn_scene_set_kernel_args(scene, k, name, 0);
     if (!st) {
-        size_t sizes[] = {sizeof(cl_mem), sizeof cn, sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem)};
-        const void *vals[] = {&drays, &cn, &out0, &out1, &out2};
-        for (cl_uint i = 0; !st && i < (any ? 3u : 5u); ++i) {
-            cl_int err = clSetKernelArg(k, 6 + i, sizes[i], vals[i]);
+        /* After the six scene arguments: packed: rays, count, outputs;
+         * arrays: origins, directions, tmin, tmax, count, outputs. */
+        const size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(float), sizeof(float), sizeof cn,
+                                sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem)};
+        const void *vals[] = {&in0, &in1, &in->tmin, &in->tmax, &cn, &out[0], &out[1], &out[2]};
+        cl_uint arg = 6;
+        for (int i = 0; !st && i < 8; ++i) {
+            if ((packed && i >= 1 && i <= 3) || (any && i >= 6))
+                continue;
+            cl_int err = clSetKernelArg(k, arg++, sizes[i], vals[i]);
             if (err != CL_SUCCESS)
                 st = pn_fail_cl(ctx, err, "setting ray query arguments");
         }
     }
     if (!st)
         st = pn_enqueue_1d(ctx, k, name, n, 64);
+    /* The results: every transfer enqueued without waiting, then one wait
+     * for the queue (each blocking transfer would be a round trip of its
+     * own through the device's scheduler). */
     cl_int err = CL_SUCCESS;
-    if (!st && any)
-        err = read_result(ctx, out0, in0, occluded, n);
-    if (!st && !any && t)
-        err = read_result(ctx, out0, in0, t, n * 4);
-    if (!st && !any && instance && err == CL_SUCCESS)
-        err = read_result(ctx, out1, in1, instance, n * 4);
-    if (!st && !any && triangle && err == CL_SUCCESS)
-        err = read_result(ctx, out2, in2, triangle, n * 4);
+    void *mapped[3] = {NULL, NULL, NULL};
+    for (int j = 0; !st && err == CL_SUCCESS && j < (any ? 1 : 3); ++j)
+        if (dst[j])
+            err = enqueue_result(ctx, out[j], out_place[j], dst[j], bytes[j], &mapped[j]);
+    bool moved = false;
+    for (int j = 0; j < 3; ++j)
+        moved |= mapped[j] && mapped[j] != dst[j];
+    if (moved) {
+        /* A map that did not return the caller's memory itself: copy once the maps are done. */
+        cl_int e = clFinish(ctx->queue);
+        err = err == CL_SUCCESS ? e : err;
+        for (int j = 0; err == CL_SUCCESS && j < 3; ++j)
+            if (mapped[j] && mapped[j] != dst[j])
+                memcpy(dst[j], mapped[j], bytes[j]);
+    }
+    for (int j = 0; j < 3; ++j)
+        if (mapped[j]) {
+            cl_int e = clEnqueueUnmapMemObject(ctx->queue, out[j], mapped[j], 0, NULL, NULL);
+            err = err == CL_SUCCESS ? e : err;
+        }
+    /* Nothing may still use the caller's memory when the call returns. */
+    cl_int e = clFinish(ctx->queue);
+    err = err == CL_SUCCESS ? e : err;
     if (!st && err != CL_SUCCESS)
         st = pn_fail_cl(ctx, err, "reading ray query results");
-    /* Nothing may still use the caller's memory when the call returns (the
-     * unmaps above are enqueued, and without outputs the kernel is). */
-    if (!st || in_rays || in0 || in1 || in2)
-        clFinish(ctx->queue);
-    pn_mem_release(&drays);
-    pn_mem_release(&out0);
-    pn_mem_release(&out1);
-    pn_mem_release(&out2);
+    pn_mem_release(&in0);
+    pn_mem_release(&in1);
+    for (int j = 0; j < 3; ++j)
+        pn_mem_release(&out[j]);
     return st;
 }
 
