@@ -583,6 +583,8 @@ static uint32_t graded_side(uint32_t base, uint32_t cap, double grade, double po
 {
     if (!(grade > 0.0) || !(mean > 0.0))
         return base;
+    if (!(power > 0.0)) /* black (or a caller's negative luminance): the smallest map */
+        return 8u < cap ? 8u : cap;
     const double want = base * pow(power / mean, grade);
     if (!(want < cap)) /* also +inf */
         return cap;
