@@ -3,7 +3,8 @@
 For each seed scene at the bench size (bench/scenes/depthmap/*.toml, 128 x 96):
 NRMSE against the reference (face 64, sun 4 x 4; penumbra.metrics.compare,
 background excluded) and the frame time (maps + shading, one execute, the
-G-buffer not included) of every setting in --grid; times are medians over
+G-buffer not included) and the texels drawn (the maps with a depth map,
+their sides) of every setting in --grid; times are medians over
 --rounds rounds in which every setting runs once (interleaved, a warm-up
 round excluded), so that the machine's load hits them alike.
 
@@ -77,8 +78,12 @@ def main() -> int:
                 ctx.finish()
                 if k:
                     times[i].append(1000.0 * (time.perf_counter() - t0))
-        for p, e, t in zip(settings, errs, times):
-            row = dict(scene=name, params=p, nrmse=e["nrmse"], rel_rms=e["rel_rms"], frame_ms=float(np.median(t)))
+        for p, e, t, r in zip(settings, errs, times, renderers):
+            sides = r.read_output(built.scene, "map_resolutions", 0).astype(np.int64)
+            drawn = r.read_output(built.scene, "map_frames", 0).reshape(-1, 16)[:, 15] != 0
+            row = dict(scene=name, params=p, nrmse=e["nrmse"], rel_rms=e["rel_rms"], frame_ms=float(np.median(t)),
+                       texels=int((sides[drawn] ** 2).sum()), maps=int(drawn.sum()),
+                       sides=sorted(set(sides[drawn].tolist())))
             rows.append(row)
             print(json.dumps(row), flush=True)
     load_avg = os.getloadavg()

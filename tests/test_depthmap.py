@@ -25,9 +25,11 @@ def domains_of(env_image, n, seed=1):
 
 
 def render(ctx, scene, gb, domains, **params):
-    # One map size unless a test asks for strong maps (the sky's sun domain would get 256^2 by default):
-    # these tests are of the maps at `resolution`; tests/test_depthmap_atlas.py covers maps of several sizes.
+    # One map size unless a test asks for strong or graded maps (the sky's sun domain would get 256^2 and the
+    # others sides by their power by default): these tests are of the maps at `resolution`;
+    # tests/test_depthmap_atlas.py covers maps of several sizes.
     params.setdefault("strong_resolution", 0)
+    params.setdefault("grade", 0.0)
     r = Renderer(ctx, "depthmap", **params)
     dm.set_domains(r, domains)
     img = Image(ctx, gb.width, gb.height)

@@ -208,6 +208,165 @@ def test_strong_resolution_is_checked(ctx, box_scene):
         Renderer(ctx, "depthmap", strong_resolution=5000)
 
 
+# --------------------------------------------------------------------------- grade and strong_cluster
+
+
+def graded(p, base, cap, grade):
+    """The sides `grade` gives (docs/depthmap.md, "Map sides graded by power"), in float64."""
+    want = base * (p / p.mean()) ** grade
+    side = 8 * np.floor(want / 8 + 0.5)
+    return np.clip(side, 8, cap).astype(np.int64), want
+
+
+@pytest.mark.parametrize("grade", [0.25, 0.33, 0.5])
+def test_grade_sides_follow_the_power(ctx, box_scene, grade):
+    """Every domain that is not strong gets resolution x (P / mean)^grade
+    texels a side (a multiple of 8, within [8, strong_resolution]); the strong
+    ones keep strong_resolution; the maps of all those sizes shade as the twin
+    does. Fails if the power is taken as a share of the total (N times too
+    small) or the exponent is ignored."""
+    s = box_scene
+    p = np.asarray(s["domains"], np.float64)[:, 4:7] @ LUMA
+    share, strong = strongest(s["domains"], 1)
+    want, raw = graded(p, 32, 96, grade)
+    assert np.all(np.abs(raw / 8 - np.floor(raw / 8) - 0.5) > 1e-3)  # no rounding tie
+    want[strong] = 96
+    got, r = render(ctx, s["scene"], s["gb"], s["domains"], resolution=32, strong_resolution=96, strong_share=share,
+                    strong_ratio=0.0, grade=grade, specular=0)
+    sides = dm.map_resolutions(r, s["scene"])
+    assert sides.tolist() == want.tolist()
+    assert len(set(sides.tolist())) >= 3  # graded, not two sizes
+    twin_check(s, r, got[..., :3])
+    _, r0 = render(ctx, s["scene"], s["gb"], s["domains"], resolution=32, strong_resolution=96, strong_share=share,
+                   strong_ratio=0.0)
+    assert sorted(set(dm.map_resolutions(r0, s["scene"]).tolist())) == [32, 96]  # grade 0: the rule before
+
+
+def test_grade_keeps_the_texel_budget_and_caps(ctx, box_scene):
+    """grade 0.5 gives each map texels in proportion to its power, so the
+    maps' texels stay about N x resolution^2 (up to the rounding to 8);
+    without strong_resolution a map is never larger than resolution."""
+    s = box_scene
+    n = len(s["domains"])
+    _, r = render(ctx, s["scene"], s["gb"], s["domains"], resolution=64, strong_resolution=4096, strong_share=1.0,
+                  strong_ratio=0.0, grade=0.5)
+    sides = dm.map_resolutions(r, s["scene"])
+    assert abs((sides.astype(np.float64) ** 2).sum() / (n * 64**2) - 1) < 0.1
+    _, r = render(ctx, s["scene"], s["gb"], s["domains"], resolution=32, grade=0.5)
+    sides = dm.map_resolutions(r, s["scene"])
+    assert sides.max() == 32 and sides.min() < 32
+
+
+def test_grade_hard_cases(ctx, box_scene):
+    """A 10^5 : 1 sun (one domain with nearly all the power): it is strong, the
+    others get the smallest maps (8^2) and the image is the twin's; N = 1:
+    its power is the mean, so its side is resolution (or strong_resolution by
+    the share); black domains get 8^2."""
+    s = box_scene
+    doms = s["domains"].copy()
+    doms[0, 4:7] = 1e5 * doms[1:, 4:7].sum(axis=0)
+    got, r = render(ctx, s["scene"], s["gb"], doms, resolution=32, strong_resolution=64, grade=0.5, skip_power=0.0,
+                    specular=0)
+    sides = dm.map_resolutions(r, s["scene"])
+    assert sides[0] == 64 and (sides[1:] == 8).all()
+    twin_check(dict(s, domains=doms), r, got[..., :3])
+    one = doms[:1]
+    _, r = render(ctx, s["scene"], s["gb"], one, resolution=32, grade=0.5)
+    assert dm.map_resolutions(r, s["scene"]).tolist() == [32]
+    _, r = render(ctx, s["scene"], s["gb"], one, resolution=32, strong_resolution=64, grade=0.5)
+    assert dm.map_resolutions(r, s["scene"]).tolist() == [64]
+    black = s["domains"].copy()
+    black[1:, 4:7] = 0.0
+    _, r = render(ctx, s["scene"], s["gb"], black, resolution=32, strong_resolution=64, grade=0.5)
+    assert dm.map_resolutions(r, s["scene"]).tolist() == [64] + [8] * (len(black) - 1)
+
+
+def split_sun_domains(n):
+    img, disk = split_sun_sky()
+    dom = d64.decompose(img, n, seed=1)
+    doms = dm.domain_array(dom.centres, dom.radiance, cap_radius=dom.cap_radius, solid_angle=dom.solid_angle)
+    return doms, np.unique(dom.assign[disk.ravel()])
+
+
+def tiny_sun_domains(spread_deg):
+    """60 sky domains of equal power spread over the sphere and 4 tiny bright
+    domains (10^-4 sr each, 2x the mean power: each below strong_ratio 4 and
+    strong_share 0.2, together 8x the mean) around (0.3, 0.9, 0.3), their
+    centres `spread_deg` apart: a sun split across domains at large N, where
+    power-proportional draws give it several domains of about the mean power."""
+    k = np.arange(60) + 0.5
+    z = 1 - 2 * k / 60
+    phi = np.pi * (3 - np.sqrt(5)) * k
+    sky = np.stack([np.sqrt(1 - z * z) * np.cos(phi), z, np.sqrt(1 - z * z) * np.sin(phi)], 1)
+    axis = np.array([0.3, 0.9, 0.3]) / np.linalg.norm([0.3, 0.9, 0.3])
+    e1 = np.cross(axis, [0, 0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    t = np.radians(spread_deg)
+    sun = [np.cos(t) * axis + np.sin(t) * (np.cos(a) * e1 + np.sin(a) * e2) for a in np.arange(4) * np.pi / 2]
+    dirs = np.concatenate([sky, sun])
+    rad = np.ones((64, 3))
+    rad[60:] = 2.0 * 64 / (60 + 8)  # 2x the mean (the total is 60 + 4 x that)
+    omega = np.concatenate([np.full(60, (4 * np.pi - 4e-4) / 60), np.full(4, 1e-4)])
+    return dm.domain_array(dirs, rad, solid_angle=omega)
+
+
+def test_split_sun_cluster(ctx, box_scene):
+    """Four tiny neighbouring domains of twice the mean power each: neither
+    strong_share nor strong_ratio makes one strong, the cluster rule (their
+    summed power, 8x the mean, is strong) makes all four strong; the image is
+    the twin's. Off (0), with a cut above their brightness, with their summed
+    power below the threshold (strong_ratio 9) or with the four far apart (no
+    neighbours) none is. Fails if the cluster's power is not summed or the
+    neighbours are not required."""
+    s = box_scene
+    doms = tiny_sun_domains(0.5)
+    p = np.asarray(doms, np.float64)[:, 4:7] @ LUMA
+    assert (p[60:] < 4 * p.mean()).all() and (p[60:] < 0.2 * p.sum()).all() and p[60:].sum() > 4 * p.mean()
+    want = np.full(64, 16)
+    want[60:] = 48
+    got, r = render(ctx, s["scene"], s["gb"], doms, resolution=16, strong_resolution=48, strong_cluster=32.0,
+                    specular=0)
+    assert dm.map_resolutions(r, s["scene"]).tolist() == want.tolist()
+    twin_check(dict(s, domains=doms), r, got[..., :3])
+    _, r = render(ctx, s["scene"], s["gb"], doms, resolution=16, strong_resolution=48)  # the defaults
+    assert dm.map_resolutions(r, s["scene"]).tolist() == want.tolist()
+    om = np.asarray(doms, np.float64)[:, 3]
+    dens = (p / om) / (p.sum() / om.sum())
+    for d, params in ((doms, dict(strong_cluster=0.0)), (doms, dict(strong_cluster=float(dens[60:].max() * 1.01))),
+                      (doms, dict(strong_cluster=32.0, strong_ratio=9.0)),
+                      (tiny_sun_domains(60.0), dict(strong_cluster=32.0))):
+        _, r = render(ctx, s["scene"], s["gb"], d, resolution=16, strong_resolution=48, **params)
+        assert (dm.map_resolutions(r, s["scene"]) == 16).all(), params
+
+
+def test_split_sun_at_n64_is_not_a_cluster(ctx, box_scene):
+    """The limit, stated: the 4-texel sun of split_sun_sky at N = 64 spreads
+    over domains of 7-8 degree caps whose brightness (8-13x the average) is
+    that of Uffizi's windows (up to 15x), so the default cut (32) leaves them
+    weak; they are caught at N = 128 by strong_ratio."""
+    s = box_scene
+    doms, sun = split_sun_domains(64)
+    p = np.asarray(doms, np.float64)[:, 4:7] @ LUMA
+    om = np.asarray(doms, np.float64)[:, 3]
+    dens = (p / om) / (p.sum() / om.sum())
+    assert (dens[sun] < 32).all() and (dens[sun] > 4).all()
+    _, r = render(ctx, s["scene"], s["gb"], doms, resolution=16, strong_resolution=48, strong_cluster=32.0)
+    assert (dm.map_resolutions(r, s["scene"]) == 16).all()
+    _, r = render(ctx, s["scene"], s["gb"], doms, resolution=16, strong_resolution=48, strong_cluster=4.0)
+    assert (dm.map_resolutions(r, s["scene"])[sun] == 48).all()
+
+
+@pytest.mark.parametrize("n", [16, 128])
+def test_cluster_leaves_even_maps_alone(ctx, box_scene, n):
+    """A constant map (every domain of about the average brightness): no
+    domain reaches a cut of 2, so there is no cluster and no strong map."""
+    s = box_scene
+    doms = domains_of(procedural.constant(1.0, 64, 32), n)
+    _, r = render(ctx, s["scene"], s["gb"], doms, resolution=16, strong_resolution=48, strong_cluster=2.0)
+    assert (dm.map_resolutions(r, s["scene"]) == 16).all()
+
+
 # --------------------------------------------------------------------------- the caller's maps, any sizes
 
 

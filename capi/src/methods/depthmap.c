@@ -25,11 +25,14 @@
 #define STRONG_SHARE_DEFAULT 0.2      /* a domain with this share of the power is strong (the sun; docs/depthmap.md) */
 #define STRONG_RATIO_DEFAULT 4.0      /* or with this many times the mean domain power (any N; docs/depthmap.md, measured) */
 #define DM_MAX_SIDE 4096              /* largest map side, the renderer's or the caller's */
+#define GRADE_DEFAULT 0.5             /* map side exponent of the power over the mean (docs/depthmap.md, measured) */
+#define STRONG_CLUSTER_DEFAULT 32.0   /* radiance per sr over the average that joins a cluster (docs/depthmap.md) */
+#define DM_CLUSTER_REACH 1.5          /* neighbours: centres within this many times the sum of their cap radii */
 
 enum { P_BACKGROUND, P_DIRECTIONS, P_SEED, P_RESOLUTION, P_MAP_RENDERER, P_BIAS, P_SLOPE_BIAS, P_PCF, P_SPECULAR,
        P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS, P_SKIP_POWER, P_HALF_MAPS, P_FIT,
        P_TABLE_MIN_EXPONENT, P_STRONG_RESOLUTION, P_STRONG_SHARE,
-       P_STRONG_RATIO };
+       P_STRONG_RATIO, P_GRADE, P_STRONG_CLUSTER };
 
 static const pn_param_desc params[] = {
     PN_PARAM_BACKGROUND,
@@ -76,6 +79,14 @@ static const pn_param_desc params[] = {
     {"strong_ratio", PN_PARAM_FLOAT, PN_PARAM_PLAN, STRONG_RATIO_DEFAULT, 0, 1e6, "x the mean",
      "So does a domain whose power is at least this many times the mean domain power (total / N: holds at any N, "
      "where the sun splits across domains); 0: strong_share alone (docs/depthmap.md, measured)."},
+    {"grade", PN_PARAM_FLOAT, PN_PARAM_PLAN, GRADE_DEFAULT, 0, 4, "",
+     "Map side of a domain that is not strong: resolution x (its power over the mean domain power)^grade, rounded "
+     "to a multiple of 8, from 8 up to max(resolution, strong_resolution); 0: every such map resolution "
+     "(docs/depthmap.md, measured)."},
+    {"strong_cluster", PN_PARAM_FLOAT, PN_PARAM_PLAN, STRONG_CLUSTER_DEFAULT, 0, 1e9, "x the average radiance/sr",
+     "Domains at least this many times as bright per solid angle as the environment's average that neighbour each "
+     "other form a cluster; a cluster whose summed power is strong (strong_share or strong_ratio) makes all its "
+     "domains strong (a sun split across domains); 0: off (docs/depthmap.md, measured)."},
 };
 
 _Static_assert(sizeof params / sizeof params[0] <= PN_MAX_METHOD_PARAMS,
@@ -89,7 +100,8 @@ static const pn_output_desc outputs[] = {
                    "is lit unshadowed (0, skip_power) (kernels/depthmap.cl)."},
     {"depth_map", "side^2 floats of domain `index` (its side: map_resolutions), row-major: depth from the light side "
                   "of its box, +inf empty (all +inf for a domain without a map)."},
-    {"map_resolutions", "N floats: each domain's map side in texels (resolution, strong_resolution or the caller's)."},
+    {"map_resolutions",
+     "N floats: each domain's map side in texels (resolution graded by grade, strong_resolution or the caller's)."},
 };
 
 typedef struct state {
@@ -502,9 +514,88 @@ static pn_status plan_skip(pn_renderer r)
     return PN_SUCCESS;
 }
 
+/* strong_cluster: the domains at least `cut` times the average radiance per
+ * solid angle (sum of powers over sum of solid angles; a domain of no solid
+ * angle with power counts as concentrated) are joined with their
+ * neighbours among them (centres within DM_CLUSTER_REACH x (r_i + r_j)) by
+ * union-find; every member of a cluster whose summed power reaches
+ * `threshold` is marked strong in `strong`. */
+static uint32_t find_root(uint32_t *parent, uint32_t i)
+{
+    while (parent[i] != i) {
+        parent[i] = parent[parent[i]];
+        i = parent[i];
+    }
+    return i;
+}
+
+static pn_status mark_clusters(pn_context ctx, const pn_env_domain *d, uint32_t n, const double *power, double total,
+                               double threshold, double cut, unsigned char *strong)
+{
+    double omega = 0.0;
+    for (uint32_t i = 0; i < n; ++i)
+        omega += d[i].solid_angle > 0.0f ? d[i].solid_angle : 0.0;
+    if (!(cut > 0.0) || !(total > 0.0) || !(omega > 0.0))
+        return PN_SUCCESS;
+    const double average = total / omega;
+    uint32_t *member = pn_malloc(ctx, pn_mul_size(n, 2, sizeof *member), "the clusters of bright domains");
+    double *sum = pn_malloc(ctx, pn_mul_size(n, 1, sizeof *sum), "the clusters' powers");
+    if (!member || !sum) {
+        free(member);
+        free(sum);
+        return PN_ERROR_OUT_OF_MEMORY;
+    }
+    uint32_t *parent = member + n, count = 0;
+    for (uint32_t i = 0; i < n; ++i)
+        if (power[i] > 0.0 && (d[i].solid_angle <= 0.0f || power[i] / d[i].solid_angle >= cut * average))
+            member[count++] = i;
+    for (uint32_t a = 0; a < count; ++a)
+        parent[a] = a;
+    for (uint32_t a = 0; a < count; ++a) {
+        const pn_env_domain *x = d + member[a];
+        for (uint32_t b = a + 1; b < count; ++b) {
+            const pn_env_domain *y = d + member[b];
+            double c = (double)x->direction[0] * y->direction[0] + (double)x->direction[1] * y->direction[1] +
+                       (double)x->direction[2] * y->direction[2];
+            c = c > 1.0 ? 1.0 : c < -1.0 ? -1.0 : c;
+            if (acos(c) <= DM_CLUSTER_REACH * ((double)x->cap_radius + y->cap_radius)) {
+                const uint32_t ra = find_root(parent, a), rb = find_root(parent, b);
+                if (ra != rb)
+                    parent[ra > rb ? ra : rb] = ra < rb ? ra : rb;
+            }
+        }
+    }
+    for (uint32_t a = 0; a < count; ++a)
+        sum[a] = 0.0;
+    for (uint32_t a = 0; a < count; ++a)
+        sum[find_root(parent, a)] += power[member[a]];
+    for (uint32_t a = 0; a < count; ++a)
+        if (sum[find_root(parent, a)] >= threshold)
+            strong[member[a]] = 1;
+    free(member);
+    free(sum);
+    return PN_SUCCESS;
+}
+
+/* grade: a domain that is not strong gets resolution x (P_i / mean)^grade
+ * texels a side, rounded to the nearest multiple of 8, within [8, cap]. */
+static uint32_t graded_side(uint32_t base, uint32_t cap, double grade, double power, double mean)
+{
+    if (!(grade > 0.0) || !(mean > 0.0))
+        return base;
+    if (!(power > 0.0)) /* black (or a caller's negative luminance): the smallest map */
+        return 8u < cap ? 8u : cap;
+    const double want = base * pow(power / mean, grade);
+    if (!(want < cap)) /* also +inf */
+        return cap;
+    uint32_t side = 8u * (uint32_t)floor(want / 8.0 + 0.5);
+    return side < 8u ? 8u : side > cap ? cap : side;
+}
+
 /* The atlas of the maps shaded with: the caller's sides, or per domain
- * `resolution`, strong_resolution for a domain holding strong_share of the
- * power or strong_ratio times the mean domain power; then the first texel of each drawn map in a dispatch over them.
+ * strong_resolution for a domain holding strong_share of the power or
+ * strong_ratio times the mean domain power (or in a cluster that does,
+ * strong_cluster), the others `resolution` graded by their power (grade); then the first texel of each drawn map in a dispatch over them.
  * Uploaded when changed. */
 static pn_status plan_atlas(pn_renderer r)
 {
@@ -526,34 +617,63 @@ static pn_status plan_atlas(pn_renderer r)
         return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT, "strong_resolution %u: 0 (off) or 8 to %u texels", strong,
                        DM_MAX_SIDE);
     }
+    double *power = pn_malloc(ctx, pn_mul_size(maps, 1, sizeof *power), "the domains' powers");
+    unsigned char *is_strong = pn_malloc(ctx, maps, "the strong domains");
+    if (!power || !is_strong) {
+        free(atlas);
+        free(starts);
+        free(power);
+        free(is_strong);
+        return PN_ERROR_OUT_OF_MEMORY;
+    }
     double total_power = 0.0;
     for (uint32_t m = 0; m < n; ++m)
-        total_power += domain_power(s->domains + m);
+        total_power += power[m] = domain_power(s->domains + m);
     /* A domain is strong at share * total or ratio * mean, whichever is lower
      * (ratio 0: the share alone). The share alone misses the sun at large N,
      * where it splits across several domains none of which reaches it. */
     double threshold = share * total_power;
     if (ratio > 0.0 && n && ratio * total_power / n < threshold)
         threshold = ratio * total_power / n;
+    for (uint32_t m = 0; m < maps; ++m)
+        is_strong[m] = m < n && total_power > 0.0 && power[m] >= threshold;
+    pn_status st = PN_SUCCESS;
+    if (strong > base && !s->supplied_count &&
+        (st = mark_clusters(ctx, s->domains, n, power, total_power, threshold, r->params[P_STRONG_CLUSTER],
+                            is_strong))) {
+        free(atlas);
+        free(starts);
+        free(power);
+        free(is_strong);
+        return st;
+    }
+    const uint32_t cap = strong > base ? strong : base;
+    const double mean = n ? total_power / n : 0.0;
     size_t texels = 0;
     for (uint32_t m = 0; m < maps; ++m) {
         uint32_t side = base;
         if (s->supplied_count)
             side = s->supplied_res[m]; /* check_supplied: one per domain */
-        else if (strong > base && m < n && total_power > 0.0 && domain_power(s->domains + m) >= threshold)
+        else if (strong > base && is_strong[m])
             side = strong; /* never smaller than the others */
+        else if (m < n)
+            side = graded_side(base, cap, r->params[P_GRADE], power[m], mean);
         atlas[2 * m] = (uint32_t)texels;
         atlas[2 * m + 1] = side;
         texels += (size_t)side * side;
         if (texels > DM_MAX_TEXELS) {
             free(atlas);
             free(starts);
+            free(power);
+            free(is_strong);
             return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
                            "%u depth maps of %u x %u texels (strong: %u x %u) are more than %u texels: lower directions "
                            "or resolution",
                            maps, base, base, strong, strong, DM_MAX_TEXELS);
         }
     }
+    free(power);
+    free(is_strong);
     size_t drawn_texels = 0;
     for (uint32_t k = 0; k < s->drawn; ++k) {
         starts[k] = (uint32_t)drawn_texels;
@@ -561,7 +681,6 @@ static pn_status plan_atlas(pn_renderer r)
         drawn_texels += side * side;
     }
     starts[s->drawn] = (uint32_t)drawn_texels;
-    pn_status st = PN_SUCCESS;
     if (s->atlas && s->atlas_count == maps && !memcmp(s->host_atlas, atlas, (size_t)maps * 2 * sizeof *atlas)) {
         free(atlas);
     } else {

@@ -66,7 +66,7 @@ FRAME_FLOATS = 16  # a map's frame: e1 | u_min, e2 | v_min, d | far, du, dv, dep
 
 def map_resolutions(renderer, scene) -> np.ndarray:
     """Each domain's map side in texels (the ``map_resolutions`` output):
-    ``resolution``, ``strong_resolution`` for the strong domains, or the
+    ``resolution`` graded by ``grade``, ``strong_resolution`` for the strong domains, or the
     caller's sides."""
     return renderer.read_output(scene, "map_resolutions", 0).astype(np.int64)
 
@@ -178,20 +178,16 @@ class Depthmap(Technique):
 
     def sweep(self) -> list[dict]:
         # Directions and map resolution from the cheapest up to the defaults and beyond, each with and without
-        # the strong domains' larger maps (strong_resolution 0: every map `resolution`, the defaults before), and
-        # small maps for the weak domains beside a 128^2 one for the strong;
-        # the cap quadrature (specular 2, the default before the table of cap averages) at 64^2 and at the
-        # defaults, for comparison (docs/depthmap.md).
-        return [{"directions": 16, "resolution": 64, "strong_resolution": 0}, {"directions": 16, "resolution": 64},
-                {"directions": 32, "resolution": 64, "strong_resolution": 0}, {"directions": 32, "resolution": 64},
-                {"directions": 64, "resolution": 64, "strong_resolution": 0}, {"directions": 64, "resolution": 64},
+        # the weak domains' maps graded by power (grade 0: every weak map `resolution`, the rule before), and
+        # small maps for the weak domains beside a 128^2 one for the strong (docs/depthmap.md).
+        fast = [{"directions": n, "resolution": 32, "strong_resolution": 128} for n in (16, 32, 64)]
+        return [{"directions": 16, "resolution": 64, "strong_resolution": 0, "grade": 0.0},
+                {"directions": 32, "resolution": 64, "grade": 0.0}, {"directions": 32, "resolution": 64},
+                {"directions": 64, "resolution": 64, "grade": 0.0}, {"directions": 64, "resolution": 64},
                 {"directions": 128, "resolution": 64},
-                {"directions": 16, "resolution": 32, "strong_resolution": 128},
-                {"directions": 32, "resolution": 32, "strong_resolution": 128},
-                {"directions": 64, "resolution": 32, "strong_resolution": 128},
-                {"directions": 32}, {"strong_resolution": 0}, {},
-                {"directions": 128}, {"directions": 32, "resolution": 64, "specular": 2},
-                {"directions": 64, "resolution": 64, "specular": 2}, {"specular": 2}]
+                *[p for f in fast for p in (dict(f, grade=0.0), f)],
+                {"directions": 32, "resolution": 32},
+                {"directions": 32}, {"grade": 0.0}, {}, {"directions": 128}]
 
 
 TECHNIQUE = Depthmap(NAME)
