@@ -12,8 +12,8 @@ the field's height range) dug into the fBm field of the terrain bench scene
   the fraction of (vertex, azimuth) lanes that can change — a lane can change
   when one of its samples (level L_m at p + d_m e_k) has a B-spline tap in
   level L_m's changed box, or when the receiver's own H_L(p) has one (then
-  every lane of that vertex) — per vertex, per row group of 8 vertices (the
-  kernel's unit), and the fraction of vertices with at least one such lane.
+  every lane of that vertex) — per vertex, per row group of ROW_GROUP = 16
+  vertices (the kernel's unit, HF_ROW in kernels/heightfield.cl), and the fraction of vertices with at least one such lane.
   The level coordinate is taken 0.01 wider on each side, as the kernel does
   (it finds the taps in float). Also the share of the search's samples a
   partial update redoes when a lane resumes at its first changed sample (the
@@ -47,6 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
+ROW_GROUP = 16  # vertices per row group of the env search (HF_ROW, kernels/heightfield.cl)
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
 import heightfield64 as hf64  # noqa: E402
@@ -220,18 +221,18 @@ def fractions(n: int = 257, ls: int = 4, lo: float = 4.0, n_phi: int = 32) -> di
         # spline's window, the maximum of the earlier candidates kept): the samples it redoes
         n_samples = len(cells)
         redo = np.where(first < n_samples, n_samples - np.maximum(first - 3, 0), 0)
-        # what the kernel does: row groups of 8 (their earliest first change), resumed at the
+        # what the kernel does: row groups of ROW_GROUP (their earliest first change), resumed at the
         # last checkpoint (every ls samples, >= 3) at or before it, 3 samples refill the window
         gfirst = first.copy()
-        for g0 in range(0, W, 8):
-            gfirst[:, g0:g0 + 8] = first[:, g0:g0 + 8].min(axis=1, keepdims=True)
+        for g0 in range(0, W, ROW_GROUP):
+            gfirst[:, g0:g0 + ROW_GROUP] = first[:, g0:g0 + ROW_GROUP].min(axis=1, keepdims=True)
         ncp = max((n_samples - 1) // ls, 1)
         ck = np.minimum(gfirst // ls, ncp)
         start = np.where(ck * ls >= 3, ck * ls, 0)
         redo_cp = np.where(gfirst < n_samples, n_samples - np.maximum(start - 3, 0), 0)
         groups = np.zeros_like(lanes)
-        for g0 in range(0, W, 8):
-            groups[:, g0:g0 + 8] = lanes[:, g0:g0 + 8].any(axis=1, keepdims=True)
+        for g0 in range(0, W, ROW_GROUP):
+            groups[:, g0:g0 + ROW_GROUP] = lanes[:, g0:g0 + ROW_GROUP].any(axis=1, keepdims=True)
         ex = exact_lane_mask(W, D, n_phi, rect, sx, sz)
         out["positions"][name] = {
             "edit_box": rect,

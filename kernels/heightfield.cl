@@ -183,11 +183,6 @@ typedef int8 hf_vi;
         return copysign(select(r, M_PI_2_F - r, a > 1.0f), x);                                                  \
     }
 HF_DEFINE_ATAN(hf_atan_v, hf_vf)
-#if HF_LANES == 8
-#define hf_atan8 hf_atan_v
-#else
-HF_DEFINE_ATAN(hf_atan8, float8)
-#endif
 
 /* hf_level_sample for HF_LANES points (same formula, lane by lane). */
 inline hf_vf hf_level_sample_v(global const float *pyr, int4 lev, hf_vf u, hf_vf v, float inv_wm1, float inv_dm1,
@@ -249,6 +244,35 @@ inline hf_vf hf_level_sample_v(global const float *pyr, int4 lev, hf_vf u, hf_vf
         return best;                                                                                            \
     }
 
+/* The same maximum with the divisions by 6 and 48 taken once at the end:
+ * x -> x / 6 (correctly rounded) is monotone, so the largest quotient is the
+ * quotient of the largest numerator, the same float. `knot` and `mid` are
+ * the running maxima of the numerators. */
+#define HF_WINDOW_STEP_N(w0, w1, w2, w3, knot, mid, count)                                                      \
+    {                                                                                                           \
+        if (count == 0)                                                                                         \
+            w0 = w1 = w2 = w3;                                                                                  \
+        else {                                                                                                  \
+            knot = fmax(knot, w1 + 4.0f * w2 + w3);                                                             \
+            if (count >= 2)                                                                                     \
+                mid = fmax(mid, w0 + 23.0f * w1 + 23.0f * w2 + w3);                                             \
+        }                                                                                                       \
+        w0 = w1;                                                                                                \
+        w1 = w2;                                                                                                \
+        w2 = w3;                                                                                                \
+        ++count;                                                                                                \
+    }
+#define HF_WINDOW_MAX(best, knot, mid) fmax(best, fmax(knot / 6.0f, mid / 48.0f))
+#define HF_WINDOW_END_N(w0, w1, w2, best, knot, mid, count)                                                     \
+    {                                                                                                           \
+        if (count == 0)                                                                                         \
+            return -M_PI_2_F;                                                                                   \
+        knot = fmax(knot, w1 + 5.0f * w2);                                                                      \
+        if (count >= 2)                                                                                         \
+            mid = fmax(mid, w0 + 23.0f * w1 + 24.0f * w2);                                                      \
+        return HF_WINDOW_MAX(best, knot, mid);                                                                  \
+    }
+
 inline hf_vf hf_horizon_pyramid_v(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
                                   const float *hp, float ref, float u0, float v0, hf_vf cu, hf_vf cv, float limit,
                                   float inv_wm1, float inv_dm1)
@@ -268,26 +292,112 @@ inline hf_vf hf_horizon_pyramid_v(global const float *pyr, global const int4 *le
     HF_WINDOW_END(w0, w1, w2, best, count)
 }
 
-/* Row groups: the environment's search also runs HF_ROW consecutive
- * vertices of a row at once, one per lane, one azimuth at a time. Their
- * samples then share d, the level and v, and their u differ by at most
- * one base cell per lane, so the 4 x 4 taps of all lanes lie on the same 4
- * rows, within a window of 16 values of each (7 cells of spread plus 3
- * taps): the rows are combined over the window as 4 float16 FMAs, and each
- * lane takes its 4 columns from the combined row -- 32 private loads
- * instead of 128 per-lane global loads per sample. The same B-spline as
- * hf_level_sample (rows first, columns second; `ref` is the group's first
- * vertex, so a flat field still gives exactly 0), but times 36: the weights'
- * two divisions by 6 are folded into the one reciprocal per sample that
- * divides by d (no vector division but the atan's). */
-#define HF_ROW 8
-inline float8 hf_level_sample_row(global const float *pyr, int4 lev, int wm1, float8 u, float v, float inv_wm1,
-                                  float inv_dm1, float ref)
+/* Row groups: the environment's search also runs HF_ROW = 16 consecutive
+ * vertices of a row at once, one per lane of a float16, one azimuth at a
+ * time. Their samples then share d, the level and v, and their u differ by
+ * at most one base cell per lane, so the 4 x 4 taps of all lanes lie on the
+ * same 4 rows, within 19 values of each (15 cells of spread plus 3 taps):
+ * the rows are combined over a window first (4 vector FMAs, weights in v
+ * shared), then each lane takes its 4 columns from the combined row
+ * (hf_level_sample_row). The same B-spline as hf_level_sample (rows first,
+ * columns second; `ref` is the group's first vertex, so a flat field still
+ * gives exactly 0), but times 36: the weights' two divisions by 6 are folded
+ * into the one reciprocal per sample that divides by d (no vector division
+ * but the atan's). Per sample the scalar work (d, level, row pointers,
+ * weights in v, branches) is shared by 16 vertices (8 before: 1.6-1.8x
+ * less time for the search, docs/performance.md). */
+#define HF_ROW 16
+typedef float16 hf_rf;
+typedef int16 hf_ri;
+#define hf_convert_rf convert_float16
+#define hf_vstore_r vstore16
+#define hf_vload_r vload16
+#define HF_ROW_IDS ((hf_ri)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
+#define HF_RLAST(x) ((x).sf)
+#define HF_RGATHER(p, i) ((float16)(p[i.s0], p[i.s1], p[i.s2], p[i.s3], p[i.s4], p[i.s5], p[i.s6], p[i.s7], \
+                                    p[i.s8], p[i.s9], p[i.sa], p[i.sb], p[i.sc], p[i.sd], p[i.se], p[i.sf]))
+HF_DEFINE_ATAN(hf_atan_r, hf_rf)
+#define HF_INLINE inline __attribute__((always_inline))
+/* Lane l's 4 columns w[s_l .. s_l + 3] of a window w of 20 values (l, lh),
+ * s_l in [0, S], S <= 15: a select tree on the bits of s over broadcasts
+ * of the window's values, as deep as S needs (the coarse levels: S <= 1,
+ * one stage) -- no private memory, no per-lane loads. */
+HF_INLINE void hf_pick_columns(float16 l, float4 lh, int16 s, int S, float16 *c0, float16 *c1, float16 *c2,
+                               float16 *c3)
 {
-    /* A level as wide as the base (the finest, about half the samples):
-     * the lanes lie whole cells apart, so they share lane 0's fractional
-     * offset, and away from the border the columns are 4 shifted loads of
-     * the combined row. */
+    const int16 m0 = (s & 1) != 0, m1 = (s & 2) != 0, m2 = (s & 4) != 0, m3 = (s & 8) != 0;
+    if (S <= 0) {
+        *c0 = l.s0;
+        *c1 = l.s1;
+        *c2 = l.s2;
+        *c3 = l.s3;
+    } else if (S <= 1) {
+        const float16 p0 = l.s0, p1 = l.s1, p2 = l.s2, p3 = l.s3, p4 = l.s4;
+        *c0 = select(p0, p1, m0);
+        *c1 = select(p1, p2, m0);
+        *c2 = select(p2, p3, m0);
+        *c3 = select(p3, p4, m0);
+    } else if (S <= 3) {
+        const float16 p0 = l.s0, p1 = l.s1, p2 = l.s2, p3 = l.s3, p4 = l.s4, p5 = l.s5, p6 = l.s6;
+        const float16 e0 = select(p0, p1, m0), e1 = select(p1, p2, m0), e2 = select(p2, p3, m0),
+                      e3 = select(p3, p4, m0), e4 = select(p4, p5, m0), e5 = select(p5, p6, m0);
+        *c0 = select(e0, e2, m1);
+        *c1 = select(e1, e3, m1);
+        *c2 = select(e2, e4, m1);
+        *c3 = select(e3, e5, m1);
+    } else if (S <= 7) {
+        const float16 p0 = l.s0, p1 = l.s1, p2 = l.s2, p3 = l.s3, p4 = l.s4, p5 = l.s5, p6 = l.s6, p7 = l.s7,
+                      p8 = l.s8, p9 = l.s9, p10 = l.sa;
+        const float16 e0 = select(p0, p1, m0), e1 = select(p1, p2, m0), e2 = select(p2, p3, m0),
+                      e3 = select(p3, p4, m0), e4 = select(p4, p5, m0), e5 = select(p5, p6, m0),
+                      e6 = select(p6, p7, m0), e7 = select(p7, p8, m0), e8 = select(p8, p9, m0),
+                      e9 = select(p9, p10, m0);
+        const float16 f0 = select(e0, e2, m1), f1 = select(e1, e3, m1), f2 = select(e2, e4, m1),
+                      f3 = select(e3, e5, m1), f4 = select(e4, e6, m1), f5 = select(e5, e7, m1),
+                      f6 = select(e6, e8, m1), f7 = select(e7, e9, m1);
+        *c0 = select(f0, f4, m2);
+        *c1 = select(f1, f5, m2);
+        *c2 = select(f2, f6, m2);
+        *c3 = select(f3, f7, m2);
+    } else {
+        const float16 p0 = l.s0, p1 = l.s1, p2 = l.s2, p3 = l.s3, p4 = l.s4, p5 = l.s5, p6 = l.s6, p7 = l.s7,
+                      p8 = l.s8, p9 = l.s9, p10 = l.sa, p11 = l.sb, p12 = l.sc, p13 = l.sd, p14 = l.se, p15 = l.sf,
+                      p16 = lh.x, p17 = lh.y, p18 = lh.z;
+        const float16 e0 = select(p0, p1, m0), e1 = select(p1, p2, m0), e2 = select(p2, p3, m0),
+                      e3 = select(p3, p4, m0), e4 = select(p4, p5, m0), e5 = select(p5, p6, m0),
+                      e6 = select(p6, p7, m0), e7 = select(p7, p8, m0), e8 = select(p8, p9, m0),
+                      e9 = select(p9, p10, m0), e10 = select(p10, p11, m0), e11 = select(p11, p12, m0),
+                      e12 = select(p12, p13, m0), e13 = select(p13, p14, m0), e14 = select(p14, p15, m0),
+                      e15 = select(p15, p16, m0), e16 = select(p16, p17, m0), e17 = select(p17, p18, m0);
+        const float16 f0 = select(e0, e2, m1), f1 = select(e1, e3, m1), f2 = select(e2, e4, m1),
+                      f3 = select(e3, e5, m1), f4 = select(e4, e6, m1), f5 = select(e5, e7, m1),
+                      f6 = select(e6, e8, m1), f7 = select(e7, e9, m1), f8 = select(e8, e10, m1),
+                      f9 = select(e9, e11, m1), f10 = select(e10, e12, m1), f11 = select(e11, e13, m1),
+                      f12 = select(e12, e14, m1), f13 = select(e13, e15, m1), f14 = select(e14, e16, m1),
+                      f15 = select(e15, e17, m1);
+        const float16 g0 = select(f0, f4, m2), g1 = select(f1, f5, m2), g2 = select(f2, f6, m2),
+                      g3 = select(f3, f7, m2), g4 = select(f4, f8, m2), g5 = select(f5, f9, m2),
+                      g6 = select(f6, f10, m2), g7 = select(f7, f11, m2), g8 = select(f8, f12, m2),
+                      g9 = select(f9, f13, m2), g10 = select(f10, f14, m2), g11 = select(f11, f15, m2);
+        *c0 = select(g0, g8, m3);
+        *c1 = select(g1, g9, m3);
+        *c2 = select(g2, g10, m3);
+        *c3 = select(g3, g11, m3);
+    }
+}
+
+/* 16 lanes: their taps lie within 19 values of each of the 4 rows (15
+ * cells of spread plus 3 taps). On base-wide levels away from the border
+ * the rows are combined over 20 values (a float16 and a float4 per row) and
+ * the lanes' columns are constant swizzles. Elsewhere, with no tap clamped,
+ * the rows are combined over the narrowest window of 8, 16 or 20 values
+ * that holds every lane's taps (moved left at the level's right end) and
+ * the columns picked by hf_pick_columns; where a tap is clamped (the
+ * border, samples outside the field) the lanes' columns are combined one by
+ * one and picked from private memory. */
+HF_INLINE float16 hf_level_sample_row(global const float *pyr, int4 lev, int wm1, float16 u, float v, float inv_wm1,
+                                      float inv_dm1, float ref)
+{
     const bool whole = lev.y == wm1;
     const float a_first = u.s0 * (float)lev.y * inv_wm1, fa_first = floor(a_first);
     const float b = v * (float)lev.z * inv_dm1, fb = floor(b);
@@ -296,61 +406,82 @@ inline float8 hf_level_sample_row(global const float *pyr, int4 lev, int wm1, fl
     global const float *base = pyr + lev.x;
     global const float *r0 = base + clamp(ib, 0, lev.z) * row, *r1 = base + clamp(ib + 1, 0, lev.z) * row,
                        *r2 = base + clamp(ib + 2, 0, lev.z) * row, *r3 = base + clamp(ib + 3, 0, lev.z) * row;
-    /* The window starts at column cs, moved inside the level where the taps
-     * are clamped (past the border, or a sample outside the field): the
-     * clamped columns of every lane still lie in it. Levels narrower than 16
-     * values are combined column by column. */
-    const int cs = clamp(c0, 0, max(lev.y - 15, 0));
-    float16 l;
-    if (lev.y >= 15)
-        l = wb.x * (vload16(0, r0 + cs) - ref) + wb.y * (vload16(0, r1 + cs) - ref) +
-            wb.z * (vload16(0, r2 + cs) - ref) + wb.w * (vload16(0, r3 + cs) - ref);
-    else {
-        float t[16];
-        for (int p = 0; p < 16; ++p) {
-            const int c = min(p, lev.y);
-            t[p] = wb.x * (r0[c] - ref) + wb.y * (r1[c] - ref) + wb.z * (r2[c] - ref) + wb.w * (r3[c] - ref);
-        }
-        l = vload16(0, t);
-    }
-    /* Base-wide levels pick the lanes' columns in registers (constant
-     * swizzles): unaligned loads from private memory right after the row's
-     * store stalled on store forwarding. */
-    if (whole && cs == c0 && c0 + 10 <= lev.y) {
+    if (whole && c0 >= 0 && c0 + 19 <= lev.y) {
+        /* values c0 .. c0 + 18 (and c0 + 19, not used); lanes one column
+         * apart (lanes past the row's end are not stored) */
+        const float16 l = wb.x * (vload16(0, r0 + c0) - ref) + wb.y * (vload16(0, r1 + c0) - ref) +
+                          wb.z * (vload16(0, r2 + c0) - ref) + wb.w * (vload16(0, r3 + c0) - ref);
+        const float4 lh = wb.x * (vload4(0, r0 + c0 + 16) - ref) + wb.y * (vload4(0, r1 + c0 + 16) - ref) +
+                          wb.z * (vload4(0, r2 + c0 + 16) - ref) + wb.w * (vload4(0, r3 + c0 + 16) - ref);
         const float4 wa = hf_bspline6(a_first - fa_first);
-        return wa.x * l.s01234567 + wa.y * l.s12345678 + wa.z * l.s23456789 + wa.w * l.s3456789a;
+        const float16 l1 = (float16)(l.s1234, l.s5678, l.s9abc, l.sdef, lh.x),
+                      l2 = (float16)(l.s2345, l.s6789, l.sabcd, l.sef, lh.xy),
+                      l3 = (float16)(l.s3456, l.s789a, l.sbcde, l.sf, lh.xyz);
+        return wa.x * l + wa.y * l1 + wa.z * l2 + wa.w * l3;
     }
-    const float8 a = u * (float)lev.y * inv_wm1, fa = floor(a), ta = a - fa, sa = 1.0f - ta, ta2 = ta * ta,
-                 ta3 = ta2 * ta;
-    const int8 ia = convert_int8(fa) - 1;
-    const float8 wa0 = sa * sa * sa, wa1 = 3.0f * ta3 - 6.0f * ta2 + 4.0f,
-                 wa2 = -3.0f * ta3 + 3.0f * ta2 + 3.0f * ta + 1.0f, wa3 = ta3;
-    const int8 o0 = clamp(ia, 0, lev.y) - cs, o1 = clamp(ia + 1, 0, lev.y) - cs, o2 = clamp(ia + 2, 0, lev.y) - cs,
-               o3 = clamp(ia + 3, 0, lev.y) - cs;
-    float line[16];
-    vstore16(l, 0, line);
-    return wa0 * HF_GATHER8(line, o0) + wa1 * HF_GATHER8(line, o1) + wa2 * HF_GATHER8(line, o2) +
-           wa3 * HF_GATHER8(line, o3);
+    const float16 a = u * (float)lev.y * inv_wm1, fa = floor(a), ta = a - fa, sa = 1.0f - ta, ta2 = ta * ta,
+                  ta3 = ta2 * ta;
+    const int16 ia = convert_int16(fa) - 1;
+    const float16 wa0 = sa * sa * sa, wa1 = 3.0f * ta3 - 6.0f * ta2 + 4.0f,
+                  wa2 = -3.0f * ta3 + 3.0f * ta2 + 3.0f * ta + 1.0f, wa3 = ta3;
+    /* u, so ia, grows with the lane: lane 0 and lane 15 bound the taps */
+    const int lo = ia.s0, hi = ia.sf + 3;
+    if (lo >= 0 && hi <= lev.y) {
+        int cs = -1;
+        float16 l;
+        float4 lh = 0.0f;
+        if (lev.y >= 7 && hi - min(lo, lev.y - 7) <= 7) {
+            cs = min(lo, lev.y - 7);
+            const float8 l8 = wb.x * (vload8(0, r0 + cs) - ref) + wb.y * (vload8(0, r1 + cs) - ref) +
+                              wb.z * (vload8(0, r2 + cs) - ref) + wb.w * (vload8(0, r3 + cs) - ref);
+            l = (float16)(l8, l8.s7777, l8.s7777); /* past the window: never picked */
+        } else if (lev.y >= 15 && hi - min(lo, lev.y - 15) <= 15) {
+            cs = min(lo, lev.y - 15);
+            l = wb.x * (vload16(0, r0 + cs) - ref) + wb.y * (vload16(0, r1 + cs) - ref) +
+                wb.z * (vload16(0, r2 + cs) - ref) + wb.w * (vload16(0, r3 + cs) - ref);
+        } else if (lev.y >= 19 && hi - min(lo, lev.y - 19) <= 18) {
+            cs = min(lo, lev.y - 19);
+            l = wb.x * (vload16(0, r0 + cs) - ref) + wb.y * (vload16(0, r1 + cs) - ref) +
+                wb.z * (vload16(0, r2 + cs) - ref) + wb.w * (vload16(0, r3 + cs) - ref);
+            lh = wb.x * (vload4(0, r0 + cs + 16) - ref) + wb.y * (vload4(0, r1 + cs + 16) - ref) +
+                 wb.z * (vload4(0, r2 + cs + 16) - ref) + wb.w * (vload4(0, r3 + cs + 16) - ref);
+        }
+        if (cs >= 0) {
+            float16 c0, c1, c2, c3;
+            hf_pick_columns(l, lh, ia - cs, hi - 3 - cs, &c0, &c1, &c2, &c3);
+            return wa0 * c0 + wa1 * c1 + wa2 * c2 + wa3 * c3;
+        }
+    }
+    /* Clamped taps: the lanes' columns p_lo .. p_hi (clamped) combined one
+     * by one, at most 19 of them. */
+    const int p_lo = clamp(lo, 0, lev.y), p_hi = clamp(hi, 0, lev.y);
+    float line[20];
+    for (int p = p_lo; p <= p_hi; ++p)
+        line[p - p_lo] = wb.x * (r0[p] - ref) + wb.y * (r1[p] - ref) + wb.z * (r2[p] - ref) + wb.w * (r3[p] - ref);
+    const int16 o0 = clamp(ia, 0, lev.y) - p_lo, o1 = clamp(ia + 1, 0, lev.y) - p_lo,
+                o2 = clamp(ia + 2, 0, lev.y) - p_lo, o3 = clamp(ia + 3, 0, lev.y) - p_lo;
+    return wa0 * HF_RGATHER(line, o0) + wa1 * HF_RGATHER(line, o1) + wa2 * HF_RGATHER(line, o2) +
+           wa3 * HF_RGATHER(line, o3);
 }
 
 /* hf_horizon_pyramid_v for a row group along one direction (cu, cv); hp
  * holds H_k - ref at each lane's vertex. The environment's search: no limit. */
-inline float8 hf_horizon_pyramid_row(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
-                                     const float8 *hp, float ref, float8 u0, float v0, float cu, float cv,
+inline hf_rf hf_horizon_pyramid_row(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                                     const hf_rf *hp, float ref, hf_rf u0, float v0, float cu, float cv,
                                      float inv_wm1, float inv_dm1)
 {
-    float8 w0 = 0.0f, w1 = 0.0f, w2 = 0.0f, best = -M_PI_2_F;
+    hf_rf w0 = 0.0f, w1 = 0.0f, w2 = 0.0f, best = -M_PI_2_F, knot = -INFINITY, mid = -INFINITY;
     int count = 0;
     const float sr = exp2(1.0f / geom.s5);
     float d = geom.s6;
     for (int m = 0; m < grid.z; ++m, d *= sr) {
         const int k = clamp(m - grid.w, 0, grid.z - 1);
-        const float8 h = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0 + d * cu, v0 + d * cv, inv_wm1,
-                                                   inv_dm1, ref);
-        const float8 w3 = hf_atan8((h - hp[k]) * (1.0f / (36.0f * d)));
-        HF_WINDOW_STEP(w0, w1, w2, w3, best, count)
+        const hf_rf h = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0 + d * cu, v0 + d * cv, inv_wm1,
+                                            inv_dm1, ref);
+        const hf_rf w3 = hf_atan_r((h - hp[k]) * (1.0f / (36.0f * d)));
+        HF_WINDOW_STEP_N(w0, w1, w2, w3, knot, mid, count)
     }
-    HF_WINDOW_END(w0, w1, w2, best, count)
+    HF_WINDOW_END_N(w0, w1, w2, best, knot, mid, count)
 }
 
 /* hf_horizon_pyramid_row for partial updates: the running maximum before
@@ -360,12 +491,12 @@ inline float8 hf_horizon_pyramid_row(global const float *pyr, global const int4 
  * the three samples before it (which read nothing changed: the same
  * floats). The same arithmetic as hf_horizon_pyramid_row, so the same
  * result. */
-inline float8 hf_horizon_pyramid_row_cp(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
-                                        const float8 *hp, float ref, float8 u0, float v0, float cu, float cv,
-                                        float inv_wm1, float inv_dm1, int start, float8 best0, global float *cp,
-                                        int8 cpi, int lanes, int ncp)
+inline hf_rf hf_horizon_pyramid_row_cp(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                                        const hf_rf *hp, float ref, hf_rf u0, float v0, float cu, float cv,
+                                        float inv_wm1, float inv_dm1, int start, hf_rf best0, global float *cp,
+                                        hf_ri cpi, int lanes, int ncp)
 {
-    float8 w0 = 0.0f, w1 = 0.0f, w2 = 0.0f, best = start ? best0 : -M_PI_2_F;
+    hf_rf w0 = 0.0f, w1 = 0.0f, w2 = 0.0f, best = start ? best0 : -M_PI_2_F, knot = -INFINITY, mid = -INFINITY;
     int count = start;
     const int ls = (int)geom.s5, m0 = start ? start - 3 : 0;
     const float sr = exp2(1.0f / geom.s5);
@@ -375,24 +506,25 @@ inline float8 hf_horizon_pyramid_row_cp(global const float *pyr, global const in
     for (int m = m0; m < grid.z; ++m, d *= sr) {
         if (m > start && m % ls == 0 && m / ls <= ncp) {
             float b[HF_ROW];
-            vstore8(best, 0, b);
-            const int idx[HF_ROW] = {cpi.s0, cpi.s1, cpi.s2, cpi.s3, cpi.s4, cpi.s5, cpi.s6, cpi.s7};
+            int idx[HF_ROW];
+            hf_vstore_r(HF_WINDOW_MAX(best, knot, mid), 0, b);
+            hf_vstore_r(cpi, 0, idx);
             for (int l = 0; l < lanes; ++l)
                 cp[(size_t)idx[l] + m / ls - 1] = b[l];
         }
         const int k = clamp(m - grid.w, 0, grid.z - 1);
-        const float8 h = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0 + d * cu, v0 + d * cv, inv_wm1,
+        const hf_rf h = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0 + d * cu, v0 + d * cv, inv_wm1,
                                                    inv_dm1, ref);
-        const float8 w3 = hf_atan8((h - hp[k]) * (1.0f / (36.0f * d)));
+        const hf_rf w3 = hf_atan_r((h - hp[k]) * (1.0f / (36.0f * d)));
         if (m < start) {
             w0 = w1;
             w1 = w2;
             w2 = w3;
             continue;
         }
-        HF_WINDOW_STEP(w0, w1, w2, w3, best, count)
+        HF_WINDOW_STEP_N(w0, w1, w2, w3, knot, mid, count)
     }
-    HF_WINDOW_END(w0, w1, w2, best, count)
+    HF_WINDOW_END_N(w0, w1, w2, best, knot, mid, count)
 }
 
 /* Partial updates (docs/heightfield.md, "Dynamic terrain"): changed[k] is
@@ -453,18 +585,18 @@ inline int hf_row_env_horizons(global const float *pyr, global const int4 *level
 {
     const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
     const int i0 = gid % grid.x, lanes = min(HF_ROW, grid.x - i0), ls = (int)geom.s5;
-    const float8 u0 = convert_float8(min(i0 + (int8)(0, 1, 2, 3, 4, 5, 6, 7), grid.x - 1));
+    const hf_rf u0 = hf_convert_rf(min(i0 + HF_ROW_IDS, grid.x - 1));
     const float v0 = (float)(gid / grid.x), ref = pyr[gid];
     const int first_receiver =
         update != 2 ? 0
-                    : hf_row_first_changed(levels, changed, grid, geom, u0.s0, u0.s7, v0, 0.0f, 0.0f, inv_wm1, inv_dm1,
+                    : hf_row_first_changed(levels, changed, grid, geom, u0.s0, HF_RLAST(u0), v0, 0.0f, 0.0f, inv_wm1, inv_dm1,
                                            1);
-    float8 hp[HF_MAX_LEVELS];
+    hf_rf hp[HF_MAX_LEVELS];
     const int top = max(grid.z - 1 - grid.w, 0);
     for (int k = 0; k <= top; ++k)
         hp[k] = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0, v0, inv_wm1, inv_dm1, ref);
     const float dphi = 2.0f * M_PI_F / (float)n_phi;
-    const int8 lane_vertex = gid + min((int8)(0, 1, 2, 3, 4, 5, 6, 7), lanes - 1);
+    const hf_ri lane_vertex = gid + min(HF_ROW_IDS, lanes - 1);
     int searched = 0;
     *moved = update == 2 ? 0 : (1 << HF_ROW) - 1;
     for (int k = 0; k < n_phi; ++k) {
@@ -472,7 +604,7 @@ inline int hf_row_env_horizons(global const float *pyr, global const int4 *level
         s = sincos(dphi * (float)k, &c);
         float h[HF_ROW];
         if (!update) {
-            vstore8(fmax(hf_horizon_pyramid_row(pyr, levels, grid, geom, hp, ref, u0, v0, c / geom.s3, -s / geom.s4,
+            hf_vstore_r(fmax(hf_horizon_pyramid_row(pyr, levels, grid, geom, hp, ref, u0, v0, c / geom.s3, -s / geom.s4,
                                                 inv_wm1, inv_dm1),
                          0.0f),
                     0, h);
@@ -483,7 +615,7 @@ inline int hf_row_env_horizons(global const float *pyr, global const int4 *level
         }
         const int first = update != 2 ? 0
                                       : min(first_receiver,
-                                            hf_row_first_changed(levels, changed, grid, geom, u0.s0, u0.s7, v0,
+                                            hf_row_first_changed(levels, changed, grid, geom, u0.s0, HF_RLAST(u0), v0,
                                                                  c / geom.s3, -s / geom.s4, inv_wm1, inv_dm1, 0));
         if (first >= grid.z) {
             for (int l = 0; l < lanes; ++l)
@@ -491,14 +623,19 @@ inline int hf_row_env_horizons(global const float *pyr, global const int4 *level
             continue;
         }
         ++searched;
-        const int8 cpi = (lane_vertex * n_phi + k) * ncp;
+        const hf_ri cpi = (lane_vertex * n_phi + k) * ncp;
         /* resume at the last checkpoint at or before the first changed sample */
         const int ck = min(first / ls, ncp), start = ck * ls >= 3 ? ck * ls : 0;
-        float8 best0 = 0.0f;
-        if (start)
-            best0 = (float8)(cp[cpi.s0 + ck - 1], cp[cpi.s1 + ck - 1], cp[cpi.s2 + ck - 1], cp[cpi.s3 + ck - 1],
-                             cp[cpi.s4 + ck - 1], cp[cpi.s5 + ck - 1], cp[cpi.s6 + ck - 1], cp[cpi.s7 + ck - 1]);
-        vstore8(fmax(hf_horizon_pyramid_row_cp(pyr, levels, grid, geom, hp, ref, u0, v0, c / geom.s3, -s / geom.s4,
+        hf_rf best0 = 0.0f;
+        if (start) {
+            int idx[HF_ROW];
+            float b0[HF_ROW];
+            hf_vstore_r(cpi, 0, idx);
+            for (int l = 0; l < HF_ROW; ++l)
+                b0[l] = cp[idx[l] + ck - 1];
+            best0 = hf_vload_r(0, b0);
+        }
+        hf_vstore_r(fmax(hf_horizon_pyramid_row_cp(pyr, levels, grid, geom, hp, ref, u0, v0, c / geom.s3, -s / geom.s4,
                                                inv_wm1, inv_dm1, start, best0, cp, cpi, lanes, ncp),
                      0.0f),
                 0, h);
@@ -1093,19 +1230,19 @@ kernel void hf_searched(global const int4 *levels, int4 grid, float8 geom, int n
     const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
     const float dphi = 2.0f * M_PI_F / (float)n_phi, v0 = (float)(gid / grid.x);
     const int i0 = gid % grid.x, lanes = exact ? 1 : min(HF_ROW, grid.x - i0);
-    const float8 u0 = convert_float8(min(i0 + (int8)(0, 1, 2, 3, 4, 5, 6, 7), grid.x - 1));
+    const hf_rf u0 = hf_convert_rf(min(i0 + HF_ROW_IDS, grid.x - 1));
     const int4 c = changed[0];
     bool all = update != 2;
     if (!all && exact)
         all = c.x <= c.z && u0.s0 >= (float)c.x && u0.s0 <= (float)c.z && v0 >= (float)c.y && v0 <= (float)c.w;
     else if (!all)
-        all = hf_row_first_changed(levels, changed, grid, geom, u0.s0, u0.s7, v0, 0.0f, 0.0f, inv_wm1, inv_dm1, 1) <
+        all = hf_row_first_changed(levels, changed, grid, geom, u0.s0, HF_RLAST(u0), v0, 0.0f, 0.0f, inv_wm1, inv_dm1, 1) <
               grid.z;
     for (int k = 0; k < n_phi; ++k) {
         float s, cs;
         s = sincos(dphi * (float)k, &cs);
         const bool hit = all || (exact ? hf_ray_meets(u0.s0, v0, cs / geom.s3, -s / geom.s4, c)
-                                       : hf_row_first_changed(levels, changed, grid, geom, u0.s0, u0.s7, v0,
+                                       : hf_row_first_changed(levels, changed, grid, geom, u0.s0, HF_RLAST(u0), v0,
                                                               cs / geom.s3, -s / geom.s4, inv_wm1, inv_dm1, 0) <
                                              grid.z);
         for (int l = 0; l < lanes; ++l)
