@@ -189,14 +189,24 @@ def embree_scene(triangles: np.ndarray):
     return scene, mesh  # keep the mesh object alive with the scene
 
 
-def _median_time(fn, repeats: int) -> float:
-    fn()  # warm-up: kernel/program caches, Embree's commit, page faults
-    times = []
-    for _ in range(repeats):
+def _paired_medians(fn_a, fn_b, repeats: int) -> tuple[float, float]:
+    """Median wall times of two calls timed in alternating rounds, so that a change of load, or
+    the runtime's threads going to sleep between calls, falls on both alike (docs/metrics.md,
+    "Before/after in one run"). A call of a millisecond is too short for one warm-up and five
+    rounds to settle, so both are warmed up twice and timed at least 11 times."""
+    for _ in range(2):  # warm-up: kernel/program caches, Embree's commit, page faults
+        fn_a()
+        fn_b()
+    times_a, times_b = [], []
+    for _ in range(max(repeats, 11)):
         t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+        fn_a()
+        t1 = time.perf_counter()
+        fn_b()
+        t2 = time.perf_counter()
+        times_a.append(t1 - t0)
+        times_b.append(t2 - t1)
+    return statistics.median(times_a), statistics.median(times_b)
 
 
 def _throughput(rays: int, pn_s: float, em_s: float) -> dict:
@@ -253,8 +263,9 @@ def measure(desc: SceneDescription, built: BuiltScene, repeats: int = 5, n_dirs:
     Embree on identical rays, and checks that both give the same answers.
 
     ``built`` must be ``render.build_scene(desc, ctx)`` (its instance ids map
-    hits back to objects). Each query is called once to warm up, then
-    ``repeats`` times; times are medians in seconds, wall clock, including
+    hits back to objects). Each query is called twice to warm up, then
+    max(``repeats``, 11) times, penumbra's and Embree's calls alternating;
+    times are medians in seconds, wall clock, including
     everything the call does (penumbra: ray packing, host validation, device
     buffers, upload, kernel, read-back; embreex: its Cython loop of one Embree call per ray,
     on one thread). ``offset``: how far shadow rays start above the surface
@@ -288,8 +299,8 @@ def measure(desc: SceneDescription, built: BuiltScene, repeats: int = 5, n_dirs:
 
     # ---- primary rays: closest hit
     o, d = primary_rays(built.camera)
-    pn_s = _median_time(lambda: scene.intersect(o, d), repeats)
-    em_s = _median_time(lambda: em_scene.run(o, d, query="INTERSECT"), repeats)
+    pn_s, em_s = _paired_medians(lambda: scene.intersect(o, d), lambda: em_scene.run(o, d, query="INTERSECT"),
+                                 repeats)
     t, inst, tri = scene.intersect(o, d)
     em = em_scene.run(o, d, query="INTERSECT", output=1)
     pn_hit = np.isfinite(t)
@@ -311,8 +322,8 @@ def measure(desc: SceneDescription, built: BuiltScene, repeats: int = 5, n_dirs:
     if not pn_hit.any():
         raise InputError("no primary ray hits the scene, so there are no shadow rays to trace")
     so, sd, n_points = _shadow_from_hits(tris, first, o, d, t, inst, tri, n_dirs, seed, offset)
-    pn_s = _median_time(lambda: scene.occluded(so, sd), repeats)
-    em_s = _median_time(lambda: em_scene.run(so, sd, query="OCCLUDED"), repeats)
+    pn_s, em_s = _paired_medians(lambda: scene.occluded(so, sd), lambda: em_scene.run(so, sd, query="OCCLUDED"),
+                                 repeats)
     pn_occ = scene.occluded(so, sd)
     em_occ = em_scene.run(so, sd, query="OCCLUDED") != -1
     mismatch = int((pn_occ != em_occ).sum())
