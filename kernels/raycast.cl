@@ -71,6 +71,37 @@ kernel void gbuffer_primary(PN_SCENE_ARGS, float4 cam_origin, float4 cam_forward
     instance_id[idx] = offs.w;
 }
 
+/* A closest-hit query's answer for ray gid: t, the instance's id and the
+ * triangle's id, or (INFINITY, background, background) on a miss. In a
+ * profiling build (PN_RAY_STATS; =2 profiles any-hit queries) the three
+ * outputs carry the walk's node, box and triangle counts instead. */
+#ifdef PN_RAY_STATS
+#define PN_QUERY_ANY_HIT (PN_RAY_STATS == 2)
+#else
+#define PN_QUERY_ANY_HIT false
+#endif
+inline void pn_store_closest(bool found, const pn_hit *hit, global const float4 *instances,
+                             global const float4 *tris, int gid, global float *t_out, global uint *instance_out,
+                             global uint *triangle_out)
+{
+#ifdef PN_RAY_STATS
+    (void)found;
+    t_out[gid] = (float)hit->nodes; /* hit or miss */
+    instance_out[gid] = hit->boxes;
+    triangle_out[gid] = hit->tests;
+#else
+    if (found) {
+        t_out[gid] = hit->t;
+        instance_out[gid] = as_uint4(instances[hit->slot * PN_INSTANCE_STRIDE + PN_INST_OFFSETS]).w;
+        triangle_out[gid] = as_uint(tris[3 * hit->tri].w);
+    } else {
+        t_out[gid] = INFINITY;
+        instance_out[gid] = PN_BACKGROUND;
+        triangle_out[gid] = PN_BACKGROUND;
+    }
+#endif
+}
+
 /* rays: two float4 per ray (origin, tmin), (direction, tmax). */
 kernel void intersect_rays(PN_SCENE_ARGS, global const float4 *rays, int count, global float *t_out,
                            global uint *instance_out, global uint *triangle_out)
@@ -81,24 +112,8 @@ kernel void intersect_rays(PN_SCENE_ARGS, global const float4 *rays, int count, 
     float4 o = rays[2 * gid], d = rays[2 * gid + 1];
     pn_scene_view scene = pn_make_scene_view(tlas, instances, blas, tris, instance_count);
     pn_hit hit;
-#ifdef PN_RAY_STATS
-    /* Profiling build: the ids carry the work counts instead; =2 profiles any-hit queries. */
-    bool found = pn_trace(scene, o.xyz, d.xyz, o.w, d.w, &hit, PN_RAY_STATS == 2);
-    t_out[gid] = (float)hit.nodes; /* hit or miss: see the non-profiling kernel */
-    (void)found;
-    instance_out[gid] = hit.boxes;
-    triangle_out[gid] = hit.tests;
-    return;
-#endif
-    if (pn_trace(scene, o.xyz, d.xyz, o.w, d.w, &hit, false)) {
-        t_out[gid] = hit.t;
-        instance_out[gid] = as_uint4(instances[hit.slot * PN_INSTANCE_STRIDE + PN_INST_OFFSETS]).w;
-        triangle_out[gid] = as_uint(tris[3 * hit.tri].w);
-    } else {
-        t_out[gid] = INFINITY;
-        instance_out[gid] = PN_BACKGROUND;
-        triangle_out[gid] = PN_BACKGROUND;
-    }
+    bool found = pn_trace(scene, o.xyz, d.xyz, o.w, d.w, &hit, PN_QUERY_ANY_HIT);
+    pn_store_closest(found, &hit, instances, tris, gid, t_out, instance_out, triangle_out);
 }
 
 kernel void occluded_rays(PN_SCENE_ARGS, global const float4 *rays, int count, global uchar *occluded)
@@ -125,23 +140,8 @@ kernel void intersect_ray_arrays(PN_SCENE_ARGS, global const float *origins, glo
     float3 o = vload3(gid, origins), d = vload3(gid, directions);
     pn_scene_view scene = pn_make_scene_view(tlas, instances, blas, tris, instance_count);
     pn_hit hit;
-#ifdef PN_RAY_STATS
-    bool found = pn_trace(scene, o, d, tmin, tmax, &hit, PN_RAY_STATS == 2);
-    t_out[gid] = (float)hit.nodes;
-    (void)found;
-    instance_out[gid] = hit.boxes;
-    triangle_out[gid] = hit.tests;
-    return;
-#endif
-    if (pn_trace(scene, o, d, tmin, tmax, &hit, false)) {
-        t_out[gid] = hit.t;
-        instance_out[gid] = as_uint4(instances[hit.slot * PN_INSTANCE_STRIDE + PN_INST_OFFSETS]).w;
-        triangle_out[gid] = as_uint(tris[3 * hit.tri].w);
-    } else {
-        t_out[gid] = INFINITY;
-        instance_out[gid] = PN_BACKGROUND;
-        triangle_out[gid] = PN_BACKGROUND;
-    }
+    bool found = pn_trace(scene, o, d, tmin, tmax, &hit, PN_QUERY_ANY_HIT);
+    pn_store_closest(found, &hit, instances, tris, gid, t_out, instance_out, triangle_out);
 }
 
 kernel void occluded_ray_arrays(PN_SCENE_ARGS, global const float *origins, global const float *directions,

@@ -639,6 +639,25 @@ inline void pn_push8(float8 te, global const float4 *node, bool any_hit, uint *s
     (*(have) = false, pn_push4(pn_ray_box4(ray, tmin, tmax, n), n, any_hit, stack, stack_n, stack_t, sp))
 #endif
 
+/* The wide walks' next entry: the child the node test handed back (have:
+ * the nearer one, visited without the stack), else the stack's top.
+ * Returns false when the stack is empty. */
+inline bool pn_next_entry(bool *have, uint next_first, uint next_count, const uint *stack, const uint *stack_n,
+                          const float *stack_t, int *sp, bool any_hit, float t_hit, uint *first, uint *count)
+{
+    if (*have) {
+        *have = false;
+        *first = next_first;
+        *count = next_count;
+        return true;
+    }
+    if (!pn_pop(stack_t, sp, any_hit, t_hit))
+        return false;
+    *first = stack[*sp];
+    *count = stack_n[*sp];
+    return true;
+}
+
 /* Traverses one instance's 4-wide BLAS in object space (bvh.h, pn_bvh4_node).
  * any_hit: stop at the first hit. Returns true if hit->t was lowered.
  *
@@ -679,16 +698,9 @@ PN_TRACE_INLINE bool pn_trace_blas(pn_scene_view scene, uint slot, float3 org, f
         /* Next interior node; leaves on the way are tested here. */
         for (;;) {
             uint first, count;
-            if (have) {
-                have = false;
-                first = next_first;
-                count = next_count;
-            } else {
-                if (!pn_pop(stack_t, &sp, any_hit, hit->t))
-                    return found;
-                first = stack[sp];
-                count = stack_n[sp];
-            }
+            if (!pn_next_entry(&have, next_first, next_count, stack, stack_n, stack_t, &sp, any_hit, hit->t, &first,
+                               &count))
+                return found;
             if (count == 0) {
                 node = first;
                 break;
@@ -822,16 +834,9 @@ PN_TRACE_INLINE bool pn_trace(pn_scene_view scene, float3 org, float3 dir, float
                           &next_count);
         for (;;) {
             uint first, count;
-            if (have) {
-                have = false;
-                first = next_first;
-                count = next_count;
-            } else {
-                if (!pn_pop(stack_t, &sp, any_hit, hit->t))
-                    return found;
-                first = stack[sp];
-                count = stack_n[sp];
-            }
+            if (!pn_next_entry(&have, next_first, next_count, stack, stack_n, stack_t, &sp, any_hit, hit->t, &first,
+                               &count))
+                return found;
             if (count == 0) {
                 node = first;
                 break;
