@@ -238,6 +238,11 @@ struct pn_envmap_impl {
     struct pn_env_decomposition *decomposition;
     uint64_t decomposition_hash; /* content_hash it was made from */
     uint32_t decomposition_seed, decomposition_iterations;
+    /* The last split decomposition (sharp part + residual; pn_envmap_domains_split) and its key. */
+    struct pn_env_decomposition *split;
+    uint64_t split_hash;
+    uint32_t split_count, split_seed, split_iterations, split_sharp;
+    float split_threshold;
 };
 
 pn_status pn_envmap_new(pn_context ctx, pn_envmap *out);
@@ -274,6 +279,7 @@ struct pn_env_decomposition {
     int32_t *assignment;      /* width*height, row-major, the domain of each texel */
     uint32_t iterations;      /* Lloyd iterations run */
     bool converged;           /* no texel changed cell at the last iteration */
+    uint32_t sharp;           /* pn_envmap_domains_split: the first `sharp` domains are the sharp part (else 0) */
 };
 typedef struct pn_env_decomposition pn_env_decomposition;
 
@@ -290,7 +296,18 @@ pn_status pn_envmap_do_decompose(pn_envmap env, const pn_env_decompose_options *
 #define PN_ENV_SHARP_MAX 64
 pn_status pn_envmap_do_extract_sharp(pn_envmap env, const pn_env_sharp_options *options, pn_env_domain *domains,
                                      uint32_t capacity, uint32_t *count, float *residual, size_t residual_floats);
-/* Frees the cached decomposition (env map destruction). */
+/* The N domains of pn_envmap_domains with the map's sharp part given its
+ * own domains (depthmap's `sharp`, docs/depthmap.md): the sharp part of
+ * pn_envmap_extract_sharp at `threshold` with at most `sharp_max` domains
+ * (the first (*out)->sharp domains: the excess over T, the solid angle of the
+ * hot texels), then the residual map decomposed into the other
+ * N - (*out)->sharp. sharp_max must be below N; a map without texels above T
+ * gives the plain decomposition (sharp 0). Cached per (content, N, seed,
+ * max_iterations, sharp_max, threshold) in its own slot; assignment is NULL.
+ * *out as pn_envmap_domains'. */
+pn_status pn_envmap_domains_split(pn_envmap env, const pn_env_decompose_options *options, uint32_t sharp_max,
+                                  float threshold, const pn_env_decomposition **out);
+/* Frees the cached decompositions (env map destruction). */
 void pn_envmap_forget_domains(pn_envmap env);
 
 /* ------------------------------------------------------- G-buffer, image */

@@ -331,6 +331,8 @@ void pn_envmap_forget_domains(pn_envmap env)
 {
     decomposition_free(env->decomposition);
     env->decomposition = NULL;
+    decomposition_free(env->split);
+    env->split = NULL;
 }
 
 static pn_status check_options(pn_envmap env, const pn_env_decompose_options *o)
@@ -479,6 +481,77 @@ pn_status pn_envmap_do_decompose(pn_envmap env, const pn_env_decompose_options *
 
 /* ------------------------------------------------------ the sharp part */
 
+/* The sharp part of the texels t (pn_envmap_extract_sharp, options checked):
+ * at most o->max_count domains in `domains` (*count of them) and the residual
+ * (3 x t->count floats). */
+static pn_status sharp_part(pn_envmap env, const texels *t, const pn_env_sharp_options *o, pn_env_domain *domains,
+                            uint32_t *count, float *residual)
+{
+    pn_context ctx = env->obj.ctx;
+    const size_t need = 3 * t->count;
+    texels hot = {0};
+    pn_env_decomposition d = {0};
+    pn_status st = PN_SUCCESS;
+    double mean = 0.0;
+    for (size_t k = 0; !st && k < t->count; ++k)
+        mean += t->weight[k];
+    mean /= 4.0 * PI;
+    const double limit = o->threshold * mean;
+    size_t hot_count = 0;
+    if (!st) {
+        memcpy(residual, t->rgb, need * sizeof(float));
+        hot.width = t->width;
+        hot.height = t->height;
+        hot.count = t->count;
+        if (!(hot.rgb = pn_malloc(ctx, need * sizeof(float), "the sharp part")))
+            st = PN_ERROR_OUT_OF_MEMORY;
+    }
+    for (size_t k = 0; !st && k < t->count; ++k) {
+        const double lum = t->weight[k] > 0.0 ? luminance64(t->rgb + 3 * k) : 0.0;
+        for (int c = 0; c < 3; ++c)
+            hot.rgb[3 * k + c] = 0.0f;
+        if (!(mean > 0.0) || !(lum > limit))
+            continue;
+        ++hot_count;
+        const double keep = limit / lum;
+        for (int c = 0; c < 3; ++c) {
+            residual[3 * k + c] = (float)(t->rgb[3 * k + c] * keep);
+            hot.rgb[3 * k + c] = t->rgb[3 * k + c] - residual[3 * k + c]; /* sum = the map to float rounding */
+        }
+    }
+    if (!st && hot_count > 0)
+        st = texels_init(ctx, &hot, false);
+    if (!st && hot_count > 0) {
+        pn_env_decompose_options dopt = {o->max_count < hot.nonblack ? o->max_count : (uint32_t)hot.nonblack, o->seed,
+                                         o->max_iterations};
+        if (dopt.count > 0 && !(st = decompose(env, &hot, &dopt, &d))) {
+            /* Radiance of each domain's excess, solid angle of its hot texels only. */
+            double sums[4 * PN_ENV_SHARP_MAX] = {0};
+            for (size_t k = 0; k < hot.count; ++k) {
+                if (!(hot.weight[k] > 0.0))
+                    continue;
+                double *s = sums + 4 * d.assignment[k];
+                const double w = hot.omega[k / hot.width];
+                for (int c = 0; c < 3; ++c)
+                    s[c] += hot.rgb[3 * k + c] * w;
+                s[3] += w;
+            }
+            for (uint32_t i = 0; i < d.count; ++i) {
+                domains[i] = d.domains[i]; /* the centre, turned to the world */
+                for (int c = 0; c < 3; ++c)
+                    domains[i].radiance[c] = (float)(env->intensity * sums[4 * i + c]);
+                domains[i].solid_angle = (float)sums[4 * i + 3];
+                domains[i].cap_radius = (float)(2.0 * asin(sqrt(fmin(sums[4 * i + 3] / (4.0 * PI), 1.0))));
+            }
+            *count = d.count;
+        }
+    }
+    free(d.domains);
+    free(d.assignment);
+    texels_free(&hot);
+    return st;
+}
+
 /* The map's concentrated light (a sun, lamps) as a few domains, and the rest
  * as a residual lat-long map (pn_envmap_extract_sharp; twin
  * tests/env_sharp64.py). A texel is hot where its luminance exceeds
@@ -513,66 +586,89 @@ pn_status pn_envmap_do_extract_sharp(pn_envmap env, const pn_env_sharp_options *
     if (residual_floats != need)
         return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "sharp part: the residual map needs %zu floats (%ux%ux3), got %zu",
                        need, env->width, env->height, residual_floats);
-    texels t, hot = {0};
-    pn_env_decomposition d = {0};
+    texels t;
     pn_status st = texels_read(env, &t);
-    double mean = 0.0;
-    for (size_t k = 0; !st && k < t.count; ++k)
-        mean += t.weight[k];
-    mean /= 4.0 * PI;
-    const double limit = o->threshold * mean;
-    size_t hot_count = 0;
-    if (!st) {
-        memcpy(residual, t.rgb, need * sizeof(float));
-        hot.width = t.width;
-        hot.height = t.height;
-        hot.count = t.count;
-        if (!(hot.rgb = pn_malloc(ctx, need * sizeof(float), "the sharp part")))
-            st = PN_ERROR_OUT_OF_MEMORY;
-    }
-    for (size_t k = 0; !st && k < t.count; ++k) {
-        const double lum = t.weight[k] > 0.0 ? luminance64(t.rgb + 3 * k) : 0.0;
-        for (int c = 0; c < 3; ++c)
-            hot.rgb[3 * k + c] = 0.0f;
-        if (!(mean > 0.0) || !(lum > limit))
-            continue;
-        ++hot_count;
-        const double keep = limit / lum;
-        for (int c = 0; c < 3; ++c) {
-            residual[3 * k + c] = (float)(t.rgb[3 * k + c] * keep);
-            hot.rgb[3 * k + c] = t.rgb[3 * k + c] - residual[3 * k + c]; /* sum = the map to float rounding */
-        }
-    }
-    if (!st && hot_count > 0)
-        st = texels_init(ctx, &hot, false);
-    if (!st && hot_count > 0) {
-        pn_env_decompose_options dopt = {o->max_count < hot.nonblack ? o->max_count : (uint32_t)hot.nonblack, o->seed,
-                                         o->max_iterations};
-        if (dopt.count > 0 && !(st = decompose(env, &hot, &dopt, &d))) {
-            /* Radiance of each domain's excess, solid angle of its hot texels only. */
-            double sums[4 * PN_ENV_SHARP_MAX] = {0};
-            for (size_t k = 0; k < hot.count; ++k) {
-                if (!(hot.weight[k] > 0.0))
-                    continue;
-                double *s = sums + 4 * d.assignment[k];
-                const double w = hot.omega[k / hot.width];
-                for (int c = 0; c < 3; ++c)
-                    s[c] += hot.rgb[3 * k + c] * w;
-                s[3] += w;
-            }
-            for (uint32_t i = 0; i < d.count; ++i) {
-                domains[i] = d.domains[i]; /* the centre, turned to the world */
-                for (int c = 0; c < 3; ++c)
-                    domains[i].radiance[c] = (float)(env->intensity * sums[4 * i + c]);
-                domains[i].solid_angle = (float)sums[4 * i + 3];
-                domains[i].cap_radius = (float)(2.0 * asin(sqrt(fmin(sums[4 * i + 3] / (4.0 * PI), 1.0))));
-            }
-            *count = d.count;
-        }
-    }
-    free(d.domains);
-    free(d.assignment);
-    texels_free(&hot);
+    if (!st)
+        st = sharp_part(env, &t, o, domains, count, residual);
     texels_free(&t);
     return st;
+}
+
+pn_status pn_envmap_domains_split(pn_envmap env, const pn_env_decompose_options *options, uint32_t sharp_max,
+                                  float threshold, const pn_env_decomposition **out)
+{
+    pn_context ctx = env->obj.ctx;
+    pn_status st = check_options(env, options);
+    if (st)
+        return st;
+    if (sharp_max < 1 || sharp_max > PN_ENV_SHARP_MAX || sharp_max >= options->count)
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                       "sharp part of %u domains: at most %u sharp domains, 1..%d and below the count", options->count,
+                       sharp_max, PN_ENV_SHARP_MAX);
+    if (!isfinite(threshold) || !(threshold > 1.0f))
+        return pn_fail(ctx, PN_ERROR_INVALID_ARGUMENT,
+                       "sharp part: threshold %g must be finite and > 1 (times the map's mean luminance)",
+                       (double)threshold);
+    const pn_env_decomposition *cached = env->split;
+    if (cached && env->split_hash == env->content_hash && env->split_count == options->count &&
+        env->split_seed == options->seed && env->split_iterations == options->max_iterations &&
+        env->split_sharp == sharp_max && env->split_threshold == threshold) {
+        *out = cached;
+        return PN_SUCCESS;
+    }
+    decomposition_free(env->split);
+    env->split = NULL;
+    pn_env_decomposition *d = pn_malloc(ctx, sizeof *d, "an env decomposition");
+    if (!d)
+        return PN_ERROR_OUT_OF_MEMORY;
+    memset(d, 0, sizeof *d);
+    texels t, rest = {0};
+    pn_env_decomposition r = {0};
+    pn_env_domain sharp[PN_ENV_SHARP_MAX];
+    uint32_t k = 0;
+    const pn_env_sharp_options so = {sharp_max, threshold, options->seed, options->max_iterations};
+    st = texels_read(env, &t);
+    if (!st) {
+        rest.width = t.width;
+        rest.height = t.height;
+        rest.count = t.count;
+        if (!(rest.rgb = pn_malloc(ctx, t.count * 3 * sizeof(float), "the residual map")))
+            st = PN_ERROR_OUT_OF_MEMORY;
+    }
+    if (!st)
+        st = sharp_part(env, &t, &so, sharp, &k, rest.rgb);
+    if (!st)
+        st = texels_init(ctx, &rest, env->intensity == 0.0f);
+    if (!st) {
+        /* The residual into the other N - k (no sharp texel: the map itself into N). */
+        const pn_env_decompose_options ro = {options->count - k, options->seed, options->max_iterations};
+        st = decompose(env, &rest, &ro, &r);
+    }
+    if (!st && !(d->domains = pn_malloc(ctx, options->count * sizeof *d->domains, "the env domains")))
+        st = PN_ERROR_OUT_OF_MEMORY;
+    if (!st) {
+        memcpy(d->domains, sharp, k * sizeof *sharp);
+        memcpy(d->domains + k, r.domains, r.count * sizeof *r.domains);
+        d->count = k + r.count;
+        d->sharp = k;
+        d->iterations = r.iterations;
+        d->converged = r.converged;
+    }
+    free(r.domains);
+    free(r.assignment);
+    texels_free(&rest);
+    texels_free(&t);
+    if (st) {
+        decomposition_free(d);
+        return st;
+    }
+    env->split = d;
+    env->split_hash = env->content_hash;
+    env->split_count = options->count;
+    env->split_seed = options->seed;
+    env->split_iterations = options->max_iterations;
+    env->split_sharp = sharp_max;
+    env->split_threshold = threshold;
+    *out = d;
+    return PN_SUCCESS;
 }

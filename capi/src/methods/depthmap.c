@@ -27,12 +27,14 @@
 #define DM_MAX_SIDE 4096              /* largest map side, the renderer's or the caller's */
 #define GRADE_DEFAULT 0.5             /* map side exponent of the power over the mean (docs/depthmap.md, measured) */
 #define STRONG_CLUSTER_DEFAULT 32.0   /* radiance per sr over the average that joins a cluster (docs/depthmap.md) */
+#define SHARP_DEFAULT 0               /* sharp domains of the env map's concentrated light (docs/depthmap.md) */
+#define SHARP_THRESHOLD_DEFAULT 100.0 /* a texel is sharp above this many times the mean luminance */
 #define DM_CLUSTER_REACH 1.5          /* neighbours: centres within this many times the sum of their cap radii */
 
 enum { P_BACKGROUND, P_DIRECTIONS, P_SEED, P_RESOLUTION, P_MAP_RENDERER, P_BIAS, P_SLOPE_BIAS, P_PCF, P_SPECULAR,
        P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS, P_SKIP_POWER, P_HALF_MAPS, P_FIT,
        P_TABLE_MIN_EXPONENT, P_STRONG_RESOLUTION, P_STRONG_SHARE,
-       P_STRONG_RATIO, P_GRADE, P_STRONG_CLUSTER };
+       P_STRONG_RATIO, P_GRADE, P_STRONG_CLUSTER, P_SHARP, P_SHARP_THRESHOLD };
 
 static const pn_param_desc params[] = {
     PN_PARAM_BACKGROUND,
@@ -87,6 +89,13 @@ static const pn_param_desc params[] = {
      "Domains at least this many times as bright per solid angle as the environment's average that neighbour each "
      "other form a cluster; a cluster whose summed power is strong (strong_share or strong_ratio) makes all its "
      "domains strong (a sun split across domains); 0: off (docs/depthmap.md, measured)."},
+    {"sharp", PN_PARAM_INT, PN_PARAM_PLAN, SHARP_DEFAULT, 0, PN_ENV_SHARP_MAX, "domains",
+     "At most this many of the N domains (and fewer than N) hold the env map's sharp part alone (its texels above "
+     "sharp_threshold x the mean luminance, their excess, at the light's own size; pn_envmap_extract_sharp), the "
+     "residual map the rest; they are strong; 0: one decomposition of the whole map (docs/depthmap.md, measured)."},
+    {"sharp_threshold", PN_PARAM_FLOAT, PN_PARAM_PLAN, SHARP_THRESHOLD_DEFAULT, 1, 1e9, "x the mean luminance",
+     "A texel belongs to the sharp part (sharp > 0) where its luminance exceeds this many times the map's mean; "
+     "above 1."},
 };
 
 _Static_assert(sizeof params / sizeof params[0] <= PN_MAX_METHOD_PARAMS,
@@ -112,6 +121,9 @@ typedef struct state {
     uint64_t caller_version;       /* a new version at each set */
     uint64_t key_env, key_caller;  /* what `domains` was built from */
     uint32_t key_n, key_seed;
+    uint32_t key_sharp;            /* the sharp domains asked for (0: none) */
+    double key_threshold;
+    uint32_t sharp_count;          /* the first sharp_count domains are the env map's sharp part */
     cl_mem device_domains;
     cl_mem frames, depth;          /* map frames (4 float4 each), the renderer's depths (uint, an atlas) */
     uint32_t map_count;            /* what `frames` is sized for */
@@ -400,21 +412,27 @@ static pn_status plan_domains(pn_renderer r, pn_scene scene)
     state *s = r->state;
     pn_context ctx = r->obj.ctx;
     const uint32_t n = (uint32_t)r->params[P_DIRECTIONS], seed = (uint32_t)r->params[P_SEED];
+    /* sharp: at most N - 1 of the N (N = 1 keeps the whole sphere). */
+    const uint32_t want = (uint32_t)r->params[P_SHARP], sharp = want < n ? want : n - 1;
+    const double threshold = r->params[P_SHARP_THRESHOLD];
     const bool caller = s->caller_count > 0;
     if (s->device_domains && (caller ? s->key_caller == s->caller_version
                                      : (!s->key_caller && s->key_env == scene->env->version && s->key_n == n &&
-                                        s->key_seed == seed)))
+                                        s->key_seed == seed && s->key_sharp == sharp &&
+                                        (!sharp || s->key_threshold == threshold))))
         return PN_SUCCESS;
     const pn_env_domain *src = s->caller;
-    uint32_t count = s->caller_count;
+    uint32_t count = s->caller_count, sharp_count = 0;
     if (!caller) {
         pn_env_decompose_options o = {n, seed, 0};
         const pn_env_decomposition *dec = NULL;
-        pn_status st = pn_envmap_domains(scene->env, &o, &dec);
+        pn_status st = sharp ? pn_envmap_domains_split(scene->env, &o, sharp, (float)threshold, &dec)
+                             : pn_envmap_domains(scene->env, &o, &dec);
         if (st)
             return st;
         src = dec->domains;
         count = dec->count;
+        sharp_count = dec->sharp;
     }
     pn_env_domain *copy = pn_malloc(ctx, pn_mul_size(count ? count : 1, 1, sizeof *copy), "the env domains");
     if (!copy)
@@ -430,10 +448,13 @@ static pn_status plan_domains(pn_renderer r, pn_scene scene)
     free(s->domains);
     s->domains = copy;
     s->domain_count = count;
+    s->sharp_count = sharp_count;
     s->key_caller = caller ? s->caller_version : 0;
     s->key_env = scene->env->version;
     s->key_n = n;
     s->key_seed = seed;
+    s->key_sharp = sharp;
+    s->key_threshold = threshold;
     s->maps_drawn = false;
     s->skip_valid = false;
     return PN_SUCCESS;
@@ -635,8 +656,8 @@ static pn_status plan_atlas(pn_renderer r)
     double threshold = share * total_power;
     if (ratio > 0.0 && n && ratio * total_power / n < threshold)
         threshold = ratio * total_power / n;
-    for (uint32_t m = 0; m < maps; ++m)
-        is_strong[m] = m < n && total_power > 0.0 && power[m] >= threshold;
+    for (uint32_t m = 0; m < maps; ++m) /* the sharp part's domains are strong whatever their power */
+        is_strong[m] = m < n && total_power > 0.0 && (power[m] >= threshold || (m < s->sharp_count && power[m] > 0.0));
     pn_status st = PN_SUCCESS;
     if (strong > base && !s->supplied_count &&
         (st = mark_clusters(ctx, s->domains, n, power, total_power, threshold, r->params[P_STRONG_CLUSTER],
