@@ -505,9 +505,11 @@ def test_domains_for_other_methods_and_sizes_are_refused(ctx, box_scene):
 
 def test_the_library_decomposition_is_used_without_caller_domains(ctx, box_scene):
     """No caller domains: the renderer decomposes the scene's env map with its
-    `directions` and `seed`; returning to it after caller domains (count 0) works."""
+    `directions` and `seed`; returning to it after caller domains (count 0) works.
+    (sharp 0: the whole map decomposed, as the twin's domains are; the sharp
+    split is tests/test_depthmap_sharp.py's.)"""
     s = box_scene
-    r = Renderer(ctx, "depthmap", directions=16)
+    r = Renderer(ctx, "depthmap", directions=16, sharp=0)
     img = Image(ctx, s["gb"].width, s["gb"].height)
     r.execute(s["scene"], s["gb"], img)
     own = img.read()

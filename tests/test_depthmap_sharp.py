@@ -80,16 +80,20 @@ def test_sharp_domains_are_strong(ctx, box_scene):
 
 
 def test_sharp_changes_the_sun_and_keeps_n(ctx, box_scene):
-    """sharp 0 is the decomposition of before, bit for bit; sharp 1 moves the
-    sun's light into a small domain of its own (a different image), and the
-    count stays N."""
+    """sharp 0 is the plain decomposition (the library's pn_envmap_decompose),
+    whatever the threshold; sharp 1, the default, moves the sun's light into a
+    small domain of its own (a different image), and the count stays N."""
     s = box_scene
-    a, r0 = run(ctx, s, directions=16)
+    a, r0 = run(ctx, s, directions=16, sharp=0)
     b, r1 = run(ctx, s, directions=16, sharp=0, sharp_threshold=50.0)
     np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(domains(r0, s), domains(r1, s))
-    c, r2 = run(ctx, s, directions=16, sharp=1)
+    plain = s["env"].decompose(16)
+    np.testing.assert_array_equal(domains(r0, s)[:, :3], plain.directions)
+    c, r2 = run(ctx, s, directions=16)
+    assert Renderer(ctx, "depthmap").get("sharp") == 1
     assert len(domains(r2, s)) == 16 and not np.array_equal(a, c)
+    assert domains(r2, s)[0, 7] < 0.1 and domains(r0, s)[:, 7].min() > 0.1
 
 
 def test_sharp_hard_cases(ctx, box_scene):

@@ -27,7 +27,7 @@
 #define DM_MAX_SIDE 4096              /* largest map side, the renderer's or the caller's */
 #define GRADE_DEFAULT 0.5             /* map side exponent of the power over the mean (docs/depthmap.md, measured) */
 #define STRONG_CLUSTER_DEFAULT 32.0   /* radiance per sr over the average that joins a cluster (docs/depthmap.md) */
-#define SHARP_DEFAULT 0               /* sharp domains of the env map's concentrated light (docs/depthmap.md) */
+#define SHARP_DEFAULT 1               /* sharp domains of the env map's concentrated light (docs/depthmap.md) */
 #define SHARP_THRESHOLD_DEFAULT 100.0 /* a texel is sharp above this many times the mean luminance */
 #define DM_CLUSTER_REACH 1.5          /* neighbours: centres within this many times the sum of their cap radii */
 
@@ -104,7 +104,8 @@ _Static_assert(sizeof params / sizeof params[0] <= PN_MAX_METHOD_PARAMS,
 enum { OUT_DOMAINS, OUT_FRAMES, OUT_DEPTH, OUT_RESOLUTIONS };
 
 static const pn_output_desc outputs[] = {
-    {"domains", "N pn_env_domain (8 floats each): the domains shaded with."},
+    {"domains",
+     "N pn_env_domain (8 floats each): the domains shaded with (with sharp, the env map's sharp part first)."},
     {"map_frames", "16 floats per domain: e1 | u_min, e2 | v_min, d | far, du, dv, depth extent, has a map (1) or "
                    "is lit unshadowed (0, skip_power) (kernels/depthmap.cl)."},
     {"depth_map", "side^2 floats of domain `index` (its side: map_resolutions), row-major: depth from the light side "
