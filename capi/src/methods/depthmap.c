@@ -658,7 +658,8 @@ static pn_status plan_atlas(pn_renderer r)
     if (ratio > 0.0 && n && ratio * total_power / n < threshold)
         threshold = ratio * total_power / n;
     for (uint32_t m = 0; m < maps; ++m) /* the sharp part's domains are strong whatever their power */
-        is_strong[m] = m < n && total_power > 0.0 && (power[m] >= threshold || (m < s->sharp_count && power[m] > 0.0));
+        is_strong[m] =
+            m < n && total_power > 0.0 && (power[m] >= threshold || (m < s->sharp_count && power[m] > 0.0));
     pn_status st = PN_SUCCESS;
     if (strong > base && !s->supplied_count &&
         (st = mark_clusters(ctx, s->domains, n, power, total_power, threshold, r->params[P_STRONG_CLUSTER],
