@@ -34,10 +34,12 @@ from penumbra.metrics import compare
 from penumbra.render import build_scene
 from penumbra.scenefile import load_scene
 
-DEFAULT_GRID = ('{"directions": 16, "resolution": 32, "strong_resolution": 128};'
+DEFAULT_GRID = ('{"directions": 8, "resolution": 16, "strong_resolution": 64};'
+                '{"directions": 16, "resolution": 16, "strong_resolution": 64};'
+                '{"directions": 32, "resolution": 32, "strong_resolution": 128, "sharp": 0};'
+                '{"directions": 32, "resolution": 32, "strong_resolution": 128, "grade": 0.0, "sharp": 0};'
                 '{"directions": 32, "resolution": 32, "strong_resolution": 128};'
-                '{"directions": 32, "resolution": 32, "strong_resolution": 128, "grade": 0.0};'
-                '{"directions": 32, "resolution": 64};{"directions": 64, "resolution": 64};{}')
+                '{"directions": 64, "resolution": 64};{"sharp": 0};{}')
 
 
 def main() -> int:

@@ -2654,6 +2654,55 @@ static void check_enqueue_only(pn_context ctx, rig *r, pn_renderer renderer, con
     free(second);
 }
 
+/* sharp (the default 1): on the rig's constant map no sharp part (the plain
+ * decomposition); with a sun texel its own small domain first, enqueue only;
+ * a threshold of 1 refused. The constant map is put back. */
+static void test_depthmap_sharp(pn_context ctx, rig *r)
+{
+    pn_renderer sr = NULL;
+    if (!expect_ok("depthmap renderer (sharp)", pn_renderer_create(ctx, "depthmap", &sr), ctx))
+        return;
+    pn_renderer_set_int(sr, "directions", 8);
+    pn_renderer_set_int(sr, "resolution", 16);
+    pn_renderer_set_int(sr, "strong_resolution", 32);
+    pn_renderer_commit(sr);
+    check_enqueue_only(ctx, r, sr, "depthmap (sharp, a map without a sharp part)");
+    pn_env_domain dom[8];
+    expect_ok("read the domains", pn_renderer_read_output(sr, r->scene, "domains", 0, 0, dom, sizeof dom), ctx);
+    float least = 10.0f;
+    for (int i = 0; i < 8; ++i)
+        least = dom[i].cap_radius < least ? dom[i].cap_radius : least;
+    CHECK("no sharp part: eight cells of the sphere", least > 0.4f);
+    float *rgb = constant_env(16, 8, 1.0f);
+    if (!rgb)
+        return;
+    for (int c = 0; c < 3; ++c)
+        rgb[3 * (2 * 16 + 5) + c] = 1e4f;
+    expect_ok("a sun in the rig's map", pn_envmap_set_latlong(r->env, rgb, 16, 8), ctx);
+    expect_ok("commit the sun", pn_envmap_commit(r->env), ctx);
+    pn_scene_commit(r->scene);
+    check_enqueue_only(ctx, r, sr, "depthmap (sharp, the sun in its own domain)");
+    expect_ok("read the domains", pn_renderer_read_output(sr, r->scene, "domains", 0, 0, dom, sizeof dom), ctx);
+    float sides[8] = {0};
+    expect_ok("read the map sides", pn_renderer_read_output(sr, r->scene, "map_resolutions", 0, 0, sides, sizeof sides),
+              ctx);
+    const double texel = (2.0 * 3.14159265358979 / 16) * (cos(3.14159265358979 * 2 / 8) - cos(3.14159265358979 * 3 / 8));
+    CHECK("the sun's domain first, its texel's solid angle, strong",
+          fabs(dom[0].solid_angle - texel) < 1e-4 * texel && dom[0].radiance[1] > 100.0f * dom[1].radiance[1] &&
+              sides[0] == 32.0f);
+    pn_renderer_set_float(sr, "sharp_threshold", 1.0f);
+    pn_renderer_commit(sr);
+    expect_error("sharp_threshold 1", pn_renderer_execute(sr, r->scene, r->gbuffer, r->image),
+                 PN_ERROR_INVALID_ARGUMENT, ctx, "threshold 1 must be finite and > 1", NULL);
+    for (int c = 0; c < 3; ++c)
+        rgb[3 * (2 * 16 + 5) + c] = 1.0f;
+    expect_ok("the constant map again", pn_envmap_set_latlong(r->env, rgb, 16, 8), ctx);
+    expect_ok("commit it", pn_envmap_commit(r->env), ctx);
+    pn_scene_commit(r->scene);
+    free(rgb);
+    pn_renderer_release(sr);
+}
+
 static void test_depthmap(pn_context ctx, rig *r)
 {
     pn_env_domain d[3] = {{{0.0f, 1.0f, 0.0f}, 1.0f, {1.0f, 1.0f, 1.0f}, 0.5f},
@@ -2847,6 +2896,7 @@ static void test_enqueue_only(pn_context ctx)
     }
     /* depthmap: the caller's domains (both map renderers), then the contract of pn_renderer_set_env_domains. */
     test_depthmap(ctx, &r);
+    test_depthmap_sharp(ctx, &r);
     /* fiv: a small field of the rig's box attached to it. */
     pn_fiv_options o = pn_fiv_options_default();
     o.theta = 5;

@@ -180,14 +180,18 @@ class Depthmap(Technique):
         # Directions and map resolution from the cheapest up to the defaults and beyond, each with and without
         # the weak domains' maps graded by power (grade 0: every weak map `resolution`, the rule before), and
         # small maps for the weak domains beside a 128^2 one for the strong (docs/depthmap.md).
+        # The sun in its own domains (sharp 1, the default) lets few domains and tiny maps do outdoors; the
+        # sunny map's fast settings were best without it (sharp 0 rows).
         fast = [{"directions": n, "resolution": 32, "strong_resolution": 128} for n in (16, 32, 64)]
-        return [{"directions": 16, "resolution": 64, "strong_resolution": 0, "grade": 0.0},
+        tiny = [{"directions": n, "resolution": 16, "strong_resolution": 64} for n in (8, 16, 32)]
+        return [*tiny, dict(fast[1], sharp=0), dict(fast[1], sharp=0, grade=0.0),
+                {"directions": 16, "resolution": 64, "strong_resolution": 0, "grade": 0.0},
                 {"directions": 32, "resolution": 64, "grade": 0.0}, {"directions": 32, "resolution": 64},
                 {"directions": 64, "resolution": 64, "grade": 0.0}, {"directions": 64, "resolution": 64},
                 {"directions": 128, "resolution": 64},
                 *[p for f in fast for p in (dict(f, grade=0.0), f)],
                 {"directions": 32, "resolution": 32},
-                {"directions": 32}, {"grade": 0.0}, {}, {"directions": 128}]
+                {"directions": 32}, {"grade": 0.0}, {"sharp": 0}, {}, {"directions": 128}]
 
 
 TECHNIQUE = Depthmap(NAME)
