@@ -2681,15 +2681,23 @@ static void test_depthmap_sharp(pn_context ctx, rig *r)
     expect_ok("a sun in the rig's map", pn_envmap_set_latlong(r->env, rgb, 16, 8), ctx);
     expect_ok("commit the sun", pn_envmap_commit(r->env), ctx);
     pn_scene_commit(r->scene);
+    /* One texel of a 16 x 8 map is 0.13 sr, too large to exceed 100 x a mean it dominates: T = 10 x the mean. */
+    pn_renderer_set_float(sr, "sharp_threshold", 10.0f);
+    pn_renderer_commit(sr);
     check_enqueue_only(ctx, r, sr, "depthmap (sharp, the sun in its own domain)");
     expect_ok("read the domains", pn_renderer_read_output(sr, r->scene, "domains", 0, 0, dom, sizeof dom), ctx);
     float sides[8] = {0};
     expect_ok("read the map sides", pn_renderer_read_output(sr, r->scene, "map_resolutions", 0, 0, sides, sizeof sides),
               ctx);
-    const double texel = (2.0 * 3.14159265358979 / 16) * (cos(3.14159265358979 * 2 / 8) - cos(3.14159265358979 * 3 / 8));
-    CHECK("the sun's domain first, its texel's solid angle, strong",
-          fabs(dom[0].solid_angle - texel) < 1e-4 * texel && dom[0].radiance[1] > 100.0f * dom[1].radiance[1] &&
-              sides[0] == 32.0f);
+    /* The sun's excess over T = 10 x the mean luminance, at its texel's solid angle. */
+    const double pi = 3.14159265358979, texel = (2.0 * pi / 16) * (cos(pi * 2 / 8) - cos(pi * 3 / 8));
+    const double limit = 10.0 * (4.0 * pi - texel + 1e4 * texel) / (4.0 * pi), excess = (1e4 - limit) * texel;
+    int brightest = 1;
+    for (int i = 1; i < 8; ++i)
+        brightest &= dom[0].radiance[1] > dom[i].radiance[1];
+    CHECK("the sun's domain first, its texel's excess and solid angle, strong",
+          fabs(dom[0].solid_angle - texel) < 1e-4 * texel && fabs(dom[0].radiance[1] - excess) < 1e-4 * excess &&
+              brightest && sides[0] == 32.0f);
     pn_renderer_set_float(sr, "sharp_threshold", 1.0f);
     pn_renderer_commit(sr);
     expect_error("sharp_threshold 1", pn_renderer_execute(sr, r->scene, r->gbuffer, r->image),
