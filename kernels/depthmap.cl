@@ -48,6 +48,9 @@
 #define DM_LOBE_RHO_0 0.25f
 #define DM_LOBE_DELTA_MAX 32.0f
 #define DM_LOBE_C_MIN 0.01f
+#define DM_LOBE_NEWTON 4 /* steps to the disk's point of least u */
+#define DM_LOBE_CULL_U_BLINN 3.717f /* exp(-u^2 / 2) = DM_LOBE_CULL */
+#define DM_LOBE_CULL_U_GGX 5.535f   /* (1 + u^2)^-2 = DM_LOBE_CULL */
 #define DM_LOBE_FAMILY (DM_LOBE_R * DM_LOBE_D * DM_LOBE_P * DM_LOBE_C)
 
 /* Clears every map to empty and the rasteriser's list of large triangles. */
@@ -358,6 +361,10 @@ inline float dm_lobe_average(global const float *table, pn_material m, float3 n,
     }
     float bl = hypot(bx, by);
     float ax = bl > 0.0f ? fabs(bx) / bl : 1.0f, ay = bl > 0.0f ? fabs(by) / bl : 0.0f;
+    /* u is at least the plain distance in units of s: a cap whose nearest point is DM_LOBE_CULL_U lobe widths
+     * from R sees below DM_LOBE_CULL of the lobe's peak (the quadrature's dm_lobe_reaches), and is skipped */
+    if (psi_c - r > (family == 0 ? DM_LOBE_CULL_U_BLINN : DM_LOBE_CULL_U_GGX) * s)
+        return 0.0f;
     float gamma = hypot(ax, ay / c);
     float rho = r / s, delta_u = (psi_c - r) / s * gamma, phi_s = atan2(ay, c * ax);
     /* l*: on the disk's edge where x^2 + (y / c)^2 is least (safeguarded Newton on the edge's angle tau) */
@@ -365,7 +372,7 @@ inline float dm_lobe_average(global const float *table, pn_material m, float3 n,
     if (psi_c > r) {
         float x0 = psi_c / s * ax, y0 = psi_c / s * ay, ic2 = 1.0f / (c * c);
         float lo = M_PI_F, hi = 1.5f * M_PI_F, tau = atan2(-y0, -x0) + 2.0f * M_PI_F, ct, st;
-        for (int it = 0; it < 6; ++it) {
+        for (int it = 0; it < DM_LOBE_NEWTON; ++it) {
             st = sincos(tau, &ct);
             float px = x0 + rho * ct, py = y0 + rho * st;
             float fp = -px * st + py * ct * ic2; /* d/dtau of (px^2 + py^2 / c^2) / (2 rho) */
@@ -411,13 +418,14 @@ inline float dm_lobe_average(global const float *table, pn_material m, float3 n,
     return f * exp(fmin(g, 0.0f)) * area;
 }
 
-/* The lobe times the cosine averaged over the cap (d, r) by the table: the
- * lobe as a Phong lobe around R of the equivalent exponent n_eq (Phong: n;
- * Blinn-Phong: n / 4, the half angle; GGX: 1 / (2 alpha^2), the Gaussian of
- * the same integral), its cap average over its value at the cap's point l
- * nearest R (R itself when inside) times the true lobe and cosine at l.
- * Exact for Phong but for the cosine, taken at l. Returns -1 for the
- * anisotropic lobe and when n_eq is below min_n (at least 1, the table's range): the caller uses the quadrature. */
+/* The lobe times the cosine averaged over the cap (d, r) by the tables:
+ * Phong's cap average over its value at the cap's point l nearest R (R
+ * itself when inside) times the true lobe and cosine at l (exact but for the
+ * cosine, taken at l); Blinn-Phong and GGX by their own tables with the view
+ * (dm_lobe_average). n_eq (Phong: n; Blinn-Phong: n / 4, the half angle; GGX:
+ * 1 / (2 alpha^2), the Gaussian of the same integral) decides against min_n
+ * whether the table is used. Returns -1 for the anisotropic lobe and when
+ * n_eq is below min_n (at least 1, the Phong table's range): the caller uses the quadrature. */
 inline float dm_table_lobe(global const float *table, pn_material m, float3 n, float3 v, float3 refl, float3 d,
                            float r, float min_n)
 {

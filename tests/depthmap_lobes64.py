@@ -21,6 +21,9 @@ from scipy import integrate, special
 
 BLINN_PHONG, GGX = 0, 1
 C_MIN = 0.01  # PN_DM_LOBE_C_MIN: the smallest N.V tabulated
+LOBE_CULL = 1e-3  # DM_LOBE_CULL
+# dm_lobe_average skips caps this many lobe widths s from R: the profile there is LOBE_CULL of its peak
+CULL_U = (3.717, 5.535)  # DM_LOBE_CULL_U_*: sqrt(-2 log LOBE_CULL), sqrt(LOBE_CULL^-1/2 - 1), rounded up
 
 
 def log_lobe(family: int, u: float) -> float:
@@ -165,6 +168,9 @@ def average(n, v, d, r: float, lobe: str, shininess: float, roughness: float, f)
     by this module's quadrature instead of the table; f the lobe at (n, v)."""
     family, s = lobe_family_scale(lobe, shininess, roughness)
     refl = 2.0 * (n @ v) * n - v
+    cd = float(refl @ d)
+    if math.atan2(float(np.linalg.norm(refl - cd * d)), cd) - r > CULL_U[family] * s:
+        return 0.0  # the kernel's cull: u is at least the plain distance over s
     rho, c, delta_u, phi_s, l = frame(n, v, refl, d, r, s)
     nl = float(n @ l)
     if not nl > 0:

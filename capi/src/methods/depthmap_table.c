@@ -1,9 +1,11 @@
-/* The tabulated exact cap average of the `depthmap` method (docs/depthmap.md,
+/* The tabulated exact cap averages of the `depthmap` method (docs/depthmap.md,
  * "Tabulated exact cap averages"), built once per context in float64 on the
- * host and read by kernels/depthmap.cl's dm_cap_ratio (specular 3). Its
- * float64 twin is tests/depthmap64.py's cap_ratio() (the exact average by the
- * twin's own quadrature, no table); tests/test_depthmap.py compares the
- * renderer's interpolated values with it.
+ * host into one buffer: Phong's, read by kernels/depthmap.cl's dm_cap_ratio
+ * (specular 3), then Blinn-Phong's and GGX's with the view angle (below,
+ * read by dm_lobe_average). Float64 twins: tests/depthmap64.py's cap_ratio()
+ * and tests/depthmap_lobes64.py (their own quadratures, no table);
+ * tests/test_depthmap.py and tests/test_depthmap_lobes.py compare the
+ * renderer's interpolated values with them.
  *
  * For a cap of angular radius r whose centre is psi_c from the lobe's axis R
  * and the lobe max(0, cos psi)^n (psi from R), the table holds
