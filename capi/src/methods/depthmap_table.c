@@ -262,8 +262,12 @@ static double lobe_log_ratio(int family, double rho, double c, double delta_u, d
         count = add_feature(cut, count, x0 - hx, w, lo, hi);
         count = add_feature(cut, count, x0 + hx, w, lo, hi);
     }
-    /* the disk's row nearest y = 0 */
-    count = add_feature(cut, count, x0, fmin(rho, fmax(sqrt(2.0 * rho * (c + fabs(fabs(y0) - rho))), 1e-6)), lo, hi);
+    /* the disk's row nearest y = 0: there the chord's end is Y + q^2 / (2 rho) from y = 0 (q = x - x0, Y =
+     * ||y0| - rho|), and the Gaussian's exponent -(Y + ...)^2 / (2 c^2) falls by one over q^2 = 2 rho c^2 / Y
+     * (over y of about c when Y < c); GGX's polynomial tail is slower */
+    const double gap = fabs(fabs(y0) - rho);
+    const double w_row = family == 0 ? c * sqrt(2.0 * rho / fmax(gap, c)) : sqrt(2.0 * rho * (c + gap));
+    count = add_feature(cut, count, x0, fmin(rho, fmax(w_row, 1e-6)), lo, hi);
     qsort(cut, (size_t)count, sizeof cut[0], cmp_double);
     /* two passes: the largest log value, then the sum */
     double best = -INFINITY, sum = 0.0;
