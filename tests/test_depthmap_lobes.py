@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 
+import depthmap64 as d64
 import depthmap_lobes64 as lt
 import numpy as np
 import pytest
@@ -14,8 +15,6 @@ from scipy import integrate
 from test_depthmap import LOBE_INDEX, lobe_render, lobe_scene, sky  # noqa: F401  (fixtures)
 
 from penumbra.brdf import lobe as brdf_lobe
-
-import depthmap64 as d64
 
 D = np.array([0.0, 0.0, 1.0])  # lobe_render's domain centre
 
