@@ -150,3 +150,26 @@ LOBE_ATOL = {
     ("ggx", 0.0, 0.01): {0.0: 0.012, 30.0: 0.025, 60.0: 0.023, 75.0: 0.038, 85.0: 0.16},
     ("ggx", 0.0, 0.1): {0.0: 0.02, 30.0: 0.033, 60.0: 0.078, 75.0: 0.2, 85.0: 0.7},
 }
+
+
+@pytest.mark.parametrize("material", [dict(lobe="blinn_phong", shininess=400.0), dict(lobe="ggx", roughness=0.05)])
+def test_zero_specular_skips_the_tables(ctx, sky, material):  # noqa: F811  (sky: the fixture)
+    """k_s = 0 with lobes the tables serve: the table rule's image equals the
+    point rule's and the quadrature's bit for bit (nothing specular is
+    evaluated); with k_s = 0.5 the rules differ (the test sees the lobe)."""
+    from test_depthmap import domains_of, render
+    from test_reference import gbuffer_of, make_scene, xform
+
+    from penumbra import Camera, EnvMap, Material, procedural
+
+    env = EnvMap(ctx, sky, face_size=8)
+    camera = Camera(position=(0.0, 2.0, 3.0), look_at=(0.0, 0.3, 0.0), fov_deg=50.0, resolution=(16, 12))
+    doms = domains_of(sky, 16)
+    for ks, equal in ((0.0, True), (0.5, False)):
+        objects = [(procedural.plane((4.0, 4.0)), xform(), Material(albedo=(0.6, 0.6, 0.6), specular=ks, **material)),
+                   (procedural.sphere(0.5), xform(translate=(0, 0.5, 0)),
+                    Material(albedo=(0.5, 0.3, 0.2), specular=ks, **material))]
+        scene, _, keep = make_scene(ctx, objects, env, camera)
+        gb, _ = gbuffer_of(ctx, scene, camera)
+        imgs = [render(ctx, scene, gb, doms, specular=k)[0] for k in (0, 2, 3)]
+        assert (np.array_equal(imgs[2], imgs[0]) and np.array_equal(imgs[2], imgs[1])) == equal, ks
