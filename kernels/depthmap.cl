@@ -38,6 +38,20 @@
 #define DM_TABLE_N 32
 #define DM_TABLE_N_MAX 1e6f
 #define DM_TABLE_SPREAD 4.0f
+#define DM_TABLE_PHONG_FLOATS (DM_TABLE_R * DM_TABLE_D * DM_TABLE_N)
+/* Blinn-Phong's and GGX's tables after Phong's (PN_DM_LOBE_*): [family][c][phi_s][delta][rho] */
+#define DM_LOBE_R 32
+#define DM_LOBE_D 40
+#define DM_LOBE_P 8
+#define DM_LOBE_C 10
+#define DM_LOBE_RHO_MAX 4096.0f
+#define DM_LOBE_RHO_0 0.25f
+#define DM_LOBE_DELTA_MAX 32.0f
+#define DM_LOBE_C_MIN 0.01f
+#define DM_LOBE_NEWTON 4 /* steps to the disk's point of least u */
+#define DM_LOBE_CULL_U_BLINN 3.717f /* exp(-u^2 / 2) = DM_LOBE_CULL */
+#define DM_LOBE_CULL_U_GGX 5.535f   /* (1 + u^2)^-2 = DM_LOBE_CULL */
+#define DM_LOBE_FAMILY (DM_LOBE_R * DM_LOBE_D * DM_LOBE_P * DM_LOBE_C)
 
 /* Clears every map to empty and the rasteriser's list of large triangles. */
 kernel void depthmap_clear(global uint *depth, int count, global uint *large_count)
@@ -318,13 +332,100 @@ inline float dm_cap_ratio(global const float *table, float r, float psi_c, float
     return w / (1.0f + (n + 1.0f) * 2.0f * s * s); /* the table stores H (1 + (n + 1)(1 - cos r)) */
 }
 
-/* The lobe times the cosine averaged over the cap (d, r) by the table: the
- * lobe as a Phong lobe around R of the equivalent exponent n_eq (Phong: n;
- * Blinn-Phong: n / 4, the half angle; GGX: 1 / (2 alpha^2), the Gaussian of
- * the same integral), its cap average over its value at the cap's point l
- * nearest R (R itself when inside) times the true lobe and cosine at l.
- * Exact for Phong but for the cosine, taken at l. Returns -1 for the
- * anisotropic lobe and when n_eq is below min_n (at least 1, the table's range): the caller uses the quadrature. */
+/* Blinn-Phong (family 0, s = 2 / sqrt(n)) and GGX (family 1, s = 2 alpha):
+ * the lobe times the cosine averaged over the cap (d, r), per unit k_s, as
+ * f_lobe(l*) (n.l*) G pi r^2 / (2 pi (1 - cos r)). About R the lobe depends
+ * on u = |(x, y / c)| / s, (x, y) the tangent offset from R in and across the
+ * plane of N and R, c = N.V (depthmap_table.c); in units of s the cap is a
+ * disk of radius rho = r / s. l* is the disk's point of least u (R when
+ * inside), G the lobe's disk average over its value there (at most 1),
+ * quadrilinear in the table's grid. */
+inline float dm_lobe_average(global const float *table, pn_material m, float3 n, float3 v, float3 refl, float3 d,
+                             float psi_c, float r)
+{
+    int family = m.lobe == PN_LOBE_BLINN_PHONG ? 0 : 1;
+    float s = family == 0 ? 2.0f * rsqrt(m.shininess) : 2.0f * m.roughness;
+    float c = clamp(dot(n, v), DM_LOBE_C_MIN, 1.0f);
+    float3 ex = (float3)(1.0f, 0.0f, 0.0f), ey = cross(n, refl);
+    float bx = 1.0f, by = 0.0f; /* d's tangent components at R along x and y */
+    float ly = length(ey);
+    if (ly > 1e-6f) {
+        ey /= ly;
+        ex = cross(ey, refl);
+        bx = dot(d, ex);
+        by = dot(d, ey);
+    } else { /* N along R (c = 1, a round lobe): any tangent frame */
+        pn_frame(refl, &ex, &ey);
+        bx = dot(d, ex);
+        by = dot(d, ey);
+    }
+    float bl = hypot(bx, by);
+    float ax = bl > 0.0f ? fabs(bx) / bl : 1.0f, ay = bl > 0.0f ? fabs(by) / bl : 0.0f;
+    /* u is at least the plain distance in units of s: a cap whose nearest point is DM_LOBE_CULL_U lobe widths
+     * from R sees below DM_LOBE_CULL of the lobe's peak (the quadrature's dm_lobe_reaches), and is skipped */
+    if (psi_c - r > (family == 0 ? DM_LOBE_CULL_U_BLINN : DM_LOBE_CULL_U_GGX) * s)
+        return 0.0f;
+    float gamma = hypot(ax, ay / c);
+    float rho = r / s, delta_u = (psi_c - r) / s * gamma, phi_s = atan2(ay, c * ax);
+    /* l*: on the disk's edge where x^2 + (y / c)^2 is least (safeguarded Newton on the edge's angle tau) */
+    float3 l = refl;
+    if (psi_c > r) {
+        float x0 = psi_c / s * ax, y0 = psi_c / s * ay, ic2 = 1.0f / (c * c);
+        float lo = M_PI_F, hi = 1.5f * M_PI_F, tau = atan2(-y0, -x0) + 2.0f * M_PI_F, ct, st;
+        for (int it = 0; it < DM_LOBE_NEWTON; ++it) {
+            st = sincos(tau, &ct);
+            float px = x0 + rho * ct, py = y0 + rho * st;
+            float fp = -px * st + py * ct * ic2; /* d/dtau of (px^2 + py^2 / c^2) / (2 rho) */
+            float fpp = rho * st * st - px * ct + (rho * ct * ct - py * st) * ic2;
+            if (fp > 0.0f)
+                hi = tau;
+            else
+                lo = tau;
+            float next = tau - fp / fpp;
+            tau = fpp > 0.0f && next >= lo && next <= hi ? next : 0.5f * (lo + hi);
+        }
+        st = sincos(tau, &ct);
+        float px = (x0 + rho * ct) * s, py = (y0 + rho * st) * s; /* radians, |components| */
+        float3 t = copysign(px, bx) * ex + copysign(py, by) * ey;
+        float tl = length(t);
+        if (tl > 0.0f)
+            l = cos(tl) * refl + sin(tl) * (t / tl);
+    }
+    float nl = dot(n, l);
+    if (!(nl > 0.0f))
+        return 0.0f;
+    float f = pn_brdf_lobe(m, n, v, l, nl) * nl;
+    if (!(f > 0.0f))
+        return 0.0f;
+    float t0 = dm_edge_t(-rho * gamma), t1 = dm_edge_t(DM_LOBE_DELTA_MAX);
+    float x = clamp(log1p(rho / DM_LOBE_RHO_0) / log1p(DM_LOBE_RHO_MAX / DM_LOBE_RHO_0), 0.0f, 1.0f) * (float)(DM_LOBE_R - 1);
+    float y = clamp((dm_edge_t(delta_u) - t0) / (t1 - t0), 0.0f, 1.0f) * (float)(DM_LOBE_D - 1);
+    float p = clamp(phi_s * M_2_PI_F, 0.0f, 1.0f) * (float)(DM_LOBE_P - 1);
+    float q = clamp(log(c) / log(DM_LOBE_C_MIN), 0.0f, 1.0f) * (float)(DM_LOBE_C - 1);
+    int i = min((int)x, DM_LOBE_R - 2), j = min((int)y, DM_LOBE_D - 2), k = min((int)p, DM_LOBE_P - 2),
+        w = min((int)q, DM_LOBE_C - 2);
+    float ai = x - (float)i, aj = y - (float)j, ak = p - (float)k, aw = q - (float)w;
+    global const float *base = table + family * DM_LOBE_FAMILY;
+    float g = 0.0f;
+    for (int dw = 0; dw < 2; ++dw)
+        for (int dk = 0; dk < 2; ++dk)
+            for (int dj = 0; dj < 2; ++dj) {
+                global const float *row = base + (((w + dw) * DM_LOBE_P + k + dk) * DM_LOBE_D + j + dj) * DM_LOBE_R + i;
+                g += (dw ? aw : 1.0f - aw) * (dk ? ak : 1.0f - ak) * (dj ? aj : 1.0f - aj) * mix(row[0], row[1], ai);
+            }
+    float h = 0.5f * r, sh = sin(h);
+    float area = sh > 0.0f ? (h * h) / (sh * sh) : 1.0f;
+    return f * exp(fmin(g, 0.0f)) * area;
+}
+
+/* The lobe times the cosine averaged over the cap (d, r) by the tables:
+ * Phong's cap average over its value at the cap's point l nearest R (R
+ * itself when inside) times the true lobe and cosine at l (exact but for the
+ * cosine, taken at l); Blinn-Phong and GGX by their own tables with the view
+ * (dm_lobe_average). n_eq (Phong: n; Blinn-Phong: n / 4, the half angle; GGX:
+ * 1 / (2 alpha^2), the Gaussian of the same integral) decides against min_n
+ * whether the table is used. Returns -1 for the anisotropic lobe and when
+ * n_eq is below min_n (at least 1, the Phong table's range): the caller uses the quadrature. */
 inline float dm_table_lobe(global const float *table, pn_material m, float3 n, float3 v, float3 refl, float3 d,
                            float r, float min_n)
 {
@@ -340,6 +441,8 @@ inline float dm_table_lobe(global const float *table, pn_material m, float3 n, f
     float3 side = refl - c * d;
     float sl = length(side);
     float psi_c = atan2(sl, c); /* accurate near 0, unlike acos */
+    if (m.lobe != PN_LOBE_PHONG) /* Blinn-Phong and GGX: their own tables, with the view */
+        return dm_lobe_average(table + DM_TABLE_PHONG_FLOATS, m, n, v, refl, d, psi_c, r);
     float3 l = refl;
     if (psi_c > r)
         l = cos(r) * d + sin(r) * (side / sl); /* psi_c > r >= 0: sl > 0 */
@@ -347,7 +450,9 @@ inline float dm_table_lobe(global const float *table, pn_material m, float3 n, f
     if (!(nl > 0.0f))
         return 0.0f;
     float f = pn_brdf_lobe(m, n, v, l, nl) * nl;
-    return f > 0.0f ? f * dm_cap_ratio(table, r, psi_c, n_eq) : 0.0f;
+    if (!(f > 0.0f))
+        return 0.0f;
+    return f * dm_cap_ratio(table, r, psi_c, n_eq);
 }
 
 /* Whether any of the lobe can reach the cap: the lobe at the cap's point

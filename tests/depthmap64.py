@@ -688,6 +688,10 @@ def table_average(n, v, d, r, name, shin, rough, f, nodes: int = 400,
     n_eq = equivalent_exponent(name, shin, rough)
     if not n_eq >= max(min_n, 1.0):
         return None
+    if name != "phong":  # Blinn-Phong and GGX: their own tables, with the view (depthmap_lobes64)
+        import depthmap_lobes64
+
+        return depthmap_lobes64.average(n, v, d, r, name, shin, rough, f)
     refl = 2.0 * (n @ v) * n - v
     psi_c, l = nearest_cap_point(refl, d, r)
     nl = float(n @ l)

@@ -1,9 +1,11 @@
-/* The tabulated exact cap average of the `depthmap` method (docs/depthmap.md,
+/* The tabulated exact cap averages of the `depthmap` method (docs/depthmap.md,
  * "Tabulated exact cap averages"), built once per context in float64 on the
- * host and read by kernels/depthmap.cl's dm_cap_ratio (specular 3). Its
- * float64 twin is tests/depthmap64.py's cap_ratio() (the exact average by the
- * twin's own quadrature, no table); tests/test_depthmap.py compares the
- * renderer's interpolated values with it.
+ * host into one buffer: Phong's, read by kernels/depthmap.cl's dm_cap_ratio
+ * (specular 3), then Blinn-Phong's and GGX's with the view angle (below,
+ * read by dm_lobe_average). Float64 twins: tests/depthmap64.py's cap_ratio()
+ * and tests/depthmap_lobes64.py (their own quadratures, no table);
+ * tests/test_depthmap.py and tests/test_depthmap_lobes.py compare the
+ * renderer's interpolated values with them.
  *
  * For a cap of angular radius r whose centre is psi_c from the lobe's axis R
  * and the lobe max(0, cos psi)^n (psi from R), the table holds
@@ -31,6 +33,7 @@
 
 #define PI 3.14159265358979323846
 #define HALF_PI (0.5 * PI)
+#define SQRT2 1.41421356237309504880
 #define NODES 12 /* Gauss-Legendre nodes per panel (after the cosine map): the table within 1e-5 of 48 nodes' */
 
 static double edge_t(double delta) { return delta / (fabs(delta) + PN_DM_TABLE_SPREAD); }
@@ -81,7 +84,7 @@ static double cap_ratio(double psi_c, double r, double n, const double *map, con
     return total / (4.0 * PI * sin(0.5 * r) * sin(0.5 * r));
 }
 
-void pn_depthmap_cap_table_fill(float *out)
+static void phong_table_fill(float *out)
 {
     double gx[NODES], gw[NODES], map[NODES];
     pn_gauss_legendre(NODES, gx, gw);
@@ -105,6 +108,222 @@ void pn_depthmap_cap_table_fill(float *out)
                 out[((size_t)k * PN_DM_TABLE_D + j) * PN_DM_TABLE_R + i] = (float)(h * (1.0 + (n + 1.0) * 2.0 * s * s));
             }
     }
+}
+
+/* ---------------------------------------------------------------- Blinn-Phong and GGX
+ * The lobes of the half vector (docs/depthmap.md, "Blinn-Phong and GGX: a table
+ * with the view angle"). Near R, a direction L at the tangent offset (x, y) from
+ * R (x in the plane of N and R, y across it) has the half vector at the angle
+ * theta_h = |(x, y / c)| / 2 from N, c = N.V: a rotation of H by delta turns L by
+ * 2 delta in the plane of incidence and by 2 (N.V) delta across it. So both
+ * lobes are, about R, functions of one lobe-metric radius u = |(x, y / c)| / s:
+ *   Blinn-Phong cos^n(theta_h) ~ exp(-u^2 / 2),  s = 2 / sqrt(n)       (family 0)
+ *   GGX D(H) ~ D(N) (1 + u^2)^-2,                 s = 2 alpha           (family 1)
+ * with no other parameter: the sharpness is the scale s, the view the
+ * squash c. In units of s, a cap of radius r is a disk of radius rho = r / s
+ * whose centre is (psi_c / s) (cos phi, sin phi) from R. Tabulated, per family:
+ *   log G(rho, c, delta_u, phi_s),  G = (1 / (pi rho^2)) int_disk Lambda(u) dA / Lambda(u*),
+ * the disk average over the lobe at the disk's point l* of least u (R when
+ * inside; then u* = 0), so G is in (0, 1]; delta_u = (psi_c - r) / s * gamma is the signed distance of
+ * R from the disk's edge in the lobe's metric along the offset, gamma = |(cos phi,
+ * sin phi / c)|, and phi_s = atan2(sin phi / c, cos phi) the offset's angle in
+ * the stretched plane, where the lobe is round. Axes:
+ *   x = log(1 + rho / RHO_0) / log(1 + RHO_MAX / RHO_0),  y as the Phong table's (t(delta_u)
+ *   from the disk's centre to DELTA_MAX),  phi_s / (pi / 2),  log c / log C_MIN.
+ * The disk integral: over x (Gauss-Legendre panels from the features: the
+ * lobe's peak, the chord ends' crossings of y = 0, the disk's nearest row),
+ * over y in closed form (erf for the Gaussian, the rational-arctangent
+ * antiderivative for GGX), summed in logarithms. */
+
+static double log_erfc_pos(double z) /* log erfc(z), z >= 0 */
+{
+    if (z < 20.0)
+        return log(erfc(z));
+    const double z2 = z * z;
+    return -z2 - log(z) - 0.5 * log(PI) + log1p((-0.5 + (0.75 - 1.875 / z2) / z2) / z2);
+}
+
+/* log(erf(q) - erf(p)), p < q */
+static double log_erf_diff(double p, double q)
+{
+    if (p < 0.0 && q > 0.0)
+        return log(erf(q) - erf(p));
+    if (q <= 0.0) {
+        const double t = -p;
+        p = -q;
+        q = t;
+    }
+    const double lp = log_erfc_pos(p), lq = log_erfc_pos(q);
+    return lp + log(-expm1(lq - lp));
+}
+
+/* int_{z1}^{z2} dz / (a^2 + z^2)^2 for 0 <= z1 <= z2, with z = a cot(beta):
+ * ((D - sin D) + 2 sin^2((b1 + b2) / 2) sin D) / (2 a^3), D = b1 - b2, no cancellation. */
+static double ggx_strip_pos(double z1, double z2, double a)
+{
+    const double b1 = atan2(a, z1), b2 = atan2(a, z2), d = b1 - b2;
+    const double d3 = d < 1e-2 ? d * d * d / 6.0 * (1.0 - d * d / 20.0 * (1.0 - d * d / 42.0)) : d - sin(d);
+    const double s = sin(0.5 * (b1 + b2));
+    return (d3 + 2.0 * s * s * sin(d)) / (2.0 * a * a * a);
+}
+
+/* log of the lobe integrated over the chord x, y in [y1, y2] */
+static double log_chord(int family, double x, double y1, double y2, double c)
+{
+    if (!(y2 > y1))
+        return -INFINITY;
+    if (family == 0)
+        return -0.5 * x * x + log(c * sqrt(0.5 * PI)) + log_erf_diff(y1 / (c * SQRT2), y2 / (c * SQRT2));
+    const double a = sqrt(1.0 + x * x), z1 = y1 / c, z2 = y2 / c;
+    double k;
+    if (z1 >= 0.0)
+        k = ggx_strip_pos(z1, z2, a);
+    else if (z2 <= 0.0)
+        k = ggx_strip_pos(-z2, -z1, a);
+    else
+        k = ggx_strip_pos(0.0, -z1, a) + ggx_strip_pos(0.0, z2, a);
+    return log(c * k);
+}
+
+static double log_lobe(int family, double u) { return family == 0 ? -0.5 * u * u : -2.0 * log1p(u * u); }
+
+#define LOBE_NODES 6
+#define LOBE_MAX_CUTS 160
+
+static int add_cut(double *cut, int count, double x, double lo, double hi)
+{
+    if (x > lo && x < hi && count < LOBE_MAX_CUTS)
+        cut[count++] = x;
+    return count;
+}
+
+/* cuts from p outwards at p +- w 4^k */
+static int add_feature(double *cut, int count, double p, double w, double lo, double hi)
+{
+    count = add_cut(cut, count, p, lo, hi);
+    for (double step = w; step < hi - lo; step *= 8.0) {
+        count = add_cut(cut, count, p - step, lo, hi);
+        count = add_cut(cut, count, p + step, lo, hi);
+    }
+    return count;
+}
+
+static int cmp_double(const void *a, const void *b)
+{
+    const double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* The least x^2 + (y / c)^2 on the circle of radius rho around (x0, y0) >= 0
+ * (outside the origin): bisection on the derivative over the edge's angle in
+ * [pi, 3 pi / 2], the quarter facing the origin. */
+static double edge_least_u2(double x0, double y0, double rho, double c)
+{
+    double lo = PI, hi = 1.5 * PI;
+    for (int it = 0; it < 60; ++it) {
+        const double tau = 0.5 * (lo + hi), ct = cos(tau), st = sin(tau);
+        if (-(x0 + rho * ct) * st + (y0 + rho * st) * ct / (c * c) > 0.0)
+            hi = tau;
+        else
+            lo = tau;
+    }
+    const double tau = 0.5 * (lo + hi), px = x0 + rho * cos(tau), py = (y0 + rho * sin(tau)) / c;
+    return px * px + py * py;
+}
+
+/* log G for one table entry (the disk average over Lambda at the disk's point of least u) */
+static double lobe_log_ratio(int family, double rho, double c, double delta_u, double phi_s, const double *map,
+                             const double *gw)
+{
+    if (rho <= 0.0)
+        return 0.0;
+    const double ux = cos(phi_s), uy = c * sin(phi_s), un = sqrt(ux * ux + uy * uy);
+    const double cx = ux / un, cy = uy / un, gamma = sqrt(cx * cx + cy * cy / (c * c));
+    const double dist = fmax(rho + delta_u / gamma, 0.0), x0 = dist * cx, y0 = dist * cy;
+    const double ref = dist > rho ? log_lobe(family, sqrt(edge_least_u2(x0, y0, rho, c))) : 0.0;
+    double lo = x0 - rho, hi = x0 + rho;
+    if (family == 0) { /* the Gaussian's factor exp(-x^2 / 2): drop x where it is e^-60 below its best */
+        const double xm = fmin(fmax(0.0, lo), hi), lim = sqrt(120.0 + xm * xm);
+        lo = fmax(lo, -lim);
+        hi = fmin(hi, lim);
+    }
+    double cut[LOBE_MAX_CUTS + 2];
+    int count = 0;
+    cut[count++] = lo;
+    cut[count++] = hi;
+    /* the lobe's peak row x = 0 (or the disk's row nearest it) */
+    const double xm = fmin(fmax(0.0, lo), hi);
+    count = add_feature(cut, count, xm, family == 0 ? fmin(1.0, 1.0 / fmax(fabs(xm), 1e-9)) : fmax(0.5, 0.25 * fabs(xm)),
+                        lo, hi);
+    /* where a chord's end crosses y = 0, over about c of y */
+    if (fabs(y0) < rho) {
+        const double hx = sqrt(rho * rho - y0 * y0);
+        const double w = fmin(fmax(c * fabs(y0) / fmax(hx, 1e-12), 1e-6), 1.0);
+        count = add_feature(cut, count, x0 - hx, w, lo, hi);
+        count = add_feature(cut, count, x0 + hx, w, lo, hi);
+    }
+    /* the disk's row nearest y = 0: there the chord's end is Y + q^2 / (2 rho) from y = 0 (q = x - x0, Y =
+     * ||y0| - rho|), and the Gaussian's exponent -(Y + ...)^2 / (2 c^2) falls by one over q^2 = 2 rho c^2 / Y
+     * (over y of about c when Y < c); GGX's polynomial tail is slower */
+    const double gap = fabs(fabs(y0) - rho);
+    const double w_row = family == 0 ? c * sqrt(2.0 * rho / fmax(gap, c)) : sqrt(2.0 * rho * (c + gap));
+    count = add_feature(cut, count, x0, fmin(rho, fmax(w_row, 1e-6)), lo, hi);
+    qsort(cut, (size_t)count, sizeof cut[0], cmp_double);
+    /* two passes: the largest log value, then the sum */
+    double best = -INFINITY, sum = 0.0;
+    for (int pass = 0; pass < 2; ++pass)
+        for (int k = 0; k + 1 < count; ++k) {
+            const double a = cut[k], b = cut[k + 1];
+            if (!(b > a))
+                continue;
+            for (int q = 0; q < LOBE_NODES; ++q) {
+                const double x = a + (b - a) * map[q], dx = x - x0;
+                const double h = sqrt(fmax(rho * rho - dx * dx, 0.0));
+                const double lv = log_chord(family, x, y0 - h, y0 + h, c) - ref;
+                if (pass == 0)
+                    best = fmax(best, lv);
+                else if (lv > -INFINITY)
+                    sum += gw[q] * (b - a) * exp(lv - best);
+            }
+        }
+    if (!(sum > 0.0))
+        return -1e30;
+    return best + log(sum) - log(PI * rho * rho);
+}
+
+void pn_depthmap_lobe_table_fill(float *out)
+{
+    double gx[LOBE_NODES], gw[LOBE_NODES], map[LOBE_NODES];
+    pn_gauss_legendre(LOBE_NODES, gx, gw);
+    for (int k = 0; k < LOBE_NODES; ++k) {
+        const double s = 0.5 * (gx[k] + 1.0);
+        map[k] = 0.5 * (1.0 - cos(PI * s));
+        gw[k] *= 0.25 * PI * sin(PI * s);
+    }
+    size_t at = 0;
+    for (int family = 0; family < 2; ++family)
+        for (int l = 0; l < PN_DM_LOBE_C; ++l) {
+            const double c = pow(PN_DM_LOBE_C_MIN, (double)l / (PN_DM_LOBE_C - 1));
+            for (int p = 0; p < PN_DM_LOBE_P; ++p) {
+                const double phi_s = HALF_PI * p / (PN_DM_LOBE_P - 1);
+                const double gamma = 1.0 / sqrt(cos(phi_s) * cos(phi_s) + c * c * sin(phi_s) * sin(phi_s));
+                for (int j = 0; j < PN_DM_LOBE_D; ++j)
+                    for (int i = 0; i < PN_DM_LOBE_R; ++i) {
+                        const double x = (double)i / (PN_DM_LOBE_R - 1), y = (double)j / (PN_DM_LOBE_D - 1);
+                        const double rho = PN_DM_LOBE_RHO_0 * expm1(x * log1p(PN_DM_LOBE_RHO_MAX / PN_DM_LOBE_RHO_0));
+                        const double t0 = edge_t(-rho * gamma), t1 = edge_t(PN_DM_LOBE_DELTA_MAX);
+                        const double t = t0 + y * (t1 - t0);
+                        const double delta_u = PN_DM_TABLE_SPREAD * t / (1.0 - fabs(t));
+                        out[at++] = (float)lobe_log_ratio(family, rho, c, delta_u, phi_s, map, gw);
+                    }
+            }
+        }
+}
+
+void pn_depthmap_cap_table_fill(float *out)
+{
+    phong_table_fill(out);
+    pn_depthmap_lobe_table_fill(out + PN_DM_TABLE_PHONG_FLOATS);
 }
 
 static const char cache_key = 0;
