@@ -427,10 +427,11 @@ inline float dm_lobe_average(global const float *table, pn_material m, float3 n,
  * whether the table is used. Returns -1 for the anisotropic lobe and when
  * n_eq is below min_n (at least 1, the Phong table's range): the caller uses the quadrature. */
 inline float dm_table_lobe(global const float *table, pn_material m, float3 n, float3 v, float3 refl, float3 d,
-                           float r, float min_n)
+                           float r, float min_n, int lobe_tables)
 {
-    /* The anisotropic lobe has no equivalent exponent: the quadrature samples it. */
-    if (m.lobe == PN_LOBE_ASHIKHMIN_SHIRLEY)
+    /* The anisotropic lobe has no equivalent exponent: the quadrature samples it;
+       so do Blinn-Phong and GGX when their tables were not built (lobe_tables 0). */
+    if (m.lobe == PN_LOBE_ASHIKHMIN_SHIRLEY || (m.lobe != PN_LOBE_PHONG && !lobe_tables))
         return -1.0f;
     float n_eq = m.lobe == PN_LOBE_PHONG         ? m.shininess
                  : m.lobe == PN_LOBE_BLINN_PHONG ? 0.25f * m.shininess
@@ -491,7 +492,7 @@ kernel void shade_depthmap(global const float4 *position, global const float4 *n
                            global const uint *depth, global const uint2 *atlas, int use_maps, float bias_constant, float bias_slope,
                            int pcf, int specular, int cap_samples, global float4 *image,
                            global const ushort *depth16, int half_maps, global const float *cap_table,
-                           float table_min_n)
+                           float table_min_n, int lobe_tables)
 {
     int gid = get_global_id(0);
     if (gid >= count)
@@ -528,7 +529,8 @@ kernel void shade_depthmap(global const float4 *position, global const float4 *n
         }
         float a = 0.0f; /* the lobe's average times the cosine, per unit k_s */
         if (spec) {
-            a = specular == DM_SPECULAR_TABLE ? dm_table_lobe(cap_table, m, n, v, refl, d, rad.w, table_min_n) : -1.0f;
+            a = specular == DM_SPECULAR_TABLE ? dm_table_lobe(cap_table, m, n, v, refl, d, rad.w, table_min_n, lobe_tables)
+                                                : -1.0f;
             if (a >= 0.0f) {
                 /* the table's value */
             } else if (specular >= DM_SPECULAR_CAP) { /* the quadrature, and the table's broad lobes */

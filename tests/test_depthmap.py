@@ -607,6 +607,7 @@ def lobe_render(ctx, scene, normals, views, material, r, **params):
                         ("instance", np.zeros((1, count), np.uint32))):
         gb.write(plane, data)
     dom = dm.domain_array([[0.0, 0.0, 1.0]], [[1.0, 1.0, 1.0]], cap_radius=[r])
+    params.setdefault("lobe_tables", 1)  # the scene's own material is diffuse: the G-buffer carries the lobes
     img, _ = render(ctx, scene, gb, dom, visibility=0, **params)
     p64 = pos[0, :, :3].astype(np.float64)
     n64 = nrm[0, :, :3].astype(np.float64)

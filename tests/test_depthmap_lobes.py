@@ -173,3 +173,31 @@ def test_zero_specular_skips_the_tables(ctx, sky, material):  # noqa: F811  (sky
         gb, _ = gbuffer_of(ctx, scene, camera)
         imgs = [render(ctx, scene, gb, doms, specular=k)[0] for k in (0, 2, 3)]
         assert (np.array_equal(imgs[2], imgs[0]) and np.array_equal(imgs[2], imgs[1])) == equal, ks
+
+
+@pytest.mark.parametrize("material", [dict(lobe="blinn_phong", shininess=400.0), dict(lobe="ggx", roughness=0.05)])
+def test_lobe_tables_follow_the_scene(ctx, sky, material):  # noqa: F811  (sky: the fixture)
+    """lobe_tables 2 (the default) builds the Blinn-Phong and GGX tables only
+    for a scene with such a lobe: a scene of those lobes renders as with
+    lobe_tables 1 (the tables), not as with 0 (the quadrature); a diffuse
+    scene shading a G-buffer that carries the lobes (a caller's) gets the
+    quadrature's image bit for bit, as lobe_tables 0 and specular 2 do."""
+    from test_depthmap import domains_of, render
+    from test_reference import gbuffer_of, make_scene, xform
+
+    from penumbra import Camera, EnvMap, Material, procedural
+
+    env = EnvMap(ctx, sky, face_size=8)
+    camera = Camera(position=(0.0, 2.0, 3.0), look_at=(0.0, 0.3, 0.0), fov_deg=50.0, resolution=(16, 12))
+    doms = domains_of(sky, 16)
+    shapes = [(procedural.plane((4.0, 4.0)), xform()), (procedural.sphere(0.5), xform(translate=(0, 0.5, 0)))]
+    glossy, _, keep = make_scene(ctx, [(m, x, Material(albedo=(0.5, 0.5, 0.5), specular=0.5, **material))
+                                       for m, x in shapes], env, camera)
+    diffuse, _, keep2 = make_scene(ctx, [(m, x, Material(albedo=(0.5, 0.5, 0.5))) for m, x in shapes], env, camera)
+    gb, _ = gbuffer_of(ctx, glossy, camera)
+    auto, tables, quad = (render(ctx, glossy, gb, doms, specular=3, lobe_tables=k)[0] for k in (2, 1, 0))
+    assert np.array_equal(auto, tables)
+    assert not np.array_equal(auto, quad)
+    caller = render(ctx, diffuse, gb, doms, specular=3)[0]
+    assert np.array_equal(caller, quad)
+    assert np.array_equal(caller, render(ctx, glossy, gb, doms, specular=2)[0])

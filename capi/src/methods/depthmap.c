@@ -34,7 +34,7 @@
 enum { P_BACKGROUND, P_DIRECTIONS, P_SEED, P_RESOLUTION, P_MAP_RENDERER, P_BIAS, P_SLOPE_BIAS, P_PCF, P_SPECULAR,
        P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS, P_SKIP_POWER, P_HALF_MAPS, P_FIT,
        P_TABLE_MIN_EXPONENT, P_STRONG_RESOLUTION, P_STRONG_SHARE,
-       P_STRONG_RATIO, P_GRADE, P_STRONG_CLUSTER, P_SHARP, P_SHARP_THRESHOLD };
+       P_STRONG_RATIO, P_GRADE, P_STRONG_CLUSTER, P_SHARP, P_SHARP_THRESHOLD, P_LOBE_TABLES };
 
 static const pn_param_desc params[] = {
     PN_PARAM_BACKGROUND,
@@ -96,6 +96,10 @@ static const pn_param_desc params[] = {
     {"sharp_threshold", PN_PARAM_FLOAT, PN_PARAM_PLAN, SHARP_THRESHOLD_DEFAULT, 1, 1e9, "x the mean luminance",
      "A texel belongs to the sharp part (sharp > 0) where its luminance exceeds this many times the map's mean; "
      "above 1."},
+    {"lobe_tables", PN_PARAM_INT, PN_PARAM_FRAME, 2, 0, 2, "",
+     "specular 3: Blinn-Phong and GGX by their own tables (built once per context, seconds of CPU): 2 when an "
+     "instance of the scene has such a lobe with k_s > 0, 1 always (a caller's G-buffer with lobes the scene lacks), "
+     "0 never (the cap quadrature)."},
 };
 
 _Static_assert(sizeof params / sizeof params[0] <= PN_MAX_METHOD_PARAMS,
@@ -1177,6 +1181,19 @@ static pn_status prepare_maps(pn_renderer r, pn_scene scene, bool *use_maps)
     return st;
 }
 
+/* Whether an instance has a specular Blinn-Phong or GGX lobe: only then are
+   their tables built at lobe_tables 2 (seconds of CPU per context); without
+   them such pixels (a caller's G-buffer) take the cap quadrature. */
+static bool scene_has_table_lobes(pn_scene scene)
+{
+    for (uint32_t i = 0; i < scene->instance_count; ++i) {
+        const pn_material *m = &scene->instances[i].material;
+        if (m->specular > 0.0f && (m->lobe == PN_LOBE_BLINN_PHONG || m->lobe == PN_LOBE_GGX))
+            return true;
+    }
+    return false;
+}
+
 static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image)
 {
     pn_context ctx = r->obj.ctx;
@@ -1197,8 +1214,10 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
             s->packed = true;
     }
     cl_mem table = NULL; /* the kernel reads it only with specular 3; any buffer stands in otherwise */
+    const int lobe_mode = (int)r->params[P_LOBE_TABLES];
+    const cl_int lobe_tables = lobe_mode == 1 || (lobe_mode == 2 && scene_has_table_lobes(scene)) ? 1 : 0;
     if (!st && (int)r->params[P_SPECULAR] == 3)
-        st = pn_depthmap_cap_table(ctx, &table);
+        st = pn_depthmap_cap_table(ctx, lobe_tables != 0, &table);
     if (st || (st = pn_context_kernel(ctx, "depthmap", "shade_depthmap", &k)))
         return st;
     if (!table)
@@ -1214,13 +1233,13 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
                             sizeof count, sizeof camera, sizeof(cl_mem), sizeof domains, sizeof(cl_mem),
                             sizeof(cl_mem), sizeof(cl_mem), sizeof use_maps, sizeof bias, sizeof slope, sizeof pcf,
                             sizeof specular, sizeof samples, sizeof(cl_mem), sizeof(cl_mem), sizeof half,
-                            sizeof(cl_mem), sizeof table_min};
+                            sizeof(cl_mem), sizeof table_min, sizeof lobe_tables};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &camera, &s->device_domains, &domains,
                           &s->frames, depth, &s->atlas, &use_maps, &bias, &slope, &pcf, &specular, &samples,
-                          &image->buffer, half ? &s->depth16 : depth, &half, &table, &table_min};
-    if ((st = pn_set_args(ctx, k, "shade_depthmap", 23, sizes, vals)))
+                          &image->buffer, half ? &s->depth16 : depth, &half, &table, &table_min, &lobe_tables};
+    if ((st = pn_set_args(ctx, k, "shade_depthmap", 24, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_depthmap", (size_t)count, 64);
 }

@@ -326,10 +326,18 @@ void pn_depthmap_cap_table_fill(float *out)
     pn_depthmap_lobe_table_fill(out + PN_DM_TABLE_PHONG_FLOATS);
 }
 
-static const char cache_key = 0;
+static void phong_only_fill(float *out) { phong_table_fill(out); }
 
-pn_status pn_depthmap_cap_table(pn_context ctx, cl_mem *out)
+static const char phong_key = 0, full_key = 0;
+
+pn_status pn_depthmap_cap_table(pn_context ctx, bool lobes, cl_mem *out)
 {
-    return pn_context_table(ctx, &cache_key, PN_DM_TABLE_FLOATS, pn_depthmap_cap_table_fill, "the cap-average table",
-                            out);
+    /* Two cache entries: Phong's table alone (0.4 s to build) and with the
+       lobe families after it (seconds more), built only for a scene that
+       has a Blinn-Phong or GGX lobe. */
+    if (!lobes)
+        return pn_context_table(ctx, &phong_key, PN_DM_TABLE_PHONG_FLOATS, phong_only_fill, "the cap-average table",
+                                out);
+    return pn_context_table(ctx, &full_key, PN_DM_TABLE_FLOATS, pn_depthmap_cap_table_fill,
+                            "the cap-average tables with the lobe families", out);
 }

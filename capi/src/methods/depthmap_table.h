@@ -28,7 +28,8 @@
 void pn_depthmap_cap_table_fill(float *out);
 /* The lobe families alone (2 PN_DM_LOBE_FAMILY floats of log G). */
 void pn_depthmap_lobe_table_fill(float *out);
-/* The context's device copy, built at the first call and owned by the context. */
-pn_status pn_depthmap_cap_table(pn_context ctx, cl_mem *out);
+/* The context's device copy, built at the first call and owned by the context: Phong's table alone, or
+   (lobes) PN_DM_TABLE_FLOATS with the Blinn-Phong and GGX families after it. */
+pn_status pn_depthmap_cap_table(pn_context ctx, bool lobes, cl_mem *out);
 
 #endif
