@@ -183,6 +183,8 @@ def test_fiv_scaling_writes_results(tmp_path, shared_data):
         assert r["fields"] == 1  # every bunny shares the one field
         assert r["fiv_shade_ms"] > 0 and r["floor_ms"] > 0 and r["fiv_unculled_shade_ms"] > 0
         assert r["ratio_to_floor"] == pytest.approx(r["fiv_shade_ms"] / r["floor_ms"])
+        assert r["fiv_cpu_ms"] > 0 and r["floor_cpu_ms"] > 0
+        assert r["ratio_to_floor_cpu"] == pytest.approx(r["fiv_cpu_ms"] / r["floor_cpu_ms"])
         assert r["tile_cull_speedup"] == pytest.approx(r["fiv_unculled_shade_ms"] / r["fiv_shade_ms"])
         assert r["fps_shading"] == pytest.approx(1000 / r["fiv_shade_ms"])
         assert 0 <= r["tiles_per_tile_min"] <= r["tiles_per_tile_max"] <= r["occluders"]
@@ -193,7 +195,7 @@ def test_fiv_scaling_writes_results(tmp_path, shared_data):
     assert data["summary"]["samples_phi_theta_radii"] == [8, 5, 4] and data["summary"]["bake"]["baked_now"]
     assert data["equal_error"] is None and res["results"] == data["results"]
     text = (tmp_path / "report.md").read_text()
-    assert "fiv / floor" in text and "paper fps" in text and "| 3 |" in text and "tile culling speed-up" in text
+    assert "fiv / floor" in text and "fiv / floor (CPU time)" in text and "paper fps" in text and "| 3 |" in text and "tile culling speed-up" in text
     assert "## Goals (issue 15)" in text and "Tile culling, 4 bunnies over a 800 x 800 floor" in text
     # The scenes are real scene files (paths relative to them, the bake cache beside them).
     from penumbra.scenefile import load_scene
