@@ -62,18 +62,26 @@ kernel void envmap_background(global const float4 *position, global const uint *
     int base = get_global_id(0) * PN_BACKGROUND_LANES;
     if (base >= count)
         return;
-    int live[PN_BACKGROUND_LANES], any_live = 0;
-    float lx[PN_BACKGROUND_LANES], ly[PN_BACKGROUND_LANES], lz[PN_BACKGROUND_LANES];
-    for (int l = 0; l < PN_BACKGROUND_LANES; ++l) {
-        int gid = base + l;
-        live[l] = gid < count && instance_id[gid] == PN_BACKGROUND;
-        any_live |= live[l];
-        float3 p = live[l] ? normalize(position[gid].xyz) : (float3)(0.0f, 1.0f, 0.0f);
-        lx[l] = p.x, ly[l] = p.y, lz[l] = p.z;
+    /* Each lane's direction goes into the lane vectors as elements, unrolled
+     * (kept in registers: a lane array written one lane at a time and read
+     * back as a vector stalls the load on the 8 stores). */
+    int8 live8;
+    float8 px, py, pz;
+#define PN_BACKGROUND_LANE(l)                                                               \
+    {                                                                                       \
+        int gid = base + l;                                                                 \
+        int bg = gid < count && instance_id[gid] == PN_BACKGROUND;                          \
+        float3 p = bg ? normalize(position[gid].xyz) : (float3)(0.0f, 1.0f, 0.0f);          \
+        live8.s##l = bg;                                                                    \
+        px.s##l = p.x, py.s##l = p.y, pz.s##l = p.z;                                        \
     }
-    if (!any_live)
+    PN_BACKGROUND_LANE(0) PN_BACKGROUND_LANE(1) PN_BACKGROUND_LANE(2) PN_BACKGROUND_LANE(3)
+    PN_BACKGROUND_LANE(4) PN_BACKGROUND_LANE(5) PN_BACKGROUND_LANE(6) PN_BACKGROUND_LANE(7)
+#undef PN_BACKGROUND_LANE
+    if (!any(live8 != 0))
         return;
-    float8 px = vload8(0, lx), py = vload8(0, ly), pz = vload8(0, lz);
+    int live[PN_BACKGROUND_LANES];
+    vstore8(live8, 0, live);
     /* pn_rotate_y(d, rot.x, -rot.y) */
     float8 dx = rot.x * px + -rot.y * pz, dz = rot.y * px + rot.x * pz;
     float rgb[3 * PN_BACKGROUND_LANES];

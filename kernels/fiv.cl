@@ -352,16 +352,19 @@ PN_FIV_INLINE int8 pn_fiv_dir_bin8(float8 vx, float8 vy, float8 vz, float8 rho)
     return bz * PN_FIV_BINS_P + bp;
 }
 
-/* base[idx] in the lanes of mask (-1), 0 in the others (whose idx may be anything). */
+/* base[idx] in the lanes of mask (-1), 0 in the others (whose idx may be anything).
+ * Unrolled, each value put into its lane in registers (a lane array written
+ * one lane at a time and read back as a vector stalls the load). */
 PN_FIV_INLINE float8 pn_fiv_gather8(global const float *base, int8 idx, int8 mask)
 {
-    int i[PN_FIV_LANES], m[PN_FIV_LANES];
-    float v[PN_FIV_LANES];
-    vstore8(idx, 0, i);
-    vstore8(mask, 0, m);
-    for (int l = 0; l < PN_FIV_LANES; ++l)
-        v[l] = m[l] ? base[i[l]] : 0.0f;
-    return vload8(0, v);
+    float8 v = 0.0f;
+#define PN_FIV_GATHER_LANE(l)     \
+    if (mask.s##l)                \
+        v.s##l = base[idx.s##l];
+    PN_FIV_GATHER_LANE(0) PN_FIV_GATHER_LANE(1) PN_FIV_GATHER_LANE(2) PN_FIV_GATHER_LANE(3)
+    PN_FIV_GATHER_LANE(4) PN_FIV_GATHER_LANE(5) PN_FIV_GATHER_LANE(6) PN_FIV_GATHER_LANE(7)
+#undef PN_FIV_GATHER_LANE
+    return v;
 }
 
 /* pn_fiv_lookup's first half for 8 receivers (v_world per lane, the lanes
@@ -426,6 +429,19 @@ PN_FIV_INLINE void pn_fiv_add8(global const uchar *fields, uint offset, int hp, 
     *wsum += w;
 }
 
+/* pn_fiv_add8 without the test of the weights (some lane weighs the sample). */
+PN_FIV_INLINE void pn_fiv_add8_all(global const uchar *fields, uint offset, int hp, int index, float8 w, float8 *acc,
+                                   float8 *wsum)
+{
+    pn_fiv3 s;
+    if (!pn_fiv_sample(fields, offset, hp, index, &s))
+        return;
+    acc[0] += w * s.x.x, acc[1] += w * s.x.y, acc[2] += w * s.x.z;
+    acc[3] += w * s.y.x, acc[4] += w * s.y.y, acc[5] += w * s.y.z;
+    acc[6] += w * s.z.x, acc[7] += w * s.z.y, acc[8] += w * s.z.z;
+    *wsum += w;
+}
+
 /* Smallest and largest of the lanes of `live` (at least one). */
 PN_FIV_INLINE int2 pn_fiv_range8(int8 x, int8 live)
 {
@@ -483,6 +499,27 @@ PN_FIV_INLINE bool pn_fiv_fetch8(global const float4 *occ, global const uchar *f
     int ni = ri.y - ri.x + 2, nk = rk.y - rk.x + 2, nj = j_lo == rj.x ? rj.y - rj.x + 2 : 3;
     float8 acc[9] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
     float8 wsum = 0.0f;
+    if (ni == 2 && nj == 2 && nk == 2) {
+        /* All lanes in one cell (most lookups): the loops below with every
+         * offset 0, unrolled, each sample weighed as there; a sphere no lane
+         * weighs (the inner one beyond the grid) is skipped whole, and so is
+         * the test of each sample's weights: a valid sample of weight 0 in
+         * every lane adds 0 to sums that are never -0, the same bits. */
+        int j1 = j_lo + 1 >= n_phi ? j_lo + 1 - n_phi : j_lo + 1;
+        for (int dk = 0; dk < 2; ++dk) {
+            float8 wk = dk ? tk : 1.0f - tk;
+            wk = select((float8)(0.0f), wk, live & (wk > 0.0f));
+            if (!any(wk != 0.0f))
+                continue;
+            int row = ((rk.x + dk) * n_theta + ri.x) * n_phi;
+            float8 w0 = wk * (1.0f - ti), w1 = wk * ti;
+            pn_fiv_add8_all(fields, offset, hp, row + j_lo, w0 * (1.0f - tj), acc, &wsum);
+            pn_fiv_add8_all(fields, offset, hp, row + j1, w0 * tj, acc, &wsum);
+            pn_fiv_add8_all(fields, offset, hp, row + n_phi + j_lo, w1 * (1.0f - tj), acc, &wsum);
+            pn_fiv_add8_all(fields, offset, hp, row + n_phi + j1, w1 * tj, acc, &wsum);
+        }
+        nk = 0; /* done: the general loop below does nothing */
+    }
     for (int dk = 0; dk < nk; ++dk) {
         /* pn_fiv_shell skips a sphere of weight 0: here it adds 0 */
         float8 wk = pn_fiv_tap_weight8(dk, ok, tk);
@@ -536,64 +573,90 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     if (width <= 0 || y >= count / width)
         return;
     /* Per lane (scalar): the pixel; then its unshadowed irradiance (the cube
-     * cell in lanes), self-shadowing. */
-    float lp[3][PN_FIV_LANES], ln[3][PN_FIV_LANES], le_tot[3][PN_FIV_LANES], le_base[3][PN_FIV_LANES];
+     * cell in lanes), self-shadowing. Each lane's values go into the lane
+     * vectors as elements (PN_FIV_LANE_SET: unrolled, so they stay in
+     * registers): stored to a lane array one by one and read back as a
+     * vector, they stalled the vector load on its 8 scalar stores (store
+     * forwarding fails), the setup's largest single cost. */
+    float lp[3][PN_FIV_LANES], ln[3][PN_FIV_LANES];
     uint lid[PN_FIV_LANES];
     int lactive[PN_FIV_LANES];
-    for (int l = 0; l < PN_FIV_LANES; ++l) {
-        int gid = y * width + x0 + l;
-        uint id = x0 + l < width ? instance_id[gid] : PN_BACKGROUND;
-        float3 p = (float3)(0.0f), n = (float3)(0.0f, 1.0f, 0.0f);
-        if (id != PN_BACKGROUND) {
-            p = position[gid].xyz;
-            n = normalize(normal[gid].xyz);
-        } else if (x0 + l < width) { /* black; the renderer draws the env map there (envmap_background) */
-            image[gid] = (float4)(0.0f);
-        }
-        lid[l] = id;
-        lactive[l] = id != PN_BACKGROUND ? -1 : 0;
-        lp[0][l] = p.x, lp[1][l] = p.y, lp[2][l] = p.z;
-        ln[0][l] = n.x, ln[1][l] = n.y, ln[2][l] = n.z;
+    uint8 id8;
+    float8 px, py, pz, nx, ny, nz;
+#define PN_FIV_SETUP_LANE(l)                                                                             \
+    {                                                                                                    \
+        int gid = y * width + x0 + l;                                                                    \
+        uint id = x0 + l < width ? instance_id[gid] : PN_BACKGROUND;                                     \
+        float3 p = (float3)(0.0f), n = (float3)(0.0f, 1.0f, 0.0f);                                       \
+        if (id != PN_BACKGROUND) {                                                                       \
+            p = position[gid].xyz;                                                                       \
+            n = normalize(normal[gid].xyz);                                                              \
+        } else if (x0 + l < width) { /* black; the renderer draws the env map there (envmap_background) */ \
+            image[gid] = (float4)(0.0f);                                                                 \
+        }                                                                                                \
+        id8.s##l = id;                                                                                   \
+        px.s##l = p.x, py.s##l = p.y, pz.s##l = p.z;                                                     \
+        nx.s##l = n.x, ny.s##l = n.y, nz.s##l = n.z;                                                     \
     }
+    PN_FIV_SETUP_LANE(0) PN_FIV_SETUP_LANE(1) PN_FIV_SETUP_LANE(2) PN_FIV_SETUP_LANE(3)
+    PN_FIV_SETUP_LANE(4) PN_FIV_SETUP_LANE(5) PN_FIV_SETUP_LANE(6) PN_FIV_SETUP_LANE(7)
+#undef PN_FIV_SETUP_LANE
+    int8 active = id8 != PN_BACKGROUND;
+    if (!any(active))
+        return;
+    /* per-lane copies for the scalar code below (a vector store, read back one
+     * lane at a time, forwards) */
+    vstore8(id8, 0, lid);
+    vstore8(active, 0, lactive);
+    vstore8(px, 0, lp[0]), vstore8(py, 0, lp[1]), vstore8(pz, 0, lp[2]);
+    vstore8(nx, 0, ln[0]), vstore8(ny, 0, ln[1]), vstore8(nz, 0, ln[2]);
     int cface[PN_FIV_LANES], cx[PN_FIV_LANES], cy[PN_FIV_LANES];
     float cfx[PN_FIV_LANES], cfy[PN_FIV_LANES];
-    pn_cube_grid_cell8(m, vload8(0, ln[0]), vload8(0, ln[1]), vload8(0, ln[2]), cface, cx, cy, cfx, cfy);
-    for (int l = 0; l < PN_FIV_LANES; ++l) {
-        float3 e_tot = (float3)(0.0f), e_base = (float3)(0.0f);
-        if (lactive[l]) {
+    pn_cube_grid_cell8(m, nx, ny, nz, cface, cx, cy, cfx, cfy);
+    float8 tot_r = 0.0f, tot_g = 0.0f, tot_b = 0.0f;
+#define PN_FIV_IRRADIANCE_LANE(l)                                                                       \
+    if (lactive[l]) {                                                                                   \
+        float3 e = pn_cube_grid_fetch(irradiance, m, cface[l], cx[l], cy[l], cfx[l], cfy[l]);           \
+        tot_r.s##l = e.x, tot_g.s##l = e.y, tot_b.s##l = e.z;                                           \
+    }
+    PN_FIV_IRRADIANCE_LANE(0) PN_FIV_IRRADIANCE_LANE(1) PN_FIV_IRRADIANCE_LANE(2) PN_FIV_IRRADIANCE_LANE(3)
+    PN_FIV_IRRADIANCE_LANE(4) PN_FIV_IRRADIANCE_LANE(5) PN_FIV_IRRADIANCE_LANE(6) PN_FIV_IRRADIANCE_LANE(7)
+#undef PN_FIV_IRRADIANCE_LANE
+    float8 base_r = tot_r, base_g = tot_g, base_b = tot_b;
+    if (self_shadow) {
+        const int8 lane = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+        for (int l = 0; l < PN_FIV_LANES; ++l) {
+            if (!lactive[l])
+                continue;
             uint id = lid[l];
-            float3 p = (float3)(lp[0][l], lp[1][l], lp[2][l]), n = (float3)(ln[0][l], ln[1][l], ln[2][l]);
-            e_tot = pn_cube_grid_fetch(irradiance, m, cface[l], cx[l], cy[l], cfx[l], cfy[l]);
-            e_base = e_tot;
             /* Self-shadowing: the pixel's own occluder, found by its id among all
              * of them (a tile's mask may leave it out when a G-buffer puts the
              * pixel beyond its culling distance). All unoccluded light is in the
              * positive hemisphere. */
-            for (int o = 0; self_shadow && o < occluder_count; ++o) {
+            for (int o = 0; o < occluder_count; ++o) {
                 global const float4 *occ = occluders + PN_FIV_RECORD * o;
                 pn_fiv3 f;
                 if (as_uint(occ[3].x) != id)
                     continue;
+                float3 p = (float3)(lp[0][l], lp[1][l], lp[2][l]), n = (float3)(ln[0][l], ln[1][l], ln[2][l]);
                 if (pn_fiv_lookup(occ, fields, occ[0].xyz - p, trilinear, 0.0f, &f)) {
                     /* A sample off the surface also sees unoccluded light behind
                      * the receiver plane, which the fullsphere sum subtracts: the
                      * estimate errs low, never above the unoccluded irradiance. */
+                    float at[3][PN_FIV_LANES];
+                    vstore8(tot_r, 0, at[0]), vstore8(tot_g, 0, at[1]), vstore8(tot_b, 0, at[2]);
                     pn_fiv3 env = {env_x.xyz, env_y.xyz, env_z.xyz};
-                    e_base = clamp(pn_fiv_dot(n, env) - pn_fiv_dot(n, f), 0.0f, e_tot);
+                    float3 e_base = clamp(pn_fiv_dot(n, env) - pn_fiv_dot(n, f), 0.0f,
+                                          (float3)(at[0][l], at[1][l], at[2][l]));
+                    int8 here = lane == l;
+                    base_r = select(base_r, (float8)(e_base.x), here);
+                    base_g = select(base_g, (float8)(e_base.y), here);
+                    base_b = select(base_b, (float8)(e_base.z), here);
                 }
                 break; /* one field per instance */
             }
         }
-        le_tot[0][l] = e_tot.x, le_tot[1][l] = e_tot.y, le_tot[2][l] = e_tot.z;
-        le_base[0][l] = e_base.x, le_base[1][l] = e_base.y, le_base[2][l] = e_base.z;
     }
-    int8 active = vload8(0, lactive);
-    if (!any(active))
-        return;
-    uint8 id8 = vload8(0, lid);
-    float8 px = vload8(0, lp[0]), py = vload8(0, lp[1]), pz = vload8(0, lp[2]);
-    float8 nx = vload8(0, ln[0]), ny = vload8(0, ln[1]), nz = vload8(0, ln[2]);
-    float8 tot_r = vload8(0, le_tot[0]), tot_g = vload8(0, le_tot[1]), tot_b = vload8(0, le_tot[2]);
     float8 sum_r = 0.0f, sum_g = 0.0f, sum_b = 0.0f, big_r = 0.0f, big_g = 0.0f, big_b = 0.0f;
     float8 vis_r = 1.0f, vis_g = 1.0f, vis_b = 1.0f;
     /* Disc correction: per lane the occluders that took part (at most 32),
@@ -714,7 +777,6 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     }
     /* The overlap correction, in lanes; then the pixels. */
     float8 e_r, e_g, e_b;
-    float8 base_r = vload8(0, le_base[0]), base_g = vload8(0, le_base[1]), base_b = vload8(0, le_base[2]);
     if (overlap == PN_OVERLAP_MULTIPLY) {
         e_r = base_r * vis_r, e_g = base_g * vis_g, e_b = base_b * vis_b;
     } else {

@@ -16,25 +16,33 @@ kernel void shade_unshadowed(global const float4 *position, global const float4 
     int base = get_global_id(0) * PN_UNSHADOWED_LANES;
     if (base >= count)
         return;
-    int live[PN_UNSHADOWED_LANES], any_live = 0;
-    float lx[PN_UNSHADOWED_LANES], ly[PN_UNSHADOWED_LANES], lz[PN_UNSHADOWED_LANES];
-    for (int l = 0; l < PN_UNSHADOWED_LANES; ++l) {
-        int gid = base + l;
-        uint id = gid < count ? instance_id[gid] : PN_BACKGROUND;
-        float3 n = (float3)(0.0f, 1.0f, 0.0f);
-        if (id != PN_BACKGROUND)
-            n = normalize(normal[gid].xyz);
-        else if (gid < count) /* black; the renderer draws the env map there (envmap_background) */
-            image[gid] = (float4)(0.0f);
-        live[l] = id != PN_BACKGROUND;
-        any_live |= live[l];
-        lx[l] = n.x, ly[l] = n.y, lz[l] = n.z;
+    /* Each lane's normal goes into the lane vectors as elements, unrolled
+     * (kept in registers: a lane array written one lane at a time and read
+     * back as a vector stalls the load on the 8 stores). */
+    int8 live8;
+    float8 nx, ny, nz;
+#define PN_UNSHADOWED_LANE(l)                                                                      \
+    {                                                                                              \
+        int gid = base + l;                                                                        \
+        uint id = gid < count ? instance_id[gid] : PN_BACKGROUND;                                  \
+        float3 n = (float3)(0.0f, 1.0f, 0.0f);                                                     \
+        if (id != PN_BACKGROUND)                                                                   \
+            n = normalize(normal[gid].xyz);                                                        \
+        else if (gid < count) /* black; the renderer draws the env map there (envmap_background) */ \
+            image[gid] = (float4)(0.0f);                                                           \
+        live8.s##l = id != PN_BACKGROUND;                                                          \
+        nx.s##l = n.x, ny.s##l = n.y, nz.s##l = n.z;                                               \
     }
-    if (!any_live)
+    PN_UNSHADOWED_LANE(0) PN_UNSHADOWED_LANE(1) PN_UNSHADOWED_LANE(2) PN_UNSHADOWED_LANE(3)
+    PN_UNSHADOWED_LANE(4) PN_UNSHADOWED_LANE(5) PN_UNSHADOWED_LANE(6) PN_UNSHADOWED_LANE(7)
+#undef PN_UNSHADOWED_LANE
+    if (!any(live8 != 0))
         return;
+    int live[PN_UNSHADOWED_LANES];
+    vstore8(live8, 0, live);
     int face[PN_UNSHADOWED_LANES], cx[PN_UNSHADOWED_LANES], cy[PN_UNSHADOWED_LANES];
     float fx[PN_UNSHADOWED_LANES], fy[PN_UNSHADOWED_LANES];
-    pn_cube_grid_cell8(m, vload8(0, lx), vload8(0, ly), vload8(0, lz), face, cx, cy, fx, fy);
+    pn_cube_grid_cell8(m, nx, ny, nz, face, cx, cy, fx, fy);
     for (int l = 0; l < PN_UNSHADOWED_LANES; ++l) {
         if (!live[l])
             continue;

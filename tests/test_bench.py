@@ -183,17 +183,21 @@ def test_fiv_scaling_writes_results(tmp_path, shared_data):
         assert r["fields"] == 1  # every bunny shares the one field
         assert r["fiv_shade_ms"] > 0 and r["floor_ms"] > 0 and r["fiv_unculled_shade_ms"] > 0
         assert r["ratio_to_floor"] == pytest.approx(r["fiv_shade_ms"] / r["floor_ms"])
+        assert r["fiv_cpu_ms"] > 0 and r["floor_cpu_ms"] > 0
+        assert r["ratio_to_floor_cpu"] == pytest.approx(r["fiv_cpu_ms"] / r["floor_cpu_ms"])
+        assert r["tile_cull_speedup_cpu"] > 0 and r["per_lookup_cpu_ns"] is not None
         assert r["tile_cull_speedup"] == pytest.approx(r["fiv_unculled_shade_ms"] / r["fiv_shade_ms"])
         assert r["fps_shading"] == pytest.approx(1000 / r["fiv_shade_ms"])
         assert 0 <= r["tiles_per_tile_min"] <= r["tiles_per_tile_max"] <= r["occluders"]
         assert sum(r["tiles_per_tile_histogram"]) == r["tiles_tiles"] > 0
     assert data["results"][0]["per_lookup_ratio"] == pytest.approx(1.0)
+    assert data["results"][0]["per_lookup_cpu_ratio"] == pytest.approx(1.0)
     assert data["results"][2]["tiles_per_tile_mean"] < 4  # 100 units apart: no tile sees all four
     assert data["results"][0]["paper_fps"] == PAPER_FPS[1] == 112 and data["results"][1]["paper_fps"] is None
     assert data["summary"]["samples_phi_theta_radii"] == [8, 5, 4] and data["summary"]["bake"]["baked_now"]
     assert data["equal_error"] is None and res["results"] == data["results"]
     text = (tmp_path / "report.md").read_text()
-    assert "fiv / floor" in text and "paper fps" in text and "| 3 |" in text and "tile culling speed-up" in text
+    assert "fiv / floor" in text and "fiv / floor (CPU time)" in text and "paper fps" in text and "| 3 |" in text and "tile culling speed-up" in text
     assert "## Goals (issue 15)" in text and "Tile culling, 4 bunnies over a 800 x 800 floor" in text
     # The scenes are real scene files (paths relative to them, the bake cache beside them).
     from penumbra.scenefile import load_scene

@@ -405,9 +405,12 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
                           &s->tile_masks, &image->buffer};
     if ((st = pn_set_args(ctx, k, "shade_fiv", 22, sizes, vals)))
         return st;
-    /* 8 pixels of a row per work-item (vector lanes, kernels/fiv.cl). */
+    /* 8 pixels of a row per work-item (vector lanes, kernels/fiv.cl), one
+     * work-item per work-group: PoCL then runs no loop over work-items around
+     * the kernel's own loops, which measured 7 % less CPU time than
+     * work-groups of 8 (docs/performance.md, FIV). */
     const size_t items = (size_t)((gb->width + 7) / 8) * gb->height;
-    return pn_enqueue_1d(ctx, k, "shade_fiv", items, 8);
+    return pn_enqueue_1d(ctx, k, "shade_fiv", items, 1);
 }
 
 static pn_status create(pn_renderer r)
