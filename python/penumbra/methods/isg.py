@@ -87,6 +87,7 @@ class SphereSet(_Handle):
 
 
 TREE_FANOUT = 8
+SHELL_MAX_TRIANGLES = 4096   # a thin shell's bound (capi/src/methods/isg.c)
 
 
 def _morton_keys(centres: np.ndarray) -> np.ndarray:
@@ -172,6 +173,7 @@ class IsgTable:
 
     spheres: int | None = None
     thin_shells: tuple[str, ...] = ()
+    exact_primitives: bool = True
 
     @property
     def sphere_count(self) -> int:
@@ -184,7 +186,10 @@ def _parse_table(d, base: Path, data: dict) -> IsgTable:
     d = {} if d is None else d
     if not isinstance(d, dict):
         raise InputError("[isg] must be a table")
-    _check_keys("isg", d, {"spheres", "thin_shells"})
+    _check_keys("isg", d, {"spheres", "thin_shells", "exact_primitives"})
+    exact = d.get("exact_primitives", True)
+    if not isinstance(exact, bool):
+        raise InputError(f"[isg] exact_primitives must be true or false, got {exact!r}")
     shells = d.get("thin_shells", [])
     if not isinstance(shells, list) or not all(isinstance(x, str) for x in shells):
         raise InputError(f"[isg] thin_shells must be a list of object names, got {shells!r}")
@@ -196,7 +201,7 @@ def _parse_table(d, base: Path, data: dict) -> IsgTable:
         if objects[name].get("occluder", True) is False:
             raise InputError(f"[isg] thin_shells names {name!r}, which has occluder = false")
     count = int(_sphere_count_param().check(d["spheres"], "[isg] spheres")) if "spheres" in d else None
-    return IsgTable(count, tuple(shells))
+    return IsgTable(count, tuple(shells), exact)
 
 
 @dataclass
@@ -228,7 +233,22 @@ def attach_sphere_sets(built, overrides: dict | None = None) -> list[dict]:
         return s.records
     groups: dict[int, tuple[Mesh, list[str]]] = {}
     shells = set(desc.isg.thin_shells) if desc.isg is not None else set()
+    exact = desc.isg.exact_primitives if desc.isg is not None else True
     records = []
+    exact_spheres = []
+    if exact:
+        # Exact proxies of the simple primitives (docs/isg.md section 8, "Primitives"), whatever their `occluder`
+        # (the reference's rays see every object, and these proxies cost next to nothing): a sphere is one
+        # sphere, a box or a plane its own triangles as a thin shell (a floor then cuts the light from below the
+        # horizon off the objects standing on it). A plane of more than SHELL_MAX_TRIANGLES is left as before.
+        for obj in desc.objects:
+            if obj.name in shells:
+                continue
+            if obj.primitive in ("box", "plane"):
+                if built.object_meshes[obj.name].info["triangles"] <= SHELL_MAX_TRIANGLES:
+                    shells.add(obj.name)
+            elif obj.primitive == "sphere":
+                exact_spheres.append(obj.name)
     if shells:
         shell = SphereSet.shell(built.ctx)
         names = [obj.name for obj in desc.objects if obj.name in shells]
@@ -238,7 +258,15 @@ def attach_sphere_sets(built, overrides: dict | None = None) -> list[dict]:
         records.append({"objects": names, "spheres": 0, "shell": True, "outside_share": float("nan"),
                         "missed_share": float("nan"), "build_s": 0.0})
     for obj in desc.objects:
-        if obj.is_occluder and obj.name not in shells:
+        if obj.name in exact_spheres:
+            radius = float(obj.params.get("radius", 1.0))
+            sset = SphereSet.from_spheres(built.ctx, [[0.0, 0.0, 0.0, radius]])
+            built.scene.attach(built.instance_ids[obj.name], sset)
+            s.sets[obj.name] = sset
+            records.append({"objects": [obj.name], "spheres": 1, "exact": True, "outside_share": 0.0,
+                            "missed_share": 0.0, "build_s": 0.0})
+    for obj in desc.objects:
+        if obj.is_occluder and obj.name not in shells and obj.name not in exact_spheres:
             mesh = built.object_meshes[obj.name]
             groups.setdefault(id(mesh), (mesh, []))[1].append(obj.name)
     for mesh, names in groups.values():
