@@ -308,8 +308,8 @@ def test_thin_shells_scene_key(ctx):
 
 
 def test_exact_primitives_scene_key(ctx):
-    """`[isg] exact_primitives` (default true; docs/isg.md section 8, "Primitives"): a sphere primitive is
-    one exact sphere, a box and a plane their triangles as thin shells, whatever their `occluder`; the
+    """`[isg] exact_primitives` (default true; docs/isg.md section 9, "exact primitives and the env's
+    irradiance"): a sphere primitive is one exact sphere, a box and a plane their triangles as thin shells, whatever their `occluder`; the
     floor then cuts the light from below the horizon off the objects on it, as the reference's rays do.
     Against the reference the image is much closer than with the 64-sphere sets of the box and the sphere
     and no floor occluder (false: the rule before); a bad value is refused."""

@@ -169,7 +169,8 @@ class IsgTable:
     """``[isg]``: how the method builds sphere sets (docs/scene-format.md):
     ``spheres``, N per occluder mesh; ``thin_shells``, the names of occluder
     objects that occlude by their triangles instead (cloth, leaves, open
-    meshes: pn_sphere_set_create_shell, at most 4096 triangles each)."""
+    meshes: pn_sphere_set_create_shell, at most 4096 triangles each); ``exact_primitives``, exact proxies
+    for the sphere, box and plane primitives (attach_sphere_sets)."""
 
     spheres: int | None = None
     thin_shells: tuple[str, ...] = ()
@@ -237,17 +238,18 @@ def attach_sphere_sets(built, overrides: dict | None = None) -> list[dict]:
     records = []
     exact_spheres = []
     if exact:
-        # Exact proxies of the simple primitives (docs/isg.md section 8, "Primitives"), whatever their `occluder`
-        # (the reference's rays see every object, and these proxies cost next to nothing): a sphere is one
-        # sphere, a box or a plane its own triangles as a thin shell (a floor then cuts the light from below the
-        # horizon off the objects standing on it). A plane of more than SHELL_MAX_TRIANGLES is left as before.
+        # Exact proxies of the simple primitives (docs/isg.md section 9, "exact primitives and the env's
+        # irradiance"), whatever their `occluder` (the reference's rays see every object, and these proxies cost
+        # next to nothing): a sphere is one sphere, a box or a plane its own triangles as a thin shell (a floor
+        # then cuts the light from below the horizon off the objects standing on it). A plane of more than
+        # SHELL_MAX_TRIANGLES is left as before.
         for obj in desc.objects:
             if obj.name in shells:
                 continue
             if obj.primitive in ("box", "plane"):
                 if built.object_meshes[obj.name].info["triangles"] <= SHELL_MAX_TRIANGLES:
                     shells.add(obj.name)
-            elif obj.primitive == "sphere":
+            elif obj.primitive == "sphere" and len({abs(x) for x in obj.scale}) == 1:  # an ellipsoid: as before
                 exact_spheres.append(obj.name)
     if shells:
         shell = SphereSet.shell(built.ctx)
@@ -297,9 +299,11 @@ class Isg(Technique):
         attach_sphere_sets(built, bake)
 
     def sweep(self) -> list[dict]:
-        # The defaults (the shared hemisphere grid, env_sharpness 10), the defaults before it (every lobe its own
-        # window, env_sharpness 100) for the A/B, and a cheaper and a finer point (docs/isg.md section 9).
+        # The defaults (the shared hemisphere grid, env_sharpness 10, shared_light 1), the shared lobes' light from
+        # their closed forms (shared_light 0) and the defaults before the grid (every lobe its own window,
+        # env_sharpness 100) for the A/B, and a cheaper and a finer point (docs/isg.md section 9).
         return [{"spheres": 32, "lobes": 16, "patch_grid": 8}, {"spheres": 64, "lobes": 32, "patch_grid": 16},
+                {"spheres": 64, "lobes": 32, "patch_grid": 16, "shared_light": 0},
                 {"spheres": 64, "lobes": 32, "patch_grid": 16, "shared_grid": 0, "env_sharpness": 100.0},
                 {"spheres": 128, "lobes": 32, "patch_grid": 16, "shared_grid": 24}]
 
