@@ -312,6 +312,7 @@ class Isg(Technique):
         if not recs:
             return []
         parts = [f"{len(r['objects'])} thin shell(s) ({', '.join(r['objects'])}: their triangles)" if r.get("shell")
+                 else f"{', '.join(r['objects'])}: one exact sphere" if r.get("exact")
                  else f"{len(r['objects'])} x {r['spheres']} spheres (outside {100 * r['outside_share']:.1f} %, "
                  f"missed {100 * r['missed_share']:.1f} % of the solid)" for r in recs]
         return ["isg sphere sets: " + "; ".join(parts)]
