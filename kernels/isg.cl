@@ -789,7 +789,8 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
                       int grid, int self_occlusion, int specular_shadows, float env_sharpness, float4 camera,
                       global const float *table, int specular_mode, global const float4 *gamma,
                       global const int *gamma_levels, int gamma_count, float gamma_lambda0, int shared_grid,
-                      float shared_sharpness, global const float4 *lobe_cube, int lobe_cube_n, global float4 *image)
+                      float shared_sharpness, global const float4 *lobe_cube, int lobe_cube_n,
+                      global const float4 *irradiance, int irradiance_n, global float4 *image)
 {
     const int gid = get_global_id(0);
     if (gid >= count)
@@ -825,9 +826,12 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
     /* Inside an occluder every shadowed lobe's V is 0 (pn_isg_mark would find it per lobe). */
     const bool inside = pn_isg_inside(p, n, id, self_occlusion, spheres, owners, sphere_count, nodes, &tree);
     float3 diffuse = (float3)(0.0f), specular = (float3)(0.0f);
-    /* The shared lobes' unshadowed irradiance: the second cube of isg_lobe_cubes. */
-    const float3 shared = shared_grid > 0 ? pn_cube_grid_lookup(lobe_cube + 6 * lobe_cube_n * lobe_cube_n, lobe_cube_n, n)
-                                          : (float3)(0.0f);
+    /* The shared lobes' unshadowed irradiance (shared_light): irradiance_n > 0, the env's own irradiance map
+     * minus the closed forms of the lobes with their own windows (subtracted in the loop below), so the K-lobe
+     * fit's error leaves the unshadowed term; else the second cube of isg_lobe_cubes (their closed forms). */
+    float3 shared = shared_grid <= 0 ? (float3)(0.0f)
+                    : irradiance_n > 0 ? pn_cube_grid_lookup(irradiance, irradiance_n, n)
+                                       : pn_cube_grid_lookup(lobe_cube + 6 * lobe_cube_n * lobe_cube_n, lobe_cube_n, n);
     if (env_specular && !(inside && specular_shadows))
         specular = pn_isg_env_specular(brdf[0], p, n, id, specular_shadows ? self_occlusion : 0, spheres, owners,
                                        specular_shadows ? sphere_count : 0, nodes, &spec_tree, grid, table, cube,
@@ -837,6 +841,8 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
         const pn_sg g = pn_sg_load(lobes, k);
         const bool own_window = shared_grid <= 0 || g.sharpness > shared_sharpness; /* else in `shared` */
         const float3 e = own_window ? pn_sg_irradiance(g, n) : (float3)(0.0f);
+        if (shared_grid > 0 && irradiance_n > 0)
+            shared -= e;
         if (e.x > 0.0f || e.y > 0.0f || e.z > 0.0f)
             diffuse += e * (inside ? 0.0f
                                    : pn_isg_visibility(pn_sg_product(g, cosine), p, n, id, self_occlusion, spheres,

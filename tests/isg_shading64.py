@@ -409,8 +409,10 @@ def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, g
     for BRDF lobes at least env_sharpness sharp); gamma: (levels, tables) of
     Gamma_L for specular_mode 1 (None: specular_mode 0); tree: (nodes, lod) of the LOD cut, the spheres
     in penumbra.methods.isg.sphere_tree's order (patch_mask); shells: (triangles (T, 3, 3), owners) of
-    the thin shells; shared: (M_s, shared_sharpness, cube) of the shared hemisphere grid (shared_occluded;
-    None: off), cube from lobe_cube(lobes, shared_sharpness)."""
+    the thin shells; shared: (M_s, shared_sharpness, cube[, env_irradiance]) of the shared hemisphere grid
+    (shared_occluded; None: off), cube from lobe_cube(lobes, shared_sharpness); env_irradiance (shared_light
+    1): a function of n giving the env's irradiance, from which the lobes with their own windows are
+    subtracted to give the shared lobes' unshadowed irradiance (else their closed forms are summed)."""
     p, n = np.asarray(p, np.float64), np.asarray(n, np.float64)
     n = n / np.linalg.norm(n)
     diffuse, specular = np.zeros(3), np.zeros(3)
@@ -424,13 +426,16 @@ def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, g
             specular = env_specular(b_axis, b_lam, b_mu, p, n, self_id, self_occlusion if specular_shadows else 0,
                                     spheres if specular_shadows else [], owners, grid, face_rgb, gamma,
                                     tree if specular_shadows else None, shells if specular_shadows else None)
-    shared_e = np.zeros(3)
+    shared_e, own_e = np.zeros(3), np.zeros(3)
     for lobe in np.asarray(lobes, np.float64):
         axis, lam, mu = lobe[:3], lobe[3], lobe[4:7]
         e = irradiance(axis, lam, mu, n)
-        if shared is not None and lam <= shared[1]:
+        own_window = shared is None or lam > shared[1]
+        if own_window:
+            own_e += e
+        else:
             shared_e += e
-        elif (e > 0).any():
+        if own_window and (e > 0).any():
             m_axis, m_lam, _ = sg_product(axis, lam, 1.0, n, COS_SHARPNESS, COS_AMPLITUDE)
             diffuse += e * visibility(m_axis, float(m_lam), p, n, self_id, self_occlusion, spheres, owners, grid,
                                       tree, shells)
@@ -442,6 +447,8 @@ def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, g
                                shells) \
                     if specular_shadows else 1.0
                 specular += s * v
+    if shared is not None and len(shared) > 3 and shared[3] is not None:
+        shared_e = np.asarray(shared[3](n), np.float64) - own_e
     if shared is not None and (shared_e > 0).any():
         o, inside = shared_occluded(p, n, self_id, self_occlusion, spheres, owners, shared[0], shared[2], tree=tree,
                                     shells=shells)

@@ -289,10 +289,13 @@ def test_thin_shells_scene_key(ctx):
     path = Path(__file__).resolve().parents[1] / "examples" / "scenes" / "isg_thin_shells.toml"
     over = ["camera.resolution=[32,24]"]
     built = build_scene(load_scene(path, over), ctx)
-    shells = render_scene(built, "isg", frames=1, warmup=False).image[..., :3]
+    render_scene(built, "isg", frames=1, warmup=False)  # as the file stands (the ground a shell too)
     data = tomllib.loads(path.read_text())
-    data["isg"]["thin_shells"] = []
+    data["isg"]["exact_primitives"] = False  # else every plane would be a thin shell anyway, and the ball exact
     data["camera"]["resolution"] = [32, 24]
+    shells = render_scene(build_scene(parse_scene(copy.deepcopy(data), path.parent), ctx), "isg", frames=1,
+                          warmup=False).image[..., :3]
+    data["isg"]["thin_shells"] = []
     plain = render_scene(build_scene(parse_scene(copy.deepcopy(data), path.parent), ctx), "isg", frames=1,
                          warmup=False).image[..., :3]
     assert (shells <= plain + 1e-4).all() and (shells < 0.8 * plain).any()
@@ -302,3 +305,48 @@ def test_thin_shells_scene_key(ctx):
     data["isg"]["thin_shells"] = ["ground"]
     with pytest.raises(InputError, match="'ground', which has occluder = false"):
         parse_scene(copy.deepcopy(data), path.parent)
+
+
+def test_exact_primitives_scene_key(ctx):
+    """`[isg] exact_primitives` (default true; docs/isg.md section 9, "exact primitives and the env's
+    irradiance"): a sphere primitive is one exact sphere, a box and a plane their triangles as thin shells, whatever their `occluder`; the
+    floor then cuts the light from below the horizon off the objects on it, as the reference's rays do.
+    Against the reference the image is much closer than with the 64-sphere sets of the box and the sphere
+    and no floor occluder (false: the rule before); a bad value is refused."""
+    import copy
+
+    from penumbra.errors import InputError
+    from penumbra.methods.isg import state
+    from penumbra.metrics import compare
+    from penumbra.render import build_scene, render as render_scene
+    from penumbra.scenefile import parse_scene
+
+    data = {"environment": {"map": "sky", "face_size": 32, "irradiance_face_size": 16},
+            "camera": {"position": [0.0, 1.4, 3.2], "look_at": [0.0, 0.4, 0.0], "fov_deg": 45,
+                       "resolution": [40, 30]},
+            "object": [{"name": "box", "primitive": "box", "occluder": True, "translate": [0.6, 0.3, -0.3],
+                        "rotate_deg": [0.0, 25.0, 0.0], "scale": 0.6, "albedo": [0.3, 0.5, 0.7]},
+                       {"name": "ball", "primitive": "sphere", "occluder": True, "translate": [-0.6, 0.3, 0.25],
+                        "scale": 0.3, "albedo": [0.7, 0.35, 0.3]},
+                       {"name": "floor", "primitive": "plane", "params": {"size": [8.0, 8.0]},
+                        "albedo": [0.5, 0.5, 0.5]}]}
+    errors, recs = {}, {}
+    ref = mask = None
+    for exact in (True, False):
+        d = copy.deepcopy(data)
+        d["isg"] = {"exact_primitives": exact}
+        built = build_scene(parse_scene(d, "."), ctx)
+        img = render_scene(built, "isg", frames=1, warmup=False).image[..., :3]
+        recs[exact] = {name: s.info()["count"] for name, s in state(built).sets.items()}
+        if ref is None:
+            res = render_scene(built, "reference", frames=1, warmup=False, face_size=16)
+            ref = res.image[..., :3]
+            mask = np.ones(ref.shape[:2], bool)  # the background is the same env in both
+        errors[exact] = compare(ref, img, mask)["nrmse"]
+    assert recs[True] == {"box": 0, "floor": 0, "ball": 1}  # shells have no spheres
+    assert recs[False] == {"box": 64, "ball": 64}
+    assert errors[True] < 0.6 * errors[False], errors
+    d = copy.deepcopy(data)
+    d["isg"] = {"exact_primitives": "yes"}
+    with pytest.raises(InputError, match="exact_primitives must be true or false"):
+        parse_scene(d, ".")

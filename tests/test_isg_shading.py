@@ -19,7 +19,7 @@ import pyopencl as cl
 import pytest
 from isg64 import isg_table, sg_cosine_exact
 from isg_shading64 import (COS_AMPLITUDE, COS_SHARPNESS, LOBE_CUBE_N, build_gamma, cube_directions, lobe_cube,
-                           sg_product, shade, shared_occluded, sky_cube, visibility, visible_exact)
+                           grid_lookup, sg_product, shade, shared_occluded, sky_cube, visibility, visible_exact)
 from tolerances import ISG_SHADE_ATOL, ISG_SHADE_RTOL, ISG_VISIBILITY_GRID_ATOL, ISG_VISIBILITY_PATCH_ATOL
 
 from penumbra._native import call
@@ -58,13 +58,14 @@ FACES = np.array([[1.0, 0.9, 0.8], [0.2, 0.3, 0.4], [3.0, 2.8, 2.5], [0.1, 0.1, 
 
 def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=16, self_occlusion=1,
                specular_shadows=1, camera=(0.0, 3.0, 6.0), env_sharpness=1e30, tree=1, gamma=None, lod=0.0,
-               triangles=(), triangle_owners=(), shared=None):
+               triangles=(), triangle_owners=(), shared=None, irradiance=None):
     """pixels: list of dicts p, n, albedo, ks, material (shininess, roughness, lobe), id. tree: 1 the
     spheres through the sphere tree (the method's default), 0 the flat loop over them. gamma: (levels,
     tables) of the prefiltered env (specular_mode 1; penumbra.methods.isg.gamma_levels layout), None:
     specular_mode 0. lod: the LOD cut (0: off). triangles: thin-shell triangles (T, 3, 3) world space,
     their owners triangle_owners. shared: (M_s, shared_sharpness) of the shared hemisphere grid (its two
-    cubes built by isg_lobe_cubes, as the host does), None: off."""
+    cubes built by isg_lobe_cubes, as the host does), None: off. irradiance: (map (6 m m, 3), m), the env's
+    irradiance as a vertex-grid cube (shared_light 1), None: shared_light 0."""
     ctx, queue = cl_pair
     n = len(pixels)
     f4 = lambda rows: np.ascontiguousarray(np.array(rows, np.float32).reshape(n, 4))  # noqa: E731
@@ -95,6 +96,12 @@ def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=
     tri_ow[:len(triangles)] = np.asarray(triangle_owners, np.uint32)
     lcube = device_lobe_cubes(cl_pair, build_test_kernel, lb, shared[1]) if shared else \
         cl.Buffer(ctx, mf.READ_ONLY, 16)
+    if irradiance is None:
+        irr_buf, irr_n = cl.Buffer(ctx, mf.READ_ONLY, 16), 0
+    else:
+        irr = np.zeros((len(irradiance[0]), 4), np.float32)
+        irr[:, :3] = irradiance[0]
+        irr_buf, irr_n = ro(irr), irradiance[1]
     out = np.empty((n, 4), np.float32)
     obuf = cl.Buffer(ctx, mf.WRITE_ONLY, out.nbytes)
     k = cl.Kernel(build_test_kernel(SOURCE), "shade_isg")
@@ -103,7 +110,7 @@ def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=
       np.int32(self_occlusion), np.int32(specular_shadows), np.float32(env_sharpness),
       np.array([*camera, 0.0], np.float32), ro(table32()), np.int32(mode), ro(gbuf), ro(lv), np.int32(count),
       np.float32(lambda0), np.int32(shared[0] if shared else 0), np.float32(shared[1] if shared else 0.0),
-      lcube, np.int32(LOBE_CUBE_N), obuf)
+      lcube, np.int32(LOBE_CUBE_N), irr_buf, np.int32(irr_n), obuf)
     cl.enqueue_copy(queue, out, obuf)
     return out
 
@@ -121,8 +128,12 @@ def device_lobe_cubes(cl_pair, build_test_kernel, lobes8, sharpness, n=LOBE_CUBE
 
 
 def twin(pixels, lobes, spheres, owners, grid=16, self_occlusion=1, specular_shadows=1, camera=(0.0, 3.0, 6.0),
-         env_sharpness=1e30, gamma=None, shared=None):
-    sh = (*shared, lobe_cube(lobes, shared[1])) if shared else None
+         env_sharpness=1e30, gamma=None, shared=None, irradiance=None):
+    env_e = None
+    if irradiance is not None:  # the map as the kernel reads it: float32 vertices, bilinear
+        irr32 = np.asarray(irradiance[0], np.float32).astype(np.float64)
+        env_e = lambda d: grid_lookup(irr32, irradiance[1], d)  # noqa: E731
+    sh = (*shared, lobe_cube(lobes, shared[1]), env_e) if shared else None
     return np.array([shade(q["p"], q["n"], q["albedo"], q["ks"], q["material"], camera, q["id"], lobes, spheres,
                            owners, grid, self_occlusion, specular_shadows, env_sharpness, FACES, gamma, shared=sh)
                      for q in pixels])
@@ -840,6 +851,36 @@ def test_shared_grid_matches_twin(cl_pair, build_test_kernel, grid, sharpness, p
         free = twin(px, LOBES, [], [], self_occlusion=policy)
         assert (want < 0.9 * free).any()
         assert np.abs(want - per_lobe).max() < 0.1 * free.max()
+
+
+def env_irradiance_map(lobes, m=9, extra=0.15):
+    """A vertex-grid irradiance cube of m a side: the lobes' summed closed forms plus light that no lobe
+    carries (extra (1 + d.y)), as an env's irradiance map would differ from its K-lobe fit."""
+    from isg_shading64 import gamma_vertices, irradiance
+    d = gamma_vertices(m)
+    e = np.array([sum(irradiance(lobe[:3], lobe[3], lobe[4:7], v) for lobe in lobes) for v in d])
+    return e + extra * (1.0 + d[:, 1:2]) * np.array([1.0, 0.9, 0.8]), m
+
+
+@pytest.mark.parametrize("grid,sharpness,policy", [(16, 100.0, 1), (24, 1e30, 1), (16, 100.0, 2)])
+def test_shared_light_env_irradiance_matches_twin(cl_pair, build_test_kernel, grid, sharpness, policy):
+    """shared_light 1: the shared lobes' unshadowed irradiance is the env's irradiance map at n minus the
+    closed forms of the lobes with their own windows (the sun at 300 when shared_sharpness is 100), the kernel
+    against the twin. Fails when the own-window lobes are not subtracted (+ the sun's irradiance, counted
+    twice) or the map is ignored (- the extra light)."""
+    px = sphere_pixels()
+    irr = env_irradiance_map(LOBES)
+    got = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES, OWNERS, self_occlusion=policy,
+                     shared=(grid, sharpness), irradiance=irr)
+    want = twin(px, LOBES, SPHERES, OWNERS, self_occlusion=policy, shared=(grid, sharpness), irradiance=irr)
+    check(got, want)
+    lobes_only = twin(px, LOBES, SPHERES, OWNERS, self_occlusion=policy, shared=(grid, sharpness))
+    assert (want > lobes_only + 0.02).any()  # the light no lobe carries shows
+    # With a map of the lobes' own irradiance (no extra), shared_light 1 is shared_light 0 up to the map's
+    # bilinear error and the closed form's bound.
+    same = run_kernel(cl_pair, build_test_kernel, px, LOBES, SPHERES, OWNERS, self_occlusion=policy,
+                      shared=(grid, sharpness), irradiance=env_irradiance_map(LOBES, m=33, extra=0.0))
+    np.testing.assert_allclose(same[:, :3], lobes_only, rtol=0.02, atol=0.01 * float(lobes_only.max()))
 
 
 @pytest.mark.parametrize("sharpness", [1e30, 100.0])

@@ -24,7 +24,8 @@ enum {
     P_SPECULAR_MODE,
     P_LOD,
     P_SHARED_GRID,
-    P_SHARED_SHARPNESS
+    P_SHARED_SHARPNESS,
+    P_SHARED_LIGHT
 };
 
 static const pn_param_desc params[] = {
@@ -60,6 +61,10 @@ static const pn_param_desc params[] = {
     {"shared_sharpness", PN_PARAM_FLOAT, PN_PARAM_FRAME, 200, 0, 1e9, "",
      "With shared_grid > 0: light lobes at most this sharp go through the shared hemisphere grid, sharper "
      "ones (a sun) keep their own patch window."},
+    {"shared_light", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
+     "With shared_grid > 0, the unshadowed irradiance of the shared lobes: 1 the env map's irradiance map minus "
+     "the closed forms of the sharper lobes (the K-lobe fit's error leaves it), 0 the shared lobes' closed "
+     "forms (docs/isg.md section 9)."},
 };
 
 static const pn_param_desc bake_params[] = {
@@ -631,19 +636,24 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     if (shared_grid > 0 && (st = lobe_cubes(r, shared_sharpness)))
         return st;
     const cl_mem cube_buf = shared_grid > 0 ? s->lobe_cube : s->lobes; /* unread when off */
+    const bool env_light = shared_grid > 0 && r->params[P_SHARED_LIGHT] != 0;
+    const cl_int irradiance_n = env_light ? env->committed_irradiance_size : 0;
+    const cl_mem irradiance = env_light ? env->irradiance : s->lobes; /* unread when 0 */
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count,
                       sizeof(cl_mem), sizeof n, sizeof(cl_mem), sizeof lobes, sizeof(cl_mem),
                       sizeof(cl_mem), sizeof spheres, sizeof(cl_mem), sizeof use_tree, sizeof lod, sizeof(cl_mem), sizeof(cl_mem), sizeof triangles, sizeof grid, sizeof self, sizeof spec, sizeof env_sharpness, sizeof camera,
                       sizeof(cl_mem), sizeof mode, sizeof(cl_mem), sizeof(cl_mem), sizeof gamma_count, sizeof lambda0,
-                      sizeof shared_grid, sizeof shared_sharpness, sizeof(cl_mem), sizeof cube_n, sizeof(cl_mem)};
+                      sizeof shared_grid, sizeof shared_sharpness, sizeof(cl_mem), sizeof cube_n, sizeof(cl_mem),
+                      sizeof irradiance_n, sizeof(cl_mem)};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->cube, &n, &s->lobes, &lobes,
                           &s->device_spheres, &s->device_owners, &spheres, &s->device_nodes, &use_tree, &lod, &s->device_tris, &s->device_tri_owners,
                           &triangles, &grid, &self,
                           &spec, &env_sharpness, &camera, &table, &mode, &gamma, &gamma_levels, &gamma_count,
-                          &lambda0, &shared_grid, &shared_sharpness, &cube_buf, &cube_n, &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_isg", 35, sizes, vals)))
+                          &lambda0, &shared_grid, &shared_sharpness, &cube_buf, &cube_n, &irradiance, &irradiance_n,
+                          &image->buffer};
+    if ((st = pn_set_args(ctx, k, "shade_isg", 37, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_isg", (size_t)count, 64);
 }

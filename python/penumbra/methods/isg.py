@@ -87,6 +87,7 @@ class SphereSet(_Handle):
 
 
 TREE_FANOUT = 8
+SHELL_MAX_TRIANGLES = 4096   # a thin shell's bound (capi/src/methods/isg.c)
 
 
 def _morton_keys(centres: np.ndarray) -> np.ndarray:
@@ -168,10 +169,12 @@ class IsgTable:
     """``[isg]``: how the method builds sphere sets (docs/scene-format.md):
     ``spheres``, N per occluder mesh; ``thin_shells``, the names of occluder
     objects that occlude by their triangles instead (cloth, leaves, open
-    meshes: pn_sphere_set_create_shell, at most 4096 triangles each)."""
+    meshes: pn_sphere_set_create_shell, at most 4096 triangles each); ``exact_primitives``, exact proxies
+    for the sphere, box and plane primitives (attach_sphere_sets)."""
 
     spheres: int | None = None
     thin_shells: tuple[str, ...] = ()
+    exact_primitives: bool = True
 
     @property
     def sphere_count(self) -> int:
@@ -184,7 +187,10 @@ def _parse_table(d, base: Path, data: dict) -> IsgTable:
     d = {} if d is None else d
     if not isinstance(d, dict):
         raise InputError("[isg] must be a table")
-    _check_keys("isg", d, {"spheres", "thin_shells"})
+    _check_keys("isg", d, {"spheres", "thin_shells", "exact_primitives"})
+    exact = d.get("exact_primitives", True)
+    if not isinstance(exact, bool):
+        raise InputError(f"[isg] exact_primitives must be true or false, got {exact!r}")
     shells = d.get("thin_shells", [])
     if not isinstance(shells, list) or not all(isinstance(x, str) for x in shells):
         raise InputError(f"[isg] thin_shells must be a list of object names, got {shells!r}")
@@ -196,7 +202,7 @@ def _parse_table(d, base: Path, data: dict) -> IsgTable:
         if objects[name].get("occluder", True) is False:
             raise InputError(f"[isg] thin_shells names {name!r}, which has occluder = false")
     count = int(_sphere_count_param().check(d["spheres"], "[isg] spheres")) if "spheres" in d else None
-    return IsgTable(count, tuple(shells))
+    return IsgTable(count, tuple(shells), exact)
 
 
 @dataclass
@@ -228,7 +234,23 @@ def attach_sphere_sets(built, overrides: dict | None = None) -> list[dict]:
         return s.records
     groups: dict[int, tuple[Mesh, list[str]]] = {}
     shells = set(desc.isg.thin_shells) if desc.isg is not None else set()
+    exact = desc.isg.exact_primitives if desc.isg is not None else True
     records = []
+    exact_spheres = []
+    if exact:
+        # Exact proxies of the simple primitives (docs/isg.md section 9, "exact primitives and the env's
+        # irradiance"), whatever their `occluder` (the reference's rays see every object, and these proxies cost
+        # next to nothing): a sphere is one sphere, a box or a plane its own triangles as a thin shell (a floor
+        # then cuts the light from below the horizon off the objects standing on it). A plane of more than
+        # SHELL_MAX_TRIANGLES is left as before.
+        for obj in desc.objects:
+            if obj.name in shells:
+                continue
+            if obj.primitive in ("box", "plane"):
+                if built.object_meshes[obj.name].info["triangles"] <= SHELL_MAX_TRIANGLES:
+                    shells.add(obj.name)
+            elif obj.primitive == "sphere" and len({abs(x) for x in obj.scale}) == 1:  # an ellipsoid: as before
+                exact_spheres.append(obj.name)
     if shells:
         shell = SphereSet.shell(built.ctx)
         names = [obj.name for obj in desc.objects if obj.name in shells]
@@ -238,7 +260,15 @@ def attach_sphere_sets(built, overrides: dict | None = None) -> list[dict]:
         records.append({"objects": names, "spheres": 0, "shell": True, "outside_share": float("nan"),
                         "missed_share": float("nan"), "build_s": 0.0})
     for obj in desc.objects:
-        if obj.is_occluder and obj.name not in shells:
+        if obj.name in exact_spheres:
+            radius = float(obj.params.get("radius", 1.0))
+            sset = SphereSet.from_spheres(built.ctx, [[0.0, 0.0, 0.0, radius]])
+            built.scene.attach(built.instance_ids[obj.name], sset)
+            s.sets[obj.name] = sset
+            records.append({"objects": [obj.name], "spheres": 1, "exact": True, "outside_share": 0.0,
+                            "missed_share": 0.0, "build_s": 0.0})
+    for obj in desc.objects:
+        if obj.is_occluder and obj.name not in shells and obj.name not in exact_spheres:
             mesh = built.object_meshes[obj.name]
             groups.setdefault(id(mesh), (mesh, []))[1].append(obj.name)
     for mesh, names in groups.values():
@@ -269,9 +299,11 @@ class Isg(Technique):
         attach_sphere_sets(built, bake)
 
     def sweep(self) -> list[dict]:
-        # The defaults (the shared hemisphere grid, env_sharpness 10), the defaults before it (every lobe its own
-        # window, env_sharpness 100) for the A/B, and a cheaper and a finer point (docs/isg.md section 9).
+        # The defaults (the shared hemisphere grid, env_sharpness 10, shared_light 1), the shared lobes' light from
+        # their closed forms (shared_light 0) and the defaults before the grid (every lobe its own window,
+        # env_sharpness 100) for the A/B, and a cheaper and a finer point (docs/isg.md section 9).
         return [{"spheres": 32, "lobes": 16, "patch_grid": 8}, {"spheres": 64, "lobes": 32, "patch_grid": 16},
+                {"spheres": 64, "lobes": 32, "patch_grid": 16, "shared_light": 0},
                 {"spheres": 64, "lobes": 32, "patch_grid": 16, "shared_grid": 0, "env_sharpness": 100.0},
                 {"spheres": 128, "lobes": 32, "patch_grid": 16, "shared_grid": 24}]
 
@@ -280,6 +312,7 @@ class Isg(Technique):
         if not recs:
             return []
         parts = [f"{len(r['objects'])} thin shell(s) ({', '.join(r['objects'])}: their triangles)" if r.get("shell")
+                 else f"{', '.join(r['objects'])}: one exact sphere" if r.get("exact")
                  else f"{len(r['objects'])} x {r['spheres']} spheres (outside {100 * r['outside_share']:.1f} %, "
                  f"missed {100 * r['missed_share']:.1f} % of the solid)" for r in recs]
         return ["isg sphere sets: " + "; ".join(parts)]
