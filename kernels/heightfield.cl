@@ -633,6 +633,9 @@ inline int hf_row_first_changed(global const int4 *levels, global const int4 *ch
  * (the field's last row alone when D is odd), led by the work-item of its
  * first vertex. */
 #define HF_GROUP_ROWS 2
+#ifndef HF_ROW_FEW /* a row's last vertices, if at most this many, are searched one by one */
+#define HF_ROW_FEW 4
+#endif
 inline bool hf_row_leader(int gid, int4 grid, int exact)
 {
     return exact || ((gid % grid.x) % HF_ROW == 0 && (gid / grid.x) % HF_GROUP_ROWS == 0);
@@ -649,6 +652,8 @@ inline bool hf_row_leader(int gid, int4 grid, int exact)
  * `horizons`. Returns how many were searched; *moved gets bit
  * r * HF_ROW + l set where row r's lane l's horizons differ (bit for bit)
  * from the kept ones (update 2) or every lane's (otherwise). */
+inline void hf_vertex_horizons(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                               int gid, int n_phi, int exact, float limit, int env, float *om);
 inline int hf_row_env_horizons(global const float *pyr, global const int4 *levels, int4 grid, float8 geom, int gid,
                                int n_phi, int update, global const int4 *changed, global float *horizons,
                                global float *cp, int ncp, float *om, uint *moved)
@@ -656,6 +661,24 @@ inline int hf_row_env_horizons(global const float *pyr, global const int4 *level
     const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
     const int i0 = gid % grid.x, lanes = min(HF_ROW, grid.x - i0), ls = (int)geom.s5;
     const int rows = min(HF_GROUP_ROWS, grid.y - gid / grid.x), gidB = gid + (rows - 1) * grid.x;
+    if (lanes <= HF_ROW_FEW) {
+        /* A row's last few vertices (one at W = 257): each by the per-vertex
+         * search (azimuths in the lanes), every azimuth in every mode (no
+         * checkpoints), instead of a group whose other lanes are wasted. */
+        *moved = update == 2 ? 0u : 0xffffffffu;
+        for (int r = 0; r < rows; ++r)
+            for (int l = 0; l < lanes; ++l) {
+                const int g = gid + r * grid.x + l, q = r * HF_ROW + l;
+                hf_vertex_horizons(pyr, levels, grid, geom, g, n_phi, 0, INFINITY, 1, om + q * n_phi);
+                for (int k = 0; update && k < n_phi; ++k) {
+                    global float *kept = horizons + (size_t)g * n_phi + k;
+                    if (as_uint(*kept) != as_uint(om[q * n_phi + k]))
+                        *moved |= 1u << q;
+                    *kept = om[q * n_phi + k];
+                }
+            }
+        return n_phi;
+    }
     const hf_rf u0 = hf_convert_rf(min(i0 + HF_ROW_IDS, grid.x - 1));
     const float vA = (float)(gid / grid.x), vB = vA + (float)(rows - 1), refA = pyr[gid], refB = pyr[gidB];
     const int first_receiver =
@@ -1313,7 +1336,7 @@ kernel void hf_searched(global const int4 *levels, int4 grid, float8 geom, int n
     const float v1 = v0 + (float)(rows - 1);
     const hf_rf u0 = hf_convert_rf(min(i0 + HF_ROW_IDS, grid.x - 1));
     const int4 c = changed[0];
-    bool all = update != 2;
+    bool all = update != 2 || (!exact && lanes <= HF_ROW_FEW);
     if (!all && exact)
         all = c.x <= c.z && u0.s0 >= (float)c.x && u0.s0 <= (float)c.z && v0 >= (float)c.y && v0 <= (float)c.w;
     else if (!all)
