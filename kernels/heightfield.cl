@@ -975,7 +975,7 @@ inline void hf_visibility(const float *om, int n_phi, global const float *table,
     float16 a0 = 0.0f, a1 = 0.0f, a2 = 0.0f, b0 = 0.0f, b1 = 0.0f, b2 = 0.0f;
     for (int k = 0; k < n_phi; ++k) {
         const float fa = clamp((om[k] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
-        const float fb = clamp((om[(k + 1) % n_phi] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
+        const float fb = clamp((om[k + 1 < n_phi ? k + 1 : 0] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
         const int ia = min((int)fa, HF_TABLE - 2), ib = min((int)fb, HF_TABLE - 2);
         const float ta = fa - (float)ia, tb = fb - (float)ib;
         global const float *t00 = table + (ia * HF_TABLE + ib) * nc, *t01 = t00 + nc;
@@ -1044,7 +1044,7 @@ inline float3 hf_sun(const float *om, int n_phi, float3 n, global const float4 *
         const float2 g = sun[3 * i + 2].xy;
         const float a = g.x * scale;
         const int k = min((int)a, n_phi - 1);
-        const float horizon = mix(om[k], om[(k + 1) % n_phi], a - (float)k);
+        const float horizon = mix(om[k], om[k + 1 < n_phi ? k + 1 : 0], a - (float)k);
         /* Fully below or fully above the horizon: no chord to integrate. */
         const float x = (g.y - horizon) / fmax(d.w, 1e-6f);
         if (x <= -1.0f)
