@@ -1093,9 +1093,13 @@ inline void hf_env_vertex(int gid, const float *om, global const float4 *normals
         }
         float sum = hf_hsum16(acc0 * c0 + acc1 * c1 + acc2 * c2);
         if (split) {
-            float uc = 0.0f;
-            for (int k = 0; k < nc; ++k)
-                uc += u[ch * PN_SH_MAX_COEFFS + k] * cvec[k];
+            global const float *uch = u + ch * PN_SH_MAX_COEFFS;
+            float16 ud = hf_sh_chunk(uch, nc, 0) * c0;
+            if (nch > 1)
+                ud += hf_sh_chunk(uch, nc, 1) * c1;
+            if (nch > 2)
+                ud += hf_sh_chunk(uch, nc, 2) * c2;
+            const float uc = hf_hsum16(ud);
             /* Terrain only takes light away: SH ringing of the blocked part
              * must not lift E above the unoccluded upper-hemisphere irradiance. */
             sum = fmin(sum + upv[ch] - uc, upv[ch]);
