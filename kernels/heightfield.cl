@@ -1031,11 +1031,49 @@ inline float3 hf_albedo(global const float *albedo, int has_albedo, int gid)
  * between the two nearest azimuths, as the wedges are), times N·s. Records of
  * three float4: (direction, r), (radiance x solid angle, power), (azimuth in
  * [0, 2π) in the SH frame, elevation, 0, 0) -- the angles do not depend on
- * the vertex, so the host computes them once. */
+ * the vertex, so the host computes them once. After the records 5 float4
+ * for all of them: their bounds (least azimuth, greatest azimuth, least
+ * elevation - r, greatest elevation + r; r taken as in x below), their mean
+ * direction s_c and the largest |s_i - s_c| (plus room for rounding), and
+ * S = Σ_i L_i Ω_i s_iᵀ (a row per channel). Where the horizons between the
+ * azimuths around that range are all above the greatest elevation (every
+ * disc wholly below its horizon) the texels give nothing; where they are all
+ * below the least (every disc wholly above: vis = 1), with HF_SUN_MARGIN to
+ * spare for the rounding of the interpolation, the texels need no horizon,
+ * and if moreover n · s_c exceeds the spread (every n · s_i > 0) their sum
+ * is S n (three dots instead of a loop over the texels; the same sum up to
+ * float rounding). */
+#ifndef HF_SUN_MARGIN /* a build option only to measure without the shortcuts (1e30f) */
+#define HF_SUN_MARGIN 1e-4f
+#endif
 inline float3 hf_sun(const float *om, int n_phi, float3 n, global const float4 *sun, int suns)
 {
     float3 e = (float3)(0.0f);
+    if (suns <= 0)
+        return e;
     const float scale = (float)n_phi / (2.0f * M_PI_F);
+    const float4 box = sun[3 * suns];
+    /* texel i reads om[k_i] and om[k_i + 1] (wrapping), k_i = min((int)(azimuth_i scale), n_phi - 1) */
+    const int klo = min((int)(box.x * scale), n_phi - 1), khi = min((int)(box.y * scale), n_phi - 1) + 1;
+    float hmin = om[klo], hmax = om[klo];
+    for (int k = klo + 1; k <= khi; ++k) {
+        const float h = om[k < n_phi ? k : 0];
+        hmin = fmin(hmin, h);
+        hmax = fmax(hmax, h);
+    }
+    if (hmin >= box.w + HF_SUN_MARGIN)
+        return e;
+    if (hmax <= box.z - HF_SUN_MARGIN) {
+        const float4 sc = sun[3 * suns + 1];
+        if (dot(n, sc.xyz) > sc.w)
+            return (float3)(dot(n, sun[3 * suns + 2].xyz), dot(n, sun[3 * suns + 3].xyz), dot(n, sun[3 * suns + 4].xyz));
+        for (int i = 0; i < suns; ++i) {
+            const float c = dot(n, sun[3 * i].xyz);
+            if (c > 0.0f)
+                e += sun[3 * i + 1].xyz * c;
+        }
+        return e;
+    }
     for (int i = 0; i < suns; ++i) {
         const float4 d = sun[3 * i];
         const float c = dot(n, d.xyz);
