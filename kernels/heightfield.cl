@@ -394,30 +394,69 @@ HF_INLINE void hf_pick_columns(float16 l, float4 lh, int16 s, int S, float16 *c0
  * that holds every lane's taps (moved left at the level's right end) and
  * the columns picked by hf_pick_columns; where a tap is clamped (the
  * border, samples outside the field) the lanes' columns are combined one by
- * one and picked from private memory. */
-HF_INLINE float16 hf_level_sample_row(global const float *pyr, int4 lev, int wm1, float16 u, float v, float inv_wm1,
-                                      float inv_dm1, float ref)
+ * one and picked from private memory.
+ *
+ * Two rows at once (vA, vB: a row group's two rows, or the same row twice
+ * for a field's last odd row): everything that depends on u -- the column
+ * weights, the lanes' column offsets and the select masks, the window and
+ * the path taken -- is computed once for both; only the weights in v, the
+ * row pointers and the row combination are per row. Each row's result is
+ * the same float as hf_level_sample_row's for that row alone (the same
+ * expressions). */
+#define HF_COMBINE16(r0, r1, r2, r3, wb, ref, off)                                                              \
+    (wb.x * (vload16(0, r0 + (off)) - ref) + wb.y * (vload16(0, r1 + (off)) - ref) +                            \
+     wb.z * (vload16(0, r2 + (off)) - ref) + wb.w * (vload16(0, r3 + (off)) - ref))
+#define HF_COMBINE8(r0, r1, r2, r3, wb, ref, off)                                                               \
+    (wb.x * (vload8(0, r0 + (off)) - ref) + wb.y * (vload8(0, r1 + (off)) - ref) +                              \
+     wb.z * (vload8(0, r2 + (off)) - ref) + wb.w * (vload8(0, r3 + (off)) - ref))
+#define HF_COMBINE4(r0, r1, r2, r3, wb, ref, off)                                                               \
+    (wb.x * (vload4(0, r0 + (off)) - ref) + wb.y * (vload4(0, r1 + (off)) - ref) +                              \
+     wb.z * (vload4(0, r2 + (off)) - ref) + wb.w * (vload4(0, r3 + (off)) - ref))
+
+/* Base-wide levels: lanes one column apart, sharing the weights wa. */
+HF_INLINE float16 hf_columns_shift(float16 l, float4 lh, float4 wa)
+{
+    const float16 l1 = (float16)(l.s1234, l.s5678, l.s9abc, l.sdef, lh.x),
+                  l2 = (float16)(l.s2345, l.s6789, l.sabcd, l.sef, lh.xy),
+                  l3 = (float16)(l.s3456, l.s789a, l.sbcde, l.sf, lh.xyz);
+    return wa.x * l + wa.y * l1 + wa.z * l2 + wa.w * l3;
+}
+
+/* Clamped taps: the lanes' columns p_lo .. p_hi (clamped) of one row combined one by one (at most 19). */
+HF_INLINE float16 hf_columns_clamped(global const float *r0, global const float *r1, global const float *r2,
+                                     global const float *r3, float4 wb, float ref, int p_lo, int p_hi, int16 o0,
+                                     int16 o1, int16 o2, int16 o3, float16 wa0, float16 wa1, float16 wa2,
+                                     float16 wa3)
+{
+    float line[20];
+    for (int p = p_lo; p <= p_hi; ++p)
+        line[p - p_lo] = wb.x * (r0[p] - ref) + wb.y * (r1[p] - ref) + wb.z * (r2[p] - ref) + wb.w * (r3[p] - ref);
+    return wa0 * HF_RGATHER(line, o0) + wa1 * HF_RGATHER(line, o1) + wa2 * HF_RGATHER(line, o2) +
+           wa3 * HF_RGATHER(line, o3);
+}
+
+HF_INLINE void hf_level_sample_row2(global const float *pyr, int4 lev, int wm1, float16 u, float vA, float vB,
+                                    float inv_wm1, float inv_dm1, float refA, float refB, float16 *hA, float16 *hB)
 {
     const bool whole = lev.y == wm1;
     const float a_first = u.s0 * (float)lev.y * inv_wm1, fa_first = floor(a_first);
-    const float b = v * (float)lev.z * inv_dm1, fb = floor(b);
-    const float4 wb = hf_bspline6(b - fb);
-    const int ib = (int)fb - 1, row = lev.y + 1, c0 = (int)fa_first - 1; /* lane 0's first column */
+    const float bA = vA * (float)lev.z * inv_dm1, fbA = floor(bA), bB = vB * (float)lev.z * inv_dm1, fbB = floor(bB);
+    const float4 wbA = hf_bspline6(bA - fbA), wbB = hf_bspline6(bB - fbB);
+    const int ibA = (int)fbA - 1, ibB = (int)fbB - 1, row = lev.y + 1, c0 = (int)fa_first - 1; /* lane 0's first column */
     global const float *base = pyr + lev.x;
-    global const float *r0 = base + clamp(ib, 0, lev.z) * row, *r1 = base + clamp(ib + 1, 0, lev.z) * row,
-                       *r2 = base + clamp(ib + 2, 0, lev.z) * row, *r3 = base + clamp(ib + 3, 0, lev.z) * row;
+    global const float *a0 = base + clamp(ibA, 0, lev.z) * row, *a1 = base + clamp(ibA + 1, 0, lev.z) * row,
+                       *a2 = base + clamp(ibA + 2, 0, lev.z) * row, *a3 = base + clamp(ibA + 3, 0, lev.z) * row;
+    global const float *b0 = base + clamp(ibB, 0, lev.z) * row, *b1 = base + clamp(ibB + 1, 0, lev.z) * row,
+                       *b2 = base + clamp(ibB + 2, 0, lev.z) * row, *b3 = base + clamp(ibB + 3, 0, lev.z) * row;
     if (whole && c0 >= 0 && c0 + 19 <= lev.y) {
         /* values c0 .. c0 + 18 (and c0 + 19, not used); lanes one column
          * apart (lanes past the row's end are not stored) */
-        const float16 l = wb.x * (vload16(0, r0 + c0) - ref) + wb.y * (vload16(0, r1 + c0) - ref) +
-                          wb.z * (vload16(0, r2 + c0) - ref) + wb.w * (vload16(0, r3 + c0) - ref);
-        const float4 lh = wb.x * (vload4(0, r0 + c0 + 16) - ref) + wb.y * (vload4(0, r1 + c0 + 16) - ref) +
-                          wb.z * (vload4(0, r2 + c0 + 16) - ref) + wb.w * (vload4(0, r3 + c0 + 16) - ref);
         const float4 wa = hf_bspline6(a_first - fa_first);
-        const float16 l1 = (float16)(l.s1234, l.s5678, l.s9abc, l.sdef, lh.x),
-                      l2 = (float16)(l.s2345, l.s6789, l.sabcd, l.sef, lh.xy),
-                      l3 = (float16)(l.s3456, l.s789a, l.sbcde, l.sf, lh.xyz);
-        return wa.x * l + wa.y * l1 + wa.z * l2 + wa.w * l3;
+        *hA = hf_columns_shift(HF_COMBINE16(a0, a1, a2, a3, wbA, refA, c0), HF_COMBINE4(a0, a1, a2, a3, wbA, refA, c0 + 16),
+                               wa);
+        *hB = hf_columns_shift(HF_COMBINE16(b0, b1, b2, b3, wbB, refB, c0), HF_COMBINE4(b0, b1, b2, b3, wbB, refB, c0 + 16),
+                               wa);
+        return;
     }
     const float16 a = u * (float)lev.y * inv_wm1, fa = floor(a), ta = a - fa, sa = 1.0f - ta, ta2 = ta * ta,
                   ta3 = ta2 * ta;
@@ -428,103 +467,122 @@ HF_INLINE float16 hf_level_sample_row(global const float *pyr, int4 lev, int wm1
     const int lo = ia.s0, hi = ia.sf + 3;
     if (lo >= 0 && hi <= lev.y) {
         int cs = -1;
-        float16 l;
-        float4 lh = 0.0f;
+        float16 lA, lB;
+        float4 lhA = 0.0f, lhB = 0.0f;
         if (lev.y >= 7 && hi - min(lo, lev.y - 7) <= 7) {
             cs = min(lo, lev.y - 7);
-            const float8 l8 = wb.x * (vload8(0, r0 + cs) - ref) + wb.y * (vload8(0, r1 + cs) - ref) +
-                              wb.z * (vload8(0, r2 + cs) - ref) + wb.w * (vload8(0, r3 + cs) - ref);
-            l = (float16)(l8, l8.s7777, l8.s7777); /* past the window: never picked */
+            const float8 l8A = HF_COMBINE8(a0, a1, a2, a3, wbA, refA, cs),
+                         l8B = HF_COMBINE8(b0, b1, b2, b3, wbB, refB, cs);
+            lA = (float16)(l8A, l8A.s7777, l8A.s7777); /* past the window: never picked */
+            lB = (float16)(l8B, l8B.s7777, l8B.s7777);
         } else if (lev.y >= 15 && hi - min(lo, lev.y - 15) <= 15) {
             cs = min(lo, lev.y - 15);
-            l = wb.x * (vload16(0, r0 + cs) - ref) + wb.y * (vload16(0, r1 + cs) - ref) +
-                wb.z * (vload16(0, r2 + cs) - ref) + wb.w * (vload16(0, r3 + cs) - ref);
+            lA = HF_COMBINE16(a0, a1, a2, a3, wbA, refA, cs);
+            lB = HF_COMBINE16(b0, b1, b2, b3, wbB, refB, cs);
         } else if (lev.y >= 19 && hi - min(lo, lev.y - 19) <= 18) {
             cs = min(lo, lev.y - 19);
-            l = wb.x * (vload16(0, r0 + cs) - ref) + wb.y * (vload16(0, r1 + cs) - ref) +
-                wb.z * (vload16(0, r2 + cs) - ref) + wb.w * (vload16(0, r3 + cs) - ref);
-            lh = wb.x * (vload4(0, r0 + cs + 16) - ref) + wb.y * (vload4(0, r1 + cs + 16) - ref) +
-                 wb.z * (vload4(0, r2 + cs + 16) - ref) + wb.w * (vload4(0, r3 + cs + 16) - ref);
+            lA = HF_COMBINE16(a0, a1, a2, a3, wbA, refA, cs);
+            lB = HF_COMBINE16(b0, b1, b2, b3, wbB, refB, cs);
+            lhA = HF_COMBINE4(a0, a1, a2, a3, wbA, refA, cs + 16);
+            lhB = HF_COMBINE4(b0, b1, b2, b3, wbB, refB, cs + 16);
         }
         if (cs >= 0) {
             float16 c0, c1, c2, c3;
-            hf_pick_columns(l, lh, ia - cs, hi - 3 - cs, &c0, &c1, &c2, &c3);
-            return wa0 * c0 + wa1 * c1 + wa2 * c2 + wa3 * c3;
+            hf_pick_columns(lA, lhA, ia - cs, hi - 3 - cs, &c0, &c1, &c2, &c3);
+            *hA = wa0 * c0 + wa1 * c1 + wa2 * c2 + wa3 * c3;
+            hf_pick_columns(lB, lhB, ia - cs, hi - 3 - cs, &c0, &c1, &c2, &c3);
+            *hB = wa0 * c0 + wa1 * c1 + wa2 * c2 + wa3 * c3;
+            return;
         }
     }
-    /* Clamped taps: the lanes' columns p_lo .. p_hi (clamped) combined one
-     * by one, at most 19 of them. */
     const int p_lo = clamp(lo, 0, lev.y), p_hi = clamp(hi, 0, lev.y);
-    float line[20];
-    for (int p = p_lo; p <= p_hi; ++p)
-        line[p - p_lo] = wb.x * (r0[p] - ref) + wb.y * (r1[p] - ref) + wb.z * (r2[p] - ref) + wb.w * (r3[p] - ref);
     const int16 o0 = clamp(ia, 0, lev.y) - p_lo, o1 = clamp(ia + 1, 0, lev.y) - p_lo,
                 o2 = clamp(ia + 2, 0, lev.y) - p_lo, o3 = clamp(ia + 3, 0, lev.y) - p_lo;
-    return wa0 * HF_RGATHER(line, o0) + wa1 * HF_RGATHER(line, o1) + wa2 * HF_RGATHER(line, o2) +
-           wa3 * HF_RGATHER(line, o3);
+    *hA = hf_columns_clamped(a0, a1, a2, a3, wbA, refA, p_lo, p_hi, o0, o1, o2, o3, wa0, wa1, wa2, wa3);
+    *hB = hf_columns_clamped(b0, b1, b2, b3, wbB, refB, p_lo, p_hi, o0, o1, o2, o3, wa0, wa1, wa2, wa3);
 }
 
-/* hf_horizon_pyramid_v for a row group along one direction (cu, cv); hp
- * holds H_k - ref at each lane's vertex. The environment's search: no limit. */
-inline hf_rf hf_horizon_pyramid_row(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
-                                     const hf_rf *hp, float ref, hf_rf u0, float v0, float cu, float cv,
-                                     float inv_wm1, float inv_dm1)
+/* One row (the receivers' own levels). */
+HF_INLINE float16 hf_level_sample_row(global const float *pyr, int4 lev, int wm1, float16 u, float v, float inv_wm1,
+                                      float inv_dm1, float ref)
 {
-    hf_rf w0 = 0.0f, w1 = 0.0f, w2 = 0.0f, best = -M_PI_2_F, knot = -INFINITY, mid = -INFINITY;
-    int count = 0;
-    const float sr = exp2(1.0f / geom.s5);
-    float d = geom.s6;
-    for (int m = 0; m < grid.z; ++m, d *= sr) {
-        const int k = clamp(m - grid.w, 0, grid.z - 1);
-        const hf_rf h = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0 + d * cu, v0 + d * cv, inv_wm1,
-                                            inv_dm1, ref);
-        const hf_rf w3 = hf_atan_r((h - hp[k]) * (1.0f / (36.0f * d)));
-        HF_WINDOW_STEP_N(w0, w1, w2, w3, knot, mid, count)
+    float16 h, unused;
+    hf_level_sample_row2(pyr, lev, wm1, u, v, v, inv_wm1, inv_dm1, ref, ref, &h, &unused);
+    return h;
+}
+
+#define HF_WINDOW_FINISH_N(w0, w1, w2, best, knot, mid, count, out)                                             \
+    {                                                                                                           \
+        if (count == 0)                                                                                         \
+            out = -M_PI_2_F;                                                                                    \
+        else {                                                                                                  \
+            knot = fmax(knot, w1 + 5.0f * w2);                                                                  \
+            if (count >= 2)                                                                                     \
+                mid = fmax(mid, w0 + 23.0f * w1 + 24.0f * w2);                                                 \
+            out = HF_WINDOW_MAX(best, knot, mid);                                                               \
+        }                                                                                                       \
     }
-    HF_WINDOW_END_N(w0, w1, w2, best, knot, mid, count)
-}
 
-/* hf_horizon_pyramid_row for partial updates: the running maximum before
- * sample c ls (c = 1 .. ncp, ls the level step) is kept in cp[cpi + c - 1]
- * of each of the `lanes` first lanes; start > 0 resumes at sample start (a
- * checkpoint, >= 3) from the kept maximum best0, the window refilled from
- * the three samples before it (which read nothing changed: the same
- * floats). The same arithmetic as hf_horizon_pyramid_row, so the same
- * result. */
-inline hf_rf hf_horizon_pyramid_row_cp(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
-                                        const hf_rf *hp, float ref, hf_rf u0, float v0, float cu, float cv,
-                                        float inv_wm1, float inv_dm1, int start, hf_rf best0, global float *cp,
-                                        hf_ri cpi, int lanes, int ncp)
+/* hf_horizon_pyramid_v for a row group's two rows along one direction (cu,
+ * cv); hpA, hpB hold H_k - ref at each lane's vertex. The environment's
+ * search: no limit. With start > 0 (partial updates) the search resumes at
+ * sample start (a checkpoint, >= 3) from the kept maxima best0A, best0B,
+ * the window refilled from the three samples before it (which read nothing
+ * changed: the same floats); with ncp > 0 the running maximum before sample
+ * c ls (c = 1 .. ncp, ls the level step) is kept in cp[cpi + c - 1] of each
+ * of the `lanes` first lanes of each of the `rows` rows. The same
+ * arithmetic either way, so the same result. */
+HF_INLINE void hf_horizon_pyramid_row2(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                                       const hf_rf *hpA, const hf_rf *hpB, float refA, float refB, hf_rf u0, float vA,
+                                       float vB, float cu, float cv, float inv_wm1, float inv_dm1, int start,
+                                       hf_rf best0A, hf_rf best0B, global float *cp, hf_ri cpiA, hf_ri cpiB,
+                                       int lanes, int rows, int ncp, hf_rf *outA, hf_rf *outB)
 {
-    hf_rf w0 = 0.0f, w1 = 0.0f, w2 = 0.0f, best = start ? best0 : -M_PI_2_F, knot = -INFINITY, mid = -INFINITY;
-    int count = start;
+    hf_rf wA0 = 0.0f, wA1 = 0.0f, wA2 = 0.0f, bestA = start ? best0A : -M_PI_2_F, knotA = -INFINITY,
+          midA = -INFINITY;
+    hf_rf wB0 = 0.0f, wB1 = 0.0f, wB2 = 0.0f, bestB = start ? best0B : -M_PI_2_F, knotB = -INFINITY,
+          midB = -INFINITY;
+    int countA = start, countB = start;
     const int ls = (int)geom.s5, m0 = start ? start - 3 : 0;
     const float sr = exp2(1.0f / geom.s5);
     float d = geom.s6;
     for (int m = 0; m < m0; ++m)
         d *= sr;
     for (int m = m0; m < grid.z; ++m, d *= sr) {
-        if (m > start && m % ls == 0 && m / ls <= ncp) {
+        if (ncp && m > start && m % ls == 0 && m / ls <= ncp) {
             float b[HF_ROW];
             int idx[HF_ROW];
-            hf_vstore_r(HF_WINDOW_MAX(best, knot, mid), 0, b);
-            hf_vstore_r(cpi, 0, idx);
+            hf_vstore_r(HF_WINDOW_MAX(bestA, knotA, midA), 0, b);
+            hf_vstore_r(cpiA, 0, idx);
             for (int l = 0; l < lanes; ++l)
                 cp[(size_t)idx[l] + m / ls - 1] = b[l];
+            if (rows > 1) {
+                hf_vstore_r(HF_WINDOW_MAX(bestB, knotB, midB), 0, b);
+                hf_vstore_r(cpiB, 0, idx);
+                for (int l = 0; l < lanes; ++l)
+                    cp[(size_t)idx[l] + m / ls - 1] = b[l];
+            }
         }
         const int k = clamp(m - grid.w, 0, grid.z - 1);
-        const hf_rf h = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0 + d * cu, v0 + d * cv, inv_wm1,
-                                                   inv_dm1, ref);
-        const hf_rf w3 = hf_atan_r((h - hp[k]) * (1.0f / (36.0f * d)));
+        hf_rf hA, hB;
+        hf_level_sample_row2(pyr, levels[k], grid.x - 1, u0 + d * cu, vA + d * cv, vB + d * cv, inv_wm1, inv_dm1,
+                             refA, refB, &hA, &hB);
+        const float rd = 1.0f / (36.0f * d);
+        const hf_rf w3A = hf_atan_r((hA - hpA[k]) * rd), w3B = hf_atan_r((hB - hpB[k]) * rd);
         if (m < start) {
-            w0 = w1;
-            w1 = w2;
-            w2 = w3;
+            wA0 = wA1;
+            wA1 = wA2;
+            wA2 = w3A;
+            wB0 = wB1;
+            wB1 = wB2;
+            wB2 = w3B;
             continue;
         }
-        HF_WINDOW_STEP_N(w0, w1, w2, w3, knot, mid, count)
+        HF_WINDOW_STEP_N(wA0, wA1, wA2, w3A, knotA, midA, countA)
+        HF_WINDOW_STEP_N(wB0, wB1, wB2, w3B, knotB, midB, countB)
     }
-    HF_WINDOW_END_N(w0, w1, w2, best, knot, mid, count)
+    HF_WINDOW_FINISH_N(wA0, wA1, wA2, bestA, knotA, midA, countA, *outA)
+    HF_WINDOW_FINISH_N(wB0, wB1, wB2, bestB, knotB, midB, countB, *outB)
 }
 
 /* Partial updates (docs/heightfield.md, "Dynamic terrain"): changed[k] is
@@ -545,12 +603,12 @@ inline bool hf_taps_meet(float lo, float hi, int n, int c0, int c1)
 }
 
 /* The first sample of a row group's search along (cu, cv) (lanes' u in
- * [ulo, uhi], row v0) that reads a changed value, grid.z if none: one box
- * test per sample. receiver: the first sample whose level's H_k at the
- * receivers changed (d = 0, one test per level). */
+ * [ulo, uhi], rows [vlo, vhi]) that reads a changed value, grid.z if none:
+ * one box test per sample. receiver: the first sample whose level's H_k at
+ * the receivers changed (d = 0, one test per level). */
 inline int hf_row_first_changed(global const int4 *levels, global const int4 *changed, int4 grid, float8 geom,
-                                float ulo, float uhi, float v0, float cu, float cv, float inv_wm1, float inv_dm1,
-                                int receiver)
+                                float ulo, float uhi, float vlo, float vhi, float cu, float cv, float inv_wm1,
+                                float inv_dm1, int receiver)
 {
     const float sr = exp2(1.0f / geom.s5);
     float d = receiver ? 0.0f : geom.s6;
@@ -562,90 +620,136 @@ inline int hf_row_first_changed(global const int4 *levels, global const int4 *ch
             continue;
         const int4 lev = levels[k];
         const float sa = (float)lev.y * inv_wm1, sb = (float)lev.z * inv_dm1;
-        const float a0 = (ulo + d * cu) * sa, a1 = (uhi + d * cu) * sa, b = (v0 + d * cv) * sb;
-        if (hf_taps_meet(fmin(a0, a1), fmax(a0, a1), lev.y, c.x, c.z) && hf_taps_meet(b, b, lev.z, c.y, c.w))
+        const float a0 = (ulo + d * cu) * sa, a1 = (uhi + d * cu) * sa, b0 = (vlo + d * cv) * sb,
+                    b1 = (vhi + d * cv) * sb;
+        if (hf_taps_meet(fmin(a0, a1), fmax(a0, a1), lev.y, c.x, c.z) &&
+            hf_taps_meet(fmin(b0, b1), fmax(b0, b1), lev.z, c.y, c.w))
             return receiver ? (k ? k + grid.w : 0) : m; /* level k's first sample */
     }
     return grid.z;
 }
 
+/* A row group: HF_ROW consecutive vertices of each of two consecutive rows
+ * (the field's last row alone when D is odd), led by the work-item of its
+ * first vertex. */
+#define HF_GROUP_ROWS 2
+#ifndef HF_ROW_FEW /* a row's last vertices, if at most this many, are searched one by one */
+#define HF_ROW_FEW 4
+#endif
+inline bool hf_row_leader(int gid, int4 grid, int exact)
+{
+    return exact || ((gid % grid.x) % HF_ROW == 0 && (gid / grid.x) % HF_GROUP_ROWS == 0);
+}
+
 /* Environment horizons (clamped at 0) of the row group starting at vertex
- * gid: om[lane * n_phi + k] for the lanes inside the row (lanes past its
- * end repeat its last vertex and are not stored). update 0: all searched;
- * 1: all searched, kept in `horizons` (n_phi per vertex) with their
- * checkpoints (`cp`, ncp per vertex and azimuth); 2: only the azimuths
- * whose search reads a changed value (`changed`) are searched again, from
- * the last checkpoint before the first such sample, the others read from
- * `horizons`. Returns how many were searched; *moved gets bit l set where
- * lane l's horizons differ (bit for bit) from the kept ones (update 2) or
- * every lane's (otherwise). */
+ * gid: om[(r * HF_ROW + lane) * n_phi + k] for row r (0, 1) and the lanes
+ * inside the row (lanes past its end repeat its last vertex and are not
+ * stored). update 0: all searched; 1: all searched, kept in `horizons`
+ * (n_phi per vertex) with their checkpoints (`cp`, ncp per vertex and
+ * azimuth); 2: only the azimuths whose search reads a changed value
+ * (`changed`, tested for both rows) are searched again, from the last
+ * checkpoint before the first such sample, the others read from
+ * `horizons`. Returns how many were searched; *moved gets bit
+ * r * HF_ROW + l set where row r's lane l's horizons differ (bit for bit)
+ * from the kept ones (update 2) or every lane's (otherwise). */
+inline void hf_vertex_horizons(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                               int gid, int n_phi, int exact, float limit, int env, float *om);
 inline int hf_row_env_horizons(global const float *pyr, global const int4 *levels, int4 grid, float8 geom, int gid,
                                int n_phi, int update, global const int4 *changed, global float *horizons,
-                               global float *cp, int ncp, float *om, int *moved)
+                               global float *cp, int ncp, float *om, uint *moved)
 {
     const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
     const int i0 = gid % grid.x, lanes = min(HF_ROW, grid.x - i0), ls = (int)geom.s5;
+    const int rows = min(HF_GROUP_ROWS, grid.y - gid / grid.x), gidB = gid + (rows - 1) * grid.x;
+    if (lanes <= HF_ROW_FEW) {
+        /* A row's last few vertices (one at W = 257): each by the per-vertex
+         * search (azimuths in the lanes), every azimuth in every mode (no
+         * checkpoints), instead of a group whose other lanes are wasted. */
+        *moved = update == 2 ? 0u : 0xffffffffu;
+        for (int r = 0; r < rows; ++r)
+            for (int l = 0; l < lanes; ++l) {
+                const int g = gid + r * grid.x + l, q = r * HF_ROW + l;
+                hf_vertex_horizons(pyr, levels, grid, geom, g, n_phi, 0, INFINITY, 1, om + q * n_phi);
+                for (int k = 0; update && k < n_phi; ++k) {
+                    global float *kept = horizons + (size_t)g * n_phi + k;
+                    if (as_uint(*kept) != as_uint(om[q * n_phi + k]))
+                        *moved |= 1u << q;
+                    *kept = om[q * n_phi + k];
+                }
+            }
+        return n_phi;
+    }
     const hf_rf u0 = hf_convert_rf(min(i0 + HF_ROW_IDS, grid.x - 1));
-    const float v0 = (float)(gid / grid.x), ref = pyr[gid];
+    const float vA = (float)(gid / grid.x), vB = vA + (float)(rows - 1), refA = pyr[gid], refB = pyr[gidB];
     const int first_receiver =
         update != 2 ? 0
-                    : hf_row_first_changed(levels, changed, grid, geom, u0.s0, HF_RLAST(u0), v0, 0.0f, 0.0f, inv_wm1, inv_dm1,
-                                           1);
-    hf_rf hp[HF_MAX_LEVELS];
+                    : hf_row_first_changed(levels, changed, grid, geom, u0.s0, HF_RLAST(u0), vA, vB, 0.0f, 0.0f,
+                                           inv_wm1, inv_dm1, 1);
+    hf_rf hpA[HF_MAX_LEVELS], hpB[HF_MAX_LEVELS];
     const int top = max(grid.z - 1 - grid.w, 0);
     for (int k = 0; k <= top; ++k)
-        hp[k] = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0, v0, inv_wm1, inv_dm1, ref);
+        hf_level_sample_row2(pyr, levels[k], grid.x - 1, u0, vA, vB, inv_wm1, inv_dm1, refA, refB, hpA + k, hpB + k);
     const float dphi = 2.0f * M_PI_F / (float)n_phi;
-    const hf_ri lane_vertex = gid + min(HF_ROW_IDS, lanes - 1);
+    const hf_ri laneA = gid + min(HF_ROW_IDS, lanes - 1), laneB = laneA + (gidB - gid);
     int searched = 0;
-    *moved = update == 2 ? 0 : (1 << HF_ROW) - 1;
+    *moved = update == 2 ? 0u : 0xffffffffu;
     for (int k = 0; k < n_phi; ++k) {
         float s, c;
         s = sincos(dphi * (float)k, &c);
-        float h[HF_ROW];
+        float hA[HF_ROW], hB[HF_ROW];
+        hf_rf oA, oB;
         if (!update) {
-            hf_vstore_r(fmax(hf_horizon_pyramid_row(pyr, levels, grid, geom, hp, ref, u0, v0, c / geom.s3, -s / geom.s4,
-                                                inv_wm1, inv_dm1),
-                         0.0f),
-                    0, h);
-            for (int l = 0; l < lanes; ++l)
-                om[l * n_phi + k] = h[l];
+            hf_horizon_pyramid_row2(pyr, levels, grid, geom, hpA, hpB, refA, refB, u0, vA, vB, c / geom.s3,
+                                    -s / geom.s4, inv_wm1, inv_dm1, 0, 0.0f, 0.0f, 0, 0, 0, 0, 0, 0, &oA, &oB);
+            hf_vstore_r(fmax(oA, 0.0f), 0, hA);
+            hf_vstore_r(fmax(oB, 0.0f), 0, hB);
+            for (int l = 0; l < lanes; ++l) {
+                om[l * n_phi + k] = hA[l];
+                om[(HF_ROW + l) * n_phi + k] = hB[l];
+            }
             ++searched;
             continue;
         }
         const int first = update != 2 ? 0
                                       : min(first_receiver,
-                                            hf_row_first_changed(levels, changed, grid, geom, u0.s0, HF_RLAST(u0), v0,
-                                                                 c / geom.s3, -s / geom.s4, inv_wm1, inv_dm1, 0));
+                                            hf_row_first_changed(levels, changed, grid, geom, u0.s0, HF_RLAST(u0), vA,
+                                                                 vB, c / geom.s3, -s / geom.s4, inv_wm1, inv_dm1, 0));
         if (first >= grid.z) {
-            for (int l = 0; l < lanes; ++l)
-                om[l * n_phi + k] = horizons[(size_t)(gid + l) * n_phi + k];
+            for (int r = 0; r < rows; ++r)
+                for (int l = 0; l < lanes; ++l)
+                    om[(r * HF_ROW + l) * n_phi + k] = horizons[(size_t)(gid + r * grid.x + l) * n_phi + k];
             continue;
         }
         ++searched;
-        const hf_ri cpi = (lane_vertex * n_phi + k) * ncp;
+        const hf_ri cpiA = (laneA * n_phi + k) * ncp, cpiB = (laneB * n_phi + k) * ncp;
         /* resume at the last checkpoint at or before the first changed sample */
         const int ck = min(first / ls, ncp), start = ck * ls >= 3 ? ck * ls : 0;
-        hf_rf best0 = 0.0f;
+        hf_rf best0A = 0.0f, best0B = 0.0f;
         if (start) {
             int idx[HF_ROW];
             float b0[HF_ROW];
-            hf_vstore_r(cpi, 0, idx);
+            hf_vstore_r(cpiA, 0, idx);
             for (int l = 0; l < HF_ROW; ++l)
                 b0[l] = cp[idx[l] + ck - 1];
-            best0 = hf_vload_r(0, b0);
+            best0A = hf_vload_r(0, b0);
+            hf_vstore_r(cpiB, 0, idx);
+            for (int l = 0; l < HF_ROW; ++l)
+                b0[l] = cp[idx[l] + ck - 1];
+            best0B = hf_vload_r(0, b0);
         }
-        hf_vstore_r(fmax(hf_horizon_pyramid_row_cp(pyr, levels, grid, geom, hp, ref, u0, v0, c / geom.s3, -s / geom.s4,
-                                               inv_wm1, inv_dm1, start, best0, cp, cpi, lanes, ncp),
-                     0.0f),
-                0, h);
-        for (int l = 0; l < lanes; ++l) {
-            global float *kept = horizons + (size_t)(gid + l) * n_phi + k;
-            if (as_uint(*kept) != as_uint(h[l]))
-                *moved |= 1 << l;
-            om[l * n_phi + k] = h[l];
-            *kept = h[l];
-        }
+        hf_horizon_pyramid_row2(pyr, levels, grid, geom, hpA, hpB, refA, refB, u0, vA, vB, c / geom.s3, -s / geom.s4,
+                                inv_wm1, inv_dm1, start, best0A, best0B, cp, cpiA, cpiB, lanes, rows, ncp, &oA, &oB);
+        hf_vstore_r(fmax(oA, 0.0f), 0, hA);
+        hf_vstore_r(fmax(oB, 0.0f), 0, hB);
+        for (int r = 0; r < rows; ++r)
+            for (int l = 0; l < lanes; ++l) {
+                const float h = r ? hB[l] : hA[l];
+                global float *kept = horizons + (size_t)(gid + r * grid.x + l) * n_phi + k;
+                if (as_uint(*kept) != as_uint(h))
+                    *moved |= 1u << (r * HF_ROW + l);
+                om[(r * HF_ROW + l) * n_phi + k] = h;
+                *kept = h;
+            }
     }
     return searched;
 }
@@ -769,7 +873,7 @@ inline bool hf_ray_meets(float u0, float v0, float cu, float cv, int4 c)
  * modes of hf_row_env_horizons; returns how many were marched. */
 inline int hf_vertex_env_horizons(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
                                    int gid, int n_phi, int update, global const int4 *changed,
-                                   global float *horizons, float *om, int *moved)
+                                   global float *horizons, float *om, uint *moved)
 {
     *moved = update != 2;
     if (update != 2) {
@@ -794,7 +898,7 @@ inline int hf_vertex_env_horizons(global const float *pyr, global const int4 *le
         const float h = hf_horizon_exact_at(pyr, grid, geom, gid, dphi * (float)k, INFINITY);
         om[k] = fmax(h, 0.0f);
         if (as_uint(horizons[(size_t)gid * n_phi + k]) != as_uint(om[k]))
-            *moved = 1;
+            *moved = 1u;
         horizons[(size_t)gid * n_phi + k] = om[k];
     }
     return searched;
@@ -871,7 +975,7 @@ inline void hf_visibility(const float *om, int n_phi, global const float *table,
     float16 a0 = 0.0f, a1 = 0.0f, a2 = 0.0f, b0 = 0.0f, b1 = 0.0f, b2 = 0.0f;
     for (int k = 0; k < n_phi; ++k) {
         const float fa = clamp((om[k] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
-        const float fb = clamp((om[(k + 1) % n_phi] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
+        const float fb = clamp((om[k + 1 < n_phi ? k + 1 : 0] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
         const int ia = min((int)fa, HF_TABLE - 2), ib = min((int)fb, HF_TABLE - 2);
         const float ta = fa - (float)ia, tb = fb - (float)ib;
         global const float *t00 = table + (ia * HF_TABLE + ib) * nc, *t01 = t00 + nc;
@@ -927,11 +1031,49 @@ inline float3 hf_albedo(global const float *albedo, int has_albedo, int gid)
  * between the two nearest azimuths, as the wedges are), times N·s. Records of
  * three float4: (direction, r), (radiance x solid angle, power), (azimuth in
  * [0, 2π) in the SH frame, elevation, 0, 0) -- the angles do not depend on
- * the vertex, so the host computes them once. */
+ * the vertex, so the host computes them once. After the records 5 float4
+ * for all of them: their bounds (least azimuth, greatest azimuth, least
+ * elevation - r, greatest elevation + r; r taken as in x below), their mean
+ * direction s_c and the largest |s_i - s_c| (plus room for rounding), and
+ * S = Σ_i L_i Ω_i s_iᵀ (a row per channel). Where the horizons between the
+ * azimuths around that range are all above the greatest elevation (every
+ * disc wholly below its horizon) the texels give nothing; where they are all
+ * below the least (every disc wholly above: vis = 1), with HF_SUN_MARGIN to
+ * spare for the rounding of the interpolation, the texels need no horizon,
+ * and if moreover n · s_c exceeds the spread (every n · s_i > 0) their sum
+ * is S n (three dots instead of a loop over the texels; the same sum up to
+ * float rounding). */
+#ifndef HF_SUN_MARGIN /* a build option only to measure without the shortcuts (1e30f) */
+#define HF_SUN_MARGIN 1e-4f
+#endif
 inline float3 hf_sun(const float *om, int n_phi, float3 n, global const float4 *sun, int suns)
 {
     float3 e = (float3)(0.0f);
+    if (suns <= 0)
+        return e;
     const float scale = (float)n_phi / (2.0f * M_PI_F);
+    const float4 box = sun[3 * suns];
+    /* texel i reads om[k_i] and om[k_i + 1] (wrapping), k_i = min((int)(azimuth_i scale), n_phi - 1) */
+    const int klo = min((int)(box.x * scale), n_phi - 1), khi = min((int)(box.y * scale), n_phi - 1) + 1;
+    float hmin = om[klo], hmax = om[klo];
+    for (int k = klo + 1; k <= khi; ++k) {
+        const float h = om[k < n_phi ? k : 0];
+        hmin = fmin(hmin, h);
+        hmax = fmax(hmax, h);
+    }
+    if (hmin >= box.w + HF_SUN_MARGIN)
+        return e;
+    if (hmax <= box.z - HF_SUN_MARGIN) {
+        const float4 sc = sun[3 * suns + 1];
+        if (dot(n, sc.xyz) > sc.w)
+            return (float3)(dot(n, sun[3 * suns + 2].xyz), dot(n, sun[3 * suns + 3].xyz), dot(n, sun[3 * suns + 4].xyz));
+        for (int i = 0; i < suns; ++i) {
+            const float c = dot(n, sun[3 * i].xyz);
+            if (c > 0.0f)
+                e += sun[3 * i + 1].xyz * c;
+        }
+        return e;
+    }
     for (int i = 0; i < suns; ++i) {
         const float4 d = sun[3 * i];
         const float c = dot(n, d.xyz);
@@ -940,7 +1082,7 @@ inline float3 hf_sun(const float *om, int n_phi, float3 n, global const float4 *
         const float2 g = sun[3 * i + 2].xy;
         const float a = g.x * scale;
         const int k = min((int)a, n_phi - 1);
-        const float horizon = mix(om[k], om[(k + 1) % n_phi], a - (float)k);
+        const float horizon = mix(om[k], om[k + 1 < n_phi ? k + 1 : 0], a - (float)k);
         /* Fully below or fully above the horizon: no chord to integrate. */
         const float x = (g.y - horizon) / fmax(d.w, 1e-6f);
         if (x <= -1.0f)
@@ -989,9 +1131,13 @@ inline void hf_env_vertex(int gid, const float *om, global const float4 *normals
         }
         float sum = hf_hsum16(acc0 * c0 + acc1 * c1 + acc2 * c2);
         if (split) {
-            float uc = 0.0f;
-            for (int k = 0; k < nc; ++k)
-                uc += u[ch * PN_SH_MAX_COEFFS + k] * cvec[k];
+            global const float *uch = u + ch * PN_SH_MAX_COEFFS;
+            float16 ud = hf_sh_chunk(uch, nc, 0) * c0;
+            if (nch > 1)
+                ud += hf_sh_chunk(uch, nc, 1) * c1;
+            if (nch > 2)
+                ud += hf_sh_chunk(uch, nc, 2) * c2;
+            const float uc = hf_hsum16(ud);
             /* Terrain only takes light away: SH ringing of the blocked part
              * must not lift E above the unoccluded upper-hemisphere irradiance. */
             sum = fmin(sum + upv[ch] - uc, upv[ch]);
@@ -1005,14 +1151,6 @@ inline void hf_env_vertex(int gid, const float *om, global const float4 *normals
     const float4 out = (float4)(hf_albedo(albedo, has_albedo, gid) * (float3)(e[0], e[1], e[2]) * M_1_PI_F, 1.0f);
     out_env[gid] = out;
     out_total[gid] = out;
-}
-
-/* Row groups (hf_row_env_horizons) with the pyramid search: the first
- * work-item of each group of HF_ROW vertices in a row does the group, the
- * others return at once. */
-inline bool hf_row_leader(int gid, int4 grid, int exact)
-{
-    return exact || (gid % grid.x) % HF_ROW == 0;
 }
 
 kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
@@ -1031,26 +1169,28 @@ kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid
     const int gid = get_global_id(0);
     if (gid >= grid.x * grid.y || !hf_row_leader(gid, grid, exact))
         return;
-    float om[HF_ROW * HF_MAX_AZIMUTHS];
-    int lanes = 1, moved;
+    float om[HF_GROUP_ROWS * HF_ROW * HF_MAX_AZIMUTHS];
+    int lanes = 1, rows = 1;
+    uint moved;
     if (exact)
         hf_vertex_env_horizons(pyr, levels, grid, geom, gid, n_phi, update, changed, horizons, om, &moved);
     else {
         hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, update, changed, horizons, cp, ncp, om, &moved);
         lanes = min(HF_ROW, grid.x - gid % grid.x);
+        rows = min(HF_GROUP_ROWS, grid.y - gid / grid.x);
     }
     const int4 nbox = update == 2 ? changed[grid.z] : (int4)(1, 1, 0, 0);
-    const int j = gid / grid.x;
-    for (int l = 0; l < lanes; ++l) {
-        const int i = gid % grid.x + l;
-        /* the same horizons (bit for bit) and normal: the same radiance */
-        if (update == 2 && !(moved >> l & 1) && !(i >= nbox.x && i <= nbox.z && j >= nbox.y && j <= nbox.w)) {
-            out_total[gid + l] = out_env[gid + l];
-            continue;
+    for (int r = 0; r < rows; ++r)
+        for (int l = 0; l < lanes; ++l) {
+            const int i = gid % grid.x + l, j = gid / grid.x + r, g = gid + r * grid.x + l, q = r * HF_ROW + l;
+            /* the same horizons (bit for bit) and normal: the same radiance */
+            if (update == 2 && !(moved >> q & 1u) && !(i >= nbox.x && i <= nbox.z && j >= nbox.y && j <= nbox.w)) {
+                out_total[g] = out_env[g];
+                continue;
+            }
+            hf_env_vertex(g, om + q * n_phi, normals, albedo, has_albedo, n_phi, nb, table, m, cosine_zh, split,
+                          up_irradiance, up_size, u, sun, suns, out_env, out_total);
         }
-        hf_env_vertex(gid + l, om + l * n_phi, normals, albedo, has_albedo, n_phi, nb, table, m, cosine_zh, split,
-                      up_irradiance, up_size, u, sun, suns, out_env, out_total);
-    }
 }
 
 /* Cap of light (centre c, radius r) seen from p: s = 1 - cos α (2 inside the light). */
@@ -1194,17 +1334,21 @@ kernel void hf_probe(global const float *pyr, global const int4 *levels, int4 gr
         const float3 rel = light.xyz - p;
         limit = sqrt(rel.x * rel.x + rel.z * rel.z);
     }
-    float om[HF_ROW * HF_MAX_AZIMUTHS];
-    int lanes = 1;
+    float om[HF_GROUP_ROWS * HF_ROW * HF_MAX_AZIMUTHS];
+    int lanes = 1, rows = 1;
     if (env && !exact) {
-        int moved;
+        uint moved;
         hf_row_env_horizons(pyr, levels, grid, geom, gid, n_phi, 0, 0, 0, 0, 0, om, &moved);
         lanes = min(HF_ROW, grid.x - gid % grid.x);
+        rows = min(HF_GROUP_ROWS, grid.y - gid / grid.x);
     } else
         hf_vertex_horizons(pyr, levels, grid, geom, gid, n_phi, exact, limit, env, om);
-    for (int l = 0; l < lanes; ++l) {
-        const float *o = om + l * n_phi;
-        const size_t g = (size_t)gid + l;
+    for (int q = 0; q < rows * HF_ROW; ++q) {
+        const int l = q % HF_ROW;
+        if (l >= lanes)
+            continue;
+        const float *o = om + q * n_phi;
+        const size_t g = (size_t)gid + (q / HF_ROW) * grid.x + l;
         if (what == 0) {
             for (int k = 0; k < n_phi; ++k)
                 out[g * n_phi + k] = o[k];
@@ -1229,24 +1373,27 @@ kernel void hf_searched(global const int4 *levels, int4 grid, float8 geom, int n
         return;
     const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1);
     const float dphi = 2.0f * M_PI_F / (float)n_phi, v0 = (float)(gid / grid.x);
-    const int i0 = gid % grid.x, lanes = exact ? 1 : min(HF_ROW, grid.x - i0);
+    const int i0 = gid % grid.x, lanes = exact ? 1 : min(HF_ROW, grid.x - i0),
+              rows = exact ? 1 : min(HF_GROUP_ROWS, grid.y - gid / grid.x);
+    const float v1 = v0 + (float)(rows - 1);
     const hf_rf u0 = hf_convert_rf(min(i0 + HF_ROW_IDS, grid.x - 1));
     const int4 c = changed[0];
-    bool all = update != 2;
+    bool all = update != 2 || (!exact && lanes <= HF_ROW_FEW);
     if (!all && exact)
         all = c.x <= c.z && u0.s0 >= (float)c.x && u0.s0 <= (float)c.z && v0 >= (float)c.y && v0 <= (float)c.w;
     else if (!all)
-        all = hf_row_first_changed(levels, changed, grid, geom, u0.s0, HF_RLAST(u0), v0, 0.0f, 0.0f, inv_wm1, inv_dm1, 1) <
-              grid.z;
+        all = hf_row_first_changed(levels, changed, grid, geom, u0.s0, HF_RLAST(u0), v0, v1, 0.0f, 0.0f, inv_wm1,
+                                   inv_dm1, 1) < grid.z;
     for (int k = 0; k < n_phi; ++k) {
         float s, cs;
         s = sincos(dphi * (float)k, &cs);
         const bool hit = all || (exact ? hf_ray_meets(u0.s0, v0, cs / geom.s3, -s / geom.s4, c)
                                        : hf_row_first_changed(levels, changed, grid, geom, u0.s0, HF_RLAST(u0), v0,
-                                                              cs / geom.s3, -s / geom.s4, inv_wm1, inv_dm1, 0) <
+                                                              v1, cs / geom.s3, -s / geom.s4, inv_wm1, inv_dm1, 0) <
                                              grid.z);
-        for (int l = 0; l < lanes; ++l)
-            out[(size_t)(gid + l) * n_phi + k] = hit ? 1.0f : 0.0f;
+        for (int r = 0; r < rows; ++r)
+            for (int l = 0; l < lanes; ++l)
+                out[(size_t)(gid + r * grid.x + l) * n_phi + k] = hit ? 1.0f : 0.0f;
     }
 }
 

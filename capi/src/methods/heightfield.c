@@ -17,6 +17,7 @@
 #define MAX_FIELDS 16
 #define MAX_SUN 256          /* sun texels lit as directional lights */
 #define SUN_FLOATS 12        /* per sun texel: 3 float4 (kernels/heightfield.cl, hf_sun) */
+#define SUN_TRAILER 20       /* then 5 float4 for all of them */
 #define KEEP_MAX_BYTES ((size_t)512 << 20) /* partial_update: the most kept state per field */
 
 enum { P_BACKGROUND, P_LEVEL_STEP, P_LEVEL_OFFSET, P_AZIMUTHS, P_BANDS, P_EXACT_HORIZON, P_LIGHT_THRESHOLD,
@@ -224,7 +225,10 @@ static int by_power_desc(const void *a, const void *b)
  * kept as directional lights, at most MAX_SUN of the most powerful:
  * records (direction, angular radius | radiance x solid angle, power |
  * azimuth in the SH frame, elevation), the angles once here instead of per
- * vertex. Their
+ * vertex, then 5 float4 for all of them (hf_sun): their bounds (least and
+ * greatest azimuth, least elevation - r and greatest elevation + r), their
+ * mean direction with the largest distance of a texel's direction from it,
+ * and the 3 x 3 sum of radiance x direction (per channel a row). Their
  * visibility is then a test against the horizon instead of a low-order SH
  * product, which smears a sun over the whole sky. */
 static pn_status split_sun(pn_context ctx, pn_hf_cache *c, float *rad, const float *dirs, size_t texels,
@@ -275,8 +279,54 @@ static pn_status split_sun(pn_context ctx, pn_hf_cache *c, float *rad, const flo
             if (found[SUN_FLOATS * k] == dirs[4 * t] && found[SUN_FLOATS * k + 1] == dirs[4 * t + 1] &&
                 found[SUN_FLOATS * k + 2] == dirs[4 * t + 2])
                 rad[4 * t] = rad[4 * t + 1] = rad[4 * t + 2] = 0.0f;
+    /* The bounds after the records, in the kernel's float arithmetic (r as max(r, 1e-6)). */
+    float *all = realloc(found, (count * SUN_FLOATS + SUN_TRAILER) * sizeof(float));
+    if (!all) {
+        free(found);
+        return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for the env's sun texels");
+    }
+    found = all;
+    float *box = found + count * SUN_FLOATS;
+    box[0] = box[2] = INFINITY;
+    box[1] = box[3] = -INFINITY;
+    for (size_t k = 0; k < count; ++k) {
+        const float *o = found + SUN_FLOATS * k, r = fmaxf(o[3], 1e-6f);
+        box[0] = fminf(box[0], o[8]);
+        box[1] = fmaxf(box[1], o[8]);
+        box[2] = fminf(box[2], o[9] - r);
+        box[3] = fmaxf(box[3], o[9] + r);
+    }
+    /* Where every texel is wholly above its horizon and in front of the normal n, their light is
+     * Σ L_i Ω_i (n · s_i) = S n: n · s_i >= n · s_c - |s_i - s_c| > 0 when n · s_c exceeds the spread. */
+    double sc[3] = {0.0, 0.0, 0.0}, sm[9] = {0.0};
+    for (size_t k = 0; k < count; ++k) {
+        const float *o = found + SUN_FLOATS * k;
+        for (int a = 0; a < 3; ++a) {
+            sc[a] += o[a];
+            for (int ch = 0; ch < 3; ++ch)
+                sm[3 * ch + a] += (double)o[4 + ch] * o[a];
+        }
+    }
+    const double len = sqrt(sc[0] * sc[0] + sc[1] * sc[1] + sc[2] * sc[2]);
+    double spread = 0.0;
+    for (size_t k = 0; k < count; ++k) {
+        const float *o = found + SUN_FLOATS * k;
+        double d2 = 0.0;
+        for (int a = 0; a < 3; ++a)
+            d2 += (o[a] - sc[a] / len) * (o[a] - sc[a] / len);
+        spread = fmax(spread, sqrt(d2));
+    }
+    for (int a = 0; a < 3; ++a)
+        box[4 + a] = (float)(sc[a] / len);
+    box[7] = (float)(spread + 1e-4); /* room for the rounding of n · s in float */
+    for (int ch = 0; ch < 3; ++ch) {
+        for (int a = 0; a < 3; ++a)
+            box[8 + 4 * ch + a] = (float)sm[3 * ch + a];
+        box[8 + 4 * ch + 3] = 0.0f;
+    }
     pn_mem_release(&c->sun);
-    pn_status st = pn_alloc(ctx, count * SUN_FLOATS * sizeof(float), CL_MEM_READ_ONLY, found, &c->sun, "the env's sun texels");
+    pn_status st = pn_alloc(ctx, (count * SUN_FLOATS + SUN_TRAILER) * sizeof(float), CL_MEM_READ_ONLY, found, &c->sun,
+                            "the env's sun texels");
     if (!st)
         c->sun_count = (int)count;
     free(found);
