@@ -28,7 +28,7 @@
 #define GRADE_DEFAULT 0.5             /* map side exponent of the power over the mean (docs/depthmap.md, measured) */
 #define STRONG_CLUSTER_DEFAULT 32.0   /* radiance per sr over the average that joins a cluster (docs/depthmap.md) */
 #define SHARP_DEFAULT 1               /* sharp domains of the env map's concentrated light (docs/depthmap.md) */
-#define SOFT_SHADOWS_DEFAULT 0        /* soft_shadows off (docs/depthmap.md, measured) */
+#define SOFT_SHADOWS_DEFAULT 1        /* the sharp domains filtered by their cap (docs/depthmap.md, measured) */
 #define SHARP_THRESHOLD_DEFAULT 100.0 /* a texel is sharp above this many times the mean luminance */
 #define DM_CLUSTER_REACH 1.5          /* neighbours: centres within this many times the sum of their cap radii */
 
