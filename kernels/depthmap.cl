@@ -273,6 +273,75 @@ inline float dm_visibility(global const float4 *f, global const uint *map, globa
     return (float)lit / (float)taps;
 }
 
+/* soft_shadows (docs/depthmap.md, "Penumbrae from the cap: soft_shadows"):
+ * a percentage-closer soft shadow of the domain's cap. The blocker search
+ * averages the depths in front of p over the disc a blocker can hide part
+ * of the cap from (radius z tan r: a blocker at depth 0), then the cap seen
+ * from p through the blockers' plane is a disc of radius (z - z_blocker)
+ * tan r, and v is the share of taps in that disc that are lit. Both discs
+ * are clamped to DM_SOFT_MAX texels and sampled on a grid of (2K + 1)^2
+ * points (K = ceil(radius) up to DM_SOFT_STEPS), nearest texel each. */
+#define DM_SOFT_MAX 8.0f
+#define DM_SOFT_STEPS 3
+
+/* The stored depth of texel (i, j), +inf when empty or off the map. */
+inline float dm_depth(global const uint *map, global const ushort *map16, float quantum, int res, int i, int j)
+{
+    if (i < 0 || j < 0 || i >= res || j >= res)
+        return INFINITY;
+    if (map16) {
+        ushort q = map16[j * res + i];
+        return q == DM_Q_EMPTY ? INFINITY : (float)q * quantum;
+    }
+    return as_float(map[j * res + i]);
+}
+
+inline float dm_soft_visibility(global const float4 *f, global const uint *map, global const ushort *map16, int res,
+                                float3 p, float bias_constant, float bias_slope, float tan_theta, float tan_r)
+{
+    float quantum = f[3].z / DM_Q_MAX;
+    float texel = fmax(f[3].x, f[3].y);
+    float tu = (dot(p, f[0].xyz) - f[0].w) / f[3].x, tv = (dot(p, f[1].xyz) - f[1].w) / f[3].y;
+    float z0 = f[2].w - dot(p, f[2].xyz);
+    /* blocker search, with the bias of a one-texel lookup */
+    float zs = z0 - texel * (bias_constant + bias_slope * tan_theta);
+    float ws = fmin(fmax(z0, 0.0f) * tan_r / texel, DM_SOFT_MAX);
+    /* a penumbra reaches ws beyond the footprint (fit covers the hard shadows), no further */
+    float edge = ws + 1.0f;
+    if (!(tu >= -edge && tv >= -edge && tu < (float)res + edge && tv < (float)res + edge))
+        return 1.0f;
+    int ks = clamp((int)ceil(ws), 1, DM_SOFT_STEPS);
+    float hs = ws / (float)ks, blockers = 0.0f, depth_sum = 0.0f;
+    for (int dj = -ks; dj <= ks; ++dj)
+        for (int di = -ks; di <= ks; ++di) {
+            if (di * di + dj * dj > ks * ks)
+                continue;
+            float d = dm_depth(map, map16, quantum, res, (int)floor(tu + (float)di * hs),
+                               (int)floor(tv + (float)dj * hs));
+            if (d < zs) {
+                blockers += 1.0f;
+                depth_sum += d;
+            }
+        }
+    if (blockers == 0.0f)
+        return 1.0f;
+    /* the cap through the blockers' plane: its radius in texels */
+    float w = fmin(fmax(zs - depth_sum / blockers, 0.0f) * tan_r / texel, DM_SOFT_MAX);
+    float z = z0 - texel * (bias_constant + bias_slope * (w + 1.0f) * tan_theta);
+    int k = clamp((int)ceil(w), 1, DM_SOFT_STEPS);
+    float h = w / (float)k;
+    int lit = 0, taps = 0;
+    for (int dj = -k; dj <= k; ++dj)
+        for (int di = -k; di <= k; ++di) {
+            if (di * di + dj * dj > k * k)
+                continue;
+            ++taps;
+            if (z <= dm_depth(map, map16, quantum, res, (int)floor(tu + (float)di * h), (int)floor(tv + (float)dj * h)))
+                ++lit;
+        }
+    return (float)lit / (float)taps;
+}
+
 /* The seed's average of cos^n psi over a cap of radius r whose centre is
  * psi_c from R (docs/depthmap.md): inside the cap the exact value at
  * psi_c = 0 blended toward the point sample, beyond it the point sample. */
@@ -485,14 +554,15 @@ inline bool dm_lobe_reaches(pn_material m, float3 n, float3 v, float3 refl, floa
 /* One work-item per pixel. `domains`: 2 float4 each (pn_env_domain: direction,
  * solid angle | radiance, cap radius); `frames`, `depth`, `atlas`: the maps (none when
  * use_maps is 0: every domain visible). bias: in texels, constant and slope
- * terms; specular: DM_SPECULAR_*. */
+ * terms; specular: DM_SPECULAR_*; the first soft_count domains are looked up
+ * by dm_soft_visibility (soft_shadows), the others by dm_visibility (pcf). */
 kernel void shade_depthmap(global const float4 *position, global const float4 *normal, global const float4 *albedo,
                            global const float4 *material, global const uint *instance_id, int count, float4 camera,
                            global const float4 *domains, int domain_count, global const float4 *frames,
                            global const uint *depth, global const uint2 *atlas, int use_maps, float bias_constant, float bias_slope,
                            int pcf, int specular, int cap_samples, global float4 *image,
                            global const ushort *depth16, int half_maps, global const float *cap_table,
-                           float table_min_n, int lobe_tables)
+                           float table_min_n, int lobe_tables, int soft_count)
 {
     int gid = get_global_id(0);
     if (gid >= count)
@@ -522,8 +592,12 @@ kernel void shade_depthmap(global const float4 *position, global const float4 *n
             /* a diagonal PCF tap is up to sqrt(2) pcf + 0.71 texels from p: the slope term covers it */
             float bias = texel * (bias_constant + bias_slope * (M_SQRT2_F * (float)pcf + 1.0f) * tan_theta);
             uint2 where = atlas[i]; /* the map's first texel and side */
-            vis = dm_visibility(f, depth + where.x, half_maps ? depth16 + where.x : (global const ushort *)0,
-                                (int)where.y, p, bias, pcf);
+            global const ushort *map16 = half_maps ? depth16 + where.x : (global const ushort *)0;
+            if (i < soft_count) /* soft_shadows: the cap's penumbra */
+                vis = dm_soft_visibility(f, depth + where.x, map16, (int)where.y, p, bias_constant, bias_slope,
+                                         tan_theta, tan(fmin(rad.w, 1.5f)));
+            else
+                vis = dm_visibility(f, depth + where.x, map16, (int)where.y, p, bias, pcf);
             if (vis == 0.0f)
                 continue;
         }

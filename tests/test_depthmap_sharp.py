@@ -26,6 +26,9 @@ def run(ctx, s, **params):
     """The box scene lit by the library's own decomposition of its env map (no caller domains)."""
     params.setdefault("strong_resolution", 0)
     params.setdefault("grade", 0.0)
+    # the hard lookup, which depthmap64.shade twins; the sharp domains' soft lookup (soft_shadows 1, the
+    # default) has its own twin in tests/test_depthmap_soft.py
+    params.setdefault("soft_shadows", 0)
     r = Renderer(ctx, "depthmap", **params)
     img = Image(ctx, s["gb"].width, s["gb"].height)
     r.execute(s["scene"], s["gb"], img)
