@@ -15,7 +15,7 @@
 
 #include "assets/assets.h"
 
-#define PN_MAX_METHOD_PARAMS 24
+#define PN_MAX_METHOD_PARAMS 32
 
 /* The parameter every env-lit method has, first in its table (slot 0). */
 #define PN_PARAM_BACKGROUND                                                                                   \
