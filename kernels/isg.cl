@@ -52,10 +52,13 @@
 #define PN_ISG_WINDOW_SIGMAS 3.0f
 #define PN_ISG_TOUCH 1e-3f
 /* Own spheres within this share of their radius of the receiver are skipped
- * under self_occlusion 1 (measured on the seed's Fig. 12 bunny: 0.1-0.3 best;
- * build option -DPN_ISG_SELF_MARGIN=1e-3f gives the earlier rule, = PN_ISG_TOUCH). */
+ * under self_occlusion 1. 0.02 with the inscribed sets of the builder (they
+ * poke out of the surface by under 1 % of the object's size; measured on the
+ * seed's Fig. 12 bunny and bunny_sunny, docs/isg.md section 9); 0.2 was best
+ * for the variational sets, whose spheres poked out by a cell and a half
+ * (-DPN_ISG_SELF_MARGIN=0.2f; 1e-3f, = PN_ISG_TOUCH, the rule before that). */
 #ifndef PN_ISG_SELF_MARGIN
-#define PN_ISG_SELF_MARGIN 0.2f
+#define PN_ISG_SELF_MARGIN 0.02f
 #endif
 /* The seed's cosine lobe (after [WRG*09]). */
 #define PN_ISG_COS_SHARPNESS 2.133f

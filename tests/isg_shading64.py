@@ -18,7 +18,7 @@ from isg64 import HALF_PI, as_sgs, isg_exact_grid, sg_cosine_exact, sg_hemispher
 
 WINDOW_SIGMAS = 3.0
 TOUCH = 1e-3
-SELF_MARGIN = 0.2  # kernels/isg.cl PN_ISG_SELF_MARGIN: own spheres this near are skipped (policy 1)
+SELF_MARGIN = 0.02  # kernels/isg.cl PN_ISG_SELF_MARGIN: own spheres this near are skipped (policy 1)
 COS_SHARPNESS, COS_AMPLITUDE = 2.133, 1.170
 LOBE_PHONG, LOBE_BLINN_PHONG, LOBE_GGX, LOBE_ASHIKHMIN_SHIRLEY = 0, 1, 2, 3
 MIN_COS_VIEW = 1e-4

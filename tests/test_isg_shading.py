@@ -466,12 +466,12 @@ def test_self_occlusion_policies(cl_pair, build_test_kernel, policy):
 @pytest.mark.parametrize("policy", [1, 2])
 def test_self_occlusion_margin(cl_pair, build_test_kernel, policy):
     """A receiver just outside an own sphere that pokes out of the surface
-    next to it (distance 1.1 r, the sphere beside it above the receiver
+    next to it (distance 1.015 r, the sphere beside it above the receiver
     plane): policy 1 skips it (no dark arc along the sphere's rim; margin
-    0.2 r, kernels/isg.cl PN_ISG_SELF_MARGIN), while an own sphere beyond the
-    margin (1.5 r) still shadows; policy 2 keeps both."""
-    near = [[-1.1, 0.0, 0.0, 1.0]]
-    far = [[-1.5, 0.0, 0.0, 1.0]]
+    0.02 r, kernels/isg.cl PN_ISG_SELF_MARGIN), while an own sphere beyond the
+    margin (1.1 r) still shadows; policy 2 keeps both."""
+    near = [[-1.015, 0.0, 0.0, 1.0]]
+    far = [[-1.1, 0.0, 0.0, 1.0]]
     px = [{"p": (0.0, 0.0, 0.0), "n": (0, 1, 0), "albedo": (1, 1, 1), "ks": 0.0, "material": (0, 0.3, 0), "id": 1}]
     free = twin(px, LOBES, [], [])
     for spheres in (near, far):

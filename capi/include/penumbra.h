@@ -625,8 +625,10 @@ PN_API pn_status pn_heightfield_build_mesh(pn_heightfield hf, pn_mesh *out);
 /* Occluder proxies of the isg method (docs/isg.md section 7): spheres
  * (centre xyz, radius; object space of the instance they attach to).
  * pn_sphere_set_build approximates the solid of a committed mesh by `count`
- * spheres (1..4096) with a voxel form of Wang et al.'s variational sphere
- * sets; results are cached in the context by (mesh hash, count). A mesh that
+ * spheres (1..4096): balls inscribed in its voxelised solid, chosen greedily
+ * to cover it and grown past its surface by the amount (under two voxels)
+ * with the least outside + missed volume; results are cached in the
+ * context by (mesh hash, count). A mesh that
  * encloses no volume (flat, open without inside, degenerate) is
  * PN_ERROR_EMPTY_INPUT. A built set attaches to instances of its mesh only.
  * pn_sphere_set_create copies the caller's spheres (4 floats each; a

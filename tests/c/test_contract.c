@@ -3102,8 +3102,13 @@ static void test_isg(pn_context ctx)
     pn_renderer isg = NULL;
     if (expect_ok("pn_sphere_set_build", pn_sphere_set_build(r.mesh, 8, &built), ctx) &&
         expect_ok("pn_sphere_set_get_info", pn_sphere_set_get_info(built, &info), ctx)) {
+        /* The builder's balls stay inside the solid (outside under a tenth);
+         * eight of them cannot fill a cube's corners, so the missed share is
+         * the larger one (measured 0.02 outside, 0.25 missed; docs/isg.md
+         * section 7). */
         CHECK("a built box set reports its count and a small error",
-              info.count == 8 && info.mesh_hash != 0 && info.missed_share < 0.2f && info.outside_share < 0.5f);
+              info.count == 8 && info.mesh_hash != 0 && info.outside_share < 0.1f &&
+                  info.outside_share + info.missed_share < 0.35f);
         float got[32];
         expect_error("pn_sphere_set_read with the wrong size", pn_sphere_set_read(built, got, 16), PN_ERROR_INVALID_SIZE,
                      ctx, "exactly 128 bytes", NULL);
