@@ -375,9 +375,46 @@ static heap_item heap_pop(heap_item *h, size_t *n)
     return top;
 }
 
+/* The interior cells not yet covered, as prefix sums along each row of x
+ * (n0 + 1 per row): a ball's gain is one difference per row it crosses, so
+ * a re-evaluation costs O(r^2) rather than O(r^3) (a round solid's many big
+ * near-centre balls are each re-evaluated after the first pick). */
+typedef struct cover_state {
+    uint8_t *covered;  /* n0 n1 n2 cells */
+    uint16_t *prefix;  /* (n0 + 1) n1 n2; a row holds at most 216 * 3 / 2 cells */
+} cover_state;
+
+static void row_prefix(const grid *g, const cover_state *cs, int y, int z)
+{
+    const size_t row = (size_t)z * (size_t)g->n[1] + (size_t)y;
+    const size_t c0 = row * (size_t)g->n[0];
+    uint16_t *p = cs->prefix + row * (size_t)(g->n[0] + 1);
+    uint16_t sum = 0;
+    p[0] = 0;
+    for (int x = 0; x < g->n[0]; ++x) {
+        sum = (uint16_t)(sum + (g->inside[c0 + (size_t)x] && !cs->covered[c0 + (size_t)x]));
+        p[x + 1] = sum;
+    }
+}
+
+/* The half-width in x of the ball's row at (dy, dz): the largest dx <= k with
+ * (float)(s + dx^2) <= r2, s = dy^2 + dz^2 (the cells the per-cell test
+ * admits, exactly), or -1. */
+static int row_half_width(int s, float r2, int k)
+{
+    int dx = (int)sqrtf(fmaxf(r2 - (float)s, 0.0f));
+    if (dx > k)
+        dx = k;
+    while (dx < k && (float)(s + (dx + 1) * (dx + 1)) <= r2)
+        ++dx;
+    while (dx >= 0 && (float)(s + dx * dx) > r2)
+        --dx;
+    return dx;
+}
+
 /* Interior cells whose centre lies within `r` cells of cell `c`: counted
  * where not yet covered (mark 0), or marked covered (mark 1). */
-static uint32_t ball_cells(const grid *g, uint8_t *covered, const int *c, float r, int mark)
+static uint32_t ball_cells(const grid *g, cover_state *cs, const int *c, float r, int mark)
 {
     const int k = (int)floorf(r);
     const float r2 = r * r;
@@ -388,17 +425,21 @@ static uint32_t ball_cells(const grid *g, uint8_t *covered, const int *c, float 
             continue;
         for (int dy = -k; dy <= k; ++dy) {
             const int y = c[1] + dy;
-            if (y < 0 || y >= g->n[1] || (float)(dz * dz + dy * dy) > r2)
+            if (y < 0 || y >= g->n[1])
                 continue;
-            for (int dx = -k; dx <= k; ++dx) {
-                const int x = c[0] + dx;
-                if (x < 0 || x >= g->n[0] || (float)(dz * dz + dy * dy + dx * dx) > r2)
-                    continue;
-                const size_t ci = cell_index(g, x, y, z);
-                if (mark)
-                    covered[ci] = 1;
-                else
-                    count += g->inside[ci] && !covered[ci];
+            const int w = row_half_width(dz * dz + dy * dy, r2, k);
+            if (w < 0)
+                continue;
+            const int x0 = c[0] - w < 0 ? 0 : c[0] - w, x1 = c[0] + w >= g->n[0] ? g->n[0] - 1 : c[0] + w;
+            if (x0 > x1)
+                continue;
+            const size_t row = (size_t)z * (size_t)g->n[1] + (size_t)y;
+            if (mark) {
+                memset(cs->covered + row * (size_t)g->n[0] + (size_t)x0, 1, (size_t)(x1 - x0 + 1));
+                row_prefix(g, cs, y, z);
+            } else {
+                const uint16_t *p = cs->prefix + row * (size_t)(g->n[0] + 1);
+                count += (uint32_t)(p[x1 + 1] - p[x0]);
             }
         }
     }
@@ -409,10 +450,13 @@ static uint32_t ball_cells(const grid *g, uint8_t *covered, const int *c, float 
  * the one covering most interior cells not yet covered (lazy evaluation: a
  * ball's gain only falls as others are chosen). Writes the chosen ids. */
 static void greedy_cover(const grid *g, const candidate *cand, size_t nc, float grow, uint32_t count,
-                         uint8_t *covered, heap_item *heap, uint32_t *chosen)
+                         cover_state *cs, heap_item *heap, uint32_t *chosen)
 {
     const size_t cells = (size_t)g->n[0] * (size_t)g->n[1] * (size_t)g->n[2];
-    memset(covered, 0, cells);
+    memset(cs->covered, 0, cells);
+    for (int z = 0; z < g->n[2]; ++z)
+        for (int y = 0; y < g->n[1]; ++y)
+            row_prefix(g, cs, y, z);
     size_t n = 0;
     for (size_t i = 0; i < nc; ++i) {
         const double r = fmax((double)cand[i].r + grow, 0.5) + 0.8660254;
@@ -424,9 +468,9 @@ static void greedy_cover(const grid *g, const candidate *cand, size_t nc, float 
         heap_item top = heap_pop(heap, &n);
         const candidate *c = cand + top.id;
         const float r = fmaxf(c->r + grow, 0.5f);
-        top.gain = ball_cells(g, covered, c->c, r, 0);
+        top.gain = ball_cells(g, cs, c->c, r, 0);
         if (n == 0 || !heap_before(heap[0], top)) {
-            ball_cells(g, covered, c->c, r, 1);
+            ball_cells(g, cs, c->c, r, 1);
             chosen[got++] = top.id;
         } else {
             heap_push(heap, &n, top);
@@ -782,7 +826,9 @@ pn_status pn_sphere_set_do_build(pn_mesh mesh, uint32_t count, pn_sphere_set *ou
     heap_item *heap = malloc(np * sizeof *heap);
     uint32_t *chosen = malloc((size_t)count * sizeof *chosen);
     uint8_t *covered = malloc(cells);
-    if (!dist || !spheres || !trial || !cand || !heap || !chosen || !covered) {
+    uint16_t *prefix = malloc((size_t)(g.n[0] + 1) * (size_t)g.n[1] * (size_t)g.n[2] * sizeof *prefix);
+    cover_state cs = {covered, prefix};
+    if (!dist || !spheres || !trial || !cand || !heap || !chosen || !covered || !prefix) {
         st = pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory building a sphere set");
         goto done;
     }
@@ -818,7 +864,7 @@ pn_status pn_sphere_set_do_build(pn_mesh mesh, uint32_t count, pn_sphere_set *ou
     float outside = 0.0f, missed = 0.0f, best = INFINITY;
     size_t interior = 0;
     for (size_t t = 0; t < sizeof grows / sizeof grows[0]; ++t) {
-        greedy_cover(&g, cand, nc, grows[t], count, covered, heap, chosen);
+        greedy_cover(&g, cand, nc, grows[t], count, &cs, heap, chosen);
         for (uint32_t q = 0; q < count; ++q) {
             const candidate *c = cand + chosen[q];
             for (int a = 0; a < 3; ++a)
@@ -847,6 +893,6 @@ pn_status pn_sphere_set_do_build(pn_mesh mesh, uint32_t count, pn_sphere_set *ou
         *out = NULL;
     }
 done:
-    free(dist), free(spheres), free(trial), free(cand), free(heap), free(chosen), free(covered), free(g.inside);
+    free(dist), free(spheres), free(trial), free(cand), free(heap), free(chosen), free(covered), free(prefix), free(g.inside);
     return st;
 }
