@@ -375,6 +375,16 @@ inline float dm_cap_lobe(pn_material m, float3 n, float3 v, float3 d, float one_
     return sum / (float)samples;
 }
 
+/* The lobe times the cosine at l (0 below the horizon or where the lobe is not positive). */
+inline float dm_lobe_cosine(pn_material m, float3 n, float3 v, float3 l)
+{
+    float nl = dot(n, l);
+    if (!(nl > 0.0f))
+        return 0.0f;
+    float f = pn_brdf_lobe(m, n, v, l, nl) * nl;
+    return f > 0.0f ? f : 0.0f;
+}
+
 inline float dm_edge_t(float delta) { return delta / (fabs(delta) + DM_TABLE_SPREAD); }
 
 /* H(r, psi_c, n): the exact average of max(0, cos psi)^n (psi from the
@@ -460,10 +470,7 @@ inline float dm_lobe_average(global const float *table, pn_material m, float3 n,
         if (tl > 0.0f)
             l = cos(tl) * refl + sin(tl) * (t / tl);
     }
-    float nl = dot(n, l);
-    if (!(nl > 0.0f))
-        return 0.0f;
-    float f = pn_brdf_lobe(m, n, v, l, nl) * nl;
+    float f = dm_lobe_cosine(m, n, v, l);
     if (!(f > 0.0f))
         return 0.0f;
     float t0 = dm_edge_t(-rho * gamma), t1 = dm_edge_t(DM_LOBE_DELTA_MAX);
@@ -516,10 +523,7 @@ inline float dm_table_lobe(global const float *table, pn_material m, float3 n, f
     float3 l = refl;
     if (psi_c > r)
         l = cos(r) * d + sin(r) * (side / sl); /* psi_c > r >= 0: sl > 0 */
-    float nl = dot(n, l);
-    if (!(nl > 0.0f))
-        return 0.0f;
-    float f = pn_brdf_lobe(m, n, v, l, nl) * nl;
+    float f = dm_lobe_cosine(m, n, v, l);
     if (!(f > 0.0f))
         return 0.0f;
     return f * dm_cap_ratio(table, r, psi_c, n_eq);

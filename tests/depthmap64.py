@@ -733,13 +733,33 @@ def shade(planes, camera_position, domains, frames=None, maps=None, bias=1.0, sl
     sum_i v_i L~_i (rho/pi max(0, n.d_i) + k_s a_i). ``domains``: (N, 8)
     pn_env_domain records; ``frames`` (N, 16) and ``maps`` (N, res, res) or
     None (every domain visible). Background pixels are left 0."""
+    h, w = planes["instance"].shape
+    lo, hi = np.zeros((h, w, 3)), np.zeros((h, w, 3))
+    dom = np.asarray(domains, np.float64)
+    dirs, rad, caps = dom[:, :3], dom[:, 4:7], dom[:, 7]
+    for y, x, p, n, v, alb, mat in shading_pixels(planes, camera_position):
+        for i in np.flatnonzero(dirs @ n > 0):
+            c = float(dirs[i] @ n)
+            v_lo = v_hi = 1.0
+            if maps is not None:
+                b = map_bias(frames[i], c, bias, slope_bias, pcf)
+                v_lo, v_hi = visibility(frames[i], maps[i], p, b, pcf, margin)
+            if v_hi == 0:
+                continue
+            a = specular_average(n, v, dirs[i], caps[i], mat, specular, cap_samples) if alb[3] > 0 else 0.0
+            term = rad[i] * (alb[:3] / math.pi * c + alb[3] * a)
+            lo[y, x] += v_lo * term
+            hi[y, x] += v_hi * term
+    return lo, hi
+
+
+def shading_pixels(planes, camera_position):
+    """(y, x, position, unit normal, unit view, albedo, material) in float64 of
+    every foreground pixel of the G-buffer ``planes``."""
     from penumbra import BACKGROUND
 
     h, w = planes["instance"].shape
-    lo, hi = np.zeros((h, w, 3)), np.zeros((h, w, 3))
     cam = np.asarray(camera_position, np.float32).astype(np.float64)
-    dom = np.asarray(domains, np.float64)
-    dirs, rad, caps = dom[:, :3], dom[:, 4:7], dom[:, 7]
     for y in range(h):
         for x in range(w):
             if planes["instance"][y, x] == BACKGROUND:
@@ -749,20 +769,7 @@ def shade(planes, camera_position, domains, frames=None, maps=None, bias=1.0, sl
             n /= np.linalg.norm(n)
             v = cam - p
             v /= np.linalg.norm(v)
-            alb, mat = planes["albedo"][y, x].astype(np.float64), planes["material"][y, x].astype(np.float64)
-            for i in np.flatnonzero(dirs @ n > 0):
-                c = float(dirs[i] @ n)
-                v_lo = v_hi = 1.0
-                if maps is not None:
-                    b = map_bias(frames[i], c, bias, slope_bias, pcf)
-                    v_lo, v_hi = visibility(frames[i], maps[i], p, b, pcf, margin)
-                if v_hi == 0:
-                    continue
-                a = specular_average(n, v, dirs[i], caps[i], mat, specular, cap_samples) if alb[3] > 0 else 0.0
-                term = rad[i] * (alb[:3] / math.pi * c + alb[3] * a)
-                lo[y, x] += v_lo * term
-                hi[y, x] += v_hi * term
-    return lo, hi
+            yield y, x, p, n, v, planes["albedo"][y, x].astype(np.float64), planes["material"][y, x].astype(np.float64)
 
 
 # --------------------------------------------------------------------------- docs table

@@ -87,34 +87,24 @@ def twin_image(planes, camera_position, domains, frames, maps, soft_count, margi
     h, w = planes["instance"].shape
     out = np.zeros((h, w, 3))
     amb = np.zeros((h, w), bool)
-    cam = np.asarray(camera_position, np.float32).astype(np.float64)
     dom = np.asarray(domains, np.float64)
     dirs, rad, caps = dom[:, :3], dom[:, 4:7], dom[:, 7]
-    for y in range(h):
-        for x in range(w):
-            if planes["instance"][y, x] == BACKGROUND:
+    for y, x, p, n, v, alb, mat in d64.shading_pixels(planes, camera_position):
+        for i in np.flatnonzero(dirs @ n > 0):
+            c = float(dirs[i] @ n)
+            tan_theta = min(math.sqrt(max(1.0 - c * c, 0.0)) / c, d64.MAX_SLOPE)
+            if i < soft_count:
+                vis, a = soft_visibility(frames[i], maps[i], p, bias, slope_bias, tan_theta,
+                                         math.tan(min(caps[i], 1.5)), margin)
+            else:
+                b = d64.map_bias(frames[i], c, bias, slope_bias, 0)
+                lo, hi = d64.visibility(frames[i], maps[i], p, b, 0, margin)
+                vis, a = lo, lo != hi
+            amb[y, x] |= a
+            if vis == 0:
                 continue
-            p = planes["position"][y, x, :3].astype(np.float64)
-            n = planes["normal"][y, x, :3].astype(np.float64)
-            n /= np.linalg.norm(n)
-            v = cam - p
-            v /= np.linalg.norm(v)
-            alb, mat = planes["albedo"][y, x].astype(np.float64), planes["material"][y, x].astype(np.float64)
-            for i in np.flatnonzero(dirs @ n > 0):
-                c = float(dirs[i] @ n)
-                tan_theta = min(math.sqrt(max(1.0 - c * c, 0.0)) / c, d64.MAX_SLOPE)
-                if i < soft_count:
-                    vis, a = soft_visibility(frames[i], maps[i], p, bias, slope_bias, tan_theta,
-                                             math.tan(min(caps[i], 1.5)), margin)
-                else:
-                    b = d64.map_bias(frames[i], c, bias, slope_bias, 0)
-                    lo, hi = d64.visibility(frames[i], maps[i], p, b, 0, margin)
-                    vis, a = lo, lo != hi
-                amb[y, x] |= a
-                if vis == 0:
-                    continue
-                s = d64.specular_average(n, v, dirs[i], caps[i], mat, 0, 16) if alb[3] > 0 else 0.0
-                out[y, x] += vis * rad[i] * (alb[:3] / math.pi * c + alb[3] * s)
+            s = d64.specular_average(n, v, dirs[i], caps[i], mat, 0, 16) if alb[3] > 0 else 0.0
+            out[y, x] += vis * rad[i] * (alb[:3] / math.pi * c + alb[3] * s)
     return out, amb
 
 
