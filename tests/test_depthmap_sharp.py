@@ -159,3 +159,37 @@ def test_sharp_of_a_1e5_sun_and_of_maps_without_one(ctx):
     with pytest.raises((PenumbraError, InputError), match="threshold"):
         Renderer(ctx, "depthmap", directions=8, sharp=1, sharp_threshold=1.0).execute(
             scene, gb, Image(ctx, gb.width, gb.height))
+
+
+def test_scattered_hot_texels_keep_the_plain_decomposition(ctx):
+    """Two 10^5 texels a quarter turn apart (an interior's windows, not one
+    sun): one domain at their power centroid would light from between them,
+    so sharp 1 gives the plain decomposition bit for bit; the same two texels
+    side by side are one light and get their own domain."""
+    from test_reference import gbuffer_of, make_scene, xform
+    from penumbra import Camera, Material
+
+    w, h = 64, 32
+    objects = [(procedural.plane((4.0, 4.0)), xform(), Material(albedo=(0.7, 0.7, 0.7))),
+               (procedural.box((1.0, 0.8, 0.6)), xform(translate=(0.0, 0.4, 0.0)), Material(albedo=(0.8, 0.4, 0.2)))]
+    camera = Camera(position=(1.5, 2.5, 4.0), look_at=(0.0, 0.3, 0.0), fov_deg=50.0, resolution=(16, 12))
+    for second, scattered in (((0.7, 0.7, 0.1), True), (None, False)):
+        env_img = procedural.constant(1.0, w, h).astype(np.float32)
+        i, j = procedural.direction_to_pixel((0.1, 0.7, -0.7), w, h)
+        env_img[j, i] = 1e5
+        if second is None:
+            env_img[j, (i + 1) % w] = 1e5
+        else:
+            i2, j2 = procedural.direction_to_pixel(second, w, h)
+            env_img[j2, i2] = 1e5
+        env = EnvMap(ctx, env_img, face_size=16)
+        scene, _, keep = make_scene(ctx, objects, env, camera)
+        gb, _ = gbuffer_of(ctx, scene, camera)
+        doms = []
+        for sharp in (1, 0):
+            r = Renderer(ctx, "depthmap", directions=12, sharp=sharp)
+            r.execute(scene, gb, Image(ctx, gb.width, gb.height))
+            doms.append(np.asarray(r.read_output(scene, "domains", 0), np.float32).reshape(-1, 8))
+        assert np.array_equal(doms[0], doms[1]) == scattered
+        if not scattered:
+            assert doms[0][0, 7] < 0.2  # the pair's own small cap
