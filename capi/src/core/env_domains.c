@@ -481,6 +481,17 @@ pn_status pn_envmap_do_decompose(pn_envmap env, const pn_env_decompose_options *
 
 /* ------------------------------------------------------ the sharp part */
 
+/* A texel is hot above this luminance: threshold x the map's mean luminance
+ * (sum lum dw / 4 pi); infinite for a black map (nothing is hot). */
+static double hot_limit(const texels *t, float threshold)
+{
+    double mean = 0.0;
+    for (size_t k = 0; k < t->count; ++k)
+        mean += t->weight[k];
+    mean /= 4.0 * PI;
+    return mean > 0.0 ? threshold * mean : INFINITY;
+}
+
 /* The sharp part of the texels t (pn_envmap_extract_sharp, options checked):
  * at most o->max_count domains in `domains` (*count of them) and the residual
  * (3 x t->count floats). */
@@ -492,11 +503,7 @@ static pn_status sharp_part(pn_envmap env, const texels *t, const pn_env_sharp_o
     texels hot = {0};
     pn_env_decomposition d = {0};
     pn_status st = PN_SUCCESS;
-    double mean = 0.0;
-    for (size_t k = 0; !st && k < t->count; ++k)
-        mean += t->weight[k];
-    mean /= 4.0 * PI;
-    const double limit = o->threshold * mean;
+    const double limit = hot_limit(t, o->threshold);
     size_t hot_count = 0;
     if (!st) {
         memcpy(residual, t->rgb, need * sizeof(float));
@@ -510,7 +517,7 @@ static pn_status sharp_part(pn_envmap env, const texels *t, const pn_env_sharp_o
         const double lum = t->weight[k] > 0.0 ? luminance64(t->rgb + 3 * k) : 0.0;
         for (int c = 0; c < 3; ++c)
             hot.rgb[3 * k + c] = 0.0f;
-        if (!(mean > 0.0) || !(lum > limit))
+        if (!(lum > limit))
             continue;
         ++hot_count;
         const double keep = limit / lum;
@@ -602,14 +609,11 @@ pn_status pn_envmap_do_extract_sharp(pn_envmap env, const pn_env_sharp_options *
  * their power centroid would cast their shadows from between them. */
 static bool sharp_compact(const texels *t, float threshold)
 {
-    double mean = 0.0, m[3] = {0.0, 0.0, 0.0}, total = 0.0, omega = 0.0;
-    for (size_t k = 0; k < t->count; ++k)
-        mean += t->weight[k];
-    mean /= 4.0 * PI;
-    const double limit = threshold * mean;
+    double m[3] = {0.0, 0.0, 0.0}, total = 0.0, omega = 0.0;
+    const double limit = hot_limit(t, threshold);
     for (size_t k = 0; k < t->count; ++k) {
         const double lum = t->weight[k] > 0.0 ? luminance64(t->rgb + 3 * k) : 0.0;
-        if (!(mean > 0.0) || !(lum > limit))
+        if (!(lum > limit))
             continue;
         const double w = t->omega[k / t->width], e = (lum - limit) * w;
         double d[3];
