@@ -82,6 +82,8 @@ def many_scene(res, count_side=6) -> dict:
 
 
 class IsgRunner(Runner):
+    cache_env = "isg-experiments"  # references under $PENUMBRA_CACHE/isg-experiments when that is set
+
     def __init__(self, args):
         super().__init__(args)
         ints = lambda v: [int(x) for x in v.split(",")]  # noqa: E731
