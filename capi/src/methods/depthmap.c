@@ -106,7 +106,7 @@ static const pn_param_desc params[] = {
      "Penumbrae of the domains' caps (percentage-closer soft shadows: blocker search, then a disc filter of radius "
      "(receiver - blocker depth) x tan(cap radius), up to 8 texels; pcf ignored there): 0 none, 1 the sharp "
      "domains, 2 every domain (docs/depthmap.md, measured)."},
-    {"receiver_plane", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
+    {"receiver_plane", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
      "Hard lookups: 1 compares each tap with the receiver's depth along its tangent plane at the tap's texel "
      "centre (receiver-plane depth bias, the constant bias on top, slope_bias unused), 0 the slope-scaled bias of "
      "the farthest tap (docs/depthmap.md)."},
