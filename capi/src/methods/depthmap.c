@@ -1186,17 +1186,20 @@ static pn_status prepare_maps(pn_renderer r, pn_scene scene, bool *use_maps)
     return st;
 }
 
-/* Whether an instance has a specular Blinn-Phong or GGX lobe: only then are
-   their tables built at lobe_tables 2 (seconds of CPU per context); without
-   them such pixels (a caller's G-buffer) take the cap quadrature. */
-static bool scene_has_table_lobes(pn_scene scene)
+/* The lobe families the scene's instances use with k_s > 0 (PN_DM_LOBE_BLINN_PHONG_BIT,
+   PN_DM_LOBE_GGX_BIT): only those tables are built at lobe_tables 2 (about a second of CPU each per
+   context); pixels of a family not built (a caller's G-buffer) take the cap quadrature. */
+static int scene_table_lobes(pn_scene scene)
 {
+    int mask = 0;
     for (uint32_t i = 0; i < scene->instance_count; ++i) {
         const pn_material *m = &scene->instances[i].material;
-        if (m->specular > 0.0f && (m->lobe == PN_LOBE_BLINN_PHONG || m->lobe == PN_LOBE_GGX))
-            return true;
+        if (m->specular > 0.0f && m->lobe == PN_LOBE_BLINN_PHONG)
+            mask |= PN_DM_LOBE_BLINN_PHONG_BIT;
+        if (m->specular > 0.0f && m->lobe == PN_LOBE_GGX)
+            mask |= PN_DM_LOBE_GGX_BIT;
     }
-    return false;
+    return mask;
 }
 
 static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image)
@@ -1220,9 +1223,11 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     }
     cl_mem table = NULL; /* the kernel reads it only with specular 3; any buffer stands in otherwise */
     const int lobe_mode = (int)r->params[P_LOBE_TABLES];
-    const cl_int lobe_tables = lobe_mode == 1 || (lobe_mode == 2 && scene_has_table_lobes(scene)) ? 1 : 0;
+    const cl_int lobe_tables = lobe_mode == 1 ? PN_DM_LOBE_BLINN_PHONG_BIT | PN_DM_LOBE_GGX_BIT
+                               : lobe_mode == 2 ? scene_table_lobes(scene)
+                                                : 0;
     if (!st && (int)r->params[P_SPECULAR] == 3)
-        st = pn_depthmap_cap_table(ctx, lobe_tables != 0, &table);
+        st = pn_depthmap_cap_table(ctx, lobe_tables, &table);
     if (st || (st = pn_context_kernel(ctx, "depthmap", "shade_depthmap", &k)))
         return st;
     if (!table)
