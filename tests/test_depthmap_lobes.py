@@ -111,10 +111,14 @@ def test_lookup_against_the_twin(ctx, lobe_scene, lobe, shininess, roughness, th
                          for k in range(len(got))])
         worst = max(worst, float(np.abs(got - want).max() / want.max()))
     print(f"lookup {lobe} {shininess} {roughness} theta_v {theta_v}: {worst:.4f}")
-    assert worst < LOOKUP_ATOL, worst
+    assert worst < LOOKUP_ATOL[theta_v], worst
 
 
-LOOKUP_ATOL = 0.05
+# 0.05 at 0 and 45 degrees (measured at most 0.037). At 75 degrees the lookup also interpolates the
+# lobe-weighted centroid and spreads along the c and phi_s axes (10 and 8 nodes), and the four points'
+# K (n.L and V.H / c, steep at 75 degrees) amplifies their error: measured 0.0645 (Blinn-Phong 128) and
+# 0.0710 (4000), formerly 0.029 and 0.044 with the single point l*.
+LOOKUP_ATOL = {0.0: 0.05, 45.0: 0.05, 75.0: 0.09}
 
 
 @pytest.mark.parametrize("lobe, shininess, roughness", LOOKUP_CASES + [("ggx", 0.0, 0.1)])
@@ -140,15 +144,20 @@ def test_table_against_the_lobes_cap_average(ctx, lobe_scene, lobe, shininess, r
 
 
 # Measured largest errors of the table against the true cap average (test above), by view angle
-# 0, 30, 60, 75, 85 degrees; the bounds round them up by about a quarter. The model (lobes
-# as functions of u about R, linear in the offset) is exact in the limit of sharp lobes and
-# small caps; Blinn-Phong 128 (s = 0.18 rad) and grazing views are where it departs most.
+# 0, 30, 60, 75, 85 degrees; the bounds round them up by about a quarter. The rule (the profile's
+# disk average from the table, the rest of the integrand by four points in the half vector at the
+# table's centroid and spreads) is exact in the limit of sharp lobes and small caps; Blinn-Phong 128
+# (s = 0.18 rad) and grazing views, where R lies just outside the cap, are where it departs most.
+# Measured: Blinn-Phong 128 0.0206 0.0364 0.0415 0.0995 0.630; 4000 0.0080 0.0152 0.0186 0.0657 0.424;
+# GGX 0.05 0.0079 0.0214 0.0258 0.0220 0.193; 0.01 0.0070 0.0201 0.0175 0.0222 0.152; 0.1 0.0135 0.0271
+# 0.0321 0.0370 0.372. One bound is wider than before: GGX 0.01 at 85 degrees, 0.123 with the
+# one-point rule, 0.152 now (the horizon's truncated normal on a lobe 0.02 rad wide, 5 degrees from it).
 LOBE_ATOL = {
-    ("blinn_phong", 128.0, 0.1): {0.0: 0.06, 30.0: 0.065, 60.0: 0.21, 75.0: 0.5, 85.0: 1.0},
-    ("blinn_phong", 4000.0, 0.1): {0.0: 0.011, 30.0: 0.025, 60.0: 0.037, 75.0: 0.09, 85.0: 0.54},
-    ("ggx", 0.0, 0.05): {0.0: 0.013, 30.0: 0.025, 60.0: 0.036, 75.0: 0.082, 85.0: 0.35},
-    ("ggx", 0.0, 0.01): {0.0: 0.012, 30.0: 0.025, 60.0: 0.023, 75.0: 0.038, 85.0: 0.16},
-    ("ggx", 0.0, 0.1): {0.0: 0.02, 30.0: 0.033, 60.0: 0.078, 75.0: 0.2, 85.0: 0.7},
+    ("blinn_phong", 128.0, 0.1): {0.0: 0.026, 30.0: 0.046, 60.0: 0.052, 75.0: 0.125, 85.0: 0.79},
+    ("blinn_phong", 4000.0, 0.1): {0.0: 0.010, 30.0: 0.019, 60.0: 0.023, 75.0: 0.082, 85.0: 0.53},
+    ("ggx", 0.0, 0.05): {0.0: 0.010, 30.0: 0.027, 60.0: 0.032, 75.0: 0.028, 85.0: 0.24},
+    ("ggx", 0.0, 0.01): {0.0: 0.009, 30.0: 0.025, 60.0: 0.022, 75.0: 0.028, 85.0: 0.19},
+    ("ggx", 0.0, 0.1): {0.0: 0.017, 30.0: 0.034, 60.0: 0.040, 75.0: 0.046, 85.0: 0.47},
 }
 
 

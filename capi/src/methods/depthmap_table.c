@@ -193,9 +193,11 @@ static double log_chord(int family, double x, double y1, double y2, double c)
  * from int z^2 / (a^2 + z^2)^2 = (atan(z / a) / a - z / (a^2 + z^2)) / 2 over k = int (a^2 + z^2)^-2. */
 static double log_q(double z) { return log_erfc_pos(z / SQRT2) - log(2.0); } /* log of the normal's upper tail, z >= 0 */
 
-static void chord_moments(int family, double x, double y1, double y2, double c, double *mean, double *square)
+static void chord_moments(int family, double x, double y1, double y2, double c, double *mean, double *square,
+                          double *log_value)
 {
     double z1 = y1 / c, z2 = y2 / c, sign = 1.0;
+    *log_value = -INFINITY; /* GGX: log_chord's value, from the same integral (not set for Blinn-Phong) */
     if (!(z2 > z1)) {
         *mean = 0.5 * (z1 + z2);
         *square = *mean * *mean;
@@ -236,6 +238,7 @@ static void chord_moments(int family, double x, double y1, double y2, double c, 
     }
     *mean = sign * m / k;
     *square = fmax(q / k, 0.0);
+    *log_value = log(c * k);
 }
 
 static double log_lobe(int family, double u) { return family == 0 ? -0.5 * u * u : -2.0 * log1p(u * u); }
@@ -334,16 +337,18 @@ static double lobe_log_ratio(int family, double rho, double c, double delta_u, d
             for (int q = 0; q < LOBE_NODES; ++q) {
                 const double x = a + (b - a) * map[q], dx = x - x0;
                 const double h = sqrt(fmax(rho * rho - dx * dx, 0.0));
-                const double lv = log_chord(family, x, y0 - h, y0 + h, c) - ref;
-                if (pass == 0)
-                    best = fmax(best, lv);
-                else if (lv > -INFINITY) {
+                if (pass == 0) {
+                    best = fmax(best, log_chord(family, x, y0 - h, y0 + h, c) - ref);
+                    continue;
+                }
+                double mz, mzz, lg;
+                chord_moments(family, x, y0 - h, y0 + h, c, &mz, &mzz, &lg); /* GGX: lg is log_chord's value */
+                const double lv = (family == 1 ? lg : log_chord(family, x, y0 - h, y0 + h, c)) - ref;
+                if (lv > -INFINITY) {
                     const double wv = gw[q] * (b - a) * exp(lv - best);
                     sum += wv;
                     sum_x += wv * x;
                     sum_xx += wv * x * x;
-                    double mz, mzz;
-                    chord_moments(family, x, y0 - h, y0 + h, c, &mz, &mzz);
                     sum_z += wv * mz;
                     sum_zz += wv * mzz;
                 }
