@@ -11,7 +11,9 @@ u = |(x, y / c)| / s: Blinn-Phong exp(-u^2 / 2) with s = 2 / sqrt(n) (family
 table's entry: log of the average of that lobe over a disk of radius rho
 (units of s) over its value at the disk's point nearest R, computed here by
 adaptive quadrature over x of the chord integrals (closed forms in y),
-independently of the C code's fixed panels."""
+independently of the C code's fixed panels; ``moments`` the entry's other
+four values (the lobe-weighted centroid and spreads), and ``average`` the
+kernel's rule: the rest of the integrand by four points in the half vector."""
 from __future__ import annotations
 
 import math

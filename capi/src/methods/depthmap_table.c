@@ -131,6 +131,9 @@ static void phong_table_fill(float *out)
  * the stretched plane, where the lobe is round. Axes:
  *   x = log(1 + rho / RHO_0) / log(1 + RHO_MAX / RHO_0),  y as the Phong table's (t(delta_u)
  *   from the disk's centre to DELTA_MAX),  phi_s / (pi / 2),  log c / log C_MIN.
+ * Each entry also holds the lobe-weighted centroid of the disk in the round metric (x, y / c) from R and
+ * the spreads of x and y / c (PN_DM_LOBE_V = 5 floats), from which the kernel averages the rest of the
+ * integrand (the cosine, G1, the half vector's Jacobian) by four points (dm_lobe_average).
  * The disk integral: over x (Gauss-Legendre panels from the features: the
  * lobe's peak, the chord ends' crossings of y = 0, the disk's nearest row),
  * over y in closed form (erf for the Gaussian, the rational-arctangent
