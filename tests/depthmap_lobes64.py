@@ -205,12 +205,12 @@ def frame(n, v, refl, d, r: float, s: float):
     ax, ay = (abs(bx) / bl, abs(by) / bl) if bl > 0 else (1.0, 0.0)
     gamma = math.hypot(ax, ay / c)
     rho = r / s
-    family_free_ref = None
+    u2_ref = None
     if psi_c > r:
         x0, y0 = psi_c / s * ax, psi_c / s * ay
-        family_free_ref = least_u2(x0, y0, rho, c)
+        u2_ref = least_u2(x0, y0, rho, c)
     signs = (-1.0 if bx < 0 else 1.0, -1.0 if by < 0 else 1.0)
-    return rho, c, (psi_c - r) / s * gamma, math.atan2(ay, c * ax), family_free_ref, signs, (ex, ey)
+    return rho, c, (psi_c - r) / s * gamma, math.atan2(ay, c * ax), u2_ref, signs, (ex, ey)
 
 
 def coordinates(n, v, refl, d, r: float, s: float):
