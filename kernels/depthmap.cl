@@ -436,7 +436,7 @@ inline float dm_lobe_log(int family, float u2) { return family == 0 ? -0.5f * u2
  * (below), is averaged by four points at the centroid +- the spreads:
  *   a = G Lambda(u*) pi r^2 / (2 pi (1 - cos r)) mean K. */
 inline float dm_lobe_average(global const float *table, pn_material m, float3 n, float3 v, float3 refl, float3 d,
-                             float psi_c, float r)
+                             float psi_c, float r, int centroid)
 {
     int family = m.lobe == PN_LOBE_BLINN_PHONG ? 0 : 1;
     float s = family == 0 ? 2.0f * rsqrt(m.shininess) : 2.0f * m.roughness;
@@ -465,7 +465,8 @@ inline float dm_lobe_average(global const float *table, pn_material m, float3 n,
     float rho = r / s, delta_u = gd / s * gamma, phi_s = atan2(ay, c * ax);
     /* u*: on the disk's edge where x^2 + (y / c)^2 is least (safeguarded Newton on the edge's angle tau);
      * 0 when R is inside */
-    float log_ref = 0.0f;
+    float log_ref = 0.0f, f_near = 0.0f;
+    float3 l_near = refl;
     if (gd > 0.0f) {
         float x0 = psi_c / s * ax, y0 = psi_c / s * ay, ic2 = 1.0f / (c * c);
         float lo = M_PI_F, hi = 1.5f * M_PI_F, tau = atan2(-y0, -x0) + 2.0f * M_PI_F, ct, st;
@@ -484,6 +485,12 @@ inline float dm_lobe_average(global const float *table, pn_material m, float3 n,
         st = sincos(tau, &ct);
         float px = x0 + rho * ct, py = y0 + rho * st;
         log_ref = dm_lobe_log(family, px * px + py * py * ic2);
+        l_near = dm_tangent_point(refl, ex, ey, copysign(px * s, bx), copysign(py * s, by));
+    }
+    if (!centroid) { /* lobe_centroid 0: the rest of the integrand at u*'s direction alone */
+        f_near = dm_lobe_cosine(m, n, v, l_near);
+        if (!(f_near > 0.0f))
+            return 0.0f;
     }
     float t0 = dm_edge_t(-rho * gamma), t1 = dm_edge_t(DM_LOBE_DELTA_MAX);
     float x = clamp(log1p(rho / DM_LOBE_RHO_0) / log1p(DM_LOBE_RHO_MAX / DM_LOBE_RHO_0), 0.0f, 1.0f) * (float)(DM_LOBE_R - 1);
@@ -505,6 +512,10 @@ inline float dm_lobe_average(global const float *table, pn_material m, float3 n,
                 g += wt * mix(vload4(0, row), vload4(0, row + DM_LOBE_V), ai);
                 gsy += wt * mix(row[4], row[DM_LOBE_V + 4], ai);
             }
+    float h = 0.5f * r, sh = sin(h);
+    float area = sh > 0.0f ? (h * h) / (sh * sh) : 1.0f; /* the disk's area pi r^2 over the cap's */
+    if (!centroid)
+        return f_near * exp(fmin(g.x, 0.0f)) * area;
     /* The rest of the integrand, K = f_lobe(L) (n.L) min(V.H / c, J_MAX) / Lambda(|P|), by the half vector H:
      * a point P of the model's round plane is H turned from N by s |P| / 2 (x in the plane of incidence,
      * along hx, y across it, along ey), L = 2 (V.H) H - V, and V.H / c the Jacobian of L over the model's.
@@ -549,8 +560,6 @@ inline float dm_lobe_average(global const float *table, pn_material m, float3 n,
     kk *= 0.25f * p_mass; /* the four points' mean, times the mass above the horizon */
     if (!(kk > 0.0f))
         return 0.0f;
-    float h = 0.5f * r, sh = sin(h);
-    float area = sh > 0.0f ? (h * h) / (sh * sh) : 1.0f; /* the disk's area pi r^2 over the cap's */
     return kk * exp(fmin(g.x, 0.0f)) * area;
 }
 
@@ -566,7 +575,8 @@ inline float dm_table_lobe(global const float *table, pn_material m, float3 n, f
                            float r, float min_n, int lobe_tables)
 {
     /* The anisotropic lobe has no equivalent exponent: the quadrature samples it;
-       so do Blinn-Phong and GGX when their tables were not built (lobe_tables: bit 0 Blinn-Phong's, bit 1 GGX's). */
+       so do Blinn-Phong and GGX when their tables were not built (lobe_tables: bit 0 Blinn-Phong's, bit 1 GGX's;
+       bit 2 the four-point rule of lobe_centroid 1). */
     if (m.lobe == PN_LOBE_ASHIKHMIN_SHIRLEY ||
         (m.lobe != PN_LOBE_PHONG && !(lobe_tables & (m.lobe == PN_LOBE_BLINN_PHONG ? 1 : 2))))
         return -1.0f;
@@ -580,7 +590,7 @@ inline float dm_table_lobe(global const float *table, pn_material m, float3 n, f
     float sl = length(side);
     float psi_c = atan2(sl, c); /* accurate near 0, unlike acos */
     if (m.lobe != PN_LOBE_PHONG) /* Blinn-Phong and GGX: their own tables, with the view */
-        return dm_lobe_average(table + DM_TABLE_PHONG_FLOATS, m, n, v, refl, d, psi_c, r);
+        return dm_lobe_average(table + DM_TABLE_PHONG_FLOATS, m, n, v, refl, d, psi_c, r, lobe_tables & 4);
     float3 l = refl;
     if (psi_c > r)
         l = cos(r) * d + sin(r) * (side / sl); /* psi_c > r >= 0: sl > 0 */

@@ -68,14 +68,21 @@ def disk_offset(rho: float, c: float, delta_u: float, phi_s: float):
     return dist * cx, dist * cy, gamma
 
 
-def least_u2(x0: float, y0: float, rho: float, c: float) -> float:
-    """The least x^2 + (y / c)^2 over the circle of radius rho around (x0, y0) (scipy, bounded)."""
+def least_point(x0: float, y0: float, rho: float, c: float) -> tuple[float, float]:
+    """The point (x, y) of the circle of radius rho around (x0, y0) where x^2 + (y / c)^2 is least
+    (scipy, bounded, on each quarter of the circle)."""
     from scipy import optimize
 
     f = lambda t: (x0 + rho * math.cos(t)) ** 2 + ((y0 + rho * math.sin(t)) / c) ** 2  # noqa: E731
-    best = min(optimize.minimize_scalar(f, bounds=(a, a + 0.5 * math.pi), method="bounded",
-                                        options=dict(xatol=1e-12)).fun for a in (0.0, 0.5 * math.pi, math.pi, 1.5 * math.pi))
-    return best
+    best = min((optimize.minimize_scalar(f, bounds=(a, a + 0.5 * math.pi), method="bounded", options=dict(xatol=1e-12))
+                for a in (0.0, 0.5 * math.pi, math.pi, 1.5 * math.pi)), key=lambda res: res.fun)
+    return x0 + rho * math.cos(best.x), y0 + rho * math.sin(best.x)
+
+
+def least_u2(x0: float, y0: float, rho: float, c: float) -> float:
+    """The least x^2 + (y / c)^2 over the circle of radius rho around (x0, y0)."""
+    px, py = least_point(x0, y0, rho, c)
+    return px * px + (py / c) ** 2
 
 
 def log_ratio(family: int, rho: float, c: float, delta_u: float, phi_s: float) -> float:
@@ -228,8 +235,37 @@ J_MAX = 4.0  # DM_LOBE_J_MAX: the largest V.H / c taken
 TILT_MAX = 0.35  # DM_LOBE_TILT_MAX: the largest tilt of H from N (rad) at which K is evaluated
 
 
+def average_one_point(n, v, d, r: float, lobe: str, shininess: float, roughness: float, f) -> float:
+    """The float64 value of dm_lobe_average at lobe_centroid 0 (the default): f(l*) (n.l*) G cap_factor(r),
+    l* the cap's point of least u (R when R is inside), G by this module's quadrature instead of the table."""
+    family, s = lobe_family_scale(lobe, shininess, roughness)
+    refl = 2.0 * (n @ v) * n - v
+    cd = float(refl @ d)
+    psi_c = math.atan2(float(np.linalg.norm(refl - cd * d)), cd)
+    if psi_c - r > CULL_U[family] * s:
+        return 0.0  # the kernel's cull: u is at least the plain distance over s
+    rho, c, delta_u, phi_s, _, (sgx, sgy), (ex, ey) = frame(n, v, refl, d, r, s)
+    l = refl
+    if psi_c > r:
+        bx, by = float(d @ ex), float(d @ ey)
+        bl = math.hypot(bx, by)
+        ax, ay = (abs(bx) / bl, abs(by) / bl) if bl > 0 else (1.0, 0.0)
+        px, py = least_point(psi_c / s * ax, psi_c / s * ay, rho, c)
+        t = sgx * abs(px) * s * ex + sgy * abs(py) * s * ey
+        tl = float(np.linalg.norm(t))
+        if tl > 0:
+            l = math.cos(tl) * refl + math.sin(tl) * t / tl
+    nl = float(n @ l)
+    if not nl > 0:
+        return 0.0
+    fl = f(l) * nl
+    if not fl > 0:
+        return 0.0
+    return fl * math.exp(min(log_ratio(family, rho, c, delta_u, phi_s), 0.0)) * cap_factor(r)
+
+
 def average(n, v, d, r: float, lobe: str, shininess: float, roughness: float, f) -> float:
-    """The float64 value of dm_lobe_average, with the table's entries (log G, the centroid and
+    """The float64 value of dm_lobe_average at lobe_centroid 1, with the table's entries (log G, the centroid and
     spreads) by this module's quadrature instead of the table; f the lobe at (n, v).
 
     a = G Lambda(u*) pi r^2 / Omega * mean over four points P of K(P),
