@@ -683,9 +683,10 @@ def cap_ratio(psi_c: float, r: float, n: float, nodes: int = 400) -> float:
 
 
 def table_average(n, v, d, r, name, shin, rough, f, nodes: int = 400,
-                  min_n: float = TABLE_MIN_EXPONENT) -> float | None:
+                  min_n: float = TABLE_MIN_EXPONENT, centroid: bool = False) -> float | None:
     """The float64 value the table approximates (dm_table_lobe with the exact
-    H instead of the interpolated one); None when n_eq is below the table's range."""
+    H instead of the interpolated one); None when n_eq is below the table's range.
+    centroid: Blinn-Phong and GGX by the four points about the lobe's centroid (lobe_centroid 1)."""
     if name == "ashikhmin_shirley":
         return None  # anisotropic: no equivalent exponent, the quadrature samples it
     n_eq = equivalent_exponent(name, shin, rough)
@@ -694,7 +695,8 @@ def table_average(n, v, d, r, name, shin, rough, f, nodes: int = 400,
     if name != "phong":  # Blinn-Phong and GGX: their own tables, with the view (depthmap_lobes64)
         import depthmap_lobes64
 
-        return depthmap_lobes64.average(n, v, d, r, name, shin, rough, f)
+        rule = depthmap_lobes64.average if centroid else depthmap_lobes64.average_one_point
+        return rule(n, v, d, r, name, shin, rough, f)
     refl = 2.0 * (n @ v) * n - v
     psi_c, l = nearest_cap_point(refl, d, r)
     nl = float(n @ l)
@@ -704,7 +706,7 @@ def table_average(n, v, d, r, name, shin, rough, f, nodes: int = 400,
 
 
 def specular_average(n, v, d, r, mat, specular: int, cap_samples: int,
-                     table_min_exponent: float = TABLE_MIN_EXPONENT) -> float:
+                     table_min_exponent: float = TABLE_MIN_EXPONENT, lobe_centroid: int = 0) -> float:
     """a_i per unit k_s: the lobe times the cosine over domain (d, r) by the chosen rule."""
     from penumbra.brdf import lobe as brdf_lobe, lobe_args
 
@@ -714,7 +716,8 @@ def specular_average(n, v, d, r, mat, specular: int, cap_samples: int,
     c = float(n @ d)
     refl = 2.0 * (n @ v) * n - v
     if specular == SPECULAR_TABLE:
-        a = table_average(n, v, d, r, name, shin, args.get("roughness", 1.0), f, min_n=table_min_exponent)
+        a = table_average(n, v, d, r, name, shin, args.get("roughness", 1.0), f, min_n=table_min_exponent,
+                          centroid=bool(lobe_centroid))
         if a is not None:
             return a
     if specular >= SPECULAR_CAP:
