@@ -558,46 +558,6 @@ PN_FIV_INLINE float8 pn_fiv_lens8(float8 a, float8 b, float8 dist)
     return select(select(lens, PN_PI * r * r, dist <= fabs(a - b)), (float8)(0.0f), dist >= a + b);
 }
 
-/* x, y, z of a G-buffer plane's 8 pixels from `row` on into lanes: 8-wide
- * loads and shuffles for a whole group, lane by lane for the lanes of
- * `in_row` at a row's end (0 in the others). */
-PN_FIV_INLINE void pn_fiv_load_row8(global const float4 *plane, int row, bool full, int8 in_row, float8 *x, float8 *y,
-                                    float8 *z)
-{
-    if (full) {
-        pn_load_xyz8(plane + row, x, y, z);
-        return;
-    }
-    float8 vx = 0.0f, vy = 0.0f, vz = 0.0f;
-#define PN_FIV_LOAD_LANE(l)                              \
-    if (in_row.s##l) {                                   \
-        float4 v = plane[row + l];                       \
-        vx.s##l = v.x, vy.s##l = v.y, vz.s##l = v.z;     \
-    }
-    PN_FIV_LOAD_LANE(0) PN_FIV_LOAD_LANE(1) PN_FIV_LOAD_LANE(2) PN_FIV_LOAD_LANE(3)
-    PN_FIV_LOAD_LANE(4) PN_FIV_LOAD_LANE(5) PN_FIV_LOAD_LANE(6) PN_FIV_LOAD_LANE(7)
-#undef PN_FIV_LOAD_LANE
-    *x = vx, *y = vy, *z = vz;
-}
-
-/* The 8 pixels from x0 = row - y width on: (r, g, b, a) per lane, two
- * 16-wide stores for a whole group, lane by lane for the lanes of `in_row`
- * at a row's end. */
-PN_FIV_INLINE void pn_fiv_store8(global float4 *image, int row, bool full, int8 in_row, float8 r, float8 g, float8 b,
-                                 float8 a)
-{
-    if (full) {
-        pn_store_rgba8(image + row, r, g, b, a);
-        return;
-    }
-#define PN_FIV_STORE_LANE(l)                                              \
-    if (in_row.s##l)                                                      \
-        image[row + l] = (float4)(r.s##l, g.s##l, b.s##l, a.s##l);
-    PN_FIV_STORE_LANE(0) PN_FIV_STORE_LANE(1) PN_FIV_STORE_LANE(2) PN_FIV_STORE_LANE(3)
-    PN_FIV_STORE_LANE(4) PN_FIV_STORE_LANE(5) PN_FIV_STORE_LANE(6) PN_FIV_STORE_LANE(7)
-#undef PN_FIV_STORE_LANE
-}
-
 /* One work-item per 8 pixels of a row (above): global size
  * ceil(width / 8) x height. */
 kernel void shade_fiv(global const float4 *position, global const float4 *normal, global const float4 *albedo,
@@ -616,7 +576,7 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     if (width <= 0 || y >= count / width)
         return;
     /* The 8 pixels in lanes: the G-buffer planes by 8-wide loads and
-     * shuffles (pn_fiv_load_row8), the normals normalised in lanes (the
+     * shuffles (pn_load_row8), the normals normalised in lanes (the
      * built-in's bits, pn_normalize8). Each lane's values go into the lane
      * vectors as elements or by shuffles, never through a lane array written
      * one lane at a time and read back as a vector (that stalls the load on
@@ -638,16 +598,16 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     }
     const int8 active = id8 != PN_BACKGROUND, sky = ~active & in_row;
     float8 px, py, pz, nx, ny, nz;
-    pn_fiv_load_row8(position, row, full, in_row, &px, &py, &pz);
+    pn_load_row8(position, row, full, in_row, &px, &py, &pz);
     if (!any(active)) { /* all background */
         float8 sky_r = 0.0f, sky_g = 0.0f, sky_b = 0.0f;
         if (background)
             pn_background8(latlong, latlong_width, latlong_height, rot, intensity, px, py, pz, sky, &sky_r, &sky_g,
                            &sky_b);
-        pn_fiv_store8(image, row, full, in_row, sky_r, sky_g, sky_b, (float8)(0.0f));
+        pn_store_row8(image, row, full, in_row, sky_r, sky_g, sky_b, (float8)(0.0f));
         return;
     }
-    pn_fiv_load_row8(normal, row, full, in_row, &nx, &ny, &nz);
+    pn_load_row8(normal, row, full, in_row, &nx, &ny, &nz);
     px = select((float8)(0.0f), px, active), py = select((float8)(0.0f), py, active);
     pz = select((float8)(0.0f), pz, active);
     nx = select((float8)(0.0f), nx, active), ny = select((float8)(1.0f), ny, active);
@@ -877,10 +837,10 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
      * directions read again here, so that nothing of theirs is kept across
      * the occluder loop). */
     float8 ar, ag, ab, sky_r = 0.0f, sky_g = 0.0f, sky_b = 0.0f;
-    pn_fiv_load_row8(albedo, row, full, in_row, &ar, &ag, &ab);
+    pn_load_row8(albedo, row, full, in_row, &ar, &ag, &ab);
     if (background && any(sky)) {
         float8 qx, qy, qz;
-        pn_fiv_load_row8(position, row, full, in_row, &qx, &qy, &qz);
+        pn_load_row8(position, row, full, in_row, &qx, &qy, &qz);
         pn_background8(latlong, latlong_width, latlong_height, rot, intensity, qx, qy, qz, sky, &sky_r, &sky_g,
                        &sky_b);
     }
@@ -888,6 +848,6 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     float8 out_r = select(sky_r, fmax(ar * e_r * PN_INV_PI, 0.0f), active);
     float8 out_g = select(sky_g, fmax(ag * e_g * PN_INV_PI, 0.0f), active);
     float8 out_b = select(sky_b, fmax(ab * e_b * PN_INV_PI, 0.0f), active);
-    pn_fiv_store8(image, row, full, in_row, out_r, out_g, out_b, select((float8)(0.0f), (float8)(1.0f), active));
+    pn_store_row8(image, row, full, in_row, out_r, out_g, out_b, select((float8)(0.0f), (float8)(1.0f), active));
 }
 

@@ -107,6 +107,45 @@ PN_LANES_INLINE void pn_store_rgba8(global float4 *p, float8 r, float8 g, float8
     vstore8((float8)(r.s6, g.s6, b.s6, a.s6, r.s7, g.s7, b.s7, a.s7), 3, f);
 }
 
+/* x, y, z of a G-buffer plane's 8 pixels from index `row` on into lanes:
+ * pn_load_xyz8 when all 8 are there (`full`), else lane by lane for the
+ * lanes of `in_row` (0 in the others). */
+PN_LANES_INLINE void pn_load_row8(global const float4 *plane, int row, bool full, int8 in_row, float8 *x, float8 *y,
+                                  float8 *z)
+{
+    if (full) {
+        pn_load_xyz8(plane + row, x, y, z);
+        return;
+    }
+    float8 vx = 0.0f, vy = 0.0f, vz = 0.0f;
+#define PN_LOAD_ROW_LANE(l)                              \
+    if (in_row.s##l) {                                   \
+        float4 v = plane[row + l];                       \
+        vx.s##l = v.x, vy.s##l = v.y, vz.s##l = v.z;     \
+    }
+    PN_LOAD_ROW_LANE(0) PN_LOAD_ROW_LANE(1) PN_LOAD_ROW_LANE(2) PN_LOAD_ROW_LANE(3)
+    PN_LOAD_ROW_LANE(4) PN_LOAD_ROW_LANE(5) PN_LOAD_ROW_LANE(6) PN_LOAD_ROW_LANE(7)
+#undef PN_LOAD_ROW_LANE
+    *x = vx, *y = vy, *z = vz;
+}
+
+/* The 8 pixels from index `row` on: (r, g, b, a) per lane, pn_store_rgba8
+ * when all 8 are there (`full`), else lane by lane for the lanes of `in_row`. */
+PN_LANES_INLINE void pn_store_row8(global float4 *image, int row, bool full, int8 in_row, float8 r, float8 g, float8 b,
+                                  float8 a)
+{
+    if (full) {
+        pn_store_rgba8(image + row, r, g, b, a);
+        return;
+    }
+#define PN_STORE_ROW_LANE(l)                                              \
+    if (in_row.s##l)                                                      \
+        image[row + l] = (float4)(r.s##l, g.s##l, b.s##l, a.s##l);
+    PN_STORE_ROW_LANE(0) PN_STORE_ROW_LANE(1) PN_STORE_ROW_LANE(2) PN_STORE_ROW_LANE(3)
+    PN_STORE_ROW_LANE(4) PN_STORE_ROW_LANE(5) PN_STORE_ROW_LANE(6) PN_STORE_ROW_LANE(7)
+#undef PN_STORE_ROW_LANE
+}
+
 /* The squared length x x + y y + z z of each lane, the products not fused
  * into the sums (as the built-in dot). */
 PN_LANES_INLINE float8 pn_length2_8(float8 x, float8 y, float8 z)
