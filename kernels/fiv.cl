@@ -622,11 +622,10 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     vstore8(active, 0, lactive);
     vstore8(px, 0, lp[0]), vstore8(py, 0, lp[1]), vstore8(pz, 0, lp[2]);
     vstore8(nx, 0, ln[0]), vstore8(ny, 0, ln[1]), vstore8(nz, 0, ln[2]);
-    float8 tot_r, tot_g, tot_b;
     int cface[PN_FIV_LANES], cx[PN_FIV_LANES], cy[PN_FIV_LANES];
     float cfx[PN_FIV_LANES], cfy[PN_FIV_LANES];
     pn_cube_grid_cell8(m, nx, ny, nz, cface, cx, cy, cfx, cfy);
-    tot_r = 0.0f, tot_g = 0.0f, tot_b = 0.0f;
+    float8 tot_r = 0.0f, tot_g = 0.0f, tot_b = 0.0f;
 #define PN_FIV_IRRADIANCE_LANE(l)                                                                       \
     if (lactive[l]) {                                                                                   \
         float3 e = pn_cube_grid_fetch(irradiance, m, cface[l], cx[l], cy[l], cfx[l], cfy[l]);           \
@@ -635,8 +634,6 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     PN_FIV_IRRADIANCE_LANE(0) PN_FIV_IRRADIANCE_LANE(1) PN_FIV_IRRADIANCE_LANE(2) PN_FIV_IRRADIANCE_LANE(3)
     PN_FIV_IRRADIANCE_LANE(4) PN_FIV_IRRADIANCE_LANE(5) PN_FIV_IRRADIANCE_LANE(6) PN_FIV_IRRADIANCE_LANE(7)
 #undef PN_FIV_IRRADIANCE_LANE
-    tot_r = select((float8)(0.0f), tot_r, active), tot_g = select((float8)(0.0f), tot_g, active);
-    tot_b = select((float8)(0.0f), tot_b, active);
     float8 base_r = tot_r, base_g = tot_g, base_b = tot_b;
     if (self_shadow) {
         const int8 lane = (int8)(0, 1, 2, 3, 4, 5, 6, 7);

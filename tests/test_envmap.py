@@ -249,9 +249,8 @@ def test_background_is_the_bilinear_latlong_lookup(ctx, method):
     pixels, the lat-long map at full resolution in the view direction (with the
     env map's rotation and intensity), not the cube map at its face size: the
     renderer draws it after the method (methods/renderer.c), or the method's
-    own kernel (fiv, unshadowed: the same bits as the renderer's pass, which
-    heightfield uses, on an image whose width and pixel count are not
-    multiples of 8). background = 0 leaves them black; alpha is 0 there
+    own kernel (fiv: the same bits as the renderer's pass, which the others
+    use, on an image whose width and pixel count are not multiples of 8). background = 0 leaves them black; alpha is 0 there
     either way."""
     from envmap64 import background64
     from penumbra.methods.heightfield import HeightFieldHandle
