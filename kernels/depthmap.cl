@@ -246,19 +246,23 @@ kernel void depthmap_raster_large(global const float4 *tris, global const uint2 
  * than the bias. Outside the footprint nothing of the scene lies between p
  * and the light: visible. */
 inline float dm_visibility(global const float4 *f, global const uint *map, global const ushort *map16, int res,
-                           float3 p, float bias, int pcf)
+                           float3 p, float bias, int pcf, float2 grad)
 {
     float quantum = f[3].z / DM_Q_MAX; /* 16-bit maps: depth of one step */
     float tu = (dot(p, f[0].xyz) - f[0].w) / f[3].x, tv = (dot(p, f[1].xyz) - f[1].w) / f[3].y;
-    float z = f[2].w - dot(p, f[2].xyz) - bias;
+    float z0 = f[2].w - dot(p, f[2].xyz) - bias;
     if (!(tu >= 0.0f && tv >= 0.0f && tu < (float)res && tv < (float)res))
         return 1.0f;
     int ci = (int)tu, cj = (int)tv;
     int lit = 0, taps = 0;
+    /* receiver_plane: the receiver's depth at each tap's texel centre along
+     * its tangent plane (grad: depth per texel along u and v; 0 otherwise) */
+    float gu = grad.x, gv = grad.y;
     for (int dj = -pcf; dj <= pcf; ++dj) {
         int j = cj + dj;
         for (int di = -pcf; di <= pcf; ++di) {
             int i = ci + di;
+            float z = z0 + gu * ((float)i + 0.5f - tu) + gv * ((float)j + 0.5f - tv);
             ++taps;
             if (i < 0 || j < 0 || i >= res || j >= res)
                 ++lit;
@@ -566,7 +570,7 @@ kernel void shade_depthmap(global const float4 *position, global const float4 *n
                            global const uint *depth, global const uint2 *atlas, int use_maps, float bias_constant, float bias_slope,
                            int pcf, int specular, int cap_samples, global float4 *image,
                            global const ushort *depth16, int half_maps, global const float *cap_table,
-                           float table_min_n, int lobe_tables, int soft_count)
+                           float table_min_n, int lobe_tables, int soft_count, int receiver_plane)
 {
     int gid = get_global_id(0);
     if (gid >= count)
@@ -593,15 +597,25 @@ kernel void shade_depthmap(global const float4 *position, global const float4 *n
         if (use_maps && f[3].w != 0.0f) { /* a domain without a map (skip_power) is lit unshadowed */
             float tan_theta = fmin(sqrt(fmax(1.0f - c * c, 0.0f)) / c, DM_MAX_SLOPE);
             float texel = fmax(f[3].x, f[3].y);
-            /* a diagonal PCF tap is up to sqrt(2) pcf + 0.71 texels from p: the slope term covers it */
-            float bias = texel * (bias_constant + bias_slope * (M_SQRT2_F * (float)pcf + 1.0f) * tan_theta);
+            /* a diagonal PCF tap is up to sqrt(2) pcf + 0.71 texels from p: the slope term covers it, or
+             * (receiver_plane) the receiver's tangent plane gives each tap's own depth, and the constant
+             * term alone covers rounding and the surface's curvature within a texel */
+            float2 grad = (float2)(0.0f);
+            float bias;
+            if (receiver_plane) {
+                float cd = fmax(c, 1.0f / DM_MAX_SLOPE); /* |grad| = tan(theta), capped like the bias */
+                grad = (float2)(dot(n, f[0].xyz) * f[3].x, dot(n, f[1].xyz) * f[3].y) / cd;
+                bias = texel * bias_constant;
+            } else {
+                bias = texel * (bias_constant + bias_slope * (M_SQRT2_F * (float)pcf + 1.0f) * tan_theta);
+            }
             uint2 where = atlas[i]; /* the map's first texel and side */
             global const ushort *map16 = half_maps ? depth16 + where.x : (global const ushort *)0;
             if (i < soft_count) /* soft_shadows: the cap's penumbra */
                 vis = dm_soft_visibility(f, depth + where.x, map16, (int)where.y, p, bias_constant, bias_slope,
                                          tan_theta, tan(fmin(rad.w, 1.5f)));
             else
-                vis = dm_visibility(f, depth + where.x, map16, (int)where.y, p, bias, pcf);
+                vis = dm_visibility(f, depth + where.x, map16, (int)where.y, p, bias, pcf, grad);
             if (vis == 0.0f)
                 continue;
         }

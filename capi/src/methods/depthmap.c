@@ -35,7 +35,8 @@
 enum { P_BACKGROUND, P_DIRECTIONS, P_SEED, P_RESOLUTION, P_MAP_RENDERER, P_BIAS, P_SLOPE_BIAS, P_PCF, P_SPECULAR,
        P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS, P_SKIP_POWER, P_HALF_MAPS, P_FIT,
        P_TABLE_MIN_EXPONENT, P_STRONG_RESOLUTION, P_STRONG_SHARE,
-       P_STRONG_RATIO, P_GRADE, P_STRONG_CLUSTER, P_SHARP, P_SHARP_THRESHOLD, P_LOBE_TABLES, P_SOFT_SHADOWS };
+       P_STRONG_RATIO, P_GRADE, P_STRONG_CLUSTER, P_SHARP, P_SHARP_THRESHOLD, P_LOBE_TABLES, P_SOFT_SHADOWS,
+       P_RECEIVER_PLANE };
 
 static const pn_param_desc params[] = {
     PN_PARAM_BACKGROUND,
@@ -105,6 +106,10 @@ static const pn_param_desc params[] = {
      "Penumbrae of the domains' caps (percentage-closer soft shadows: blocker search, then a disc filter of radius "
      "(receiver - blocker depth) x tan(cap radius), up to 8 texels; pcf ignored there): 0 none, 1 the sharp "
      "domains, 2 every domain (docs/depthmap.md, measured)."},
+    {"receiver_plane", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
+     "Hard lookups: 1 compares each tap with the receiver's depth along its tangent plane at the tap's texel "
+     "centre (receiver-plane depth bias, the constant bias on top, slope_bias unused), 0 the slope-scaled bias of "
+     "the farthest tap (docs/depthmap.md)."},
 };
 
 _Static_assert(sizeof params / sizeof params[0] <= PN_MAX_METHOD_PARAMS,
@@ -1234,19 +1239,20 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const cl_int specular = (cl_int)r->params[P_SPECULAR], samples = (cl_int)r->params[P_CAP_SAMPLES];
     const cl_float table_min = (cl_float)r->params[P_TABLE_MIN_EXPONENT];
     const int soft_mode = (int)r->params[P_SOFT_SHADOWS];
+    const cl_int plane = (cl_int)r->params[P_RECEIVER_PLANE];
     const cl_int soft_count = soft_mode == 2 ? (cl_int)s->domain_count : soft_mode == 1 ? (cl_int)s->sharp_count : 0;
     const cl_float4 camera = pn_scene_camera_position(scene);
     const size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem),
                             sizeof count, sizeof camera, sizeof(cl_mem), sizeof domains, sizeof(cl_mem),
                             sizeof(cl_mem), sizeof(cl_mem), sizeof use_maps, sizeof bias, sizeof slope, sizeof pcf,
                             sizeof specular, sizeof samples, sizeof(cl_mem), sizeof(cl_mem), sizeof half,
-                            sizeof(cl_mem), sizeof table_min, sizeof lobe_tables, sizeof soft_count};
+                            sizeof(cl_mem), sizeof table_min, sizeof lobe_tables, sizeof soft_count, sizeof plane};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &camera, &s->device_domains, &domains,
                           &s->frames, depth, &s->atlas, &use_maps, &bias, &slope, &pcf, &specular, &samples,
-                          &image->buffer, half ? &s->depth16 : depth, &half, &table, &table_min, &lobe_tables, &soft_count};
-    if ((st = pn_set_args(ctx, k, "shade_depthmap", 25, sizes, vals)))
+                          &image->buffer, half ? &s->depth16 : depth, &half, &table, &table_min, &lobe_tables, &soft_count, &plane};
+    if ((st = pn_set_args(ctx, k, "shade_depthmap", 26, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_depthmap", (size_t)count, 64);
 }
