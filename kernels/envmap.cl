@@ -48,7 +48,8 @@ kernel void envmap_latlong_to_cube(global const float *latlong, int width, int h
  * looked up bilinearly in the full-resolution lat-long map (not the cube,
  * whose face size is chosen for lighting and would show as blocks), with the
  * map's rotation and intensity, alpha 0. Other pixels are left alone. Run by
- * the renderer after every method that has the `background` parameter.
+ * the renderer after every method that has the `background` parameter and
+ * does not draw it in its own kernel (fiv does: pn_background8).
  * One work-item per 8 consecutive pixels (global size ceil(count / 8)): each
  * lane's direction normalised as one pixel's was, then its rotation and the
  * lookup's angles and indices in float8 lanes, one pixel per lane

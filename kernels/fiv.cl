@@ -19,7 +19,8 @@
  * to time the phases apart: 1 = no lookup (a constant field), 2 = the
  * lookup's indices and weights but no sample fetched, 3 = the lanes that the
  * shared fetch (pn_fiv_fetch8) does not serve get a huge FIV instead of
- * theirs (to count them). 0 (default) = all.
+ * theirs (to count them), 4 = no occluder loop at all (the pixel setup, the
+ * unshadowed part, the background and the output alone). 0 (default) = all.
  *
  * Occluder record, 4 float4 (capi/src/fiv.c):
  *   [0] centre xyz (world), bounding radius R (world)
@@ -575,47 +576,58 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
                       int occluder_count, global const uchar *fields, float cull_floor, float4 env_x, float4 env_y,
                       float4 env_z,
                       int overlap, int partial, int self_shadow, int trilinear, int width, int binned,
-                      global const uint *tile_masks, global float4 *image)
+                      global const uint *tile_masks, global float4 *image, int background,
+                      global const float *latlong, int latlong_width, int latlong_height, float2 rot,
+                      float intensity)
 {
     int groups = (width + PN_FIV_LANES - 1) / PN_FIV_LANES;
     int item = get_global_id(0);
     int y = item / groups, x0 = (item - y * groups) * PN_FIV_LANES;
     if (width <= 0 || y >= count / width)
         return;
-    /* Per lane (scalar): the pixel; then its unshadowed irradiance (the cube
-     * cell in lanes), self-shadowing. Each lane's values go into the lane
-     * vectors as elements (PN_FIV_LANE_SET: unrolled, so they stay in
-     * registers): stored to a lane array one by one and read back as a
-     * vector, they stalled the vector load on its 8 scalar stores (store
-     * forwarding fails), the setup's largest single cost. */
+    /* The 8 pixels in lanes: the G-buffer planes by 8-wide loads and
+     * shuffles (pn_load_row8), the normals normalised in lanes (the
+     * built-in's bits, pn_normalize8). Each lane's values go into the lane
+     * vectors as elements or by shuffles, never through a lane array written
+     * one lane at a time and read back as a vector (that stalls the load on
+     * the 8 stores). The background pixels get the env map here
+     * (pn_background8, the background pass's operations in the same order:
+     * this kernel draws the background in the same visit of the pixels
+     * instead of a second pass over them; black without `background`). */
+    const int row = y * width + x0;
+    const bool full = x0 + PN_FIV_LANES <= width;
+    const int8 in_row = (int8)(0, 1, 2, 3, 4, 5, 6, 7) < width - x0;
+    uint8 id8;
+    if (full) {
+        id8 = vload8(0, instance_id + row);
+    } else {
+#define PN_FIV_ID_LANE(l) id8.s##l = x0 + l < width ? instance_id[row + l] : PN_BACKGROUND;
+        PN_FIV_ID_LANE(0) PN_FIV_ID_LANE(1) PN_FIV_ID_LANE(2) PN_FIV_ID_LANE(3)
+        PN_FIV_ID_LANE(4) PN_FIV_ID_LANE(5) PN_FIV_ID_LANE(6) PN_FIV_ID_LANE(7)
+#undef PN_FIV_ID_LANE
+    }
+    const int8 active = id8 != PN_BACKGROUND, sky = ~active & in_row;
+    float8 px, py, pz, nx, ny, nz;
+    pn_load_row8(position, row, full, in_row, &px, &py, &pz);
+    if (!any(active)) { /* all background */
+        float8 sky_r = 0.0f, sky_g = 0.0f, sky_b = 0.0f;
+        if (background)
+            pn_background8(latlong, latlong_width, latlong_height, rot, intensity, px, py, pz, sky, &sky_r, &sky_g,
+                           &sky_b);
+        pn_store_row8(image, row, full, in_row, sky_r, sky_g, sky_b, (float8)(0.0f));
+        return;
+    }
+    pn_load_row8(normal, row, full, in_row, &nx, &ny, &nz);
+    px = select((float8)(0.0f), px, active), py = select((float8)(0.0f), py, active);
+    pz = select((float8)(0.0f), pz, active);
+    nx = select((float8)(0.0f), nx, active), ny = select((float8)(1.0f), ny, active);
+    nz = select((float8)(0.0f), nz, active);
+    pn_normalize8(&nx, &ny, &nz);
+    /* per-lane copies for the scalar code below (a vector store, read back one
+     * lane at a time, forwards) */
     float lp[3][PN_FIV_LANES], ln[3][PN_FIV_LANES];
     uint lid[PN_FIV_LANES];
     int lactive[PN_FIV_LANES];
-    uint8 id8;
-    float8 px, py, pz, nx, ny, nz;
-#define PN_FIV_SETUP_LANE(l)                                                                             \
-    {                                                                                                    \
-        int gid = y * width + x0 + l;                                                                    \
-        uint id = x0 + l < width ? instance_id[gid] : PN_BACKGROUND;                                     \
-        float3 p = (float3)(0.0f), n = (float3)(0.0f, 1.0f, 0.0f);                                       \
-        if (id != PN_BACKGROUND) {                                                                       \
-            p = position[gid].xyz;                                                                       \
-            n = normalize(normal[gid].xyz);                                                              \
-        } else if (x0 + l < width) { /* black; the renderer draws the env map there (envmap_background) */ \
-            image[gid] = (float4)(0.0f);                                                                 \
-        }                                                                                                \
-        id8.s##l = id;                                                                                   \
-        px.s##l = p.x, py.s##l = p.y, pz.s##l = p.z;                                                     \
-        nx.s##l = n.x, ny.s##l = n.y, nz.s##l = n.z;                                                     \
-    }
-    PN_FIV_SETUP_LANE(0) PN_FIV_SETUP_LANE(1) PN_FIV_SETUP_LANE(2) PN_FIV_SETUP_LANE(3)
-    PN_FIV_SETUP_LANE(4) PN_FIV_SETUP_LANE(5) PN_FIV_SETUP_LANE(6) PN_FIV_SETUP_LANE(7)
-#undef PN_FIV_SETUP_LANE
-    int8 active = id8 != PN_BACKGROUND;
-    if (!any(active))
-        return;
-    /* per-lane copies for the scalar code below (a vector store, read back one
-     * lane at a time, forwards) */
     vstore8(id8, 0, lid);
     vstore8(active, 0, lactive);
     vstore8(px, 0, lp[0]), vstore8(py, 0, lp[1]), vstore8(pz, 0, lp[2]);
@@ -684,6 +696,9 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     /* With one occluder there is no pair: total = sum, clamped to [largest, sum]. */
     const bool pairs = overlap == PN_OVERLAP_DISC && occluder_count > 1;
     int words = (occluder_count + 31) / 32;
+#if PN_FIV_PROFILE == 4
+    words = 0;
+#endif
     global const uint *mask = tile_masks;
     if (binned) {
         int tile = (y / PN_FIV_TILE) * ((width + PN_FIV_TILE - 1) / PN_FIV_TILE) + x0 / PN_FIV_TILE;
@@ -833,13 +848,21 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
         }
         e_r = base_r - tot_r, e_g = base_g - tot_g, e_b = base_b - tot_b;
     }
-    float ae[3][PN_FIV_LANES];
-    vstore8(e_r, 0, ae[0]), vstore8(e_g, 0, ae[1]), vstore8(e_b, 0, ae[2]);
-    for (int l = 0; l < PN_FIV_LANES; ++l) {
-        if (!lactive[l])
-            continue;
-        int gid = y * width + x0 + l;
-        float3 e = (float3)(ae[0][l], ae[1][l], ae[2][l]);
-        image[gid] = (float4)(fmax(albedo[gid].xyz * e * PN_INV_PI, 0.0f), 1.0f);
+    /* The pixels: albedo in lanes; background lanes as above (their
+     * directions read again here, so that nothing of theirs is kept across
+     * the occluder loop). */
+    float8 ar, ag, ab, sky_r = 0.0f, sky_g = 0.0f, sky_b = 0.0f;
+    pn_load_row8(albedo, row, full, in_row, &ar, &ag, &ab);
+    if (background && any(sky)) {
+        float8 qx, qy, qz;
+        pn_load_row8(position, row, full, in_row, &qx, &qy, &qz);
+        pn_background8(latlong, latlong_width, latlong_height, rot, intensity, qx, qy, qz, sky, &sky_r, &sky_g,
+                       &sky_b);
     }
+    /* fmax(albedo.xyz * e * PN_INV_PI, 0) per lane, as the scalar code */
+    float8 out_r = select(sky_r, fmax(ar * e_r * PN_INV_PI, 0.0f), active);
+    float8 out_g = select(sky_g, fmax(ag * e_g * PN_INV_PI, 0.0f), active);
+    float8 out_b = select(sky_b, fmax(ab * e_b * PN_INV_PI, 0.0f), active);
+    pn_store_row8(image, row, full, in_row, out_r, out_g, out_b, select((float8)(0.0f), (float8)(1.0f), active));
 }
+

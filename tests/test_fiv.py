@@ -473,6 +473,10 @@ def test_lanes_at_image_edges(ctx, env, meshes, fields, h, w):
         on[-1, -1] = True  # the very last pixel, on the sphere
         u = unit(rng.normal(size=(on.sum(), 3)) + np.array([0.0, 1.0, 0.0]))
         pos[on], nrm[on], inst[on] = c0 + 0.5 * u, u, 0
+        # Background directions the lanes' normalisation leaves to the
+        # built-in: zero, too short and too long to square in a float.
+        for k, d in enumerate(((0.0, 0.0, 0.0), (1e-25, 0.0, 2e-25), (3e19, 1e19, -2e19))):
+            pos[k % h, (k * 5) % w], inst[k % h, (k * 5) % w] = d, BACKGROUND
     instances = [(fields["sphere"], meshes["sphere"][1], translate(c0)),
                  (fields["sphere"], meshes["sphere"][1], translate((0.5, 0.7, 0.3))),
                  (fields["box"], meshes["box"][1], translate((-0.8, 0.5, -0.4), 1.5))]
@@ -481,6 +485,11 @@ def test_lanes_at_image_edges(ctx, env, meshes, fields, h, w):
     for params in (dict(overlap=0), dict(overlap=1, partial=1, self_shadow=1), dict(overlap=2, trilinear=0)):
         got = assert_matches_twin(s, params)
         assert np.array_equal(got, s.render(cull_threshold=0.0, tile_cull=0, **params)), params
+        # shade_fiv draws the background itself (the pass's bits: checked
+        # against unshadowed's above); without it those pixels are black and
+        # no other pixel changes.
+        dark = s.render(cull_threshold=0.0, background=0, **params)
+        assert not dark[~s.fg].any() and np.array_equal(dark[s.fg], got[s.fg]), params
     # Culling per direction and by distance, with the tile masks on (the default) and off.
     got = assert_matches_twin(s, dict(overlap=1), cull_threshold=0.1)
     assert np.array_equal(got, s.render(cull_threshold=0.1, tile_cull=0, overlap=1))

@@ -68,8 +68,10 @@ inline float3 pn_latlong_bilinear(global const float *latlong, int width, int he
  * operations in the same order), then per lane its 4 texels and the same
  * mixes as the scalar code. Lanes outside `live` are not read; their
  * directions may be anything. Writes lane l's radiance to rgb[3 l ..]. */
-PN_LANES_INLINE void pn_latlong_bilinear8(global const float *latlong, int width, int height, float8 dx, float8 dy,
-                                 float8 dz, const int *live, float *rgb)
+/* pn_latlong_bilinear8's angles, texel offsets (floats into `latlong`) and
+ * weights, in lanes. */
+PN_LANES_INLINE void pn_latlong_cell8(int width, int height, float8 dx, float8 dy, float8 dz, int8 *a00, int8 *a10,
+                                      int8 *a01, int8 *a11, float8 *fx_out, float8 *fy_out)
 {
     float8 u = pn_atan2_8(dx, -dz) * PN_INV_TWO_PI; /* [-1/2, 1/2] */
     u = select(u, u + 1.0f, u < 0.0f);
@@ -77,17 +79,29 @@ PN_LANES_INLINE void pn_latlong_bilinear8(global const float *latlong, int width
     float8 v = pn_atan2_8(sqrt(dx * dx + dz * dz), dy) * PN_INV_PI;
     float8 x = u * (float)width - 0.5f, y = v * (float)height - 0.5f;
     int8 x0 = convert_int8(x + 1.0f) - 1, y0 = convert_int8(y + 1.0f) - 1;
-    float8 fx = clamp(x - convert_float8(x0), 0.0f, 1.0f), fy = clamp(y - convert_float8(y0), 0.0f, 1.0f);
+    *fx_out = clamp(x - convert_float8(x0), 0.0f, 1.0f), *fy_out = clamp(y - convert_float8(y0), 0.0f, 1.0f);
     int8 x1 = select(x0 + 1, x0 + 1 - width, x0 + 1 >= width);
     x0 = select(x0, x0 + width, x0 < 0);
     int8 y1 = min(y0 + 1, height - 1);
     y0 = max(y0, 0);
+    *a00 = 3 * (y0 * width + x0);
+    *a10 = 3 * (y0 * width + x1);
+    *a01 = 3 * (y1 * width + x0);
+    *a11 = 3 * (y1 * width + x1);
+}
+
+PN_LANES_INLINE void pn_latlong_bilinear8(global const float *latlong, int width, int height, float8 dx, float8 dy,
+                                 float8 dz, const int *live, float *rgb)
+{
+    int8 i00, i10, i01, i11;
+    float8 fx, fy;
+    pn_latlong_cell8(width, height, dx, dy, dz, &i00, &i10, &i01, &i11, &fx, &fy);
     int a00[8], a10[8], a01[8], a11[8];
     float afx[8], afy[8];
-    vstore8(3 * (y0 * width + x0), 0, a00);
-    vstore8(3 * (y0 * width + x1), 0, a10);
-    vstore8(3 * (y1 * width + x0), 0, a01);
-    vstore8(3 * (y1 * width + x1), 0, a11);
+    vstore8(i00, 0, a00);
+    vstore8(i10, 0, a10);
+    vstore8(i01, 0, a01);
+    vstore8(i11, 0, a11);
     vstore8(fx, 0, afx);
     vstore8(fy, 0, afy);
     for (int l = 0; l < 8; ++l) {
@@ -231,6 +245,35 @@ PN_LANES_INLINE float3 pn_cube_grid_fetch(global const float4 *grid, int n, int 
     float4 top = mix(row0[0], row0[1], fx);
     float4 bottom = mix(row1[0], row1[1], fx);
     return mix(top, bottom, fy).xyz;
+}
+
+/* The env map's radiance (pn_latlong_bilinear, times `intensity`) in the
+ * direction (x, y, z) of each lane of `live`, rotated by rot = (cos, sin) as
+ * the background pass does (envmap_background: the direction normalised, the
+ * same operations in the same order, so the same bits); 0 in the other
+ * lanes, whose directions are not read. */
+PN_LANES_INLINE void pn_background8(global const float *latlong, int width, int height, float2 rot, float intensity,
+                                    float8 px, float8 py, float8 pz, int8 live, float8 *r, float8 *g, float8 *b)
+{
+    px = select((float8)(0.0f), px, live), py = select((float8)(1.0f), py, live), pz = select((float8)(0.0f), pz, live);
+    pn_normalize8(&px, &py, &pz);
+    /* pn_rotate_y(d, rot.x, -rot.y) */
+    float8 dx = rot.x * px + -rot.y * pz, dz = rot.y * px + rot.x * pz;
+    int8 i00, i10, i01, i11;
+    float8 fx, fy;
+    pn_latlong_cell8(width, height, dx, py, dz, &i00, &i10, &i01, &i11, &fx, &fy);
+    float8 cr = 0.0f, cg = 0.0f, cb = 0.0f;
+#define PN_BACKGROUND_LANE8(l)                                                                            \
+    if (live.s##l) {                                                                                      \
+        float3 top = mix(vload3(0, latlong + i00.s##l), vload3(0, latlong + i10.s##l), fx.s##l);          \
+        float3 bottom = mix(vload3(0, latlong + i01.s##l), vload3(0, latlong + i11.s##l), fx.s##l);       \
+        float3 c = mix(top, bottom, fy.s##l);                                                             \
+        cr.s##l = c.x, cg.s##l = c.y, cb.s##l = c.z;                                                      \
+    }
+    PN_BACKGROUND_LANE8(0) PN_BACKGROUND_LANE8(1) PN_BACKGROUND_LANE8(2) PN_BACKGROUND_LANE8(3)
+    PN_BACKGROUND_LANE8(4) PN_BACKGROUND_LANE8(5) PN_BACKGROUND_LANE8(6) PN_BACKGROUND_LANE8(7)
+#undef PN_BACKGROUND_LANE8
+    *r = intensity * cr, *g = intensity * cg, *b = intensity * cb;
 }
 
 /* Nearest-texel lookup of a texel-centred cube map. */

@@ -260,6 +260,9 @@ pn_status pn_envmap_sample_cube(pn_envmap env, int face, float *radiance, float 
  * direction (the position plane), bilinear in the lat-long map, alpha 0
  * (kernels/envmap.cl, envmap_background). Other pixels are untouched. */
 pn_status pn_envmap_enqueue_background(pn_envmap env, cl_mem position, cl_mem instance, uint32_t count, cl_mem image);
+/* (cos, sin) of the env map's rotation about +y, as the background pass and
+ * the kernels that draw the background themselves take it. */
+cl_float2 pn_envmap_rotation(pn_envmap env);
 /* Env directions as records of 2 float4 (direction, solid angle | radiance, 0):
  * cube face f, black texels dropped, texels of power >= threshold x the
  * brightest split into s x s sub-texels. *records is malloc'ed. */

@@ -131,7 +131,7 @@ static int auto_supersampling(uint32_t face, uint32_t height)
 }
 
 /* (cos, sin) of the map's rotation about +y, as the kernels take it. */
-static cl_float2 rotation(pn_envmap env)
+cl_float2 pn_envmap_rotation(pn_envmap env)
 {
     const double angle = (double)env->rotation_deg * 3.14159265358979323846 / 180.0;
     const cl_float2 rot = {{(float)cos(angle), (float)sin(angle)}};
@@ -146,7 +146,7 @@ static pn_status fill_cube(pn_envmap env, int face, cl_mem cube, cl_mem dirs)
     const size_t texels = 6u * (size_t)face * face;
     const cl_int w = (cl_int)env->width, h = (cl_int)env->height, cn = face;
     const cl_int cs = env->supersampling ? env->supersampling : auto_supersampling((uint32_t)face, env->height);
-    const cl_float2 rot = rotation(env);
+    const cl_float2 rot = pn_envmap_rotation(env);
     cl_kernel to_cube, to_dirs;
     pn_status st;
     if ((st = pn_context_kernel(ctx, "envmap", "envmap_latlong_to_cube", &to_cube)) ||
@@ -261,7 +261,7 @@ pn_status pn_envmap_enqueue_background(pn_envmap env, cl_mem position, cl_mem in
     if (st)
         return st;
     const cl_int n = (cl_int)count, w = (cl_int)env->width, h = (cl_int)env->height;
-    const cl_float2 rot = rotation(env);
+    const cl_float2 rot = pn_envmap_rotation(env);
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof n, sizeof(cl_mem), sizeof w, sizeof h, sizeof rot,
                       sizeof(float), sizeof(cl_mem)};
     const void *vals[] = {&position, &instance, &n, &env->latlong, &w, &h, &rot, &env->intensity, &image};

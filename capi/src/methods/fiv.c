@@ -393,17 +393,24 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     for (int a = 0; a < 3; ++a)
         for (int c = 0; c < 4; ++c)
             env_fiv[a].s[c] = c < 3 ? s->env_fiv[3 * a + c] : 0.0f;
+    /* The background is drawn by shade_fiv itself, in the same visit of the
+     * pixels (draws_background; the renderer runs no background pass). */
+    const cl_int background = r->params[P_BACKGROUND] != 0.0;
+    const cl_int lat_w = (cl_int)env->width, lat_h = (cl_int)env->height;
+    const cl_float2 rot = pn_envmap_rotation(env);
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count, sizeof(cl_mem),
                       sizeof m, sizeof(cl_mem), sizeof occluders, sizeof(cl_mem), sizeof cull_floor,
                       sizeof env_fiv[0], sizeof env_fiv[1], sizeof env_fiv[2], sizeof overlap, sizeof partial,
                       sizeof self_shadow, sizeof trilinear, sizeof width, sizeof binned, sizeof(cl_mem),
-                      sizeof(cl_mem)};
+                      sizeof(cl_mem), sizeof background, sizeof(cl_mem), sizeof lat_w, sizeof lat_h, sizeof rot,
+                      sizeof env->intensity};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->irradiance,
                           &m, &s->device_records, &occluders, &s->data, &cull_floor, &env_fiv[0],
                           &env_fiv[1], &env_fiv[2], &overlap, &partial, &self_shadow, &trilinear, &width, &binned,
-                          &s->tile_masks, &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_fiv", 22, sizes, vals)))
+                          &s->tile_masks, &image->buffer, &background, &env->latlong, &lat_w, &lat_h, &rot,
+                          &env->intensity};
+    if ((st = pn_set_args(ctx, k, "shade_fiv", 28, sizes, vals)))
         return st;
     /* 8 pixels of a row per work-item (vector lanes, kernels/fiv.cl), one
      * work-item per work-group: PoCL then runs no loop over work-items around
@@ -442,6 +449,7 @@ const pn_method_desc pn_method_fiv = {
     .bake_params = pn_fiv_bake_params,
     .bake_param_count = PN_FIV_BAKE_PARAM_COUNT,
     .inputs = PN_INPUT_ENVMAP | PN_INPUT_FIV,
+    .draws_background = true,
     .state_size = sizeof(state),
     .create = create,
     .destroy = destroy,

@@ -37,6 +37,9 @@ typedef struct pn_method_desc {
     const pn_output_desc *outputs;
     int output_count;
     uint32_t inputs;              /* PN_INPUT_* */
+    /* true: execute draws the background itself (the `background` parameter)
+     * in its own kernel; the renderer then runs no background pass after it. */
+    bool draws_background;
     size_t state_size;
     pn_status (*create)(pn_renderer r);
     void (*destroy)(pn_renderer r);

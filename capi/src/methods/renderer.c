@@ -175,9 +175,10 @@ pn_status pn_renderer_do_execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, p
     if (!st)
         st = r->method->execute(r, scene, gb, image);
     /* The background is drawn here, once for every method that has the
-     * `background` parameter, from the full-resolution env map. */
+     * `background` parameter and does not draw it in its own kernel, from the
+     * full-resolution env map. */
     const int bg = pn_param_find(r->method->params, r->method->param_count, "background");
-    if (!st && bg >= 0 && r->params[bg] != 0.0)
+    if (!st && bg >= 0 && r->params[bg] != 0.0 && !r->method->draws_background)
         st = pn_envmap_enqueue_background(scene->env, gb->planes[PN_GBUFFER_POSITION],
                                           gb->planes[PN_GBUFFER_INSTANCE], gb->width * gb->height, image->buffer);
     return st;
