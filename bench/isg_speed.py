@@ -353,7 +353,8 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3, help="--rows: interleaved rounds")
     ap.add_argument("--spp", default="128,256,512,1024", help="--rows: Mitsuba's spp ('' for none)")
     ap.add_argument("--no-truth", action="store_true", help="--rows: times only (no reference, no Mitsuba)")
-    ap.add_argument("--out", default="bench/results/isg/speed/rows", help="--rows: the truth's cache folder")
+    ap.add_argument("--out", default="bench/results/isg/rows_truth",
+                    help="--rows: the truth is cached in OUT/cache (git-ignored)")
     a = ap.parse_args()
     if a.rows:
         return rows_mode(a)
