@@ -1,6 +1,7 @@
 """Blinn-Phong and GGX under the depthmap method's cap-average tables, two
 builds in one run (docs/depthmap.md, "Blinn-Phong and GGX: a table with the
-view angle"): the NRMSE against the reference (face 32, sun 2 x 2; cached)
+view angle"): the NRMSE against the reference (face 32, sun 2 x 2; cached),
+over all pixels and over those with N.V below 0.5 and 0.17 (60 and 80 degrees),
 and the shading time (maps reused, `reuse_maps 1`, median of --frames) of
 each build's default `specular 3`, alternating the builds round by round
 (each round runs a fresh process per build) so that the load hits them alike.
@@ -53,6 +54,11 @@ def worker(name: str, out: Path, frames: int, png: str | None) -> None:
     first_cpu = time.process_time() - t0  # includes the tables' build (once per context)
     got = img.read()[..., :3]
     err = compare(ref, got, mask)
+    # the oblique and grazing pixels (N.V below cos 60 and cos 80 degrees): the spheres' rims
+    pos, nrm = gb.read("position")[..., :3].astype(np.float64), gb.read("normal")[..., :3].astype(np.float64)
+    view = np.asarray(built.camera.position, np.float64) - pos
+    nv = np.sum(nrm * view, -1) / np.maximum(np.linalg.norm(nrm, axis=-1) * np.linalg.norm(view, axis=-1), 1e-30)
+    rims = {f"nrmse_nv_below_{k}": compare(ref, got, mask & (nv < c))["nrmse"] for k, c in (("0.5", 0.5), ("0.17", 0.17))}
     shade = Renderer(ctx, "depthmap", background=0, reuse_maps=1)
     shade.execute(built.scene, gb, img)
     ctx.finish()
@@ -69,7 +75,7 @@ def worker(name: str, out: Path, frames: int, png: str | None) -> None:
         np.save(png + ".npy", got)
         write_png(png, got)
         write_png(str(Path(png).with_name(f"reference-{name}.png")), ref[..., :3])
-    print(json.dumps(dict(scene=name, nrmse=err["nrmse"], rel_rms=err["rel_rms"], shade_ms=float(np.median(times)),
+    print(json.dumps(dict(scene=name, nrmse=err["nrmse"], rel_rms=err["rel_rms"], **rims, shade_ms=float(np.median(times)),
                           shade_cpu_ms=float(np.median(cpu)), first_frame_cpu_s=first_cpu)))
 
 
@@ -105,6 +111,7 @@ def main() -> int:
     summary = []
     for (name, build), rs in rows.items():
         summary.append(dict(scene=name, build=build, nrmse=rs[0]["nrmse"],
+                            **{k: v for k, v in rs[0].items() if k.startswith("nrmse_nv")},
                             shade_ms=float(np.median([r["shade_ms"] for r in rs])),
                             shade_cpu_ms=float(np.median([r["shade_cpu_ms"] for r in rs])),
                             first_frame_cpu_s=float(np.median([r["first_frame_cpu_s"] for r in rs]))))

@@ -51,7 +51,10 @@
 #define DM_LOBE_NEWTON 4 /* steps to the disk's point of least u */
 #define DM_LOBE_CULL_U_BLINN 3.717f /* exp(-u^2 / 2) = DM_LOBE_CULL */
 #define DM_LOBE_CULL_U_GGX 5.535f   /* (1 + u^2)^-2 = DM_LOBE_CULL */
-#define DM_LOBE_FAMILY (DM_LOBE_R * DM_LOBE_D * DM_LOBE_P * DM_LOBE_C)
+#define DM_LOBE_J_MAX 4.0f /* the largest V.H / c taken (dm_lobe_average) */
+#define DM_LOBE_TILT_MAX 0.35f /* the largest tilt of H from N (rad) at which dm_lobe_average evaluates K */
+#define DM_LOBE_V 5 /* per entry: log G, the lobe-weighted centroid's x and y / c, the spreads of x and y / c */
+#define DM_LOBE_FAMILY (DM_LOBE_V * DM_LOBE_R * DM_LOBE_D * DM_LOBE_P * DM_LOBE_C)
 
 /* Clears every map to empty and the rasteriser's list of large triangles. */
 kernel void depthmap_clear(global uint *depth, int count, global uint *large_count)
@@ -246,19 +249,23 @@ kernel void depthmap_raster_large(global const float4 *tris, global const uint2 
  * than the bias. Outside the footprint nothing of the scene lies between p
  * and the light: visible. */
 inline float dm_visibility(global const float4 *f, global const uint *map, global const ushort *map16, int res,
-                           float3 p, float bias, int pcf)
+                           float3 p, float bias, int pcf, float2 grad)
 {
     float quantum = f[3].z / DM_Q_MAX; /* 16-bit maps: depth of one step */
     float tu = (dot(p, f[0].xyz) - f[0].w) / f[3].x, tv = (dot(p, f[1].xyz) - f[1].w) / f[3].y;
-    float z = f[2].w - dot(p, f[2].xyz) - bias;
+    float z0 = f[2].w - dot(p, f[2].xyz) - bias;
     if (!(tu >= 0.0f && tv >= 0.0f && tu < (float)res && tv < (float)res))
         return 1.0f;
     int ci = (int)tu, cj = (int)tv;
     int lit = 0, taps = 0;
+    /* receiver_plane: the receiver's depth at each tap's texel centre along
+     * its tangent plane (grad: depth per texel along u and v; 0 otherwise) */
+    float gu = grad.x, gv = grad.y;
     for (int dj = -pcf; dj <= pcf; ++dj) {
         int j = cj + dj;
         for (int di = -pcf; di <= pcf; ++di) {
             int i = ci + di;
+            float z = z0 + gu * ((float)i + 0.5f - tu) + gv * ((float)j + 0.5f - tv);
             ++taps;
             if (i < 0 || j < 0 || i >= res || j >= res)
                 ++lit;
@@ -411,16 +418,29 @@ inline float dm_cap_ratio(global const float *table, float r, float psi_c, float
     return w / (1.0f + (n + 1.0f) * 2.0f * s * s); /* the table stores H (1 + (n + 1)(1 - cos r)) */
 }
 
+/* The direction at the tangent offset (px, py) (radians, along ex and ey) from R, by the exponential map. */
+inline float3 dm_tangent_point(float3 refl, float3 ex, float3 ey, float px, float py)
+{
+    float3 t = px * ex + py * ey;
+    float tl = length(t);
+    return tl > 0.0f ? cos(tl) * refl + sin(tl) * (t / tl) : refl;
+}
+
+/* log of the lobe profile at u^2: Blinn-Phong -u^2 / 2, GGX -2 log(1 + u^2) */
+inline float dm_lobe_log(int family, float u2) { return family == 0 ? -0.5f * u2 : -2.0f * log1p(u2); }
+
 /* Blinn-Phong (family 0, s = 2 / sqrt(n)) and GGX (family 1, s = 2 alpha):
- * the lobe times the cosine averaged over the cap (d, r), per unit k_s, as
- * f_lobe(l*) (n.l*) G pi r^2 / (2 pi (1 - cos r)). About R the lobe depends
- * on u = |(x, y / c)| / s, (x, y) the tangent offset from R in and across the
- * plane of N and R, c = N.V (depthmap_table.c); in units of s the cap is a
- * disk of radius rho = r / s. l* is the disk's point of least u (R when
- * inside), G the lobe's disk average over its value there (at most 1),
- * quadrilinear in the table's grid. */
+ * the lobe times the cosine averaged over the cap (d, r), per unit k_s. About R
+ * the lobe depends on u = |(x, y / c)| / s, (x, y) the tangent offset from R in
+ * and across the plane of N and R, c = N.V (depthmap_table.c); in units of s
+ * the cap is a disk of radius rho = r / s. The table gives, quadrilinearly, G
+ * (the profile Lambda's disk average over its value at the disk's point of
+ * least u, u*), the lobe-weighted centroid of the disk in the round metric
+ * (x, y / c) and the spreads of x and y / c; the rest of the integrand, K
+ * (below), is averaged by four points at the centroid +- the spreads:
+ *   a = G Lambda(u*) pi r^2 / (2 pi (1 - cos r)) mean K. */
 inline float dm_lobe_average(global const float *table, pn_material m, float3 n, float3 v, float3 refl, float3 d,
-                             float psi_c, float r)
+                             float psi_c, float r, int centroid)
 {
     int family = m.lobe == PN_LOBE_BLINN_PHONG ? 0 : 1;
     float s = family == 0 ? 2.0f * rsqrt(m.shininess) : 2.0f * m.roughness;
@@ -445,10 +465,13 @@ inline float dm_lobe_average(global const float *table, pn_material m, float3 n,
     if (psi_c - r > (family == 0 ? DM_LOBE_CULL_U_BLINN : DM_LOBE_CULL_U_GGX) * s)
         return 0.0f;
     float gamma = hypot(ax, ay / c);
-    float rho = r / s, delta_u = (psi_c - r) / s * gamma, phi_s = atan2(ay, c * ax);
-    /* l*: on the disk's edge where x^2 + (y / c)^2 is least (safeguarded Newton on the edge's angle tau) */
-    float3 l = refl;
-    if (psi_c > r) {
+    float gd = psi_c - r;
+    float rho = r / s, delta_u = gd / s * gamma, phi_s = atan2(ay, c * ax);
+    /* u*: on the disk's edge where x^2 + (y / c)^2 is least (safeguarded Newton on the edge's angle tau);
+     * 0 when R is inside */
+    float log_ref = 0.0f, f_near = 0.0f;
+    float3 l_near = refl;
+    if (gd > 0.0f) {
         float x0 = psi_c / s * ax, y0 = psi_c / s * ay, ic2 = 1.0f / (c * c);
         float lo = M_PI_F, hi = 1.5f * M_PI_F, tau = atan2(-y0, -x0) + 2.0f * M_PI_F, ct, st;
         for (int it = 0; it < DM_LOBE_NEWTON; ++it) {
@@ -464,15 +487,15 @@ inline float dm_lobe_average(global const float *table, pn_material m, float3 n,
             tau = fpp > 0.0f && next >= lo && next <= hi ? next : 0.5f * (lo + hi);
         }
         st = sincos(tau, &ct);
-        float px = (x0 + rho * ct) * s, py = (y0 + rho * st) * s; /* radians, |components| */
-        float3 t = copysign(px, bx) * ex + copysign(py, by) * ey;
-        float tl = length(t);
-        if (tl > 0.0f)
-            l = cos(tl) * refl + sin(tl) * (t / tl);
+        float px = x0 + rho * ct, py = y0 + rho * st;
+        log_ref = dm_lobe_log(family, px * px + py * py * ic2);
+        l_near = dm_tangent_point(refl, ex, ey, copysign(px * s, bx), copysign(py * s, by));
     }
-    float f = dm_lobe_cosine(m, n, v, l);
-    if (!(f > 0.0f))
-        return 0.0f;
+    if (!centroid) { /* lobe_centroid 0: the rest of the integrand at u*'s direction alone */
+        f_near = dm_lobe_cosine(m, n, v, l_near);
+        if (!(f_near > 0.0f))
+            return 0.0f;
+    }
     float t0 = dm_edge_t(-rho * gamma), t1 = dm_edge_t(DM_LOBE_DELTA_MAX);
     float x = clamp(log1p(rho / DM_LOBE_RHO_0) / log1p(DM_LOBE_RHO_MAX / DM_LOBE_RHO_0), 0.0f, 1.0f) * (float)(DM_LOBE_R - 1);
     float y = clamp((dm_edge_t(delta_u) - t0) / (t1 - t0), 0.0f, 1.0f) * (float)(DM_LOBE_D - 1);
@@ -482,16 +505,66 @@ inline float dm_lobe_average(global const float *table, pn_material m, float3 n,
         w = min((int)q, DM_LOBE_C - 2);
     float ai = x - (float)i, aj = y - (float)j, ak = p - (float)k, aw = q - (float)w;
     global const float *base = table + family * DM_LOBE_FAMILY;
-    float g = 0.0f;
+    float4 g = (float4)(0.0f); /* log G, the centroid's x and y / c, x's spread, in units of s */
+    float gsy = 0.0f;          /* the spread of y / c */
     for (int dw = 0; dw < 2; ++dw)
         for (int dk = 0; dk < 2; ++dk)
             for (int dj = 0; dj < 2; ++dj) {
-                global const float *row = base + (((w + dw) * DM_LOBE_P + k + dk) * DM_LOBE_D + j + dj) * DM_LOBE_R + i;
-                g += (dw ? aw : 1.0f - aw) * (dk ? ak : 1.0f - ak) * (dj ? aj : 1.0f - aj) * mix(row[0], row[1], ai);
+                global const float *row =
+                    base + DM_LOBE_V * ((((w + dw) * DM_LOBE_P + k + dk) * DM_LOBE_D + j + dj) * DM_LOBE_R + i);
+                float wt = (dw ? aw : 1.0f - aw) * (dk ? ak : 1.0f - ak) * (dj ? aj : 1.0f - aj);
+                g += wt * mix(vload4(0, row), vload4(0, row + DM_LOBE_V), ai);
+                gsy += wt * mix(row[4], row[DM_LOBE_V + 4], ai);
             }
     float h = 0.5f * r, sh = sin(h);
-    float area = sh > 0.0f ? (h * h) / (sh * sh) : 1.0f;
-    return f * exp(fmin(g, 0.0f)) * area;
+    float area = sh > 0.0f ? (h * h) / (sh * sh) : 1.0f; /* the disk's area pi r^2 over the cap's */
+    if (!centroid)
+        return f_near * exp(fmin(g.x, 0.0f)) * area;
+    /* The rest of the integrand, K = f_lobe(L) (n.L) min(V.H / c, J_MAX) / Lambda(|P|), by the half vector H:
+     * a point P of the model's round plane is H turned from N by s |P| / 2 (x in the plane of incidence,
+     * along hx, y across it, along ey), L = 2 (V.H) H - V, and V.H / c the Jacobian of L over the model's.
+     * K is nearly quadratic in P (the cosine n.L and V.H are each linear in x; G1), so its lobe-weighted
+     * mean is that of the four points (centroid +- spreads): exact for K quadratic in x and y. */
+    float3 hx = cross(ey, n);
+    float mx = bx < 0.0f ? -g.y : g.y, my = by < 0.0f ? -fabs(g.z) : fabs(g.z), sx = fmax(g.w, 0.0f);
+    /* The horizon n.L = 0 cuts x at about x_h = c / (s sin theta_v) (n.L ~ c - s sin theta_v x): the points
+     * are taken in x's part below x_h, as a normal distribution of x (mean mx, spread sx) truncated there,
+     * weighted by its mass p. */
+    float sin_v = sqrt(fmax(1.0f - c * c, 0.0f)), p_mass = 1.0f;
+    if (sx > 0.0f && sin_v > 0.0f) {
+        float z = (c / (s * sin_v) - mx) / sx;
+        if (z < 6.0f) {
+            if (z < -9.0f)
+                return 0.0f;
+            p_mass = 0.5f * erfc(-z * M_SQRT1_2_F);
+            float lam = 0.3989422804f * exp(-0.5f * z * z) / p_mass; /* phi(z) / Phi(z) */
+            mx -= sx * lam;
+            sx *= sqrt(fmax(1.0f - z * lam - lam * lam, 0.0f));
+        }
+    }
+    float sy = fmax(gsy, 0.0f), kk = 0.0f;
+    for (int corner = 0; corner < 4; ++corner) {
+        float qx = mx + ((corner & 1) ? sx : -sx), qy = my + ((corner & 2) ? sy : -sy), ql = hypot(qx, qy);
+        if (0.5f * s * ql > DM_LOBE_TILT_MAX) { /* beyond the model's small angles (GGX's far tail): pulled in */
+            float pull = DM_LOBE_TILT_MAX / (0.5f * s * ql);
+            qx *= pull;
+            qy *= pull;
+            ql *= pull;
+        }
+        float th = 0.5f * s * ql;
+        float3 hv = ql > 0.0f ? cos(th) * n + sin(th) * ((qx / ql) * hx + (qy / ql) * ey) : n;
+        float vh = dot(v, hv);
+        if (!(vh > 0.0f))
+            continue;
+        float3 l = 2.0f * vh * hv - v;
+        float f = dm_lobe_cosine(m, n, v, l);
+        if (f > 0.0f)
+            kk += f * fmin(vh / c, DM_LOBE_J_MAX) * exp(fmin(log_ref - dm_lobe_log(family, ql * ql), 80.0f));
+    }
+    kk *= 0.25f * p_mass; /* the four points' mean, times the mass above the horizon */
+    if (!(kk > 0.0f))
+        return 0.0f;
+    return kk * exp(fmin(g.x, 0.0f)) * area;
 }
 
 /* The lobe times the cosine averaged over the cap (d, r) by the tables:
@@ -506,8 +579,10 @@ inline float dm_table_lobe(global const float *table, pn_material m, float3 n, f
                            float r, float min_n, int lobe_tables)
 {
     /* The anisotropic lobe has no equivalent exponent: the quadrature samples it;
-       so do Blinn-Phong and GGX when their tables were not built (lobe_tables 0). */
-    if (m.lobe == PN_LOBE_ASHIKHMIN_SHIRLEY || (m.lobe != PN_LOBE_PHONG && !lobe_tables))
+       so do Blinn-Phong and GGX when their tables were not built (lobe_tables: bit 0 Blinn-Phong's, bit 1 GGX's;
+       bit 2 the four-point rule of lobe_centroid 1). */
+    if (m.lobe == PN_LOBE_ASHIKHMIN_SHIRLEY ||
+        (m.lobe != PN_LOBE_PHONG && !(lobe_tables & (m.lobe == PN_LOBE_BLINN_PHONG ? 1 : 2))))
         return -1.0f;
     float n_eq = m.lobe == PN_LOBE_PHONG         ? m.shininess
                  : m.lobe == PN_LOBE_BLINN_PHONG ? 0.25f * m.shininess
@@ -519,7 +594,7 @@ inline float dm_table_lobe(global const float *table, pn_material m, float3 n, f
     float sl = length(side);
     float psi_c = atan2(sl, c); /* accurate near 0, unlike acos */
     if (m.lobe != PN_LOBE_PHONG) /* Blinn-Phong and GGX: their own tables, with the view */
-        return dm_lobe_average(table + DM_TABLE_PHONG_FLOATS, m, n, v, refl, d, psi_c, r);
+        return dm_lobe_average(table + DM_TABLE_PHONG_FLOATS, m, n, v, refl, d, psi_c, r, lobe_tables & 4);
     float3 l = refl;
     if (psi_c > r)
         l = cos(r) * d + sin(r) * (side / sl); /* psi_c > r >= 0: sl > 0 */
@@ -566,7 +641,7 @@ kernel void shade_depthmap(global const float4 *position, global const float4 *n
                            global const uint *depth, global const uint2 *atlas, int use_maps, float bias_constant, float bias_slope,
                            int pcf, int specular, int cap_samples, global float4 *image,
                            global const ushort *depth16, int half_maps, global const float *cap_table,
-                           float table_min_n, int lobe_tables, int soft_count)
+                           float table_min_n, int lobe_tables, int soft_count, int receiver_plane)
 {
     int gid = get_global_id(0);
     if (gid >= count)
@@ -593,15 +668,25 @@ kernel void shade_depthmap(global const float4 *position, global const float4 *n
         if (use_maps && f[3].w != 0.0f) { /* a domain without a map (skip_power) is lit unshadowed */
             float tan_theta = fmin(sqrt(fmax(1.0f - c * c, 0.0f)) / c, DM_MAX_SLOPE);
             float texel = fmax(f[3].x, f[3].y);
-            /* a diagonal PCF tap is up to sqrt(2) pcf + 0.71 texels from p: the slope term covers it */
-            float bias = texel * (bias_constant + bias_slope * (M_SQRT2_F * (float)pcf + 1.0f) * tan_theta);
+            /* a diagonal PCF tap is up to sqrt(2) pcf + 0.71 texels from p: the slope term covers it, or
+             * (receiver_plane) the receiver's tangent plane gives each tap's own depth, and the constant
+             * term alone covers rounding and the surface's curvature within a texel */
+            float2 grad = (float2)(0.0f);
+            float bias;
+            if (receiver_plane) {
+                float cd = fmax(c, 1.0f / DM_MAX_SLOPE); /* |grad| = tan(theta), capped like the bias */
+                grad = (float2)(dot(n, f[0].xyz) * f[3].x, dot(n, f[1].xyz) * f[3].y) / cd;
+                bias = texel * bias_constant;
+            } else {
+                bias = texel * (bias_constant + bias_slope * (M_SQRT2_F * (float)pcf + 1.0f) * tan_theta);
+            }
             uint2 where = atlas[i]; /* the map's first texel and side */
             global const ushort *map16 = half_maps ? depth16 + where.x : (global const ushort *)0;
             if (i < soft_count) /* soft_shadows: the cap's penumbra */
                 vis = dm_soft_visibility(f, depth + where.x, map16, (int)where.y, p, bias_constant, bias_slope,
                                          tan_theta, tan(fmin(rad.w, 1.5f)));
             else
-                vis = dm_visibility(f, depth + where.x, map16, (int)where.y, p, bias, pcf);
+                vis = dm_visibility(f, depth + where.x, map16, (int)where.y, p, bias, pcf, grad);
             if (vis == 0.0f)
                 continue;
         }

@@ -39,6 +39,7 @@
 #define PN_FIV_RECORD 4
 #define PN_FIV_TILE 16
 #define PN_FIV_MAX_OVERLAP 32
+#define PN_FIV_SLOTS (PN_FIV_MAX_OVERLAP * PN_FIV_LANES)
 
 #define PN_OVERLAP_SUM 0
 #define PN_OVERLAP_DISC 1
@@ -557,6 +558,15 @@ PN_FIV_INLINE float8 pn_fiv_lens8(float8 a, float8 b, float8 dist)
     return select(select(lens, PN_PI * r * r, dist <= fabs(a - b)), (float8)(0.0f), dist >= a + b);
 }
 
+/* any() of a lane mask without branches: PoCL's any tests the lanes one by
+ * one, a branch each, which mispredicts in the disc pairs' loop. */
+PN_FIV_INLINE int pn_fiv_any8(int8 m)
+{
+    int4 a = m.lo | m.hi;
+    int2 b = a.lo | a.hi;
+    return (b.x | b.y) < 0;
+}
+
 /* One work-item per 8 pixels of a row (above): global size
  * ceil(width / 8) x height. */
 kernel void shade_fiv(global const float4 *position, global const float4 *normal, global const float4 *albedo,
@@ -659,11 +669,18 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     }
     float8 sum_r = 0.0f, sum_g = 0.0f, sum_b = 0.0f, big_r = 0.0f, big_g = 0.0f, big_b = 0.0f;
     float8 vis_r = 1.0f, vis_g = 1.0f, vis_b = 1.0f;
-    /* Disc correction: per lane the occluders that took part (at most 32),
-     * slot d of lane l at [d * 8 + l]: unit-sphere direction, radius, the
-     * occluder's irradiance. */
-    float dd[7][PN_FIV_MAX_OVERLAP * PN_FIV_LANES];
-    int discs[PN_FIV_LANES] = {0, 0, 0, 0, 0, 0, 0, 0};
+    /* Disc correction: one slot per occluder that some lane took part with
+     * (in the loop's order), lane l of slot d at [d * 8 + l]: unit-sphere
+     * direction, radius, the occluder's irradiance; zeros in the lanes that did
+     * not take it (or already hold PN_FIV_MAX_OVERLAP discs). A slot is one
+     * occluder in all lanes, so neighbouring pixels' pairs line up: a pair
+     * near in one lane is mostly near in the others. A zero disc never adds
+     * to a lane's correction (its lens with any disc is 0), so each lane sees
+     * its own discs in the scalar order. At most 8 x 32 slots (57 KiB of
+     * private memory; a work-item fills only the slots it uses). */
+    float dd[7][PN_FIV_SLOTS * PN_FIV_LANES];
+    int8 held = 0;
+    int slots = 0;
     /* With one occluder there is no pair: total = sum, clamped to [largest, sum]. */
     const bool pairs = overlap == PN_OVERLAP_DISC && occluder_count > 1;
     int words = (occluder_count + 31) / 32;
@@ -755,22 +772,21 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
                 vis_g = select(vis_g, vis_g * clamp(1.0f - i_g / fmax(tot_g, 1e-30f), 0.0f, 1.0f), take);
                 vis_b = select(vis_b, vis_b * clamp(1.0f - i_b / fmax(tot_b, 1e-30f), 0.0f, 1.0f), take);
             } else if (pairs) {
-                float ar[PN_FIV_LANES], ag[PN_FIV_LANES], ab[PN_FIV_LANES], arho[PN_FIV_LANES];
-                int at[PN_FIV_LANES];
-                vstore8(i_r, 0, ar);
-                vstore8(i_g, 0, ag);
-                vstore8(i_b, 0, ab);
-                vstore8(rho, 0, arho);
-                vstore8(take, 0, at);
-                for (int l = 0; l < PN_FIV_LANES; ++l) {
-                    if (!at[l] || discs[l] >= PN_FIV_MAX_OVERLAP)
-                        continue;
-                    float3 v = sphere.xyz - (float3)(lp[0][l], lp[1][l], lp[2][l]);
-                    float3 u = arho[l] > 0.0f ? v / arho[l] : (float3)(ln[0][l], ln[1][l], ln[2][l]);
-                    int slot = discs[l]++ * PN_FIV_LANES + l;
-                    dd[0][slot] = u.x, dd[1][slot] = u.y, dd[2][slot] = u.z;
-                    dd[3][slot] = fmin(r / fmax(arho[l], 1e-30f), 1.0f);
-                    dd[4][slot] = ar[l], dd[5][slot] = ag[l], dd[6][slot] = ab[l];
+                /* the lanes' discs of this occluder, in one slot (each lane's
+                 * divides give the scalar code's bits) */
+                int8 fill = take & (held < PN_FIV_MAX_OVERLAP);
+                if (pn_fiv_any8(fill)) {
+                    const float8 zero = 0.0f;
+                    int8 far = rho > 0.0f;
+                    held -= fill;
+                    vstore8(select(zero, select(nx, vx / rho, far), fill), slots, dd[0]);
+                    vstore8(select(zero, select(ny, vy / rho, far), fill), slots, dd[1]);
+                    vstore8(select(zero, select(nz, vz / rho, far), fill), slots, dd[2]);
+                    vstore8(select(zero, fmin(r / fmax(rho, 1e-30f), 1.0f), fill), slots, dd[3]);
+                    vstore8(select(zero, i_r, fill), slots, dd[4]);
+                    vstore8(select(zero, i_g, fill), slots, dd[5]);
+                    vstore8(select(zero, i_b, fill), slots, dd[6]);
+                    ++slots;
                 }
             }
         }
@@ -784,25 +800,27 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
         if (pairs) {
             /* Pairwise: the lens of two unit bounding discs, as a share of their
              * areas, of the two occluders' irradiance is counted once; each
-             * lane over its own discs, in the scalar code's order. */
-            int8 nd = vload8(0, discs);
-            int most = 0;
-            for (int l = 0; l < PN_FIV_LANES; ++l)
-                most = max(most, discs[l]);
-            for (int l = 0; l < PN_FIV_LANES; ++l) /* the slots a lane did not fill: defined, never taken */
-                for (int d = discs[l]; d < most; ++d)
-                    for (int c = 0; c < 7; ++c)
-                        dd[c][d * PN_FIV_LANES + l] = 0.0f;
-            for (int a = 0; a < most; ++a) {
+             * lane over its own discs, in the scalar code's order. Per disc a,
+             * first the later discs b near it in some lane, listed without a
+             * branch (most pairs are apart: no lens, no sqrt or acos spent on
+             * them), then the lenses of the listed pairs, in order. */
+            for (int a = 0; a < slots; ++a) {
                 float8 uax = vload8(a, dd[0]), uay = vload8(a, dd[1]), uaz = vload8(a, dd[2]), ra = vload8(a, dd[3]);
-                for (int b = a + 1; b < most; ++b) {
+                uchar list[PN_FIV_SLOTS];
+                int listed = 0;
+                for (int b = a + 1; b < slots; ++b) {
                     float8 rb = vload8(b, dd[3]);
                     float8 ex = uax - vload8(b, dd[0]), ey = uay - vload8(b, dd[1]), ez = uaz - vload8(b, dd[2]);
                     float8 d2 = ex * ex + ey * ey + ez * ez;
-                    /* Most pairs are apart: no lens, and no sqrt or acos spent on it. */
-                    int8 near = ((int8)(b) < nd) & ~(d2 >= (ra + rb) * (ra + rb));
-                    if (!any(near))
-                        continue;
+                    list[listed] = (uchar)b;
+                    listed += pn_fiv_any8(~(d2 >= (ra + rb) * (ra + rb)));
+                }
+                for (int k = 0; k < listed; ++k) {
+                    int b = list[k];
+                    float8 rb = vload8(b, dd[3]);
+                    float8 ex = uax - vload8(b, dd[0]), ey = uay - vload8(b, dd[1]), ez = uaz - vload8(b, dd[2]);
+                    float8 d2 = ex * ex + ey * ey + ez * ez;
+                    int8 near = ~(d2 >= (ra + rb) * (ra + rb));
                     float8 lens = pn_fiv_lens8(ra, rb, sqrt(d2));
                     int8 take = near & (lens > 0.0f);
                     float8 share = lens / (PN_PI * (ra * ra + rb * rb));

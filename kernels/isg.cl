@@ -33,8 +33,17 @@
  *      that pokes out of the surface next to it a dark arc (the margin;
  *      docs/isg.md section 9, "The seed's Fig. 12");
  *   2  all used.
- * A sphere of another instance that contains the receiver occludes every
- * patch (the receiver is inside that occluder).
+ * Under 1, an own sphere that contains or nearly touches the receiver is, with
+ * its set's skin s > 0 (`self_push` times the set's (g + 1/2) cells: how far
+ * its balls may reach past the surface; 0 for the caller's spheres), tested
+ * from the receiver pushed out along its normal, p + s n, instead of skipped:
+ * it keeps the shadow it casts past the surface without painting the dark
+ * disc (skipped when p + s n is still inside it).
+ * A sphere of another instance that contains the receiver (`inside_other`):
+ *   0  occludes every patch (the receiver is inside that occluder: V = 0);
+ *   1  is skipped;
+ *   2  is tested from p + s n with its own set's skin s (skipped when that is
+ *      0 or p + s n is still inside it).
  *
  * Spheres: float4 (world centre, world radius) and the owning instance id.
  * Thin shells: triangles (3 float4 world vertices) and their instance ids,
@@ -122,6 +131,10 @@ typedef struct {
     global const float4 *tris;
     global const uint *tri_owners;
     int tri_count;
+    /* Self-occlusion (docs/isg.md section 8): each sphere's skin (world
+     * units, 0: none; null: all 0) and the inside_other policy. */
+    global const float *skins;
+    int inside_other;
 } pn_isg_tree;
 
 inline void pn_isg_tree_init(int sphere_count, int use_tree, pn_isg_tree *t)
@@ -129,6 +142,7 @@ inline void pn_isg_tree_init(int sphere_count, int use_tree, pn_isg_tree *t)
     t->levels = 0;
     t->lod = 0.0f;
     t->tris = 0, t->tri_owners = 0, t->tri_count = 0;
+    t->skins = 0, t->inside_other = 0;
     t->count[0] = sphere_count, t->offset[0] = 0;
     if (!use_tree || sphere_count <= 0)
         return;
@@ -183,7 +197,10 @@ inline uint pn_isg_bits16(int16 m, int base)
 /* One sphere's patches: marks in `mask` (one word per patch row, bit j for
  * column j) the patches whose centre direction lies in its cap seen from
  * (p, n). Returns -1 when the receiver is inside it (an occluder), 1 when it
- * marked something new, else 0. No trigonometry: a row can hold marks only
+ * marked something new, else 0. skin, inside_other: the sphere's skin and the
+ * policy for another instance's sphere holding the receiver (file comment): an
+ * own sphere under self_occlusion 1 within the margin, or such a sphere under
+ * inside_other 2, is seen from p + skin n instead. No trigonometry: a row can hold marks only
  * where its best direction, at the sphere's phi, is within the cap
  * (sin(theta_i) rho + cos(theta_i) u_y >= cos alpha, with a 1e-6 slack for
  * rounding), and in such a row the patch test is d_ij . u >= cos alpha. Both
@@ -191,20 +208,31 @@ inline uint pn_isg_bits16(int16 m, int base)
  * earlier scalar walk from the nearest row and column, found by bisection,
  * was 2-3x slower; it marked the same patches; docs/isg.md section 9). */
 inline int pn_isg_mark_sphere_rows(const pn_isg_grid *pg, float cos_cone, float sin_cone, float3 p, float3 n,
-                                   float4 sp, bool own, int self_occlusion, uint *mask)
+                                   float4 sp, bool own, int self_occlusion, float skin, int inside_other,
+                                   uint *mask)
 {
     const int grid = pg->grid;
     const uint full = pn_isg_full_row(grid);
-    const float3 v = sp.xyz - p;
-    const float r = sp.w, d2 = dot(v, v);
+    float3 v = sp.xyz - p;
+    const float r = sp.w;
+    float d2 = dot(v, v);
     if (dot(v, n) <= -r) /* wholly behind the receiver plane */
         return 0;
     if (own && self_occlusion == 0)
         return 0;
-    if (own && self_occlusion == 1 && d2 <= r * r * (1.0f + PN_ISG_SELF_MARGIN) * (1.0f + PN_ISG_SELF_MARGIN))
-        return 0;
-    if (d2 <= r * r * (1.0f + PN_ISG_TOUCH) * (1.0f + PN_ISG_TOUCH))
-        return own && self_occlusion == 1 ? 0 : -1; /* inside an occluder */
+    const float touch = r * r * (1.0f + PN_ISG_TOUCH) * (1.0f + PN_ISG_TOUCH);
+    const bool near_own =
+        own && self_occlusion == 1 && d2 <= r * r * (1.0f + PN_ISG_SELF_MARGIN) * (1.0f + PN_ISG_SELF_MARGIN);
+    if (!near_own && d2 <= touch && (own || inside_other == 0))
+        return -1; /* inside an occluder */
+    if (near_own || d2 <= touch) { /* seen from the receiver pushed out by the skin, or skipped */
+        if (!(skin > 0.0f) || (!own && inside_other == 1))
+            return 0;
+        v -= skin * n;
+        d2 = dot(v, v);
+        if (dot(v, n) <= -r || d2 <= touch)
+            return 0;
+    }
     const float d = sqrt(d2);
     const float3 u = v / d;
     const float sa = fmin(r / d, 1.0f), ca = sqrt(fmax(1.0f - sa * sa, 0.0f));
@@ -473,7 +501,9 @@ inline bool pn_isg_node_open(float4 b, float3 p, float3 n, float3 z, float cos_c
     const float r = b.w, d2 = dot(v, v);
     if (dot(v, n) <= -r)
         return false;
-    const float rin = r * (1.0f + PN_ISG_TOUCH);
+    /* Open when the receiver is within the self margin: a sphere in it that
+     * holds or nearly touches the receiver may be seen from p + skin n. */
+    const float rin = r * (1.0f + fmax(PN_ISG_TOUCH, PN_ISG_SELF_MARGIN));
     if (d2 <= rin * rin)
         return true;
     const float d = sqrt(d2), sa = fmin(r / d, 1.0f), ca = sqrt(fmax(1.0f - sa * sa, 0.0f));
@@ -492,11 +522,11 @@ inline bool pn_isg_node_small(float4 b, float3 p, float3 n, float sin_lod)
 
 /* Whether sphere sp makes the receiver "inside an occluder" (pn_isg_mark_sphere_rows's
  * -1): the same tests, none of which depends on the lobe. */
-inline bool pn_isg_inside_sphere(float3 p, float3 n, float4 sp, bool own, int self_occlusion)
+inline bool pn_isg_inside_sphere(float3 p, float3 n, float4 sp, bool own, int self_occlusion, int inside_other)
 {
     const float3 v = sp.xyz - p;
     const float r = sp.w;
-    if (dot(v, n) <= -r || (own && self_occlusion != 2))
+    if (dot(v, n) <= -r || (own && self_occlusion != 2) || (!own && inside_other != 0))
         return false;
     return dot(v, v) <= r * r * (1.0f + PN_ISG_TOUCH) * (1.0f + PN_ISG_TOUCH);
 }
@@ -510,7 +540,8 @@ inline bool pn_isg_inside(float3 p, float3 n, uint self_id, int self_occlusion, 
 {
     if (tree->levels == 0) {
         for (int s = 0; s < sphere_count; ++s)
-            if (pn_isg_inside_sphere(p, n, spheres[s], owners[s] == self_id, self_occlusion))
+            if (pn_isg_inside_sphere(p, n, spheres[s], owners[s] == self_id, self_occlusion,
+                                     tree->inside_other))
                 return true;
         return false;
     }
@@ -527,7 +558,8 @@ inline bool pn_isg_inside(float3 p, float3 n, uint self_id, int self_occlusion, 
             }
             const int s1 = min((i + 1) * PN_ISG_TREE_FANOUT, sphere_count);
             for (int s = i * PN_ISG_TREE_FANOUT; s < s1; ++s)
-                if (pn_isg_inside_sphere(p, n, spheres[s], owners[s] == self_id, self_occlusion))
+                if (pn_isg_inside_sphere(p, n, spheres[s], owners[s] == self_id, self_occlusion,
+                                     tree->inside_other))
                     return true;
         }
         ++i;
@@ -541,13 +573,14 @@ inline bool pn_isg_inside(float3 p, float3 n, uint self_id, int self_occlusion, 
  * one, else the number that marked something; stops with *full set once every
  * patch of the window is marked. */
 inline int pn_isg_mark_range(const pn_isg_grid *pg, float cos_cone, float sin_cone, float3 p, float3 n, uint self_id,
-                             int self_occlusion, global const float4 *spheres, global const uint *owners, int s0,
-                             int s1, uint *mask, bool *full)
+                             int self_occlusion, global const float4 *spheres, global const uint *owners,
+                             const pn_isg_tree *tree, int s0, int s1, uint *mask, bool *full)
 {
     int any = 0;
     for (int s = s0; s < s1; ++s) {
         const int m = pn_isg_mark_sphere_rows(pg, cos_cone, sin_cone, p, n, spheres[s], owners[s] == self_id,
-                                              self_occlusion, mask);
+                                              self_occlusion, tree->skins ? tree->skins[s] : 0.0f,
+                                              tree->inside_other, mask);
         if (m < 0)
             return -1;
         any += m;
@@ -579,7 +612,7 @@ inline int pn_isg_mark_spheres(const pn_isg_grid *pg, float3 p, float3 n, uint s
         return 0;
     bool full = false;
     if (tree->levels == 0)
-        return pn_isg_mark_range(pg, cos_cone, sin_cone, p, n, self_id, self_occlusion, spheres, owners, 0,
+        return pn_isg_mark_range(pg, cos_cone, sin_cone, p, n, self_id, self_occlusion, spheres, owners, tree, 0,
                                  sphere_count, mask, &full);
     /* The LOD cut: nodes subtending less than lod patch steps (half-angle
      * below lod step / 2, capped short of a hemisphere) stand for their
@@ -593,7 +626,8 @@ inline int pn_isg_mark_spheres(const pn_isg_grid *pg, float3 p, float3 n, uint s
         const float4 b = nodes[tree->offset[l] + i];
         if (pn_isg_node_open(b, p, n, pg->z, cos_cone, sin_cone)) {
             if (sin_lod > 0.0f && pn_isg_node_small(b, p, n, sin_lod)) {
-                const int m = pn_isg_mark_sphere_rows(pg, cos_cone, sin_cone, p, n, b, false, self_occlusion, mask);
+                const int m = pn_isg_mark_sphere_rows(pg, cos_cone, sin_cone, p, n, b, false, self_occlusion, 0.0f, 0,
+                                                              mask);
                 any += m; /* >= 0: the receiver is outside the node */
                 if (m > 0 && pn_isg_all_marked(mask, pg->grid))
                     return any;
@@ -602,7 +636,7 @@ inline int pn_isg_mark_spheres(const pn_isg_grid *pg, float3 p, float3 n, uint s
                 continue;
             } else {
                 const int m = pn_isg_mark_range(pg, cos_cone, sin_cone, p, n, self_id, self_occlusion, spheres,
-                                                owners, i * PN_ISG_TREE_FANOUT,
+                                                owners, tree, i * PN_ISG_TREE_FANOUT,
                                                 min((i + 1) * PN_ISG_TREE_FANOUT, sphere_count), mask, &full);
                 if (m < 0)
                     return -1;
@@ -929,7 +963,8 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
                       global const float *table, int specular_mode, global const float4 *gamma,
                       global const int *gamma_levels, int gamma_count, float gamma_lambda0, int shared_grid,
                       float shared_sharpness, global const float4 *lobe_cube, int lobe_cube_n,
-                      global const float4 *irradiance, int irradiance_n, global float4 *image)
+                      global const float4 *irradiance, int irradiance_n, global const float *skins, int inside_other,
+                      global float4 *image)
 {
     const int gid = get_global_id(0);
     if (gid >= count)
@@ -943,6 +978,7 @@ kernel void shade_isg(global const float4 *position, global const float4 *normal
     pn_isg_tree_init(sphere_count, use_tree, &tree);
     tree.lod = tree.levels > 0 ? fmax(lod, 0.0f) : 0.0f;
     tree.tris = triangles, tree.tri_owners = triangle_owners, tree.tri_count = max(triangle_count, 0);
+    tree.skins = skins, tree.inside_other = inside_other;
     /* The specular path without shadows sees no occluder. */
     pn_isg_tree spec_tree = tree;
     spec_tree.tri_count = specular_shadows ? tree.tri_count : 0;

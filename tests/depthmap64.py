@@ -583,14 +583,16 @@ def map_bias(frame, cos_theta, bias: float, slope_bias: float, pcf: int):
     return max(frame[12], frame[13]) * (bias + slope_bias * (math.sqrt(2.0) * pcf + 1.0) * tan)
 
 
-def visibility(frame, depth, p, b, pcf: int, margin: float = 0.0):
+def visibility(frame, depth, p, b, pcf: int, margin: float = 0.0, grad=(0.0, 0.0)):
     """The share of the (2 pcf + 1)^2 texels around p's whose depth is not in
     front of p by more than the bias b (1 outside the map). With a margin m,
     (lo, hi): the share when comparisons within m of their threshold go dark /
-    lit (the float32 kernel may decide those either way)."""
+    lit (the float32 kernel may decide those either way). ``grad``: the
+    receiver's depth per texel along u and v (receiver_plane, plane_gradient):
+    each tap compares the depth of p's tangent plane at its texel centre."""
     res = depth.shape[0]
-    tu, tv, z = map_coordinates(frame, p)
-    z = z - b
+    tu, tv, z0 = map_coordinates(frame, p)
+    z0 = z0 - b
     if not (0 <= tu < res and 0 <= tv < res):
         return 1.0, 1.0
     ci, cj = int(tu), int(tv)
@@ -604,6 +606,7 @@ def visibility(frame, depth, p, b, pcf: int, margin: float = 0.0):
                 hi += 1
                 continue
             stored = depth[j, i]
+            z = z0 + grad[0] * (i + 0.5 - tu) + grad[1] * (j + 0.5 - tv)
             lo += z <= stored - margin
             hi += z <= stored + margin
     return lo / taps, hi / taps
@@ -680,9 +683,10 @@ def cap_ratio(psi_c: float, r: float, n: float, nodes: int = 400) -> float:
 
 
 def table_average(n, v, d, r, name, shin, rough, f, nodes: int = 400,
-                  min_n: float = TABLE_MIN_EXPONENT) -> float | None:
+                  min_n: float = TABLE_MIN_EXPONENT, centroid: bool = False) -> float | None:
     """The float64 value the table approximates (dm_table_lobe with the exact
-    H instead of the interpolated one); None when n_eq is below the table's range."""
+    H instead of the interpolated one); None when n_eq is below the table's range.
+    centroid: Blinn-Phong and GGX by the four points about the lobe's centroid (lobe_centroid 1)."""
     if name == "ashikhmin_shirley":
         return None  # anisotropic: no equivalent exponent, the quadrature samples it
     n_eq = equivalent_exponent(name, shin, rough)
@@ -691,7 +695,8 @@ def table_average(n, v, d, r, name, shin, rough, f, nodes: int = 400,
     if name != "phong":  # Blinn-Phong and GGX: their own tables, with the view (depthmap_lobes64)
         import depthmap_lobes64
 
-        return depthmap_lobes64.average(n, v, d, r, name, shin, rough, f)
+        rule = depthmap_lobes64.average if centroid else depthmap_lobes64.average_one_point
+        return rule(n, v, d, r, name, shin, rough, f)
     refl = 2.0 * (n @ v) * n - v
     psi_c, l = nearest_cap_point(refl, d, r)
     nl = float(n @ l)
@@ -701,7 +706,7 @@ def table_average(n, v, d, r, name, shin, rough, f, nodes: int = 400,
 
 
 def specular_average(n, v, d, r, mat, specular: int, cap_samples: int,
-                     table_min_exponent: float = TABLE_MIN_EXPONENT) -> float:
+                     table_min_exponent: float = TABLE_MIN_EXPONENT, lobe_centroid: int = 0) -> float:
     """a_i per unit k_s: the lobe times the cosine over domain (d, r) by the chosen rule."""
     from penumbra.brdf import lobe as brdf_lobe, lobe_args
 
@@ -711,7 +716,8 @@ def specular_average(n, v, d, r, mat, specular: int, cap_samples: int,
     c = float(n @ d)
     refl = 2.0 * (n @ v) * n - v
     if specular == SPECULAR_TABLE:
-        a = table_average(n, v, d, r, name, shin, args.get("roughness", 1.0), f, min_n=table_min_exponent)
+        a = table_average(n, v, d, r, name, shin, args.get("roughness", 1.0), f, min_n=table_min_exponent,
+                          centroid=bool(lobe_centroid))
         if a is not None:
             return a
     if specular >= SPECULAR_CAP:
@@ -727,8 +733,17 @@ def specular_average(n, v, d, r, mat, specular: int, cap_samples: int,
     return f(d) * c
 
 
+def plane_bias(frame, n, cos_theta, bias: float, slope_bias: float):
+    """receiver_plane: (the constant bias texel x bias (slope_bias unused), the receiver's depth gradient per
+    texel (n.e1 du, n.e2 dv) / max(n.d, 1/32)) of a lookup with unit normal n."""
+    f = np.asarray(frame, np.float64)
+    cd = max(float(cos_theta), 1.0 / MAX_SLOPE)
+    return (max(f[12], f[13]) * bias,
+            (float(n @ f[0:3]) * f[12] / cd, float(n @ f[4:7]) * f[13] / cd))
+
+
 def shade(planes, camera_position, domains, frames=None, maps=None, bias=1.0, slope_bias=1.0, pcf=1,
-          specular=SPECULAR_CAP, cap_samples=16, margin=0.0):
+          specular=SPECULAR_CAP, cap_samples=16, margin=0.0, receiver_plane=0):
     """float64 L_o of every foreground pixel, (lo, hi) as in ``visibility``:
     sum_i v_i L~_i (rho/pi max(0, n.d_i) + k_s a_i). ``domains``: (N, 8)
     pn_env_domain records; ``frames`` (N, 16) and ``maps`` (N, res, res) or
@@ -742,8 +757,12 @@ def shade(planes, camera_position, domains, frames=None, maps=None, bias=1.0, sl
             c = float(dirs[i] @ n)
             v_lo = v_hi = 1.0
             if maps is not None:
-                b = map_bias(frames[i], c, bias, slope_bias, pcf)
-                v_lo, v_hi = visibility(frames[i], maps[i], p, b, pcf, margin)
+                if receiver_plane:
+                    b, g = plane_bias(frames[i], n, c, bias, slope_bias)
+                    v_lo, v_hi = visibility(frames[i], maps[i], p, b, pcf, margin, g)
+                else:
+                    b = map_bias(frames[i], c, bias, slope_bias, pcf)
+                    v_lo, v_hi = visibility(frames[i], maps[i], p, b, pcf, margin)
             if v_hi == 0:
                 continue
             a = specular_average(n, v, dirs[i], caps[i], mat, specular, cap_samples) if alb[3] > 0 else 0.0

@@ -83,10 +83,18 @@ def triangle_marks(dirs, p, n, tri, own, self_occlusion):
             & (dirs @ (sg * np.cross(a, b)) >= 0))
 
 
-def patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, tree=None, shells=None):
+def patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, tree=None, shells=None,
+               skins=None, inside_other=0):
     """(mask (grid, grid) bool, inside): the patches whose centre direction
     meets a sphere, as the kernel marks them (inside: the receiver is inside
-    another instance's sphere, or its own with self_occlusion 2).
+    another instance's sphere under inside_other 0, or its own with
+    self_occlusion 2).
+
+    skins: per sphere, how far the receiver is pushed out along n before that
+    sphere is tested when it holds or nearly touches the receiver (an own
+    sphere under self_occlusion 1 within SELF_MARGIN, another instance's under
+    inside_other 2); 0 or None: such a sphere is skipped. inside_other 1:
+    another instance's sphere holding the receiver is skipped.
 
     tree = (nodes, lod): the LOD cut (kernels/isg.cl pn_isg_mark; docs/isg.md
     section 8). ``spheres`` and ``owners`` are then in the order of
@@ -107,9 +115,10 @@ def patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, 
     dirs = (np.sin(th) * np.cos(ph))[..., None] * x + np.cos(th)[..., None] * y + (np.sin(th) * np.sin(ph))[..., None] * axis
     mask = np.zeros((grid, grid), bool)
     spheres = np.asarray(spheres, np.float64).reshape(-1, 4)
+    skins = np.zeros(len(spheres)) if skins is None else np.asarray(skins, np.float64)
     p, n = np.asarray(p, np.float64), np.asarray(n, np.float64)
 
-    def mark_sphere(s, own_id) -> bool:  # True: the receiver is inside an occluder
+    def mark_sphere(s, own_id, skin) -> bool:  # True: the receiver is inside an occluder
         v = s[:3] - p
         r = s[3]
         if v @ n <= -r:
@@ -117,10 +126,17 @@ def patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, 
         own = own_id == self_id
         if own and self_occlusion == 0:
             return False
-        if own and self_occlusion == 1 and v @ v <= (r * (1.0 + SELF_MARGIN)) ** 2:
-            return False
-        if v @ v <= (r * (1.0 + TOUCH)) ** 2:
-            return not (own and self_occlusion == 1)
+        held = v @ v <= (r * (1.0 + TOUCH)) ** 2
+        if (own and self_occlusion == 1 and v @ v <= (r * (1.0 + SELF_MARGIN)) ** 2) or (held and not own):
+            if held and not own and inside_other == 0:
+                return True
+            if skin <= 0.0 or (not own and inside_other == 1):
+                return False
+            v = s[:3] - (p + skin * n)  # seen from the receiver pushed out along its normal
+            if v @ n <= -r or v @ v <= (r * (1.0 + TOUCH)) ** 2:
+                return False
+        elif held:
+            return True
         mask[...] |= _cap_marks(dirs, v, r)
         return False
 
@@ -134,8 +150,8 @@ def patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, 
 
     lod = 0.0 if tree is None or self_occlusion == 0 or not len(spheres) else float(tree[1])
     if lod <= 0.0:
-        for s, own_id in zip(spheres, owners):
-            if mark_sphere(s, own_id):
+        for s, own_id, skin in zip(spheres, owners, skins):
+            if mark_sphere(s, own_id, skin):
                 return mask, True
         return mark_shells()
     nodes = np.asarray(tree[0], np.float64)
@@ -153,7 +169,7 @@ def patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, 
         if level > 1:
             return any(walk(level - 1, c) for c in range(TREE_FANOUT * i, min(TREE_FANOUT * (i + 1),
                                                                               levels[level - 2][1])))
-        return any(mark_sphere(spheres[s], owners[s])
+        return any(mark_sphere(spheres[s], owners[s], skins[s])
                    for s in range(TREE_FANOUT * i, min(TREE_FANOUT * (i + 1), len(spheres))))
 
     if any(walk(len(levels), i) for i in range(levels[-1][1])):
@@ -161,10 +177,12 @@ def patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, 
     return mark_shells()
 
 
-def visibility(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, tree=None, shells=None):
+def visibility(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, tree=None, shells=None,
+               skins=None, inside_other=0):
     """V = 1 - sum of occluded patches / window, by the exact ISG (tree: patch_mask's LOD cut; shells:
-    its thin-shell triangles)."""
-    mask, inside = patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, tree, shells)
+    its thin-shell triangles; skins, inside_other: patch_mask's)."""
+    mask, inside = patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, tree, shells,
+                              skins, inside_other)
     if inside:
         return 0.0
     if not mask.any():
@@ -338,11 +356,12 @@ def gamma_lookup(levels, tables, d, lam: float) -> np.ndarray:
 
 
 def env_specular(axis, lam, mu, p, n, self_id, self_occlusion, spheres, owners, grid, face_rgb,
-                 gamma=None, tree=None, shells=None) -> np.ndarray:
+                 gamma=None, tree=None, shells=None, skins=None, inside_other=0) -> np.ndarray:
     """pn_isg_env_specular with a cube of one texel per face (face_rgb (6, 3)):
     mu H(lam) sum over visible patches of ISG(patch) L(centre) max(n.centre, 0); with gamma = (levels,
     tables) (specular_mode 1) L(centre) is Gamma_L(axis, lam) for every patch."""
-    mask, inside = patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, tree, shells)
+    mask, inside = patch_mask(axis, lam, p, n, self_id, self_occlusion, spheres, owners, grid, tree, shells,
+                              skins, inside_other)
     if inside:
         return np.zeros(3)
     x, y = frame(axis)
@@ -380,13 +399,14 @@ def lobe_cube(lobes, sharpness: float, n: int = LOBE_CUBE_N) -> np.ndarray:
 
 
 def shared_occluded(p, n, self_id, self_occlusion, spheres, owners, grid, cube, cube_n=LOBE_CUBE_N, tree=None,
-                    shells=None, light=None):
+                    shells=None, light=None, skins=None, inside_other=0):
     """(O, inside) of pn_isg_shared_occluded: the receiver's hemisphere as the window of axis n with w = pi/2
     (patch_mask at lambda 0), O = sum over marked patches of L_b(d) (n.d) Omega, Omega the patch's solid angle
     (delta phi (cos theta0 - cos theta1), theta from the frame's y axis), L_b the bilinear lookup of ``cube``
     (grid_lookup), or ``light(d)`` when given (the exact lobe sum, for the cube's error)."""
     p, n = np.asarray(p, np.float64), np.asarray(n, np.float64)
-    mask, inside = patch_mask(n, 0.0, p, n, self_id, self_occlusion, spheres, owners, grid, tree, shells)
+    mask, inside = patch_mask(n, 0.0, p, n, self_id, self_occlusion, spheres, owners, grid, tree, shells,
+                              skins, inside_other)
     if inside or not mask.any():
         return np.zeros(3), inside
     x, y = frame(n)
@@ -403,7 +423,7 @@ def shared_occluded(p, n, self_id, self_occlusion, spheres, owners, grid, cube, 
 
 def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, grid, self_occlusion=1,
           specular_shadows=1, env_sharpness=math.inf, face_rgb=None, gamma=None, tree=None,
-          shells=None, shared=None) -> np.ndarray:
+          shells=None, shared=None, skins=None, inside_other=0) -> np.ndarray:
     """One pixel of shade_isg. lobes: (K, 7) axis xyz, sharpness, amplitude rgb;
     face_rgb: the env cube as one RGB per face (used by the env specular path,
     for BRDF lobes at least env_sharpness sharp); gamma: (levels, tables) of
@@ -412,7 +432,8 @@ def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, g
     the thin shells; shared: (M_s, shared_sharpness, cube[, env_irradiance]) of the shared hemisphere grid
     (shared_occluded; None: off), cube from lobe_cube(lobes, shared_sharpness); env_irradiance (shared_light
     1): a function of n giving the env's irradiance, from which the lobes with their own windows are
-    subtracted to give the shared lobes' unshadowed irradiance (else their closed forms are summed)."""
+    subtracted to give the shared lobes' unshadowed irradiance (else their closed forms are summed);
+    skins, inside_other: patch_mask's (the self_push skins per sphere and the inside_other policy)."""
     p, n = np.asarray(p, np.float64), np.asarray(n, np.float64)
     n = n / np.linalg.norm(n)
     diffuse, specular = np.zeros(3), np.zeros(3)
@@ -425,7 +446,8 @@ def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, g
         if env_path:
             specular = env_specular(b_axis, b_lam, b_mu, p, n, self_id, self_occlusion if specular_shadows else 0,
                                     spheres if specular_shadows else [], owners, grid, face_rgb, gamma,
-                                    tree if specular_shadows else None, shells if specular_shadows else None)
+                                    tree if specular_shadows else None, shells if specular_shadows else None,
+                                    skins if specular_shadows else None, inside_other)
     shared_e, own_e = np.zeros(3), np.zeros(3)
     for lobe in np.asarray(lobes, np.float64):
         axis, lam, mu = lobe[:3], lobe[3], lobe[4:7]
@@ -438,20 +460,20 @@ def shade(p, n, albedo, ks, material, camera, self_id, lobes, spheres, owners, g
         if own_window and (e > 0).any():
             m_axis, m_lam, _ = sg_product(axis, lam, 1.0, n, COS_SHARPNESS, COS_AMPLITUDE)
             diffuse += e * visibility(m_axis, float(m_lam), p, n, self_id, self_occlusion, spheres, owners, grid,
-                                      tree, shells)
+                                      tree, shells, skins, inside_other)
         for b_axis, b_lam, b_mu in (sgs if ks > 0 and not env_path else []):
             g_axis, g_lam, g_mu = sg_product(axis, lam, 1.0, b_axis, b_lam, b_mu)
             s = irradiance(g_axis, float(g_lam), mu * g_mu, n)
             if (s > 0).any():
                 v = visibility(g_axis, float(g_lam), p, n, self_id, self_occlusion, spheres, owners, grid, tree,
-                               shells) \
+                               shells, skins, inside_other) \
                     if specular_shadows else 1.0
                 specular += s * v
     if shared is not None and len(shared) > 3 and shared[3] is not None:
         shared_e = np.asarray(shared[3](n), np.float64) - own_e
     if shared is not None and (shared_e > 0).any():
         o, inside = shared_occluded(p, n, self_id, self_occlusion, spheres, owners, shared[0], shared[2], tree=tree,
-                                    shells=shells)
+                                    shells=shells, skins=skins, inside_other=inside_other)
         diffuse += 0.0 if inside else np.maximum(shared_e - o, 0.0)
     return np.maximum(np.asarray(albedo, np.float64) / math.pi * diffuse + ks * specular, 0.0)
 

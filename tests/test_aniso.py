@@ -325,7 +325,7 @@ def test_depthmap_shades_the_lobe_like_float64(ctx, specular):
     maps = np.stack([r.read_output(scene, "depth_map", 0, i) for i in range(len(domains))]).astype(np.float64)
     lo, hi = d64.shade(planes, camera.position, domains, frames, maps,
                        margin=DEPTHMAP_DEPTH_ATOL * frames[:, 14].max(), bias=1.0, slope_bias=1.0, pcf=0,
-                       specular=specular, cap_samples=16)
+                       specular=specular, cap_samples=16, receiver_plane=1)
     fg = planes["instance"] != BACKGROUND
     scale = np.maximum(hi, 1e-3)
     got = got[..., :3]

@@ -190,13 +190,15 @@ def quantise16(frames, maps):
 @pytest.mark.parametrize("params", [dict(), dict(pcf=1), dict(pcf=2, bias=0.5), dict(specular=0),
                                     dict(specular=1), dict(specular=2, cap_samples=5), dict(specular=2),
                                     dict(visibility=0),
-                                    dict(half_maps=1), dict(half_maps=1, pcf=1)])
+                                    dict(half_maps=1), dict(half_maps=1, pcf=1),
+                                    dict(receiver_plane=0), dict(receiver_plane=0, pcf=1),
+                                    dict(receiver_plane=0, pcf=2, bias=0.5), dict(receiver_plane=0, half_maps=1)])
 def test_shading_matches_float64(ctx, box_scene, params):
     s = box_scene
     res = 64
     got, r = render(ctx, s["scene"], s["gb"], s["domains"], resolution=res, **params)
     got = got[..., :3]
-    p = dict(bias=1.0, slope_bias=1.0, pcf=0, specular=3, cap_samples=16)  # the renderer's defaults
+    p = dict(bias=1.0, slope_bias=1.0, pcf=0, specular=3, cap_samples=16, receiver_plane=1)  # the defaults
     p.update({k: v for k, v in params.items() if k in p})
     if params.get("visibility", 1):
         frames = r.read_output(s["scene"], "map_frames", 0).astype(np.float64)
@@ -303,11 +305,17 @@ def test_no_acne_on_a_lit_plane(ctx, tilt, centre, size):
     doms = dm.domain_array(dirs, np.ones((64, 3)) * 0.05)
     fg = planes["instance"] != BACKGROUND
     free, _ = render(ctx, scene, gb, doms, visibility=0)
-    for pcf in (0, 1, 2):
-        got, _ = render(ctx, scene, gb, doms, pcf=pcf)
-        assert np.abs(got[fg] - free[fg]).max() <= 1e-6 * free[fg].max(), pcf
+    # the default (receiver_plane 1: each tap's own depth on the plane, so no slope term is needed) and the
+    # slope-scaled bias (receiver_plane 0); without the plane and without its slope term the lookup has acne:
+    # the plane's depth is what keeps it lit
+    for plane in (1, 0):
+        for pcf in (0, 1, 2):
+            got, _ = render(ctx, scene, gb, doms, pcf=pcf, receiver_plane=plane)
+            assert np.abs(got[fg] - free[fg]).max() <= 1e-6 * free[fg].max(), (plane, pcf)
+    flat, _ = render(ctx, scene, gb, doms, pcf=1, slope_bias=0.0, receiver_plane=0)
+    assert (flat[fg][:, 0] < 0.95 * free[fg][:, 0]).mean() > 0.01
     # The test can fail: without bias the plane shadows itself.
-    raw, _ = render(ctx, scene, gb, doms, bias=0.0, slope_bias=0.0, pcf=1)
+    raw, _ = render(ctx, scene, gb, doms, bias=0.0, slope_bias=0.0, pcf=1, receiver_plane=0)
     assert (raw[fg][:, 0] < 0.95 * free[fg][:, 0]).mean() > 0.1
 
 
@@ -842,7 +850,7 @@ def test_half_maps_are_close_and_keep_the_bias_policy(ctx, box_scene):
     assert err < 2e-3, err
     # Without bias the surfaces compare against their own quantised depths: the lookups must differ (the 16-bit
     # copies are what is read).
-    raw = dict(bias=0.0, slope_bias=0.0)
+    raw = dict(bias=0.0, slope_bias=0.0, receiver_plane=0)
     assert not np.array_equal(render(ctx, s["scene"], s["gb"], s["domains"], half_maps=1, **raw)[0],
                               render(ctx, s["scene"], s["gb"], s["domains"], **raw)[0])
     scene, gb, planes, keep, _ = lit_plane(ctx, 0.6)

@@ -36,7 +36,7 @@ def twin_check(s, r, got, **params):
     if params.get("half_maps"):
         maps = [quantise16(frames[i:i + 1], m[None])[0] for i, m in enumerate(maps)]
     maps = [np.asarray(m, np.float64) for m in maps]
-    p = dict(bias=1.0, slope_bias=1.0, pcf=0, specular=3, cap_samples=16)
+    p = dict(bias=1.0, slope_bias=1.0, pcf=0, specular=3, cap_samples=16, receiver_plane=1)
     p.update({k: v for k, v in params.items() if k in p})
     p["specular"] = 0  # the lookup is under test: the point-sample lobe has no table error on top
     margin = DEPTHMAP_DEPTH_ATOL * frames[:, 14].max()

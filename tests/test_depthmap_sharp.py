@@ -161,35 +161,135 @@ def test_sharp_of_a_1e5_sun_and_of_maps_without_one(ctx):
             scene, gb, Image(ctx, gb.width, gb.height))
 
 
-def test_scattered_hot_texels_keep_the_plain_decomposition(ctx):
-    """Two 10^5 texels a quarter turn apart (an interior's windows, not one
-    sun): one domain at their power centroid would light from between them,
-    so sharp 1 gives the plain decomposition bit for bit; the same two texels
-    side by side are one light and get their own domain."""
+def lamp_scene(ctx, env_img):
     from test_reference import gbuffer_of, make_scene, xform
     from penumbra import Camera, Material
 
-    w, h = 64, 32
     objects = [(procedural.plane((4.0, 4.0)), xform(), Material(albedo=(0.7, 0.7, 0.7))),
                (procedural.box((1.0, 0.8, 0.6)), xform(translate=(0.0, 0.4, 0.0)), Material(albedo=(0.8, 0.4, 0.2)))]
     camera = Camera(position=(1.5, 2.5, 4.0), look_at=(0.0, 0.3, 0.0), fov_deg=50.0, resolution=(16, 12))
-    for second, scattered in (((0.7, 0.7, 0.1), True), (None, False)):
-        env_img = procedural.constant(1.0, w, h).astype(np.float32)
-        i, j = procedural.direction_to_pixel((0.1, 0.7, -0.7), w, h)
-        env_img[j, i] = 1e5
-        if second is None:
-            env_img[j, (i + 1) % w] = 1e5
-        else:
-            i2, j2 = procedural.direction_to_pixel(second, w, h)
-            env_img[j2, i2] = 1e5
-        env = EnvMap(ctx, env_img, face_size=16)
-        scene, _, keep = make_scene(ctx, objects, env, camera)
-        gb, _ = gbuffer_of(ctx, scene, camera)
-        doms = []
-        for sharp in (1, 0):
-            r = Renderer(ctx, "depthmap", directions=12, sharp=sharp)
-            r.execute(scene, gb, Image(ctx, gb.width, gb.height))
-            doms.append(np.asarray(r.read_output(scene, "domains", 0), np.float32).reshape(-1, 8))
-        assert np.array_equal(doms[0], doms[1]) == scattered
-        if not scattered:
-            assert doms[0][0, 7] < 0.2  # the pair's own small cap
+    scene, _, keep = make_scene(ctx, objects, EnvMap(ctx, env_img, face_size=16), camera)
+    gb, planes = gbuffer_of(ctx, scene, camera)
+    return dict(scene=scene, gb=gb, planes=planes, camera=camera, keep=keep)
+
+
+def split_domains(ctx, s, n, sharp, **params):
+    r = Renderer(ctx, "depthmap", directions=n, sharp=sharp, **params)
+    img = Image(ctx, s["gb"].width, s["gb"].height)
+    r.execute(s["scene"], s["gb"], img)
+    return np.asarray(r.read_output(s["scene"], "domains", 0), np.float32).reshape(-1, 8), img.read(), r
+
+
+LAMPS = [((0.1, 0.7, -0.7), 4e4), ((0.7, 0.6, 0.3), 2e4), ((-0.6, 0.5, 0.4), 1e4)]  # direction, radiance
+
+
+def lamps_map(w=128, h=64, lamps=LAMPS):
+    """A sky of 1 with 2 x 2-texel lamps: (map, the texels (row, column) of each lamp)."""
+    env = procedural.constant(1.0, w, h).astype(np.float32)
+    where = []
+    for d, L in lamps:
+        i, j = procedural.direction_to_pixel(d, w, h)
+        idx = [(j + a, (i + b) % w) for a in (0, 1) for b in (0, 1)]
+        for q in idx:
+            env[q] = L
+        where.append(idx)
+    return env, where
+
+
+def lamp_power(env, idx):
+    """(excess radiance x solid angle summed over the lamp's texels (3,), their solid angle)."""
+    _, sharp64, _ = sh.split(env.astype(np.float64), 100.0)
+    tex = d64.texels(sharp64)
+    rows, cols = zip(*idx)
+    return (tex.power.reshape(env.shape)[rows, cols].sum(0),
+            tex.omega.reshape(env.shape[:2])[rows, cols].sum())
+
+
+def test_several_lamps_get_their_own_domains(ctx):
+    """Three compact lamps far apart (their hot texels together are not one
+    light, so the whole-map rule falls back): each connected light holding at
+    least the mean domain power gets its own sharp domain, the strongest
+    first; the domain holds its lamp's excess over T and its 4 texels' solid
+    angle and sits on it; sharp 2 takes the two strongest, sharp 1 the
+    strongest, sharp 5 gives the two extra domains to the lamps with the most
+    power per domain; the image is the float64 twin's with those domains; a
+    seed gives the same domains twice."""
+    env, where = lamps_map()
+    s = lamp_scene(ctx, env)
+    hot = sh.split(env.astype(np.float64), 100.0)[2]
+    n = 16
+    doms, got, r = split_domains(ctx, s, n, 3, soft_shadows=0, strong_resolution=0, grade=0.0)
+    assert len(doms) == n
+    for k, idx in enumerate(where):  # strongest first: the order of LAMPS
+        rows, cols = zip(*idx)
+        assert hot[rows, cols].all()
+        power, omega = lamp_power(env, idx)
+        np.testing.assert_allclose(doms[k, 4:7], power, rtol=1e-5)
+        np.testing.assert_allclose(doms[k, 3], omega, rtol=1e-5)
+        centre = np.asarray(LAMPS[k][0]) / np.linalg.norm(LAMPS[k][0])
+        assert math.degrees(math.acos(min(float(doms[k, :3] @ centre), 1.0))) < 3.0  # about a texel
+        assert doms[k, 7] < 0.08
+    assert doms[3:, 7].min() > 0.1  # the residual's cells
+    np.testing.assert_allclose(doms[:, 4:7].astype(np.float64).sum(0), d64.texels(env).power.sum(0), rtol=1e-5)
+    twin_check(dict(s, domains=doms), r, got[..., :3])
+    again, _, _ = split_domains(ctx, s, n, 3, soft_shadows=0, strong_resolution=0, grade=0.0)
+    np.testing.assert_array_equal(doms, again)
+    two, _, _ = split_domains(ctx, s, n, 2)  # the third lamp stays in the residual
+    np.testing.assert_array_equal(two[:2, 4:7], doms[:2, 4:7])
+    assert two[2:, 7].min() > 0.1
+    one, _, _ = split_domains(ctx, s, n, 1)  # the default: the strongest lamp alone
+    np.testing.assert_array_equal(one[:1, 4:7], doms[:1, 4:7])
+    assert one[1:, 7].min() > 0.1
+    # sharp 5: one domain per lamp, then the extra two one at a time to the most excess per domain:
+    # (4e4 - T) / 1, then (4e4 - T) / 2 against (2e4 - T) / 1: both to the strongest lamp
+    five, _, _ = split_domains(ctx, s, n, 5)
+    assert five[:5, 7].max() < 0.08 and five[5:, 7].min() > 0.1
+    lamp_dirs = np.array([np.asarray(c) / np.linalg.norm(c) for c, _ in LAMPS])
+    nearest = np.argmax(five[:5, :3].astype(np.float64) @ lamp_dirs.T, axis=1)
+    assert np.bincount(nearest, minlength=3).tolist() == [3, 1, 1]
+    np.testing.assert_allclose(five[:5, 4:7].astype(np.float64).sum(0), doms[:3, 4:7].astype(np.float64).sum(0),
+                               rtol=1e-5)
+
+
+def test_scattered_hot_texels_keep_the_plain_decomposition(ctx):
+    """What is not a light keeps the plain decomposition bit for bit: hot
+    texels scattered over the sky, none holding the mean domain power (an
+    interior's bright spots), and a long thin band of hot texels (a window
+    strip: connected, but its spread is 3x its cap). Beside a lamp the band
+    stays in the residual as it is and the lamp alone is split off. A lamp
+    below the mean domain power stays too (at N 4, not at N 16)."""
+    w, h = 128, 64
+    rng = np.random.default_rng(3)
+    scattered = procedural.constant(1.0, w, h).astype(np.float32)
+    for _ in range(12):
+        scattered[rng.integers(8, h - 8), rng.integers(0, w)] = 600.0
+    band = procedural.constant(1.0, w, h).astype(np.float32)
+    band[20, 10:50] = 3000.0
+    for env in (scattered, band):
+        s = lamp_scene(ctx, env)
+        assert sh.split(env.astype(np.float64), 100.0)[2].sum() >= 12
+        a, ia, _ = split_domains(ctx, s, 16, 1)
+        b, ib, _ = split_domains(ctx, s, 16, 0)
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(ia, ib)
+    env, where = lamps_map(lamps=LAMPS[:1])
+    env[20, 10:50] = 3000.0
+    s = lamp_scene(ctx, env)
+    doms, _, _ = split_domains(ctx, s, 16, 2)
+    power, _ = lamp_power(env, where[0])
+    # sharp 2: the band is no light, so both sharp domains go to the lamp (as sharp 2 splits a sun)
+    np.testing.assert_allclose(doms[:2, 4:7].astype(np.float64).sum(0), power, rtol=1e-5)
+    assert doms[:2, 7].max() < 0.08 and doms[2:, 7].min() > 0.1
+    # the band keeps its full radiance: the residual's power is the map's less the lamp's excess
+    np.testing.assert_allclose(doms[2:, 4:7].astype(np.float64).sum(0), d64.texels(env).power.sum(0) - power,
+                               rtol=1e-5)
+    # two lamps of about 0.18 of the map's power each: below the mean domain power at N 4, above at N 16
+    weak, where = lamps_map(lamps=[((0.1, 0.7, -0.7), 800.0), ((0.7, 0.6, 0.3), 800.0)])
+    share = lamp_power(weak, where[0])[0].sum() / d64.texels(weak).power.sum()
+    assert 1 / 16 < share < 1 / 4
+    s = lamp_scene(ctx, weak)
+    a, _, _ = split_domains(ctx, s, 4, 1)
+    b, _, _ = split_domains(ctx, s, 4, 0)
+    np.testing.assert_array_equal(a, b)
+    c, _, _ = split_domains(ctx, s, 16, 1)
+    assert c[0, 7] < 0.08 and c[1:, 7].min() > 0.1

@@ -555,6 +555,52 @@ def test_many_occluders_per_tile(ctx, env, meshes, fields):
     assert taking.max() > 32
 
 
+def test_disc_slots_are_per_lane(ctx, env, meshes, fields):
+    """The disc correction keeps one slot per occluder that any of a
+    work-item's 8 lanes took part with, zeros in the lanes that did not
+    (kernels/fiv.cl): neighbouring pixels here take different occluders
+    (normals tilted up to 85 degrees put occluders behind some planes and
+    not others, pixels on an occluder skip their own, background pixels
+    take none, and some lanes reach the cap of 32 discs while their
+    neighbours do not). Each pixel is bit for bit the same pixel shaded one
+    per work-item, where no other lane fills a slot, and matches the twin."""
+    rng = np.random.default_rng(22)
+    h, w = 12, 24
+    pos, nrm, inst = plane_receivers(rng, h=h, w=w, max_tilt_deg=85.0)
+    gx, gz = np.meshgrid(np.linspace(-2.0, 2.0, 8), np.linspace(-1.5, 1.5, 5))
+    centres = np.stack([gx.ravel(), 0.4 + 0.1 * rng.random(40), gz.ravel()], -1)
+    instances = [(fields["sphere"], meshes["sphere"][1], translate(c, 0.3)) for c in centres]
+    s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
+    ids = [i for _, _, i in s.instances]
+    on = rng.random((h, w)) < 0.15
+    k = rng.integers(0, 40, on.sum())
+    u = unit(rng.normal(size=(on.sum(), 3)) + np.array([0.0, 1.0, 0.0]))
+    pos[on], nrm[on], inst[on] = centres[k] + 0.3 * 0.5 * u, u, np.asarray(ids)[k]
+    inst[rng.random((h, w)) < 0.1] = BACKGROUND
+    s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
+    alone = [np.zeros((h, 8 * w, 3)), np.zeros((h, 8 * w, 3)), np.full((h, 8 * w), BACKGROUND, np.uint32)]
+    for plane, src in zip(alone, (pos, nrm, inst)):
+        plane[:, ::8] = src
+    s1 = FivScene(ctx, env, fields, instances, tuple(alone))
+    for params in (dict(overlap=1), dict(overlap=1, partial=1), dict(overlap=1, self_shadow=1)):
+        lone = s1.render(cull_threshold=0.0, **params)[:, ::8]
+        assert np.array_equal(s.render(cull_threshold=0.0, **params), lone), params
+        assert_matches_twin(s, params)
+    # The lanes of a work-item take different occluders, and some lanes are
+    # capped at 32 discs where a neighbour is not.
+    p, n, ii = pos.reshape(-1, 3), nrm.reshape(-1, 3), inst.reshape(-1)
+    taking = np.zeros((len(p), 40), bool)
+    for j, o in enumerate(s.occluders()):
+        v = o.centre[None, :] - p
+        _, ok, _ = lookup(o, v)
+        taking[:, j] = ok & (np.einsum("nk,nk->n", v, n) > -o.radius) & (ii != ids[j]) & (ii != BACKGROUND)
+    items = taking.reshape(h, w // 8, 8, 40)
+    differ = (items != items[:, :, :1]).any(axis=(2, 3))
+    assert differ.mean() > 0.5
+    count = items.sum(axis=3)
+    assert ((count.max(axis=2) > 32) & (count.min(axis=2) <= 32)).any()
+
+
 # --------------------------------------------------------------------------- the bake file
 
 

@@ -76,16 +76,18 @@ def shell_group_bounds(tris, group=8):
 
 def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=16, self_occlusion=1,
                specular_shadows=1, camera=(0.0, 3.0, 6.0), env_sharpness=1e30, tree=1, gamma=None, lod=0.0,
-               triangles=(), triangle_owners=(), shared=None, irradiance=None, shell_groups=True):
+               triangles=(), triangle_owners=(), shared=None, irradiance=None, skins=None, inside_other=0,
+               shell_groups=True):
     """pixels: list of dicts p, n, albedo, ks, material (shininess, roughness, lobe), id. tree: 1 the
     spheres through the sphere tree (the method's default), 0 the flat loop over them. gamma: (levels,
     tables) of the prefiltered env (specular_mode 1; penumbra.methods.isg.gamma_levels layout), None:
     specular_mode 0. lod: the LOD cut (0: off). triangles: thin-shell triangles (T, 3, 3) world space,
     their owners triangle_owners. shared: (M_s, shared_sharpness) of the shared hemisphere grid (its two
     cubes built by isg_lobe_cubes, as the host does), None: off. irradiance: (map (6 m m, 3), m), the env's
-    irradiance as a vertex-grid cube (shared_light 1), None: shared_light 0. shell_groups: the triangles'
-    groups' bounding spheres in their spare w (shell_group_bounds, as the host writes them), False: none
-    (every triangle tested on its own)."""
+    irradiance as a vertex-grid cube (shared_light 1), None: shared_light 0. skins: per sphere (input
+    order), the push of self_push (None: all 0); inside_other: that policy (kernels/isg.cl). shell_groups:
+    the triangles' groups' bounding spheres in their spare w (shell_group_bounds, as the host writes them),
+    False: none (every triangle tested on its own)."""
     ctx, queue = cl_pair
     n = len(pixels)
     f4 = lambda rows: np.ascontiguousarray(np.array(rows, np.float32).reshape(n, 4))  # noqa: E731
@@ -96,9 +98,12 @@ def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=
     ids = np.array([q["id"] for q in pixels], np.uint32)
     mf = cl.mem_flags
     ro = lambda a: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a)  # noqa: E731
-    sp, ow, nodes = sphere_tree(spheres, owners)
+    sp, order, nodes = sphere_tree(spheres, np.arange(len(spheres)))  # the order carries owners and skins along
+    ow = np.asarray(owners, np.uint32).reshape(-1)[order]
+    sk = (np.zeros(len(spheres)) if skins is None else np.asarray(skins, np.float64))[order].astype(np.float32)
     sp = np.ascontiguousarray(sp) if len(spheres) else np.zeros((1, 4), np.float32)
     ow = np.ascontiguousarray(ow) if len(owners) else np.zeros(1, np.uint32)
+    sk = np.ascontiguousarray(sk) if len(spheres) else np.zeros(1, np.float32)
     lb = np.zeros((len(lobes), 8), np.float32)
     lb[:, :4], lb[:, 4:7] = np.asarray(lobes)[:, :4], np.asarray(lobes)[:, 4:7]
     cube = np.zeros((6, 4), np.float32)
@@ -132,7 +137,7 @@ def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=
       np.int32(self_occlusion), np.int32(specular_shadows), np.float32(env_sharpness),
       np.array([*camera, 0.0], np.float32), ro(table32()), np.int32(mode), ro(gbuf), ro(lv), np.int32(count),
       np.float32(lambda0), np.int32(shared[0] if shared else 0), np.float32(shared[1] if shared else 0.0),
-      lcube, np.int32(LOBE_CUBE_N), irr_buf, np.int32(irr_n), obuf)
+      lcube, np.int32(LOBE_CUBE_N), irr_buf, np.int32(irr_n), ro(sk), np.int32(inside_other), obuf)
     cl.enqueue_copy(queue, out, obuf)
     return out
 
@@ -150,14 +155,15 @@ def device_lobe_cubes(cl_pair, build_test_kernel, lobes8, sharpness, n=LOBE_CUBE
 
 
 def twin(pixels, lobes, spheres, owners, grid=16, self_occlusion=1, specular_shadows=1, camera=(0.0, 3.0, 6.0),
-         env_sharpness=1e30, gamma=None, shared=None, irradiance=None):
+         env_sharpness=1e30, gamma=None, shared=None, irradiance=None, skins=None, inside_other=0):
     env_e = None
     if irradiance is not None:  # the map as the kernel reads it: float32 vertices, bilinear
         irr32 = np.asarray(irradiance[0], np.float32).astype(np.float64)
         env_e = lambda d: grid_lookup(irr32, irradiance[1], d)  # noqa: E731
     sh = (*shared, lobe_cube(lobes, shared[1]), env_e) if shared else None
     return np.array([shade(q["p"], q["n"], q["albedo"], q["ks"], q["material"], camera, q["id"], lobes, spheres,
-                           owners, grid, self_occlusion, specular_shadows, env_sharpness, FACES, gamma, shared=sh)
+                           owners, grid, self_occlusion, specular_shadows, env_sharpness, FACES, gamma, shared=sh,
+                           skins=skins, inside_other=inside_other)
                      for q in pixels])
 
 
@@ -295,14 +301,19 @@ def test_sphere_tree_gives_the_flat_loops_image(cl_pair, build_test_kernel, coun
     px.append({"p": tuple(spheres[0][:3]), "n": (0, 1, 0), "albedo": (1, 1, 1), "ks": 0.0, "material": (0, 0.3, 0),
                "id": 0})  # inside another instance's sphere
     cam = (0.5, 4.0, 8.0)
-    for policy in (0, 1, 2):
+    skins = (0.02 + 0.1 * (np.arange(count) % 4)).tolist()  # self_push: own spheres seen from p + skin n
+    for policy, extra in ((0, {}), (1, {}), (2, {}), (1, dict(skins=skins, inside_other=1)),
+                          (1, dict(skins=skins, inside_other=2))):
         for env_sharpness in (100.0, 1e30):
-            args = dict(self_occlusion=policy, camera=cam, env_sharpness=env_sharpness)
+            args = dict(self_occlusion=policy, camera=cam, env_sharpness=env_sharpness, **extra)
             flat = run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, owners, tree=0, **args)
             tree = run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, owners, tree=1, **args)
             np.testing.assert_array_equal(tree, flat)
+            if not extra:
+                plain = flat
     free = run_kernel(cl_pair, build_test_kernel, px, LOBES, [], [])
-    assert (flat[:, :3] < 0.9 * free[:, :3]).any() and not flat[-1, :3].any()  # shadows, and the inside pixel
+    assert (plain[:, :3] < 0.9 * free[:, :3]).any() and not plain[-1, :3].any()  # shadows, and the inside pixel
+    assert flat[-1, :3].all()  # inside_other 2: that sphere is seen from the pushed receiver, or skipped
 
 
 @pytest.mark.parametrize("grid", [2, 5, 16, 24])
@@ -504,6 +515,55 @@ def test_self_occlusion_margin(cl_pair, build_test_kernel, policy):
             np.testing.assert_allclose(got[:, :3], free, rtol=ISG_SHADE_RTOL, atol=ISG_SHADE_ATOL * float(free.max()))
         else:
             assert (got[:, :3].sum(-1) < 0.95 * free.sum(-1)).all()
+
+
+def test_self_push_keeps_the_shadow_without_the_dark_disc(cl_pair, build_test_kernel):
+    """A receiver on its own surface inside an own ball whose centre lies below
+    its tangent plane and which reaches well above it beside the receiver (a
+    crease: the ball fills the object rising next to it). Policy 2 is the dark
+    disc (black); policy 1 used to skip the ball whole (unshadowed by it). With
+    a skin (self_push) the ball is seen from p + skin n: it still shadows the
+    sky on its side, and the pixel is far from black (the dark disc would fail
+    the lower bound); a skin too short to leave the ball skips it."""
+    ball = [[0.5, 0.0, 0.0, 0.52]]
+    px = [{"p": (0.0, 0.0, 0.0), "n": (0, 1, 0), "albedo": (1, 1, 1), "ks": 0.3, "material": (200.0, 0.3, 0.0),
+           "id": 1}]
+    args = dict(camera=(-3.0, 3.0, 0.5), env_sharpness=100.0)
+    free = twin(px, LOBES, [], [], **args)
+    assert not run_kernel(cl_pair, build_test_kernel, px, LOBES, ball, [1], self_occlusion=2, **args)[:, :3].any()
+    for skin, shadowed in ((0.0, False), (0.05, False), (0.2, True), (0.3, True)):
+        got = run_kernel(cl_pair, build_test_kernel, px, LOBES, ball, [1], skins=[skin], **args)
+        want = twin(px, LOBES, ball, [1], skins=[skin], **args)
+        check(got, want)
+        if shadowed:  # the higher p + skin n, the less of its sky the ball covers
+            hi = 0.7 if skin == 0.2 else 0.99
+            assert (want < hi * free).all() and (want > 0.4 * free).all(), (skin, want / free)
+        else:  # still inside the ball from p + skin n: skipped, as without a skin
+            np.testing.assert_allclose(want, free, rtol=1e-12)
+
+
+def test_receiver_inside_another_instances_sphere(cl_pair, build_test_kernel):
+    """A floor receiver inside a sphere of another instance that pokes through
+    the floor: inside_other 0 makes it black (V = 0), 1 skips that sphere (the
+    others still shadow it), 2 sees it from p + skin n with its own set's skin
+    (skipped without a skin): between the two, matching the twin."""
+    poking = [[0.45, -0.2, 0.0, 0.5], [-0.9, 0.5, 0.3, 0.3]]
+    owners = [2, 3]
+    px = [{"p": (0.0, 0.0, 0.0), "n": (0, 1, 0), "albedo": (0.8, 0.7, 0.6), "ks": 0.0, "material": (0, 0.3, 0),
+           "id": 0}]
+    got0 = run_kernel(cl_pair, build_test_kernel, px, LOBES, poking, owners, skins=[0.1, 0.1])
+    assert not got0[:, :3].any()
+    others = twin(px, LOBES, poking[1:], owners[1:])
+    assert (others < 0.99 * twin(px, LOBES, [], [])).all()  # the other sphere shadows the receiver
+    got1 = run_kernel(cl_pair, build_test_kernel, px, LOBES, poking, owners, skins=[0.1, 0.1], inside_other=1)
+    check(got1, twin(px, LOBES, poking, owners, skins=[0.1, 0.1], inside_other=1))
+    check(got1, others)
+    no_skin = run_kernel(cl_pair, build_test_kernel, px, LOBES, poking, owners, inside_other=2)
+    check(no_skin, others)
+    got2 = run_kernel(cl_pair, build_test_kernel, px, LOBES, poking, owners, skins=[0.1, 0.1], inside_other=2)
+    want2 = twin(px, LOBES, poking, owners, skins=[0.1, 0.1], inside_other=2)
+    check(got2, want2)
+    assert (want2 < 0.97 * others).all() and (want2 > 0.3 * others).all()
 
 
 def test_background_pixels(cl_pair, build_test_kernel):

@@ -93,6 +93,10 @@ def test_built_sets_stay_near_the_solid(shapes):
             cell = (2.6 if mesh is torus else 2.0) / 64.0  # the longest side over 64
             poke = sp[:, 3] - depth(sp[:, :3])
             assert poke.max() <= 3.0 * cell, (n, poke.max() / cell)
+            # The skin, (g + 1/2) cells of the build grid (the isg method's self_push): -1/4 <= g <= 2, on
+            # a grid of at least 64 cells along the longest side; the same from the set cache.
+            skin = s.info()["skin"]
+            assert 0.0 < skin <= 2.5 * cell and skin == SphereSet.build(mesh, n).info()["skin"], (n, skin / cell)
             out, miss = union_shares(inside, lo, hi, sp)
             assert out < 0.08, (n, out, miss)
 
@@ -152,7 +156,7 @@ def test_caller_spheres_round_trip_and_empty_is_refused(ctx):
     s = SphereSet.from_spheres(ctx, sp)
     np.testing.assert_array_equal(s.spheres(), sp)
     info = s.info()
-    assert info["mesh_hash"] is None and math.isnan(info["outside_share"])
+    assert info["mesh_hash"] is None and math.isnan(info["outside_share"]) and info["skin"] == 0.0
     with pytest.raises(PenumbraError, match="0 spheres"):
         SphereSet.from_spheres(ctx, np.zeros((0, 4), np.float32))
 

@@ -655,6 +655,8 @@ typedef struct pn_sphere_set_info {
     float outside_share;       /* volume of the union outside the solid / mesh_volume (NaN: caller's) */
     float missed_share;        /* volume of the solid outside the union / mesh_volume (NaN: caller's) */
     double build_seconds;      /* CPU time of the build (of the first build when cached) */
+    float skin;                /* how far the balls may reach past the surface, object units: (g + 1/2) cells
+                                * of the build grid, g the growth chosen (docs/isg.md section 7); 0: caller's */
 } pn_sphere_set_info;
 
 PN_API pn_status pn_sphere_set_get_info(pn_sphere_set set, pn_sphere_set_info *info);

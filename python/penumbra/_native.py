@@ -129,7 +129,7 @@ class OutputInfo(_Checked):
 class SphereSetInfo(_Checked):
     _fields_ = [("count", ctypes.c_uint32), ("grid", ctypes.c_uint32), ("mesh_hash", ctypes.c_uint64),
                 ("mesh_volume", ctypes.c_float), ("outside_share", ctypes.c_float), ("missed_share", ctypes.c_float),
-                ("build_seconds", ctypes.c_double)]
+                ("build_seconds", ctypes.c_double), ("skin", ctypes.c_float)]
 
 
 class HeightfieldPlacement(_Checked):

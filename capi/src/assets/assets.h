@@ -108,6 +108,8 @@ struct pn_sphere_set_impl {
     uint32_t grid;            /* voxels along the longest side of the build grid (0: caller's) */
     float mesh_volume;        /* of the solid, on the build grid */
     float outside_share, missed_share; /* union outside / solid missed, shares of mesh_volume (NaN: caller's) */
+    float skin;               /* (g + 1/2) build cells, object units: how far the balls may reach past the
+                               * surface (isg self-occlusion; 0: the caller's spheres) */
     double build_seconds;
     /* A thin shell (pn_sphere_set_create_shell): no spheres; the isg method
      * projects the triangles of the instance it is attached to. */

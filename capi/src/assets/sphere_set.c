@@ -115,6 +115,7 @@ void pn_sphere_set_fill_info(pn_sphere_set s, pn_sphere_set_info *info)
     info->outside_share = s->outside_share;
     info->missed_share = s->missed_share;
     info->build_seconds = s->build_seconds;
+    info->skin = s->skin;
 }
 
 pn_status pn_sphere_set_do_read(pn_sphere_set s, float *host, size_t bytes)
@@ -519,7 +520,7 @@ typedef struct cached_set {
     uint64_t mesh_hash, serial;
     uint32_t count, grid;
     float *spheres;
-    float mesh_volume, outside_share, missed_share;
+    float mesh_volume, outside_share, missed_share, skin;
     double build_seconds;
 } cached_set;
 
@@ -569,7 +570,7 @@ static void remember(pn_context ctx, pn_sphere_set s)
     cached_set *e = &c->slot[victim];
     free(e->spheres);
     *e = (cached_set){s->mesh_hash, ++c->serial, s->count, s->grid, copy, s->mesh_volume, s->outside_share,
-                      s->missed_share, s->build_seconds};
+                      s->missed_share, s->skin, s->build_seconds};
 }
 
 static bool recall(pn_context ctx, uint64_t mesh_hash, uint32_t count, pn_sphere_set *out, pn_status *st)
@@ -583,7 +584,7 @@ static bool recall(pn_context ctx, uint64_t mesh_hash, uint32_t count, pn_sphere
             return true;
         pn_sphere_set s = *out;
         s->mesh_hash = mesh_hash, s->grid = e->grid, s->mesh_volume = e->mesh_volume;
-        s->outside_share = e->outside_share, s->missed_share = e->missed_share;
+        s->outside_share = e->outside_share, s->missed_share = e->missed_share, s->skin = e->skin;
         s->build_seconds = e->build_seconds;
         e->serial = ++c->serial;
         return true;
@@ -861,7 +862,7 @@ pn_status pn_sphere_set_do_build(pn_mesh mesh, uint32_t count, pn_sphere_set *ou
     /* The balls reach past the surface by `grow` cells: chosen per set as
      * the one whose union has the least outside + missed volume. */
     static const float grows[] = {-0.25f, 0.0f, 0.25f, 0.5f, 0.75f, 1.0f, 1.25f, 1.5f, 1.75f, 2.0f};
-    float outside = 0.0f, missed = 0.0f, best = INFINITY;
+    float outside = 0.0f, missed = 0.0f, best = INFINITY, skin = 0.0f;
     size_t interior = 0;
     for (size_t t = 0; t < sizeof grows / sizeof grows[0]; ++t) {
         greedy_cover(&g, cand, nc, grows[t], count, &cs, heap, chosen);
@@ -874,7 +875,7 @@ pn_status pn_sphere_set_do_build(pn_mesh mesh, uint32_t count, pn_sphere_set *ou
         float o = 0.0f, m = 0.0f;
         union_error(&g, trial, count, covered, &o, &m, &interior);
         if (o + m < best) {
-            best = o + m, outside = o, missed = m;
+            best = o + m, outside = o, missed = m, skin = (fmaxf(grows[t], -0.5f) + 0.5f) * g.h;
             memcpy(spheres, trial, (size_t)count * 4 * sizeof *spheres);
         }
     }
@@ -886,6 +887,7 @@ pn_status pn_sphere_set_do_build(pn_mesh mesh, uint32_t count, pn_sphere_set *ou
     s->mesh_volume = (float)((double)interior * (double)g.h * (double)g.h * (double)g.h);
     s->outside_share = outside;
     s->missed_share = missed;
+    s->skin = skin;
     s->build_seconds = (double)(clock() - t0) / CLOCKS_PER_SEC;
     remember(ctx, s);
     if ((st = make_anchors(ctx, s, mesh))) {

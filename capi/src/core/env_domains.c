@@ -493,10 +493,13 @@ static double hot_limit(const texels *t, float threshold)
 }
 
 /* The sharp part of the texels t (pn_envmap_extract_sharp, options checked):
- * at most o->max_count domains in `domains` (*count of them) and the residual
- * (3 x t->count floats). */
-static pn_status sharp_part(pn_envmap env, const texels *t, const pn_env_sharp_options *o, pn_env_domain *domains,
-                            uint32_t *count, float *residual)
+ * at most o->max_count domains in `domains` (*count of them); the hot texels
+ * are clipped to the limit in `residual` (3 x t->count floats, which the
+ * caller filled with the map). With `label`, only the hot texels whose label
+ * is `id` (one connected light, hot_lights) are taken; the others are left
+ * as they are. */
+static pn_status sharp_part(pn_envmap env, const texels *t, const pn_env_sharp_options *o, const int32_t *label,
+                            int32_t id, pn_env_domain *domains, uint32_t *count, float *residual)
 {
     pn_context ctx = env->obj.ctx;
     const size_t need = 3 * t->count;
@@ -506,7 +509,6 @@ static pn_status sharp_part(pn_envmap env, const texels *t, const pn_env_sharp_o
     const double limit = hot_limit(t, o->threshold);
     size_t hot_count = 0;
     if (!st) {
-        memcpy(residual, t->rgb, need * sizeof(float));
         hot.width = t->width;
         hot.height = t->height;
         hot.count = t->count;
@@ -517,7 +519,7 @@ static pn_status sharp_part(pn_envmap env, const texels *t, const pn_env_sharp_o
         const double lum = t->weight[k] > 0.0 ? luminance64(t->rgb + 3 * k) : 0.0;
         for (int c = 0; c < 3; ++c)
             hot.rgb[3 * k + c] = 0.0f;
-        if (!(lum > limit))
+        if (!(lum > limit) || (label && label[k] != id))
             continue;
         ++hot_count;
         const double keep = limit / lum;
@@ -595,18 +597,30 @@ pn_status pn_envmap_do_extract_sharp(pn_envmap env, const pn_env_sharp_options *
                        need, env->width, env->height, residual_floats);
     texels t;
     pn_status st = texels_read(env, &t);
-    if (!st)
-        st = sharp_part(env, &t, o, domains, count, residual);
+    if (!st) {
+        memcpy(residual, t.rgb, need * sizeof(float));
+        st = sharp_part(env, &t, o, NULL, 0, domains, count, residual);
+    }
     texels_free(&t);
     return st;
 }
 
-/* Whether the map's hot texels (luminance above threshold x the mean) form
- * one compact light: the angle of the mean resultant of their excess-weighted
- * directions is at most twice the cap radius of their solid angle. A sun
- * (0.2-0.7 degrees against 0.5-1.9 on the maps in ../shared/data) is; the
- * windows of an interior are not (30-47 degrees against 3-5): one domain at
- * their power centroid would cast their shadows from between them. */
+/* Whether hot texels form one compact light: the angle of the mean resultant
+ * of their excess-weighted directions is at most twice the cap radius of
+ * their solid angle (m: the excess-weighted sum of directions, total: the
+ * excess, omega: the solid angle). A sun (0.2-0.7 degrees against 0.5-1.9 on
+ * the maps in ../shared/data) is; the windows of an interior taken together
+ * are not (30-47 degrees against 3-5): one domain at their power centroid
+ * would cast their shadows from between them. */
+static bool compact_light(const double m[3], double total, double omega)
+{
+    const double len = sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]) / total;
+    const double cap = 2.0 * asin(sqrt(fmin(omega / (4.0 * PI), 1.0)));
+    return acos(fmin(len, 1.0)) <= 2.0 * cap;
+}
+
+/* Whether the map's hot texels (luminance above threshold x the mean), all of
+ * them together, form one compact light (compact_light). */
 static bool sharp_compact(const texels *t, float threshold)
 {
     double m[3] = {0.0, 0.0, 0.0}, total = 0.0, omega = 0.0;
@@ -624,9 +638,92 @@ static bool sharp_compact(const texels *t, float threshold)
     }
     if (!(total > 0.0))
         return true; /* no hot texel: nothing is split off */
-    const double len = sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]) / total;
-    const double cap = 2.0 * asin(sqrt(fmin(omega / (4.0 * PI), 1.0)));
-    return acos(fmin(len, 1.0)) <= 2.0 * cap;
+    return compact_light(m, total, omega);
+}
+
+/* One connected light of hot texels (hot_lights). */
+typedef struct hot_light {
+    double excess; /* sum (lum - limit) dw, in the map's units */
+    int32_t id;    /* its label */
+    uint32_t alloc; /* sharp domains given to it */
+} hot_light;
+
+static int light_order(const void *a, const void *b)
+{
+    const hot_light *x = a, *y = b;
+    if (x->excess != y->excess)
+        return x->excess > y->excess ? -1 : 1;
+    return (x->id > y->id) - (x->id < y->id);
+}
+
+/* When the hot texels together are not one compact light (an interior's
+ * windows, several lamps): their connected components (8-neighbours on the
+ * lat-long grid, wrapping in longitude) that are each compact (compact_light)
+ * and each hold at least the mean domain power (the map's power / n) are
+ * lights of their own. label[k] (t->count) is set to the component of every
+ * hot texel (1, 2, ...; 0 elsewhere); lights[] (capacity PN_ENV_SHARP_MAX)
+ * gets the qualifying components, the strongest first, at most
+ * PN_ENV_SHARP_MAX of them (*count). A component below the mean domain power
+ * is left to the decomposition: its Lloyd cell holds it at least as finely as
+ * its power deserves, and a sharp domain would cost a strong map. */
+static pn_status hot_lights(pn_context ctx, const texels *t, double limit, uint32_t n, int32_t *label,
+                            hot_light *lights, uint32_t *count)
+{
+    *count = 0;
+    size_t *stack = pn_malloc(ctx, t->count * sizeof(size_t), "the hot texels' components");
+    if (!stack)
+        return PN_ERROR_OUT_OF_MEMORY;
+    double power = 0.0;
+    for (size_t k = 0; k < t->count; ++k) {
+        power += t->weight[k];
+        label[k] = t->weight[k] > 0.0 && luminance64(t->rgb + 3 * k) > limit ? -1 : 0; /* -1: hot, unlabelled */
+    }
+    const uint32_t w = t->width, h = t->height;
+    hot_light found[PN_ENV_SHARP_MAX];
+    uint32_t kept = 0;
+    int32_t next = 0;
+    for (size_t seed = 0; seed < t->count; ++seed) {
+        if (label[seed] != -1)
+            continue;
+        const int32_t id = ++next;
+        double m[3] = {0.0, 0.0, 0.0}, total = 0.0, omega = 0.0;
+        size_t top = 0;
+        label[seed] = id;
+        stack[top++] = seed;
+        while (top) {
+            const size_t k = stack[--top];
+            const uint32_t i = (uint32_t)(k % w), j = (uint32_t)(k / w);
+            const double dw = t->omega[j], e = (luminance64(t->rgb + 3 * k) - limit) * dw;
+            double d[3];
+            texel_dir(t, k, d);
+            for (int c = 0; c < 3; ++c)
+                m[c] += e * d[c];
+            total += e, omega += dw;
+            for (int dj = -1; dj <= 1; ++dj) {
+                if ((dj < 0 && j == 0) || (dj > 0 && j + 1 >= h))
+                    continue;
+                for (int di = -1; di <= 1; ++di) {
+                    const size_t q = (size_t)(j + dj) * w + (i + w + (uint32_t)(di + 1) - 1) % w;
+                    if (label[q] == -1) {
+                        label[q] = id;
+                        stack[top++] = q;
+                    }
+                }
+            }
+        }
+        if (!(total > 0.0) || !compact_light(m, total, omega) || !(total >= power / n))
+            continue;
+        hot_light l = {total, id, 0};
+        if (kept < PN_ENV_SHARP_MAX)
+            found[kept++] = l;
+        else if (light_order(&l, &found[kept - 1]) < 0)
+            found[kept - 1] = l;
+        qsort(found, kept, sizeof *found, light_order);
+    }
+    free(stack);
+    memcpy(lights, found, kept * sizeof *found);
+    *count = kept;
+    return PN_SUCCESS;
 }
 
 pn_status pn_envmap_domains_split(pn_envmap env, const pn_env_decompose_options *options, uint32_t sharp_max,
@@ -670,10 +767,43 @@ pn_status pn_envmap_domains_split(pn_envmap env, const pn_env_decompose_options 
         if (!(rest.rgb = pn_malloc(ctx, t.count * 3 * sizeof(float), "the residual map")))
             st = PN_ERROR_OUT_OF_MEMORY;
     }
-    if (!st && sharp_compact(&t, threshold))
-        st = sharp_part(env, &t, &so, sharp, &k, rest.rgb);
-    else if (!st) /* scattered hot texels (windows): the map itself into N */
+    if (!st)
         memcpy(rest.rgb, t.rgb, t.count * 3 * sizeof(float));
+    if (!st && sharp_compact(&t, threshold)) {
+        st = sharp_part(env, &t, &so, NULL, 0, sharp, &k, rest.rgb);
+    } else if (!st) {
+        /* Not one light: the compact components that hold a domain's worth
+         * each (hot_lights), the strongest first, one sharp domain each while
+         * sharp_max lasts; sharp domains beyond one per light go to the light
+         * with the most power per domain (as sharp_max > 1 splits a sun). The
+         * other hot texels (scattered windows, a band, weak spots) stay in the
+         * residual as they are; with no such light the map itself into N. */
+        int32_t *label = pn_malloc(ctx, t.count * sizeof(int32_t), "the hot texels' labels");
+        hot_light lights[PN_ENV_SHARP_MAX];
+        uint32_t m = 0;
+        if (!label)
+            st = PN_ERROR_OUT_OF_MEMORY;
+        if (!st)
+            st = hot_lights(ctx, &t, hot_limit(&t, threshold), options->count, label, lights, &m);
+        if (m > sharp_max)
+            m = sharp_max;
+        for (uint32_t i = 0; i < m; ++i)
+            lights[i].alloc = 1;
+        for (uint32_t extra = m ? sharp_max - m : 0; extra > 0; --extra) {
+            uint32_t best = 0;
+            for (uint32_t i = 1; i < m; ++i)
+                if (lights[i].excess * lights[best].alloc > lights[best].excess * lights[i].alloc)
+                    best = i;
+            ++lights[best].alloc;
+        }
+        for (uint32_t i = 0; !st && i < m; ++i) {
+            const pn_env_sharp_options lo = {lights[i].alloc, threshold, options->seed, options->max_iterations};
+            uint32_t got = 0;
+            st = sharp_part(env, &t, &lo, label, lights[i].id, sharp + k, &got, rest.rgb);
+            k += got;
+        }
+        free(label);
+    }
     if (!st)
         st = texels_init(ctx, &rest, env->intensity == 0.0f);
     if (!st) {

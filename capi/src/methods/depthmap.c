@@ -35,7 +35,8 @@
 enum { P_BACKGROUND, P_DIRECTIONS, P_SEED, P_RESOLUTION, P_MAP_RENDERER, P_BIAS, P_SLOPE_BIAS, P_PCF, P_SPECULAR,
        P_CAP_SAMPLES, P_VISIBILITY, P_REUSE_MAPS, P_SKIP_POWER, P_HALF_MAPS, P_FIT,
        P_TABLE_MIN_EXPONENT, P_STRONG_RESOLUTION, P_STRONG_SHARE,
-       P_STRONG_RATIO, P_GRADE, P_STRONG_CLUSTER, P_SHARP, P_SHARP_THRESHOLD, P_LOBE_TABLES, P_SOFT_SHADOWS };
+       P_STRONG_RATIO, P_GRADE, P_STRONG_CLUSTER, P_SHARP, P_SHARP_THRESHOLD, P_LOBE_TABLES, P_SOFT_SHADOWS,
+       P_RECEIVER_PLANE, P_LOBE_CENTROID };
 
 static const pn_param_desc params[] = {
     PN_PARAM_BACKGROUND,
@@ -105,6 +106,14 @@ static const pn_param_desc params[] = {
      "Penumbrae of the domains' caps (percentage-closer soft shadows: blocker search, then a disc filter of radius "
      "(receiver - blocker depth) x tan(cap radius), up to 8 texels; pcf ignored there): 0 none, 1 the sharp "
      "domains, 2 every domain (docs/depthmap.md, measured)."},
+    {"receiver_plane", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
+     "Hard lookups: 1 compares each tap with the receiver's depth along its tangent plane at the tap's texel "
+     "centre (receiver-plane depth bias, the constant bias on top, slope_bias unused), 0 the slope-scaled bias of "
+     "the farthest tap (docs/depthmap.md)."},
+    {"lobe_centroid", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
+     "Blinn-Phong and GGX tables: 0 the lobe's cosine (and G1, V.H) at the cap's point of least lobe distance; 1 "
+     "at four points about the lobe-weighted centroid the tables also hold: 2-4x less error at 60-85 degree views "
+     "for about 1.5x the specular shading, not the default since the rendered error barely moved (docs/depthmap.md)."},
 };
 
 _Static_assert(sizeof params / sizeof params[0] <= PN_MAX_METHOD_PARAMS,
@@ -1186,17 +1195,20 @@ static pn_status prepare_maps(pn_renderer r, pn_scene scene, bool *use_maps)
     return st;
 }
 
-/* Whether an instance has a specular Blinn-Phong or GGX lobe: only then are
-   their tables built at lobe_tables 2 (seconds of CPU per context); without
-   them such pixels (a caller's G-buffer) take the cap quadrature. */
-static bool scene_has_table_lobes(pn_scene scene)
+/* The lobe families the scene's instances use with k_s > 0 (PN_DM_LOBE_BLINN_PHONG_BIT,
+   PN_DM_LOBE_GGX_BIT): only those tables are built at lobe_tables 2 (about a second of CPU each per
+   context); pixels of a family not built (a caller's G-buffer) take the cap quadrature. */
+static int scene_table_lobes(pn_scene scene)
 {
+    int mask = 0;
     for (uint32_t i = 0; i < scene->instance_count; ++i) {
         const pn_material *m = &scene->instances[i].material;
-        if (m->specular > 0.0f && (m->lobe == PN_LOBE_BLINN_PHONG || m->lobe == PN_LOBE_GGX))
-            return true;
+        if (m->specular > 0.0f && m->lobe == PN_LOBE_BLINN_PHONG)
+            mask |= PN_DM_LOBE_BLINN_PHONG_BIT;
+        if (m->specular > 0.0f && m->lobe == PN_LOBE_GGX)
+            mask |= PN_DM_LOBE_GGX_BIT;
     }
-    return false;
+    return mask;
 }
 
 static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image image)
@@ -1220,9 +1232,13 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     }
     cl_mem table = NULL; /* the kernel reads it only with specular 3; any buffer stands in otherwise */
     const int lobe_mode = (int)r->params[P_LOBE_TABLES];
-    const cl_int lobe_tables = lobe_mode == 1 || (lobe_mode == 2 && scene_has_table_lobes(scene)) ? 1 : 0;
+    const cl_int table_lobes = lobe_mode == 1 ? PN_DM_LOBE_BLINN_PHONG_BIT | PN_DM_LOBE_GGX_BIT
+                               : lobe_mode == 2 ? scene_table_lobes(scene)
+                                                : 0;
     if (!st && (int)r->params[P_SPECULAR] == 3)
-        st = pn_depthmap_cap_table(ctx, lobe_tables != 0, &table);
+        st = pn_depthmap_cap_table(ctx, table_lobes, &table);
+    /* the kernel's lobe_tables: the families built, and bit 2 the four-point rule */
+    const cl_int lobe_tables = table_lobes | ((int)r->params[P_LOBE_CENTROID] ? 4 : 0);
     if (st || (st = pn_context_kernel(ctx, "depthmap", "shade_depthmap", &k)))
         return st;
     if (!table)
@@ -1234,19 +1250,20 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const cl_int specular = (cl_int)r->params[P_SPECULAR], samples = (cl_int)r->params[P_CAP_SAMPLES];
     const cl_float table_min = (cl_float)r->params[P_TABLE_MIN_EXPONENT];
     const int soft_mode = (int)r->params[P_SOFT_SHADOWS];
+    const cl_int plane = (cl_int)r->params[P_RECEIVER_PLANE];
     const cl_int soft_count = soft_mode == 2 ? (cl_int)s->domain_count : soft_mode == 1 ? (cl_int)s->sharp_count : 0;
     const cl_float4 camera = pn_scene_camera_position(scene);
     const size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem),
                             sizeof count, sizeof camera, sizeof(cl_mem), sizeof domains, sizeof(cl_mem),
                             sizeof(cl_mem), sizeof(cl_mem), sizeof use_maps, sizeof bias, sizeof slope, sizeof pcf,
                             sizeof specular, sizeof samples, sizeof(cl_mem), sizeof(cl_mem), sizeof half,
-                            sizeof(cl_mem), sizeof table_min, sizeof lobe_tables, sizeof soft_count};
+                            sizeof(cl_mem), sizeof table_min, sizeof lobe_tables, sizeof soft_count, sizeof plane};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &camera, &s->device_domains, &domains,
                           &s->frames, depth, &s->atlas, &use_maps, &bias, &slope, &pcf, &specular, &samples,
-                          &image->buffer, half ? &s->depth16 : depth, &half, &table, &table_min, &lobe_tables, &soft_count};
-    if ((st = pn_set_args(ctx, k, "shade_depthmap", 25, sizes, vals)))
+                          &image->buffer, half ? &s->depth16 : depth, &half, &table, &table_min, &lobe_tables, &soft_count, &plane};
+    if ((st = pn_set_args(ctx, k, "shade_depthmap", 26, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_depthmap", (size_t)count, 64);
 }

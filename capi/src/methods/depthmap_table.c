@@ -30,6 +30,7 @@
 
 #include <math.h>
 #include <stdlib.h>
+#include <string.h>
 
 #define PI 3.14159265358979323846
 #define HALF_PI (0.5 * PI)
@@ -130,6 +131,9 @@ static void phong_table_fill(float *out)
  * the stretched plane, where the lobe is round. Axes:
  *   x = log(1 + rho / RHO_0) / log(1 + RHO_MAX / RHO_0),  y as the Phong table's (t(delta_u)
  *   from the disk's centre to DELTA_MAX),  phi_s / (pi / 2),  log c / log C_MIN.
+ * Each entry also holds the lobe-weighted centroid of the disk in the round metric (x, y / c) from R and
+ * the spreads of x and y / c (PN_DM_LOBE_V = 5 floats), from which the kernel averages the rest of the
+ * integrand (the cosine, G1, the half vector's Jacobian) by four points (dm_lobe_average).
  * The disk integral: over x (Gauss-Legendre panels from the features: the
  * lobe's peak, the chord ends' crossings of y = 0, the disk's nearest row),
  * over y in closed form (erf for the Gaussian, the rational-arctangent
@@ -185,6 +189,61 @@ static double log_chord(int family, double x, double y1, double y2, double c)
     return log(c * k);
 }
 
+/* The mean and mean square of z = y / c over the chord x, y in [y1, y2] under the lobe (moments over
+ * the chord's integral, in closed form; tails in logarithms, so no 0 / 0). Blinn-Phong, the standard
+ * normal on [z1, z2]: mean (phi(z1) - phi(z2)) / P, mean square 1 + (z1 phi(z1) - z2 phi(z2)) / P,
+ * P = Phi(z2) - Phi(z1). GGX, (a^2 + z^2)^-2: mean (1/(a^2 + z1^2) - 1/(a^2 + z2^2)) / (2 k), mean square
+ * from int z^2 / (a^2 + z^2)^2 = (atan(z / a) / a - z / (a^2 + z^2)) / 2 over k = int (a^2 + z^2)^-2. */
+static double log_q(double z) { return log_erfc_pos(z / SQRT2) - log(2.0); } /* log of the normal's upper tail, z >= 0 */
+
+static void chord_moments(int family, double x, double y1, double y2, double c, double *mean, double *square,
+                          double *log_value)
+{
+    double z1 = y1 / c, z2 = y2 / c, sign = 1.0;
+    *log_value = -INFINITY; /* GGX: log_chord's value, from the same integral (not set for Blinn-Phong) */
+    if (!(z2 > z1)) {
+        *mean = 0.5 * (z1 + z2);
+        *square = *mean * *mean;
+        return;
+    }
+    if (z2 <= 0.0) { /* mirror to z >= 0 */
+        const double t = -z1;
+        z1 = -z2;
+        z2 = t;
+        sign = -1.0;
+    }
+    if (family == 0) {
+        if (z1 >= 0.0) { /* ratios to phi(z1): e = phi(z2) / phi(z1), P / phi(z1) = (Q(z1) - Q(z2)) / phi(z1) */
+            const double e = exp(-0.5 * (z2 - z1) * (z2 + z1));
+            const double lq1 = log_q(z1), lp = lq1 + log(-expm1(log_q(z2) - lq1));
+            const double ratio = exp(-0.5 * z1 * z1 - 0.5 * log(2.0 * PI) - lp); /* phi(z1) / P */
+            *mean = sign * (1.0 - e) * ratio;
+            *square = 1.0 + (z1 - z2 * e) * ratio;
+            return;
+        }
+        const double p1 = exp(-0.5 * z1 * z1) / sqrt(2.0 * PI), p2 = exp(-0.5 * z2 * z2) / sqrt(2.0 * PI);
+        const double mass = 0.5 * (erf(z2 / SQRT2) - erf(z1 / SQRT2));
+        *mean = sign * (p1 - p2) / mass;
+        *square = 1.0 + (z1 * p1 - z2 * p2) / mass;
+        return;
+    }
+    const double a = sqrt(1.0 + x * x), a2 = a * a;
+    double k, m, q;
+    if (z1 >= 0.0) {
+        k = ggx_strip_pos(z1, z2, a);
+        m = 0.5 * (z2 - z1) * (z2 + z1) / ((a2 + z1 * z1) * (a2 + z2 * z2));
+        /* int z^2 / (a^2 + z^2)^2 = int dz / (a^2 + z^2) - a^2 k */
+        q = (atan2(a * (z2 - z1), a2 + z1 * z2)) / a - a2 * k;
+    } else {
+        k = ggx_strip_pos(0.0, -z1, a) + ggx_strip_pos(0.0, z2, a);
+        m = 0.5 * (1.0 / (a2 + z1 * z1) - 1.0 / (a2 + z2 * z2));
+        q = (atan(z2 / a) - atan(z1 / a)) / a - a2 * k;
+    }
+    *mean = sign * m / k;
+    *square = fmax(q / k, 0.0);
+    *log_value = log(c * k);
+}
+
 static double log_lobe(int family, double u) { return family == 0 ? -0.5 * u * u : -2.0 * log1p(u * u); }
 
 #define LOBE_NODES 6
@@ -231,10 +290,12 @@ static double edge_least_u2(double x0, double y0, double rho, double c)
     return px * px + py * py;
 }
 
-/* log G for one table entry (the disk average over Lambda at the disk's point of least u) */
+/* log G for one table entry (the disk average over Lambda at the disk's point of least u), and in
+ * (mx, my) the lobe-weighted centroid of the disk in the lobe's round metric (x, y / c) from R */
 static double lobe_log_ratio(int family, double rho, double c, double delta_u, double phi_s, const double *map,
-                             const double *gw)
+                             const double *gw, double *mx, double *my, double *sx, double *sy)
 {
+    *mx = *my = *sx = *sy = 0.0;
     if (rho <= 0.0)
         return 0.0;
     const double ux = cos(phi_s), uy = c * sin(phi_s), un = sqrt(ux * ux + uy * uy);
@@ -270,7 +331,7 @@ static double lobe_log_ratio(int family, double rho, double c, double delta_u, d
     count = add_feature(cut, count, x0, fmin(rho, fmax(w_row, 1e-6)), lo, hi);
     qsort(cut, (size_t)count, sizeof cut[0], cmp_double);
     /* two passes: the largest log value, then the sum */
-    double best = -INFINITY, sum = 0.0;
+    double best = -INFINITY, sum = 0.0, sum_x = 0.0, sum_xx = 0.0, sum_z = 0.0, sum_zz = 0.0;
     for (int pass = 0; pass < 2; ++pass)
         for (int k = 0; k + 1 < count; ++k) {
             const double a = cut[k], b = cut[k + 1];
@@ -279,19 +340,42 @@ static double lobe_log_ratio(int family, double rho, double c, double delta_u, d
             for (int q = 0; q < LOBE_NODES; ++q) {
                 const double x = a + (b - a) * map[q], dx = x - x0;
                 const double h = sqrt(fmax(rho * rho - dx * dx, 0.0));
-                const double lv = log_chord(family, x, y0 - h, y0 + h, c) - ref;
-                if (pass == 0)
-                    best = fmax(best, lv);
-                else if (lv > -INFINITY)
-                    sum += gw[q] * (b - a) * exp(lv - best);
+                if (pass == 0) {
+                    best = fmax(best, log_chord(family, x, y0 - h, y0 + h, c) - ref);
+                    continue;
+                }
+                double mz, mzz, lg;
+                chord_moments(family, x, y0 - h, y0 + h, c, &mz, &mzz, &lg); /* GGX: lg is log_chord's value */
+                const double lv = (family == 1 ? lg : log_chord(family, x, y0 - h, y0 + h, c)) - ref;
+                if (lv > -INFINITY) {
+                    const double wv = gw[q] * (b - a) * exp(lv - best);
+                    sum += wv;
+                    sum_x += wv * x;
+                    sum_xx += wv * x * x;
+                    sum_z += wv * mz;
+                    sum_zz += wv * mzz;
+                }
             }
         }
-    if (!(sum > 0.0))
+    if (!(sum > 0.0)) { /* nothing of the lobe: the centroid is the disk's point of least u */
+        *mx = x0;
+        *my = y0 / c;
         return -1e30;
+    }
+    *mx = sum_x / sum;
+    *my = sum_z / sum;
+    *sx = sqrt(fmax(sum_xx / sum - *mx * *mx, 0.0));
+    *sy = sqrt(fmax(sum_zz / sum - *my * *my, 0.0));
     return best + log(sum) - log(PI * rho * rho);
 }
 
 void pn_depthmap_lobe_table_fill(float *out)
+{
+    pn_depthmap_lobe_family_fill(0, out);
+    pn_depthmap_lobe_family_fill(1, out + PN_DM_LOBE_FAMILY);
+}
+
+void pn_depthmap_lobe_family_fill(int family, float *out)
 {
     double gx[LOBE_NODES], gw[LOBE_NODES], map[LOBE_NODES];
     pn_gauss_legendre(LOBE_NODES, gx, gw);
@@ -301,8 +385,7 @@ void pn_depthmap_lobe_table_fill(float *out)
         gw[k] *= 0.25 * PI * sin(PI * s);
     }
     size_t at = 0;
-    for (int family = 0; family < 2; ++family)
-        for (int l = 0; l < PN_DM_LOBE_C; ++l) {
+    for (int l = 0; l < PN_DM_LOBE_C; ++l) {
             const double c = pow(PN_DM_LOBE_C_MIN, (double)l / (PN_DM_LOBE_C - 1));
             for (int p = 0; p < PN_DM_LOBE_P; ++p) {
                 const double phi_s = HALF_PI * p / (PN_DM_LOBE_P - 1);
@@ -314,7 +397,13 @@ void pn_depthmap_lobe_table_fill(float *out)
                         const double t0 = edge_t(-rho * gamma), t1 = edge_t(PN_DM_LOBE_DELTA_MAX);
                         const double t = t0 + y * (t1 - t0);
                         const double delta_u = PN_DM_TABLE_SPREAD * t / (1.0 - fabs(t));
-                        out[at++] = (float)lobe_log_ratio(family, rho, c, delta_u, phi_s, map, gw);
+                        double mx, my, sx, sy;
+                        const double lg = lobe_log_ratio(family, rho, c, delta_u, phi_s, map, gw, &mx, &my, &sx, &sy);
+                        out[at++] = (float)lg;
+                        out[at++] = (float)mx;
+                        out[at++] = (float)my;
+                        out[at++] = (float)sx;
+                        out[at++] = (float)sy;
                     }
             }
         }
@@ -326,18 +415,34 @@ void pn_depthmap_cap_table_fill(float *out)
     pn_depthmap_lobe_table_fill(out + PN_DM_TABLE_PHONG_FLOATS);
 }
 
-static void phong_only_fill(float *out) { phong_table_fill(out); }
-
-static const char phong_key = 0, full_key = 0;
-
-pn_status pn_depthmap_cap_table(pn_context ctx, bool lobes, cl_mem *out)
+/* Phong's table and the families of a mask (the others zero) */
+static void masked_fill(int lobes, float *out)
 {
-    /* Two cache entries: Phong's table alone (0.4 s to build) and with the
-       lobe families after it (seconds more), built only for a scene that
-       has a Blinn-Phong or GGX lobe. */
-    if (!lobes)
-        return pn_context_table(ctx, &phong_key, PN_DM_TABLE_PHONG_FLOATS, phong_only_fill, "the cap-average table",
-                                out);
-    return pn_context_table(ctx, &full_key, PN_DM_TABLE_FLOATS, pn_depthmap_cap_table_fill,
-                            "the cap-average tables with the lobe families", out);
+    phong_table_fill(out);
+    for (int family = 0; family < 2; ++family) {
+        float *f = out + PN_DM_TABLE_PHONG_FLOATS + (size_t)family * PN_DM_LOBE_FAMILY;
+        if (lobes & (1 << family))
+            pn_depthmap_lobe_family_fill(family, f);
+        else
+            memset(f, 0, PN_DM_LOBE_FAMILY * sizeof(float));
+    }
+}
+
+static void fill_mask1(float *out) { masked_fill(1, out); }
+static void fill_mask2(float *out) { masked_fill(2, out); }
+static void fill_mask3(float *out) { masked_fill(3, out); }
+
+static const char table_keys[4] = {0, 0, 0, 0};
+
+pn_status pn_depthmap_cap_table(pn_context ctx, int lobes, cl_mem *out)
+{
+    /* One cache entry per set of families: Phong's table alone (0.4 s to build) or with the Blinn-Phong
+       and/or GGX families after it, built only for a scene that has such a lobe. */
+    static void (*const fills[4])(float *) = {phong_table_fill, fill_mask1, fill_mask2, fill_mask3};
+    static const char *const what[4] = {"the cap-average table", "the cap-average tables with Blinn-Phong's",
+                                        "the cap-average tables with GGX's",
+                                        "the cap-average tables with Blinn-Phong's and GGX's"};
+    lobes &= 3;
+    return pn_context_table(ctx, &table_keys[lobes], lobes ? PN_DM_TABLE_FLOATS : PN_DM_TABLE_PHONG_FLOATS,
+                            fills[lobes], what[lobes], out);
 }

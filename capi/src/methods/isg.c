@@ -25,7 +25,9 @@ enum {
     P_LOD,
     P_SHARED_GRID,
     P_SHARED_SHARPNESS,
-    P_SHARED_LIGHT
+    P_SHARED_LIGHT,
+    P_SELF_PUSH,
+    P_INSIDE_OTHER
 };
 
 static const pn_param_desc params[] = {
@@ -36,7 +38,8 @@ static const pn_param_desc params[] = {
      "M: each lobe's visibility window is cut into M x M ISG patches (16: 256 patches)."},
     {"self_occlusion", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 2, "",
      "Own spheres of the receiver's instance: 0 ignored, 1 used except those containing the receiver or "
-     "within 0.2 of their radius of it, 2 all used."},
+     "within 0.02 of their radius of it (those are seen from the receiver pushed out by self_push skins, or "
+     "skipped), 2 all used."},
     {"specular_shadows", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 1, "",
      "1: the specular term is shadowed (patch by patch or by its product lobes' visibility), 0: unshadowed."},
     {"env_sharpness", PN_PARAM_FLOAT, PN_PARAM_FRAME, 10, 0, 1e9, "",
@@ -65,6 +68,15 @@ static const pn_param_desc params[] = {
      "With shared_grid > 0, the unshadowed irradiance of the shared lobes: 1 the env map's irradiance map minus "
      "the closed forms of the sharper lobes (the K-lobe fit's error leaves it), 0 the shared lobes' closed "
      "forms (docs/isg.md section 9)."},
+    {"self_push", PN_PARAM_FLOAT, PN_PARAM_FRAME, 0.5, 0, 8, "skins",
+     "With self_occlusion 1, an own sphere that contains or nearly touches the receiver is seen from the "
+     "receiver pushed out along its normal by self_push times the set's skin ((g + 1/2) build cells: how far "
+     "its balls may reach past the surface) instead of skipped: it keeps the shadow it casts past the surface "
+     "without the dark disc (0: skipped; caller's spheres have no skin; docs/isg.md section 8)."},
+    {"inside_other", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 2, "",
+     "A receiver inside another instance's sphere (one poking through the floor under it): 0 that sphere "
+     "occludes everything (V = 0), 1 it is skipped, 2 it is seen from the receiver pushed out by self_push "
+     "times its set's skin (skipped when that is 0 or still inside it)."},
 };
 
 static const pn_param_desc bake_params[] = {
@@ -78,10 +90,11 @@ typedef struct state {
     uint64_t env_version;     /* env map that `lobes` was fitted to */
     float *spheres;           /* host: world centre + radius per sphere */
     uint32_t *owners;         /* host: instance id per sphere */
+    float *skins;             /* host: per sphere, self_push x its set's skin in world units */
     float *nodes;             /* host: the sphere tree's bounding spheres, level 1 first */
     uint32_t *scratch;        /* host: Morton keys and order, sorted spheres (sphere_tree) */
     size_t capacity, device_capacity, node_capacity, device_node_capacity;
-    cl_mem device_spheres, device_owners, device_nodes;
+    cl_mem device_spheres, device_owners, device_nodes, device_skins;
     float *tris;              /* host: thin-shell triangles, 3 world-space float4 vertices each */
     uint32_t *tri_owners;     /* host: instance id per triangle */
     uint32_t *tri_scratch;    /* host: Morton keys and order, sorted triangles and owners (shell_groups) */
@@ -308,11 +321,12 @@ static pn_status gather_spheres(pn_renderer r, pn_scene scene, uint32_t *count_o
     if (total > (1u << 24))
         return pn_fail(ctx, PN_ERROR_INVALID_SIZE, "the scene's sphere sets hold %zu spheres, more than 2^24", total);
     if (total > s->capacity) {
-        free(s->spheres), free(s->owners);
+        free(s->spheres), free(s->owners), free(s->skins);
         s->capacity = 0;
         s->spheres = pn_malloc(ctx, pn_mul_size(total, 4, sizeof(float)), "the scene's spheres");
         s->owners = pn_malloc(ctx, pn_mul_size(total, 1, sizeof(uint32_t)), "the scene's sphere owners");
-        if (!s->spheres || !s->owners)
+        s->skins = pn_malloc(ctx, pn_mul_size(total, 1, sizeof(float)), "the scene's sphere skins");
+        if (!s->spheres || !s->owners || !s->skins)
             return PN_ERROR_OUT_OF_MEMORY;
         s->capacity = total;
     }
@@ -330,6 +344,7 @@ static pn_status gather_spheres(pn_renderer r, pn_scene scene, uint32_t *count_o
                            a->instance, (unsigned long long)inst->mesh->content_hash,
                            (unsigned long long)set->mesh_hash);
         const float *m = inst->object_to_world, sc = radius_scale(m);
+        const float skin = (float)r->params[P_SELF_PUSH] * set->skin * sc;
         for (uint32_t i = 0; i < set->count; ++i, ++n) {
             const float *c = set->spheres + 4 * i;
             float *o = s->spheres + 4 * (size_t)n;
@@ -337,6 +352,7 @@ static pn_status gather_spheres(pn_renderer r, pn_scene scene, uint32_t *count_o
                 o[row] = m[4 * row] * c[0] + m[4 * row + 1] * c[1] + m[4 * row + 2] * c[2] + m[4 * row + 3];
             o[3] = c[3] * sc;
             s->owners[n] = a->instance;
+            s->skins[n] = skin;
         }
     }
     *count_out = n;
@@ -540,14 +556,14 @@ static pn_status sphere_tree(pn_renderer r, uint32_t n, size_t *node_count)
         free(s->nodes), free(s->scratch);
         s->node_capacity = 0;
         s->nodes = pn_malloc(ctx, pn_mul_size(nodes, 4, sizeof(float)), "the sphere tree");
-        /* keys, order (twice each, for the radix passes), sorted spheres, sorted owners */
-        s->scratch = pn_malloc(ctx, pn_mul_size(n, 9, sizeof(uint32_t)), "the sphere tree's scratch");
+        /* keys, order (twice each, for the radix passes), sorted spheres, sorted owners, sorted skins */
+        s->scratch = pn_malloc(ctx, pn_mul_size(n, 10, sizeof(uint32_t)), "the sphere tree's scratch");
         if (!s->nodes || !s->scratch)
             return PN_ERROR_OUT_OF_MEMORY;
         s->node_capacity = n;
     }
     uint32_t *key = s->scratch, *key2 = key + n, *order = key2 + n, *order2 = order + n, *owners = order2 + n;
-    float *sorted = (float *)(owners + n);
+    float *sorted = (float *)(owners + n), *skins = sorted + 4 * (size_t)n;
     float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY}, rmax = 0.0f;
     for (uint32_t i = 0; i < n; ++i) {
         for (int a = 0; a < 3; ++a)
@@ -580,9 +596,11 @@ static pn_status sphere_tree(pn_renderer r, uint32_t n, size_t *node_count)
     for (uint32_t i = 0; i < n; ++i) {
         memcpy(sorted + 4 * (size_t)i, s->spheres + 4 * (size_t)order[i], 4 * sizeof(float));
         owners[i] = s->owners[order[i]];
+        skins[i] = s->skins[order[i]];
     }
     memcpy(s->spheres, sorted, (size_t)n * 4 * sizeof(float));
     memcpy(s->owners, owners, (size_t)n * sizeof(uint32_t));
+    memcpy(s->skins, skins, (size_t)n * sizeof(float));
     const float diag = sqrtf((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
                              (hi[2] - lo[2]) * (hi[2] - lo[2]));
     const float pad = 1e-5f * (diag + rmax);
@@ -686,15 +704,18 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     if (need > s->device_capacity) {
         pn_mem_release(&s->device_spheres);
         pn_mem_release(&s->device_owners);
+        pn_mem_release(&s->device_skins);
         s->device_capacity = 0;
         if ((st = pn_alloc(ctx, need * 16, CL_MEM_READ_ONLY, NULL, &s->device_spheres, "the scene's spheres")) ||
-            (st = pn_alloc(ctx, need * 4, CL_MEM_READ_ONLY, NULL, &s->device_owners, "the scene's sphere owners")))
+            (st = pn_alloc(ctx, need * 4, CL_MEM_READ_ONLY, NULL, &s->device_owners, "the scene's sphere owners")) ||
+            (st = pn_alloc(ctx, need * 4, CL_MEM_READ_ONLY, NULL, &s->device_skins, "the scene's sphere skins")))
             return st;
         s->device_capacity = need;
     }
     if (sphere_count &&
         ((st = pn_upload_async(ctx, s->device_spheres, s->spheres, (size_t)sphere_count * 16, "uploading spheres")) ||
-         (st = pn_upload_async(ctx, s->device_owners, s->owners, (size_t)sphere_count * 4, "uploading sphere owners"))))
+         (st = pn_upload_async(ctx, s->device_owners, s->owners, (size_t)sphere_count * 4, "uploading sphere owners")) ||
+         (st = pn_upload_async(ctx, s->device_skins, s->skins, (size_t)sphere_count * 4, "uploading sphere skins"))))
         return st;
     const cl_int count = (cl_int)(gb->width * gb->height), n = env->face_size;
     const cl_int lobes = s->lobe_count, spheres = (cl_int)sphere_count, grid = (cl_int)r->params[P_PATCH_GRID];
@@ -717,12 +738,13 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const bool env_light = shared_grid > 0 && r->params[P_SHARED_LIGHT] != 0;
     const cl_int irradiance_n = env_light ? env->committed_irradiance_size : 0;
     const cl_mem irradiance = env_light ? env->irradiance : s->lobes; /* unread when 0 */
+    const cl_int inside_other = (cl_int)r->params[P_INSIDE_OTHER];
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count,
                       sizeof(cl_mem), sizeof n, sizeof(cl_mem), sizeof lobes, sizeof(cl_mem),
                       sizeof(cl_mem), sizeof spheres, sizeof(cl_mem), sizeof use_tree, sizeof lod, sizeof(cl_mem), sizeof(cl_mem), sizeof triangles, sizeof grid, sizeof self, sizeof spec, sizeof env_sharpness, sizeof camera,
                       sizeof(cl_mem), sizeof mode, sizeof(cl_mem), sizeof(cl_mem), sizeof gamma_count, sizeof lambda0,
                       sizeof shared_grid, sizeof shared_sharpness, sizeof(cl_mem), sizeof cube_n, sizeof(cl_mem),
-                      sizeof irradiance_n, sizeof(cl_mem)};
+                      sizeof irradiance_n, sizeof(cl_mem), sizeof inside_other, sizeof(cl_mem)};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_MATERIAL],
                           &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->cube, &n, &s->lobes, &lobes,
@@ -730,8 +752,8 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
                           &triangles, &grid, &self,
                           &spec, &env_sharpness, &camera, &table, &mode, &gamma, &gamma_levels, &gamma_count,
                           &lambda0, &shared_grid, &shared_sharpness, &cube_buf, &cube_n, &irradiance, &irradiance_n,
-                          &image->buffer};
-    if ((st = pn_set_args(ctx, k, "shade_isg", 37, sizes, vals)))
+                          &s->device_skins, &inside_other, &image->buffer};
+    if ((st = pn_set_args(ctx, k, "shade_isg", 39, sizes, vals)))
         return st;
     return pn_enqueue_1d(ctx, k, "shade_isg", (size_t)count, 64);
 }
@@ -743,6 +765,7 @@ static void destroy(pn_renderer r)
     pn_mem_release(&s->lobe_cube);
     pn_mem_release(&s->device_spheres);
     pn_mem_release(&s->device_owners);
+    pn_mem_release(&s->device_skins);
     pn_mem_release(&s->device_nodes);
     pn_mem_release(&s->device_tris);
     pn_mem_release(&s->device_tri_owners);
@@ -751,6 +774,7 @@ static void destroy(pn_renderer r)
     free(s->tri_owners);
     free(s->spheres);
     free(s->owners);
+    free(s->skins);
     free(s->nodes);
     free(s->scratch);
 }

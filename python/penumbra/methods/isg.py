@@ -69,7 +69,7 @@ class SphereSet(_Handle):
         call("pn_sphere_set_get_info", self._ctx._h, self._h, ctypes.byref(i))
         return {"count": i.count, "grid": i.grid, "mesh_hash": f"{i.mesh_hash:016x}" if i.mesh_hash else None,
                 "mesh_volume": i.mesh_volume, "outside_share": i.outside_share, "missed_share": i.missed_share,
-                "build_seconds": i.build_seconds}
+                "build_seconds": i.build_seconds, "skin": i.skin}
 
     def spheres(self) -> np.ndarray:
         """(count, 4) float32: centre xyz, radius."""
