@@ -11,6 +11,11 @@ supersampling 4). Errors: NRMSE and relative RMS over the surface pixels
 median of --frames interleaved rounds.
 
     python bench/isg_shells.py [--res 64x48] [--frames 3]
+
+With --ab OPTIONS: the triangles only, in two contexts of one process, the
+second's kernels built with OPTIONS (PENUMBRA_CL_BUILD_OPTIONS, e.g.
+-DPN_ISG_SHELL_CAP_COLUMNS=0), frames interleaved: CPU ms of each, the ratio
+(median of the per-round ratios) and the largest difference of the images.
 """
 
 from __future__ import annotations
@@ -88,15 +93,53 @@ def build(ctx, env_rgb, shell, res, face_size=64):
             "shell": SphereSet.shell(ctx), "spheres": SphereSet.from_spheres(ctx, spheres)}
 
 
+def ab(a, res, maps) -> None:
+    """--ab: this build against the same kernels built with a.ab, on the triangles, interleaved."""
+    ctx = Context()
+    os.environ["PENUMBRA_CL_BUILD_OPTIONS"] = a.ab
+    ctx_b = Context()
+    del os.environ["PENUMBRA_CL_BUILD_OPTIONS"]
+    print(f"load: {' '.join(f'{x:.1f}' for x in os.getloadavg())} at the start")
+    print(f"\n| shell | map | CPU ms: {a.ab} | CPU ms: this build | ratio | max abs image difference |")
+    print("|---|---|---|---|---|---|")
+    for shell in ("sheet", "leaves"):
+        for name, env_rgb in maps.items():
+            runs = {}
+            for key, c in (("b", ctx_b), ("a", ctx)):
+                s = build(c, env_rgb, shell, res)
+                s["scene"].attach(s["ids"][1], s["shell"])
+                s["scene"].commit()
+                gb = GBuffer(c, *res)
+                s["scene"].render_gbuffer(gb)
+                runs[key] = (c, s, gb, Renderer(c, "isg"), Image(c, *res))
+            times = {"a": [], "b": []}
+            for rnd in range(a.frames + 1):
+                for key in ("b", "a"):
+                    c, s, gb, r, img = runs[key]
+                    c0 = time.process_time()
+                    r.execute(s["scene"], gb, img)
+                    c.finish()
+                    if rnd:
+                        times[key].append(1e3 * (time.process_time() - c0))
+            diff = float(np.abs(runs["a"][4].read() - runs["b"][4].read()).max())
+            ratio = float(np.median(np.array(times["b"]) / np.array(times["a"])))
+            print(f"| {shell} | {name} | {np.median(times['b']):.0f} | {np.median(times['a']):.0f} | {ratio:.2f} | "
+                  f"{diff:.3g} |", flush=True)
+    print(f"\nload: {' '.join(f'{x:.1f}' for x in os.getloadavg())} at the end (loaded)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--res", default="64x48")
     ap.add_argument("--frames", type=int, default=3)
+    ap.add_argument("--ab", default=None, help="kernel build options of the B side (see above)")
     a = ap.parse_args()
     res = [int(x) for x in a.res.split("x")]
-    ctx = Context()
     maps = {"sunny": procedural.sky(128, 64, sun_radiance=2000.0, sun_angular_radius_deg=3.0),
             "overcast": procedural.sky(128, 64, sun_radiance=0.0)}
+    if a.ab:
+        return ab(a, res, maps)
+    ctx = Context()
     print(f"load: {os.getloadavg()[0]:.1f} (1-min average) at the start")
     print("\n| shell | map | occluder | NRMSE | rel RMS | CPU ms | CPU / spheres |")
     print("|---|---|---|---|---|---|---|")

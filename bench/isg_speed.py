@@ -4,7 +4,19 @@ taken from the library once, then kernel variants (compile-time defines or
 source patches) are timed on the same inputs in one process, against the
 floor kernel. docs/isg.md section 9.
 
-    python bench/isg_speed.py [--res 64x48] [--spheres 50] [--variants a,b] [--reps 1]
+    python bench/isg_speed.py [--sizes 100x100,160x120] [--spheres 50,300] [--reps 2] [--old-kernels DIR]
+
+Row mode (docs/isg.md section 9, "The issue's rows at today's defaults"): the
+library's defaults on a scene file (or `fig12`, the scene above), at each size
+and sphere count, in one process: frame time (G-buffer + shading; wall and the
+process's CPU, floor frames interleaved with the isg frames round by round),
+the ratio to the floor kernel, the error against the reference (face 64, sun
+supersampling 4, cached under --out), the spheres in front of each receiver
+(the shared hemisphere grid's cone) on a sample of pixels, and Mitsuba 3's
+curve over --spp with the speed-up at equal error (penumbra.bench's rule):
+
+    python bench/isg_speed.py --rows --scene bench/scenes/bunny_sunny.toml \
+        --sizes 400x400,640x480 --spheres 50,300 --spp 128,256,512,1024
 """
 
 from __future__ import annotations
@@ -180,6 +192,153 @@ def cases(ctx, a):
             built, gb, planes, sph, own = scene(ctx, res, n)
             yield (res, built, gb, planes, sph, own, floor_ms(built, gb, res))
 
+def world_spheres(built):
+    """The attached sphere sets in world space: (spheres (N, 4) float64, owner instance ids)."""
+    sph, own = [], []
+    for name, sset in state(built).sets.items():
+        s = sset.spheres().astype(np.float64) if hasattr(sset, "spheres") else None
+        if s is None or len(s) == 0:
+            continue
+        m = built.desc.objects[[o.name for o in built.desc.objects].index(name)].transform()
+        sc = max(np.linalg.norm(m[:3, c]) for c in range(3))
+        sph.append(np.c_[s[:, :3] @ m[:3, :3].T + m[:3, 3], s[:, 3] * sc])
+        own += [built.instance_ids[name]] * len(s)
+    if not sph:
+        return np.zeros((0, 4)), np.zeros(0, np.uint32)
+    return np.vstack(sph), np.array(own, np.uint32)
+
+
+def spheres_in_front(planes, spheres, owners, sample=2000, margin=0.02, seed=0):
+    """Mean over a sample of surface pixels of the spheres the shared hemisphere grid marks with: not wholly
+    behind the receiver plane, and not an own sphere skipped by self_occlusion 1 (within 1 + margin of its
+    radius). The per-lobe windows' cones hold fewer."""
+    inst = planes["instance"].reshape(-1)
+    idx = np.flatnonzero(inst != 0xFFFFFFFF)
+    if len(spheres) == 0 or len(idx) == 0:
+        return 0.0
+    idx = np.random.default_rng(seed).choice(idx, min(sample, len(idx)), replace=False)
+    p = planes["position"].reshape(-1, 4)[idx, :3].astype(np.float64)
+    n = planes["normal"].reshape(-1, 4)[idx, :3].astype(np.float64)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    v = spheres[None, :, :3] - p[:, None, :]
+    r = spheres[None, :, 3]
+    front = np.einsum("pso,po->ps", v, n) > -r
+    own = owners[None, :] == inst[idx][:, None]
+    skipped = own & (np.einsum("pso,pso->ps", v, v) <= (r * (1 + margin)) ** 2)
+    return float((front & ~skipped).sum(axis=1).mean())
+
+
+def rows_mode(a) -> None:
+    """The issue's speed rows at the library's defaults (module docstring)."""
+    from penumbra import Context
+    from penumbra.bench import BenchOptions, _mitsuba_time_at, _run_mitsuba, ground_truth
+    from penumbra.metrics import compare
+    from penumbra.scenefile import load_scene
+
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    counts = [int(x) for x in a.spheres.split(",")]
+    spp = tuple(int(x) for x in a.spp.split(",")) if a.spp else ()
+    rows = []
+    log = lambda m: print(m, flush=True)  # noqa: E731
+    log(f"load {' '.join(f'{x:.1f}' for x in os.getloadavg())} at the start")
+    for size in a.sizes.split(","):
+        res = tuple(int(x) for x in size.split("x"))
+        if a.scene == "fig12":
+            from isg_experiments import bunny_scene
+            desc = parse_scene(copy.deepcopy(bunny_scene(res, ks_bunny=0.5, ks_floor=0.5)), ".")
+        else:
+            desc = load_scene(a.scene, [f"camera.resolution=[{res[0]},{res[1]}]"])
+        ctx = Context()
+        built = build_scene(desc, ctx)
+        sets = {}
+        for n in counts:
+            attach_sphere_sets(built, {"spheres": n})
+            sets[n] = (dict(state(built).sets), world_spheres(built))
+        gb, img = GBuffer(ctx, *res), Image(ctx, *res)
+        built.scene.render_gbuffer(gb)
+        ctx.finish()
+        planes = {p: gb.read(p) for p in ("position", "normal", "albedo", "material", "instance")}
+        mask = planes["instance"] != 0xFFFFFFFF
+        surf = int(mask.sum())
+        floor, isg = Renderer(ctx, "floor"), Renderer(ctx, "isg")
+
+        def attach(n):
+            for name, sset in sets[n][0].items():
+                built.scene.attach(built.instance_ids[name], sset)
+            built.scene.commit()
+
+        def frame(renderer):
+            t0, c0 = time.perf_counter(), time.process_time()
+            renderer.execute(built.scene, gb, img)
+            ctx.finish()
+            return 1e3 * (time.perf_counter() - t0), 1e3 * (time.process_time() - c0)
+
+        gtimes = []
+        for _ in range(5):
+            t0 = time.perf_counter()
+            built.scene.render_gbuffer(gb)
+            ctx.finish()
+            gtimes.append(1e3 * (time.perf_counter() - t0))
+        g_ms = float(np.median(gtimes))
+        images, wall, cpu, fl_wall, fl_cpu = {}, {n: [] for n in counts}, {n: [] for n in counts}, [], []
+        frame(floor)
+        for n in counts:  # warm-up and the image
+            attach(n)
+            frame(isg)
+            images[n] = img.read()[..., :3].copy()
+        loads = [os.getloadavg()[0]]
+        for _ in range(a.rounds):
+            for _ in range(3):
+                w, c = frame(floor)
+                fl_wall.append(w), fl_cpu.append(c)
+            for n in counts:
+                attach(n)
+                frame(isg)  # the first frame after an attach builds the tree's buffers
+                w, c = frame(isg)
+                wall[n].append(w), cpu[n].append(c)
+            loads.append(os.getloadavg()[0])
+        fw, fc = float(np.median(fl_wall)), float(np.median(fl_cpu))
+        log(f"{res}: {surf} surface pixels, G-buffer {g_ms:.2f} ms, floor {fw:.3f} ms wall, {fc:.3f} ms CPU; "
+            f"load {min(loads):.1f}-{max(loads):.1f}")
+        truth = curve = None
+        if not a.no_truth:
+            t0 = time.perf_counter()
+            truth = ground_truth(built, desc, BenchOptions(), out / "cache", log)
+            log(f"  truth {time.perf_counter() - t0:.0f} s")
+        if truth is not None and spp:
+            curve = _run_mitsuba(desc, BenchOptions(spp=spp), truth, mask, log)["curve"]
+        for n in counts:
+            sw, sc = float(np.median(wall[n])), float(np.median(cpu[n]))
+            err = compare(truth, images[n], mask) if truth is not None else {"nrmse": float("nan"),
+                                                                             "rel_rms": float("nan")}
+            speed = ""
+            if curve:
+                t, bound = _mitsuba_time_at(curve, err["nrmse"])
+                speed = f"{bound}{t / (g_ms + sw):.3g}"
+            front = spheres_in_front(planes, *sets[n][1])
+            row = dict(res=res, n=n, spheres=len(sets[n][1][0]), surf=surf, front=front, g_ms=g_ms, wall=sw,
+                       cpu=sc, floor_wall=fw, floor_cpu=fc, nrmse=err["nrmse"], rel_rms=err["rel_rms"],
+                       speed=speed, load=(min(loads), max(loads)))
+            rows.append(row)
+            log(f"  N {n} ({row['spheres']} spheres, {front:.1f} in front per pixel): wall {sw:.1f} ms, CPU "
+                f"{sc:.1f} ms, x floor {sw / fw:.0f} (wall) {sc / max(fc, 1e-9):.0f} (CPU), NRMSE "
+                f"{err['nrmse']:.4f}, rel RMS {err['rel_rms']:.4f}, over Mitsuba {speed or '-'}")
+        if curve:
+            log("  mitsuba: " + ", ".join(f"{c['params']['spp']} spp {c['time_ms']:.0f} ms NRMSE {c['nrmse']:.4f}"
+                                          for c in curve))
+    log(f"load {' '.join(f'{x:.1f}' for x in os.getloadavg())} at the end")
+    print("\n| pixels | surface px | N | spheres in front per px | frame ms (G-buffer + shading, wall) | shading CPU ms "
+          "| x floor (wall) | x floor (CPU) | CPU ns per px x sphere in front | NRMSE | rel RMS | over Mitsuba at "
+          "equal error | load |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['res'][0]} x {r['res'][1]} | {r['surf']} | {r['n']} | {r['front']:.1f} | "
+              f"{r['g_ms'] + r['wall']:.1f} | {r['cpu']:.1f} | {r['wall'] / r['floor_wall']:.0f} | "
+              f"{r['cpu'] / max(r['floor_cpu'], 1e-9):.0f} | {1e6 * r['cpu'] / (r['surf'] * max(r['front'], 1e-9)):.0f} | "
+              f"{r['nrmse']:.4f} | {r['rel_rms']:.4f} | {r['speed'] or '-'} | {r['load'][0]:.1f}-{r['load'][1]:.1f} |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default="100x100,160x120")
@@ -189,7 +348,16 @@ def main() -> None:
                     help="another version's kernels/ folder (git archive COMMIT kernels | tar -x -C DIR) timed too")
     ap.add_argument("--no-flat", action="store_true",
                     help="with --old-kernels: only the old kernel against the library's default, interleaved")
+    ap.add_argument("--rows", action="store_true", help="the issue's rows at the library's defaults (docstring)")
+    ap.add_argument("--scene", default="bench/scenes/bunny_sunny.toml", help="--rows: a scene file, or fig12")
+    ap.add_argument("--rounds", type=int, default=3, help="--rows: interleaved rounds")
+    ap.add_argument("--spp", default="128,256,512,1024", help="--rows: Mitsuba's spp ('' for none)")
+    ap.add_argument("--no-truth", action="store_true", help="--rows: times only (no reference, no Mitsuba)")
+    ap.add_argument("--out", default="bench/results/isg/rows_truth",
+                    help="--rows: the truth is cached in OUT/cache (git-ignored)")
     a = ap.parse_args()
+    if a.rows:
+        return rows_mode(a)
     from penumbra import Context
     ctx = Context()
     rows = []

@@ -338,18 +338,154 @@ inline int pn_isg_mark_triangle(const pn_isg_grid *pg, float cos_cone, float sin
     return marked != 0u;
 }
 
-/* The thin-shell triangles of `tree` into the mask (after the spheres). */
+/* The unmarked patches a triangle inside sphere b may still mark, seen from
+ * p, into cand (one word per row, bit j for column j): none when b is wholly
+ * behind the receiver plane or outside the window's cone, else those whose
+ * centre lies in b's cap (the spheres' row and column tests, with their 1e-6
+ * slack: a direction that hits a triangle inside b lies in that cap), or
+ * every unmarked patch when the receiver is within b. Returns the rows that
+ * hold one (bit i for row i). */
+inline uint pn_isg_group_candidates(const pn_isg_grid *pg, float cos_cone, float sin_cone, float3 p, float3 n,
+                                    float4 b, const uint *mask, uint *cand)
+{
+    const float3 v = b.xyz - p;
+    const float r = b.w, d2 = dot(v, v);
+    if (dot(v, n) <= -r)
+        return 0u;
+    const int grid = pg->grid;
+    const uint full = pn_isg_full_row(grid);
+    uint out = 0u;
+    if (d2 <= r * r) {
+        for (int i = 0; i < grid; ++i) {
+            cand[i] = full & ~mask[i];
+            out |= cand[i] != 0u ? 1u << i : 0u;
+        }
+        return out;
+    }
+    const float d = sqrt(d2), sa = r / d, cs = sqrt(fmax(1.0f - sa * sa, 0.0f));
+    if (cos_cone > -cs && dot(v, pg->z) < d * (cos_cone * cs - sin_cone * sa))
+        return 0u;
+    const float3 u = v / d, ul = (float3)(dot(u, pg->x), dot(u, pg->y), dot(u, pg->z));
+    const float rho = sqrt(ul.x * ul.x + ul.z * ul.z);
+    const float16 s0 = vload16(0, pg->sin_c), c0 = vload16(0, pg->cos_c);
+    uint rows = pn_isg_bits16(s0 * rho + c0 * ul.y >= cs - 1e-6f, 0);
+    const float16 h0 = c0 * ul.x + s0 * ul.z;
+    float16 h1 = (float16)(0.0f);
+    if (grid > 16) {
+        const float16 s1 = vload16(1, pg->sin_c), c1 = vload16(1, pg->cos_c);
+        rows |= pn_isg_bits16(s1 * rho + c1 * ul.y >= cs - 1e-6f, 16);
+        h1 = c1 * ul.x + s1 * ul.z;
+    }
+    for (uint f = rows & full; f != 0u; f &= f - 1u) {
+        const int i = pn_isg_ctz(f);
+        const uint row = mask[i];
+        if (row == full)
+            continue;
+        const float si = pg->sin_c[i], ci = pg->cos_c[i];
+        uint cols = pn_isg_bits16(si * h0 + ci * ul.y >= cs - 1e-6f, 0);
+        if (grid > 16)
+            cols |= pn_isg_bits16(si * h1 + ci * ul.y >= cs - 1e-6f, 16);
+        cand[i] = cols & full & ~row;
+        out |= cand[i] != 0u ? 1u << i : 0u;
+    }
+    return out;
+}
+
+/* pn_isg_mark_triangle on a group's candidate rows (pn_isg_group_candidates):
+ * the same skips and edge-plane tests, without the triangle's own cap (the
+ * group's is the prefilter); what it marks leaves the candidates, and a row
+ * without candidates leaves *rows. Returns 1 when it marked something, else 0. */
+inline int pn_isg_mark_triangle_rows(const pn_isg_grid *pg, float3 p, float3 n, float3 v0, float3 v1, float3 v2,
+                                     bool own, int self_occlusion, uint *mask, uint *cand, uint *rows)
+{
+    if (own && self_occlusion == 0)
+        return 0;
+    const float3 a = v0 - p, b = v1 - p, c = v2 - p;
+    if (dot(a, n) <= 0.0f && dot(b, n) <= 0.0f && dot(c, n) <= 0.0f)
+        return 0;
+    const float3 bc = cross(b, c), ca = cross(c, a), ab = cross(a, b);
+    const float det = dot(a, bc), tol = own && self_occlusion == 1 ? PN_ISG_SHELL_OWN_FLAT : PN_ISG_SHELL_FLAT;
+    if (!(fabs(det) > tol * length(a) * length(b) * length(c)))
+        return 0;
+    const int grid = pg->grid;
+    const uint full = pn_isg_full_row(grid);
+    const float sg = det > 0.0f ? 1.0f : -1.0f;
+    const float3 e0 = sg * bc, e1 = sg * ca, e2 = sg * ab;
+    const float3 l0 = (float3)(dot(e0, pg->x), dot(e0, pg->y), dot(e0, pg->z));
+    const float3 l1 = (float3)(dot(e1, pg->x), dot(e1, pg->y), dot(e1, pg->z));
+    const float3 l2 = (float3)(dot(e2, pg->x), dot(e2, pg->y), dot(e2, pg->z));
+    const float16 s0 = vload16(0, pg->sin_c), c0 = vload16(0, pg->cos_c);
+    const float16 h0 = c0 * l0.x + s0 * l0.z, h1 = c0 * l1.x + s0 * l1.z, h2 = c0 * l2.x + s0 * l2.z;
+    float16 g0 = (float16)(0.0f), g1 = g0, g2 = g0;
+    if (grid > 16) {
+        const float16 s1 = vload16(1, pg->sin_c), c1 = vload16(1, pg->cos_c);
+        g0 = c1 * l0.x + s1 * l0.z, g1 = c1 * l1.x + s1 * l1.z, g2 = c1 * l2.x + s1 * l2.z;
+    }
+    uint marked = 0u;
+    for (uint f = *rows; f != 0u; f &= f - 1u) {
+        const int i = pn_isg_ctz(f);
+        const uint row = mask[i];
+        const float si = pg->sin_c[i], ci = pg->cos_c[i];
+        uint cols = pn_isg_bits16((si * h0 + ci * l0.y >= 0.0f) & (si * h1 + ci * l1.y >= 0.0f) &
+                                  (si * h2 + ci * l2.y >= 0.0f), 0);
+        if (grid > 16)
+            cols |= pn_isg_bits16((si * g0 + ci * l0.y >= 0.0f) & (si * g1 + ci * l1.y >= 0.0f) &
+                                  (si * g2 + ci * l2.y >= 0.0f), 16);
+        const uint bits = cols & full & ~row;
+        mask[i] = row | bits;
+        marked |= bits;
+        cand[i] &= ~bits;
+        if (cand[i] == 0u)
+            *rows &= ~(1u << i);
+    }
+    return marked != 0u;
+}
+
+/* 0: every triangle tested on its own, groups ignored (the A/B of docs/isg.md section 9, "Thin shells"). */
+#ifndef PN_ISG_SHELL_GROUPS
+#define PN_ISG_SHELL_GROUPS 1
+#endif
+#define PN_ISG_SHELL_GROUP 8
+
+/* The thin-shell triangles of `tree` into the mask (after the spheres), in
+ * groups of PN_ISG_SHELL_GROUP consecutive triangles: the host
+ * (capi/src/methods/isg.c shell_groups) orders them along a Morton curve and
+ * writes each group's bounding sphere into the spare w of its first four
+ * vertices (centre in the first triangle's, radius in the second's first
+ * vertex; radius 0: no bound, the triangles tested on their own). A group
+ * finds the unmarked patches its sphere's cap holds
+ * (pn_isg_group_candidates): none, it is skipped whole; else its triangles
+ * test only the rows holding them, until none is left. The marks are those
+ * of testing every triangle (beyond rounding at the caps' 1e-6 slack, as the
+ * spheres' and each triangle's own row prefilter). */
 inline int pn_isg_mark_triangles(const pn_isg_grid *pg, float cos_cone, float sin_cone, float3 p, float3 n,
                                  uint self_id, int self_occlusion, const pn_isg_tree *tree, uint *mask)
 {
     int any = 0;
-    for (int t = 0; t < tree->tri_count; ++t) {
-        const int m = pn_isg_mark_triangle(pg, cos_cone, sin_cone, p, n, tree->tris[3 * t].xyz,
-                                           tree->tris[3 * t + 1].xyz, tree->tris[3 * t + 2].xyz,
-                                           tree->tri_owners[t] == self_id, self_occlusion, mask);
-        any += m;
-        if (m > 0 && pn_isg_all_marked(mask, pg->grid))
-            break;
+    const int count = tree->tri_count;
+    uint cand[PN_ISG_MAX_SHARED];
+    for (int g = 0; g < count; g += PN_ISG_SHELL_GROUP) {
+        const int end = min(g + PN_ISG_SHELL_GROUP, count);
+        float4 b = (float4)(0.0f);
+        if (PN_ISG_SHELL_GROUPS && end - g > 1)
+            b = (float4)(tree->tris[3 * g].w, tree->tris[3 * g + 1].w, tree->tris[3 * g + 2].w,
+                         tree->tris[3 * g + 3].w);
+        if (b.w > 0.0f) {
+            uint rows = pn_isg_group_candidates(pg, cos_cone, sin_cone, p, n, b, mask, cand);
+            for (int t = g; t < end && rows != 0u; ++t)
+                any += pn_isg_mark_triangle_rows(pg, p, n, tree->tris[3 * t].xyz, tree->tris[3 * t + 1].xyz,
+                                                 tree->tris[3 * t + 2].xyz, tree->tri_owners[t] == self_id,
+                                                 self_occlusion, mask, cand, &rows);
+            continue;
+        }
+        for (int t = g; t < end; ++t) {
+            const int m = pn_isg_mark_triangle(pg, cos_cone, sin_cone, p, n, tree->tris[3 * t].xyz,
+                                               tree->tris[3 * t + 1].xyz, tree->tris[3 * t + 2].xyz,
+                                               tree->tri_owners[t] == self_id, self_occlusion, mask);
+            any += m;
+            if (m > 0 && pn_isg_all_marked(mask, pg->grid))
+                return any;
+        }
     }
     return any;
 }

@@ -56,9 +56,28 @@ FACES = np.array([[1.0, 0.9, 0.8], [0.2, 0.3, 0.4], [3.0, 2.8, 2.5], [0.1, 0.1, 
                   [0.5, 0.4, 0.3]])  # the env cube of the env-specular path: one RGB per face
 
 
+def shell_group_bounds(tris, group=8):
+    """Writes into tris (T, 3, 4) float32 what capi/src/methods/isg.c shell_groups does (in the given order):
+    for each `group` consecutive triangles (of two or more) the bounding sphere of their vertices, centre the
+    middle of their box, radius padded by 1e-4 of itself plus 1e-5 of all the triangles' extent, in the w of
+    the group's first four vertices (x, y, z of the first triangle's, the radius of the second's first)."""
+    if len(tris) == 0:
+        return tris
+    v = tris[..., :3].reshape(-1, 3).astype(np.float64)
+    diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    for g in range(0, len(tris) - 1, group):
+        w = tris[g:g + group, :, :3].reshape(-1, 3).astype(np.float64)
+        c = 0.5 * (w.min(axis=0) + w.max(axis=0))
+        r = float(np.linalg.norm(w - c, axis=1).max())
+        tris[g, :, 3] = c
+        tris[g + 1, 0, 3] = np.float32(r * (1 + 1e-4)) + np.float32(1e-5 * diag) + np.float32(1e-30)
+    return tris
+
+
 def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=16, self_occlusion=1,
                specular_shadows=1, camera=(0.0, 3.0, 6.0), env_sharpness=1e30, tree=1, gamma=None, lod=0.0,
-               triangles=(), triangle_owners=(), shared=None, irradiance=None, skins=None, inside_other=0):
+               triangles=(), triangle_owners=(), shared=None, irradiance=None, skins=None, inside_other=0,
+               shell_groups=True):
     """pixels: list of dicts p, n, albedo, ks, material (shininess, roughness, lobe), id. tree: 1 the
     spheres through the sphere tree (the method's default), 0 the flat loop over them. gamma: (levels,
     tables) of the prefiltered env (specular_mode 1; penumbra.methods.isg.gamma_levels layout), None:
@@ -66,7 +85,9 @@ def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=
     their owners triangle_owners. shared: (M_s, shared_sharpness) of the shared hemisphere grid (its two
     cubes built by isg_lobe_cubes, as the host does), None: off. irradiance: (map (6 m m, 3), m), the env's
     irradiance as a vertex-grid cube (shared_light 1), None: shared_light 0. skins: per sphere (input
-    order), the push of self_push (None: all 0); inside_other: that policy (kernels/isg.cl)."""
+    order), the push of self_push (None: all 0); inside_other: that policy (kernels/isg.cl). shell_groups:
+    the triangles' groups' bounding spheres in their spare w (shell_group_bounds, as the host writes them),
+    False: none (every triangle tested on its own)."""
     ctx, queue = cl_pair
     n = len(pixels)
     f4 = lambda rows: np.ascontiguousarray(np.array(rows, np.float32).reshape(n, 4))  # noqa: E731
@@ -98,6 +119,8 @@ def run_kernel(cl_pair, build_test_kernel, pixels, lobes, spheres, owners, grid=
     tris[:len(triangles), :, :3] = np.asarray(triangles, np.float32).reshape(-1, 3, 3)
     tri_ow = np.zeros(max(len(triangles), 1), np.uint32)
     tri_ow[:len(triangles)] = np.asarray(triangle_owners, np.uint32)
+    if shell_groups:
+        shell_group_bounds(tris[:len(triangles)])
     lcube = device_lobe_cubes(cl_pair, build_test_kernel, lb, shared[1]) if shared else \
         cl.Buffer(ctx, mf.READ_ONLY, 16)
     if irradiance is None:
@@ -875,6 +898,18 @@ def test_thin_shell_shading_matches_twin(cl_pair, build_test_kernel, policy):
     check(got, want)
     free = run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, sph_owners, **args)
     assert (got[:16, :3] < 0.7 * free[:16, :3]).any()  # the sheet shadows the floor
+    # The triangles' groups (bounding spheres skipping what cannot mark) give the image of every triangle alone,
+    # in the per-lobe windows and in the shared hemisphere grid (whose patches are larger than the triangles).
+    alone = run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, sph_owners, triangles=tris,
+                       triangle_owners=owners, shell_groups=False, **args)
+    np.testing.assert_array_equal(alone, got)
+    shared = [run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, sph_owners, triangles=tris,
+                         triangle_owners=owners, shared=(16, 100.0), shell_groups=g, **args) for g in (True, False)]
+    np.testing.assert_array_equal(shared[0], shared[1])
+    check(shared[0], np.array([shade(q["p"], q["n"], q["albedo"], q["ks"], q["material"], args["camera"], q["id"],
+                                     LOBES, spheres, sph_owners, 16, policy, 1, 100.0, FACES, None, None,
+                                     (tris32, owners), shared=(16, 100.0, lobe_cube(LOBES, 100.0), None))
+                               for q in px]))
     doubled = run_kernel(cl_pair, build_test_kernel, px, LOBES, spheres, sph_owners, triangles=np.r_[tris, tris],
                          triangle_owners=np.r_[owners, owners], **args)
     np.testing.assert_array_equal(doubled, got)

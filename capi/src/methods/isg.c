@@ -97,6 +97,7 @@ typedef struct state {
     cl_mem device_spheres, device_owners, device_nodes, device_skins;
     float *tris;              /* host: thin-shell triangles, 3 world-space float4 vertices each */
     uint32_t *tri_owners;     /* host: instance id per triangle */
+    uint32_t *tri_scratch;    /* host: Morton keys and order, sorted triangles and owners (shell_groups) */
     size_t tri_capacity, device_tri_capacity;
     cl_mem device_tris, device_tri_owners;
     cl_mem lobe_cube;         /* the shared lobes' two vertex-grid cubes (isg_lobe_cubes) */
@@ -358,6 +359,91 @@ static pn_status gather_spheres(pn_renderer r, pn_scene scene, uint32_t *count_o
     return PN_SUCCESS;
 }
 
+/* Spreads the low 10 bits of v to every third bit. */
+static uint32_t spread3(uint32_t v)
+{
+    v &= 0x3ffu;
+    v = (v | (v << 16)) & 0x030000ffu;
+    v = (v | (v << 8)) & 0x0300f00fu;
+    v = (v | (v << 4)) & 0x030c30c3u;
+    v = (v | (v << 2)) & 0x09249249u;
+    return v;
+}
+
+/* The groups of the thin shells' triangles (kernels/isg.cl
+ * pn_isg_mark_triangles; docs/isg.md section 9, "Thin shells"): the n
+ * triangles (and their owners) reordered along a 30-bit Morton curve of their
+ * centroids (a stable three-pass radix sort, as sphere_tree's), then for each
+ * PN_SHELL_GROUP consecutive ones a bounding sphere of their vertices (the
+ * centre of their box; the radius padded by 1e-4 of itself plus 1e-5 of all
+ * the triangles' extent, so the kernel skips a group only where each of its
+ * triangles would mark nothing beyond rounding), written into the spare w of
+ * the group's first four vertices: x, y, z in the first triangle's, the
+ * radius in the second's first vertex (a last group of one triangle keeps 0:
+ * tested alone). The order of the marking does not change the marks. */
+enum { PN_SHELL_GROUP = 8 };
+
+static void shell_groups(state *s, uint32_t n)
+{
+    if (n == 0)
+        return;
+    uint32_t *key = s->tri_scratch, *key2 = key + n, *order = key2 + n, *order2 = order + n, *owners = order2 + n;
+    float *sorted = (float *)(owners + n);
+    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (size_t i = 0; i < 12 * (size_t)n; ++i)
+        if (i % 4 != 3)
+            lo[i % 4] = fminf(lo[i % 4], s->tris[i]), hi[i % 4] = fmaxf(hi[i % 4], s->tris[i]);
+    for (uint32_t t = 0; t < n; ++t) {
+        uint32_t k = 0;
+        for (int a = 0; a < 3; ++a) {
+            const float *v = s->tris + 12 * (size_t)t + a;
+            const float c = (v[0] + v[4] + v[8]) * (1.0f / 3.0f), ext = hi[a] - lo[a];
+            const float q = ext > 0.0f ? (c - lo[a]) / ext * 1024.0f : 0.0f;
+            k |= spread3((uint32_t)fminf(fmaxf(q, 0.0f), 1023.0f)) << (2 - a);
+        }
+        key[t] = k, order[t] = t;
+    }
+    for (int pass = 0; pass < 3; ++pass) { /* stable LSD radix sort, 10 bits a pass */
+        uint32_t histogram[1025] = {0};
+        const int shift = 10 * pass;
+        for (uint32_t i = 0; i < n; ++i)
+            ++histogram[((key[i] >> shift) & 1023u) + 1];
+        for (int b = 0; b < 1024; ++b)
+            histogram[b + 1] += histogram[b];
+        for (uint32_t i = 0; i < n; ++i) {
+            const uint32_t at = histogram[(key[i] >> shift) & 1023u]++;
+            key2[at] = key[i], order2[at] = order[i];
+        }
+        uint32_t *t = key;
+        key = key2, key2 = t, t = order, order = order2, order2 = t;
+    }
+    for (uint32_t i = 0; i < n; ++i) {
+        memcpy(sorted + 12 * (size_t)i, s->tris + 12 * (size_t)order[i], 12 * sizeof(float));
+        owners[i] = s->tri_owners[order[i]];
+    }
+    memcpy(s->tris, sorted, (size_t)n * 12 * sizeof(float));
+    memcpy(s->tri_owners, owners, (size_t)n * sizeof(uint32_t));
+    const float diag = sqrtf((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
+                             (hi[2] - lo[2]) * (hi[2] - lo[2]));
+    for (uint32_t g = 0; g + 1 < n; g += PN_SHELL_GROUP) {
+        const uint32_t end = n - g < PN_SHELL_GROUP ? n : g + PN_SHELL_GROUP;
+        double b0[3] = {INFINITY, INFINITY, INFINITY}, b1[3] = {-INFINITY, -INFINITY, -INFINITY}, c[3];
+        for (size_t i = 12 * (size_t)g; i < 12 * (size_t)end; ++i)
+            if (i % 4 != 3)
+                b0[i % 4] = fmin(b0[i % 4], s->tris[i]), b1[i % 4] = fmax(b1[i % 4], s->tris[i]);
+        for (int a = 0; a < 3; ++a)
+            c[a] = 0.5 * (b0[a] + b1[a]);
+        double r = 0.0;
+        for (size_t i = 12 * (size_t)g; i < 12 * (size_t)end; i += 4) {
+            const double dx = s->tris[i] - c[0], dy = s->tris[i + 1] - c[1], dz = s->tris[i + 2] - c[2];
+            r = fmax(r, sqrt(dx * dx + dy * dy + dz * dz));
+        }
+        float *first = s->tris + 12 * (size_t)g;
+        first[3] = (float)c[0], first[7] = (float)c[1], first[11] = (float)c[2];
+        first[15] = (float)(r * (1.0 + 1e-4)) + 1e-5f * diag + 1e-30f;
+    }
+}
+
 /* Thin shells (pn_sphere_set_create_shell; kernels/isg.cl
  * pn_isg_mark_triangle): every triangle of each instance with a shell
  * attached, in world space, the kernel tests all of them per lobe (culled by
@@ -382,11 +468,13 @@ static pn_status gather_triangles(pn_renderer r, pn_scene scene, uint32_t *count
         total += mesh->triangle_count;
     }
     if (total > s->tri_capacity) {
-        free(s->tris), free(s->tri_owners);
+        free(s->tris), free(s->tri_owners), free(s->tri_scratch);
         s->tri_capacity = 0;
         s->tris = pn_malloc(ctx, pn_mul_size(total, 12, sizeof(float)), "the thin shells' triangles");
         s->tri_owners = pn_malloc(ctx, pn_mul_size(total, 1, sizeof(uint32_t)), "the thin shells' owners");
-        if (!s->tris || !s->tri_owners)
+        /* keys and order (twice each, for the radix passes), sorted triangles (12 floats) and owners */
+        s->tri_scratch = pn_malloc(ctx, pn_mul_size(total, 17, sizeof(uint32_t)), "the thin shells' scratch");
+        if (!s->tris || !s->tri_owners || !s->tri_scratch)
             return PN_ERROR_OUT_OF_MEMORY;
         s->tri_capacity = total;
     }
@@ -409,6 +497,7 @@ static pn_status gather_triangles(pn_renderer r, pn_scene scene, uint32_t *count
             s->tri_owners[n] = a->instance;
         }
     }
+    shell_groups(s, n);
     *count_out = n;
     return PN_SUCCESS;
 }
@@ -425,17 +514,6 @@ static size_t tree_node_count(size_t n)
         total += n;
     } while (n > TREE_FANOUT);
     return total;
-}
-
-/* Spreads the low 10 bits of v to every third bit. */
-static uint32_t spread3(uint32_t v)
-{
-    v &= 0x3ffu;
-    v = (v | (v << 16)) & 0x030000ffu;
-    v = (v | (v << 8)) & 0x0300f00fu;
-    v = (v | (v << 4)) & 0x030c30c3u;
-    v = (v | (v << 2)) & 0x09249249u;
-    return v;
 }
 
 /* Bounding sphere of `count` spheres (x, y, z, r) at `in` (stride 4): mean
@@ -692,6 +770,7 @@ static void destroy(pn_renderer r)
     pn_mem_release(&s->device_tris);
     pn_mem_release(&s->device_tri_owners);
     free(s->tris);
+    free(s->tri_scratch);
     free(s->tri_owners);
     free(s->spheres);
     free(s->owners);
