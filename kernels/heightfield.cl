@@ -10,7 +10,7 @@
  * the height field to those per-vertex results.
  *
  * Per-field constants: grid = (W, D, levels, level offset in samples),
- * geom = (x0, y0, z0, sx, sz, level step, s0, 0). Pyramid levels are
+ * geom = (x0, y0, z0, sx, sz, level step, s0, max |H|). Pyramid levels are
  * concatenated in `pyr`; level k is levels[k] = (offset, cells x, cells z, 0),
  * level 0 being the world heights H (height_scale x input). */
 #include "common/sh.cl"
@@ -19,6 +19,18 @@
 #define HF_MAX_LEVELS 128
 #define HF_MAX_AZIMUTHS 256
 #define HF_TABLE 64
+/* Early exits of the pyramid searches (env: hf_search_done; lights:
+ * hf_horizon_pyramid_v), tested after every sample m with
+ * (m & HF_EXIT_EVERY) == 0. */
+#ifndef HF_EARLY_EXIT /* a build option only to measure without them (0) */
+#define HF_EARLY_EXIT 1
+#endif
+#ifndef HF_EXIT_EVERY
+#define HF_EXIT_EVERY 3
+#endif
+#ifndef HF_EXIT_BOUND /* added to max |H|: a build option only to test that a wrong bound is caught */
+#define HF_EXIT_BOUND 0.0f
+#endif
 
 /* Uniform cubic B-spline weights at t in [0, 1), times 6. */
 inline float4 hf_bspline6(float t)
@@ -273,9 +285,15 @@ inline hf_vf hf_level_sample_v(global const float *pyr, int4 lev, hf_vf u, hf_vf
         return HF_WINDOW_MAX(best, knot, mid);                                                                  \
     }
 
+/* With ur (lights, hf_light_horizon): the search may stop once every lane's
+ * horizon is known to be at least `hidden` (the running maximum is there,
+ * and the result only grows) or at most `clear` (the maximum and every
+ * later candidate, all combinations of the window's elevations and later
+ * ones, bounded by ur[m + 1] from sample m + 1 on, lie below it): it then
+ * returns the running maximum, on the same side. */
 inline hf_vf hf_horizon_pyramid_v(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
                                   const float *hp, float ref, float u0, float v0, hf_vf cu, hf_vf cv, float limit,
-                                  float inv_wm1, float inv_dm1)
+                                  float inv_wm1, float inv_dm1, const float *ur, float hidden, float clear)
 {
     hf_vf w0 = 0.0f, w1 = 0.0f, w2 = 0.0f, best = -M_PI_2_F;
     int count = 0;
@@ -288,6 +306,11 @@ inline hf_vf hf_horizon_pyramid_v(global const float *pyr, global const int4 *le
         const hf_vf h = hf_level_sample_v(pyr, levels[k], u0 + d * cu, v0 + d * cv, inv_wm1, inv_dm1, ref);
         const hf_vf w3 = hf_atan_v((h - hp[k]) / d);
         HF_WINDOW_STEP(w0, w1, w2, w3, best, count)
+#if HF_EARLY_EXIT
+        if (ur && m >= 3 && (m & HF_EXIT_EVERY) == 0 &&
+            all((best >= hidden) | ((best <= clear) & (fmax(fmax(w0, w1), fmax(w2, ur[m + 1])) <= clear))))
+            return best;
+#endif
     }
     HF_WINDOW_END(w0, w1, w2, best, count)
 }
@@ -523,6 +546,15 @@ HF_INLINE float16 hf_level_sample_row(global const float *pyr, int4 lev, int wm1
         }                                                                                                       \
     }
 
+/* Whether no later spline candidate can change max(result, 0) when every
+ * elevation they combine is at most b: b <= 0 (their numerators are sums of
+ * non-positive terms), or b below the running maximum of the knots (6 b) or
+ * the midpoints (48 b), with room for the numerators' float rounding. */
+HF_INLINE hf_ri hf_search_done(hf_rf b, hf_rf knot, hf_rf mid)
+{
+    return (b <= 0.0f) | (6.00006f * b + 1e-5f < knot) | (48.0005f * b + 1e-4f < mid);
+}
+
 /* hf_horizon_pyramid_v for a row group's two rows along one direction (cu,
  * cv); hpA, hpB hold H_k - ref at each lane's vertex. The environment's
  * search: no limit. With start > 0 (partial updates) the search resumes at
@@ -536,7 +568,8 @@ HF_INLINE void hf_horizon_pyramid_row2(global const float *pyr, global const int
                                        const hf_rf *hpA, const hf_rf *hpB, float refA, float refB, hf_rf u0, float vA,
                                        float vB, float cu, float cv, float inv_wm1, float inv_dm1, int start,
                                        hf_rf best0A, hf_rf best0B, global float *cp, hf_ri cpiA, hf_ri cpiB,
-                                       int lanes, int rows, int ncp, hf_rf *outA, hf_rf *outB)
+                                       int lanes, int rows, int ncp, const hf_rf *urA, const hf_rf *urB,
+                                       hf_rf *outA, hf_rf *outB)
 {
     hf_rf wA0 = 0.0f, wA1 = 0.0f, wA2 = 0.0f, bestA = start ? best0A : -M_PI_2_F, knotA = -INFINITY,
           midA = -INFINITY;
@@ -580,6 +613,17 @@ HF_INLINE void hf_horizon_pyramid_row2(global const float *pyr, global const int
         }
         HF_WINDOW_STEP_N(wA0, wA1, wA2, w3A, knotA, midA, countA)
         HF_WINDOW_STEP_N(wB0, wB1, wB2, w3B, knotB, midB, countB)
+#if HF_EARLY_EXIT
+        /* Early exit (urA, urB: bounds on every elevation from sample m + 1
+         * on): every later candidate combines the window's three elevations
+         * and later ones, so none can change the clamped result once all
+         * lanes' bounds lie below their maxima (or at or below 0). */
+        if (urA && m >= 3 && (m & HF_EXIT_EVERY) == 0 &&
+            all(hf_search_done(fmax(fmax(wA0, wA1), fmax(wA2, urA[m + 1])), knotA, midA) &
+                hf_search_done(fmax(fmax(wB0, wB1), fmax(wB2, urB[m + 1])), knotB, midB))) {
+            break;
+        }
+#endif
     }
     HF_WINDOW_FINISH_N(wA0, wA1, wA2, bestA, knotA, midA, countA, *outA)
     HF_WINDOW_FINISH_N(wB0, wB1, wB2, bestB, knotB, midB, countB, *outB)
@@ -689,6 +733,30 @@ inline int hf_row_env_horizons(global const float *pyr, global const int4 *level
     const int top = max(grid.z - 1 - grid.w, 0);
     for (int k = 0; k <= top; ++k)
         hf_level_sample_row2(pyr, levels[k], grid.x - 1, u0, vA, vB, inv_wm1, inv_dm1, refA, refB, hpA + k, hpB + k);
+    /* Full searches (update 0): bounds for the early exit, the same for every
+     * azimuth. No value of any level exceeds max |H| (geom.s7: the levels
+     * are weighted means of the heights), so a sample's 36 (H_L - ref) is
+     * at most hi (plus room for the float rounding of its 16 taps and of
+     * hp) and its elevation at most atan((hi - hp[k]) / (36 d)); ur[m] is
+     * the largest of these over samples m .. n - 1 (ur[n] = -inf). */
+    hf_rf urA[HF_MAX_LEVELS + 1], urB[HF_MAX_LEVELS + 1];
+    if (!update) {
+        const float amax = geom.s7 + HF_EXIT_BOUND;
+        const float hiA = 36.0f * (amax - refA) + 4e-4f * (amax + fabs(refA)),
+                    hiB = 36.0f * (amax - refB) + 4e-4f * (amax + fabs(refB)), sr = exp2(1.0f / geom.s5);
+        float d = geom.s6;
+        for (int m = 0; m < grid.z; ++m, d *= sr) {
+            const int k = clamp(m - grid.w, 0, grid.z - 1);
+            const float rd = 1.0f / (36.0f * d);
+            urA[m] = hf_atan_r((hiA - hpA[k]) * rd);
+            urB[m] = hf_atan_r((hiB - hpB[k]) * rd);
+        }
+        urA[grid.z] = urB[grid.z] = -INFINITY;
+        for (int m = grid.z - 1; m >= 0; --m) {
+            urA[m] = fmax(urA[m], urA[m + 1]);
+            urB[m] = fmax(urB[m], urB[m + 1]);
+        }
+    }
     const float dphi = 2.0f * M_PI_F / (float)n_phi;
     const hf_ri laneA = gid + min(HF_ROW_IDS, lanes - 1), laneB = laneA + (gidB - gid);
     int searched = 0;
@@ -700,7 +768,8 @@ inline int hf_row_env_horizons(global const float *pyr, global const int4 *level
         hf_rf oA, oB;
         if (!update) {
             hf_horizon_pyramid_row2(pyr, levels, grid, geom, hpA, hpB, refA, refB, u0, vA, vB, c / geom.s3,
-                                    -s / geom.s4, inv_wm1, inv_dm1, 0, 0.0f, 0.0f, 0, 0, 0, 0, 0, 0, &oA, &oB);
+                                    -s / geom.s4, inv_wm1, inv_dm1, 0, 0.0f, 0.0f, 0, 0, 0, 0, 0, 0, urA, urB, &oA,
+                                    &oB);
             hf_vstore_r(fmax(oA, 0.0f), 0, hA);
             hf_vstore_r(fmax(oB, 0.0f), 0, hB);
             for (int l = 0; l < lanes; ++l) {
@@ -738,7 +807,8 @@ inline int hf_row_env_horizons(global const float *pyr, global const int4 *level
             best0B = hf_vload_r(0, b0);
         }
         hf_horizon_pyramid_row2(pyr, levels, grid, geom, hpA, hpB, refA, refB, u0, vA, vB, c / geom.s3, -s / geom.s4,
-                                inv_wm1, inv_dm1, start, best0A, best0B, cp, cpiA, cpiB, lanes, rows, ncp, &oA, &oB);
+                                inv_wm1, inv_dm1, start, best0A, best0B, cp, cpiA, cpiB, lanes, rows, ncp, 0, 0, &oA,
+                                &oB);
         hf_vstore_r(fmax(oA, 0.0f), 0, hA);
         hf_vstore_r(fmax(oB, 0.0f), 0, hB);
         for (int r = 0; r < rows; ++r)
@@ -824,7 +894,7 @@ inline void hf_vertex_horizons(global const float *pyr, global const int4 *level
             hf_vf c;
             const hf_vf sn = sincos(dphi * HF_CONVERT_F(kk), &c);
             hf_vf h = hf_horizon_pyramid_v(pyr, levels, grid, geom, hp, pyr[gid], u0, v0, c / geom.s3, -sn / geom.s4,
-                                           limit, inv_wm1, inv_dm1);
+                                           limit, inv_wm1, inv_dm1, 0, 0.0f, 0.0f);
             if (env)
                 h = fmax(h, 0.0f);
             if (k0 + HF_LANES <= n_phi)
@@ -1252,9 +1322,25 @@ inline float hf_light_horizon(global const float *pyr, global const int4 *levels
         const hf_vf q = HF_CONVERT_F(min(HF_LANE_IDS, 2) - 1);
         hf_vf c;
         const hf_vf sn = sincos(phi + 0.5f * spread * q, &c);
+        /* Early exit: a horizon at or above elev + alpha hides the disc, one at
+         * or below elev - alpha clears it (hf_disc_above gives exactly 0 or
+         * 1 either way; margins for the float rounding of x). ur: bounds on
+         * the elevations from sample m on, as in hf_row_env_horizons. */
+        float ur[HF_MAX_LEVELS + 1];
+        const float ref = pyr[gid], amax = geom.s7 + HF_EXIT_BOUND, sr = exp2(1.0f / geom.s5);
+        const float hi = amax - ref + 1e-5f * (amax + fabs(ref));
+        float d = geom.s6;
+        int count = 0;
+        for (int m = 0; m < grid.z && d < limit; ++m, d *= sr, ++count)
+            ur[m] = pn_atan((hi - hp[clamp(m - grid.w, 0, grid.z - 1)]) / d) + 1e-6f;
+        ur[count] = -INFINITY;
+        for (int m = count - 1; m >= 0; --m)
+            ur[m] = fmax(ur[m], ur[m + 1]);
+        const float margin = 1.001f * fmax(alpha, 1e-6f) + 1e-5f;
         float h[HF_LANES];
-        hf_vstore(hf_horizon_pyramid_v(pyr, levels, grid, geom, hp, pyr[gid], (float)(gid % grid.x),
-                                       (float)(gid / grid.x), c / geom.s3, -sn / geom.s4, limit, inv_wm1, inv_dm1),
+        hf_vstore(hf_horizon_pyramid_v(pyr, levels, grid, geom, hp, ref, (float)(gid % grid.x), (float)(gid / grid.x),
+                                       c / geom.s3, -sn / geom.s4, limit, inv_wm1, inv_dm1, ur, elev + margin,
+                                       elev - margin),
                   0, h);
         for (int l = 0; l < 3; ++l)
             vis += hf_disc_above(elev, h[l], alpha);

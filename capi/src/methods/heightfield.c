@@ -589,7 +589,9 @@ static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf
     float sx, sz;
     pn_heightfield_spacing(hf, &sx, &sz);
     const float *o = hf->placement.origin;
-    const float geom[8] = {o[0], o[1], o[2], sx, sz, (float)set->level_step, sx < sz ? sx : sz, 0.0f};
+    /* geom.s7: the largest |H| (world heights), a bound on every level's values for the env search's early exit */
+    const float amax = fmaxf(fabsf(hf->placement.height_scale * hf->hmin), fabsf(hf->placement.height_scale * hf->hmax));
+    const float geom[8] = {o[0], o[1], o[2], sx, sz, (float)set->level_step, sx < sz ? sx : sz, amax};
     memcpy(s->geom.s, geom, sizeof geom);
     s->grid.s[0] = (cl_int)w;
     s->grid.s[1] = (cl_int)d;
