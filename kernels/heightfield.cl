@@ -28,6 +28,9 @@
 #ifndef HF_EXIT_EVERY
 #define HF_EXIT_EVERY 3
 #endif
+#ifndef HF_LIGHT_ROWS /* a build option only to measure the per-vertex light search (0) */
+#define HF_LIGHT_ROWS 1
+#endif
 #ifndef HF_EXIT_BOUND /* added to max |H|: a build option only to test that a wrong bound is caught */
 #define HF_EXIT_BOUND 0.0f
 #endif
@@ -1348,6 +1351,167 @@ inline float hf_light_horizon(global const float *pyr, global const int4 *levels
     return irr * vis / 3.0f;
 }
 
+/* Lights in row groups (light_visibility = 1, pyramid mode): the 16
+ * vertices of a row group run in the lanes of a float16, one of the three
+ * azimuths across each vertex's disc at a time, instead of one vertex's
+ * three azimuths in a float8 (5 lanes wasted) per vertex. Each lane has its
+ * own direction and limit, so the taps are per-lane loads as in
+ * hf_level_sample_v (weights times 6 per axis here); the receivers' levels
+ * come from the row sampler, relative to the group's first vertex. */
+HF_INLINE hf_rf hf_level_sample_g(global const float *pyr, int4 lev, hf_rf u, hf_rf v, float inv_wm1, float inv_dm1,
+                                  float ref)
+{
+    const hf_rf a = u * (float)lev.y * inv_wm1, b = v * (float)lev.z * inv_dm1;
+    const hf_rf fa = floor(a), fb = floor(b), ta = a - fa, tb = b - fb;
+    const hf_rf sa = 1.0f - ta, sb = 1.0f - tb, ta2 = ta * ta, tb2 = tb * tb, ta3 = ta2 * ta, tb3 = tb2 * tb;
+    const hf_rf wa0 = sa * sa * sa, wa1 = 3.0f * ta3 - 6.0f * ta2 + 4.0f, wa2 = -3.0f * ta3 + 3.0f * ta2 + 3.0f * ta + 1.0f,
+                wa3 = ta3;
+    const hf_rf wb0 = sb * sb * sb, wb1 = 3.0f * tb3 - 6.0f * tb2 + 4.0f, wb2 = -3.0f * tb3 + 3.0f * tb2 + 3.0f * tb + 1.0f,
+                wb3 = tb3;
+    const hf_ri ia = convert_int16(fa) - 1, ib = convert_int16(fb) - 1, row = lev.y + 1;
+    const hf_ri a0 = clamp(ia, 0, lev.y), a1 = clamp(ia + 1, 0, lev.y), a2 = clamp(ia + 2, 0, lev.y),
+                a3 = clamp(ia + 3, 0, lev.y);
+    global const float *base = pyr + lev.x;
+    hf_ri i0, i1, i2, i3;
+#define HF_ROW_AT_G(rr) (i0 = rr + a0, i1 = rr + a1, i2 = rr + a2, i3 = rr + a3,                        \
+                         wa0 * (HF_RGATHER(base, i0) - ref) + wa1 * (HF_RGATHER(base, i1) - ref) +     \
+                         wa2 * (HF_RGATHER(base, i2) - ref) + wa3 * (HF_RGATHER(base, i3) - ref))
+    const hf_rf rows0 = HF_ROW_AT_G(clamp(ib, 0, lev.z) * row), rows1 = HF_ROW_AT_G(clamp(ib + 1, 0, lev.z) * row),
+                rows2 = HF_ROW_AT_G(clamp(ib + 2, 0, lev.z) * row), rows3 = HF_ROW_AT_G(clamp(ib + 3, 0, lev.z) * row);
+#undef HF_ROW_AT_G
+    return wb0 * rows0 + wb1 * rows1 + wb2 * rows2 + wb3 * rows3;
+}
+
+/* The search of hf_horizon_pyramid_v with a direction (cu, cv), a limit and
+ * exit levels per lane (the window per lane: a lane stops taking samples at
+ * its limit); hp holds 36 (H_k - ref) per lane. Early exit as there, once
+ * every lane is finished, hidden or clear. */
+HF_INLINE hf_rf hf_horizon_pyramid_lanes(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                                         const hf_rf *hp, float ref, hf_rf u0, float v0, hf_rf cu, hf_rf cv,
+                                         hf_rf limit, float inv_wm1, float inv_dm1, const hf_rf *ur, hf_rf hidden,
+                                         hf_rf clear)
+{
+    hf_rf w0 = 0.0f, w1 = 0.0f, w2 = 0.0f, best = -M_PI_2_F;
+    hf_ri count = 0;
+    const float8 l8 = fmax(limit.lo, limit.hi);
+    const float4 l4 = fmax(l8.lo, l8.hi);
+    const float dmax = fmax(fmax(l4.x, l4.y), fmax(l4.z, l4.w)), sr = exp2(1.0f / geom.s5);
+    float d = geom.s6;
+    for (int m = 0; m < grid.z && d < dmax; ++m, d *= sr) {
+        const int k = clamp(m - grid.w, 0, grid.z - 1);
+        const hf_rf h = hf_level_sample_g(pyr, levels[k], u0 + d * cu, v0 + d * cv, inv_wm1, inv_dm1, ref);
+        const hf_rf w3 = hf_atan_r((h - hp[k]) * (1.0f / (36.0f * d)));
+        const hf_ri act = (hf_rf)(d) < limit, first = act & (count == 0);
+        w0 = select(w0, w3, first);
+        w1 = select(w1, w3, first);
+        w2 = select(w2, w3, first);
+        best = select(best, fmax(best, (w1 + 4.0f * w2 + w3) / 6.0f), act & (count >= 1));
+        best = select(best, fmax(best, (w0 + 23.0f * w1 + 23.0f * w2 + w3) / 48.0f), act & (count >= 2));
+        w0 = select(w0, w1, act);
+        w1 = select(w1, w2, act);
+        w2 = select(w2, w3, act);
+        count -= act; /* act is -1 where true */
+#if HF_EARLY_EXIT
+        if (m >= 3 && (m & HF_EXIT_EVERY) == 0 &&
+            all(!act | (best >= hidden) | ((best <= clear) & (fmax(fmax(w0, w1), fmax(w2, ur[m + 1])) <= clear))))
+            break;
+#endif
+    }
+    best = select(best, fmax(best, (w1 + 5.0f * w2) / 6.0f), count >= 1);
+    best = select(best, fmax(best, (w0 + 23.0f * w1 + 24.0f * w2) / 48.0f), count >= 2);
+    return select(best, (hf_rf)(-M_PI_2_F), count == 0);
+}
+
+/* hf_light (light_visibility = 1, pyramid) for the row group of 16
+ * vertices starting at gid (fewer at the row's end). */
+inline void hf_light_row(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                         global const float4 *normals, global const float *albedo, int has_albedo, float4 light,
+                         float4 radiance, float threshold, int out_offset, global float4 *out_light,
+                         global float4 *out_total, int gid)
+{
+    const int i0 = gid % grid.x, j = gid / grid.x, lanes = min(HF_ROW, grid.x - i0);
+    const float le = fmax(fmax(radiance.x, radiance.y), radiance.z), r = light.w;
+    float e[HF_ROW], irr[HF_ROW], elev[HF_ROW], alpha[HF_ROW], phi[HF_ROW], spread[HF_ROW], lim[HF_ROW];
+    bool any = false;
+    for (int l = 0; l < HF_ROW; ++l) {
+        e[l] = irr[l] = elev[l] = alpha[l] = phi[l] = spread[l] = lim[l] = 0.0f;
+        if (l >= lanes)
+            continue;
+        const int g = gid + l;
+        const float3 p = (float3)(geom.s0 + (float)(i0 + l) * geom.s3, geom.s1 + pyr[g], geom.s2 + (float)j * geom.s4);
+        const float3 rel = light.xyz - p, n = normals[g].xyz;
+        const float s = hf_cap(rel, r), dist = length(rel);
+        const float sin_alpha = sqrt(fmax(0.0f, s * (2.0f - s)));
+        const float cos_n = dist > 0.0f ? dot(n, rel) / dist : 1.0f;
+        /* as hf_light and hf_light_horizon */
+        if (s >= 2.0f || cos_n <= -sin_alpha || !(le * 2.0f * M_PI_F * s >= threshold))
+            continue;
+        const float d2 = dot(rel, rel), dd = sqrt(d2);
+        if (d2 <= r * r)
+            continue;
+        const float sin2 = r * r / d2, a = asin(sqrt(sin2)), c = dot(n, rel) / dd;
+        const float ir = hf_sphere_irradiance(c, sin2);
+        if (ir <= 0.0f)
+            continue;
+        const float limit = sqrt(rel.x * rel.x + rel.z * rel.z);
+        if (!(limit > 0.0f)) {
+            e[l] = ir;
+            continue;
+        }
+        irr[l] = ir;
+        alpha[l] = a;
+        elev[l] = asin(clamp(rel.y / dd, -1.0f, 1.0f));
+        phi[l] = atan2(-rel.z, rel.x);
+        spread[l] = fmin(a / fmax(cos(elev[l]), 1e-3f), M_PI_F);
+        lim[l] = limit;
+        any = true;
+    }
+    if (any) {
+        const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1), v0 = (float)j;
+        const float ref = pyr[gid];
+        const hf_rf u0 = hf_convert_rf(min(i0 + HF_ROW_IDS, grid.x - 1));
+        hf_rf hp[HF_MAX_LEVELS], ur[HF_MAX_LEVELS + 1];
+        const int top = max(grid.z - 1 - grid.w, 0);
+        for (int k = 0; k <= top; ++k)
+            hp[k] = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0, v0, inv_wm1, inv_dm1, ref);
+        /* bounds for the early exit, as in hf_row_env_horizons */
+        const float amax = geom.s7 + HF_EXIT_BOUND, hi = 36.0f * (amax - ref) + 4e-4f * (amax + fabs(ref));
+        const float sr = exp2(1.0f / geom.s5);
+        float d = geom.s6;
+        for (int m = 0; m < grid.z; ++m, d *= sr)
+            ur[m] = hf_atan_r((hi - hp[clamp(m - grid.w, 0, grid.z - 1)]) * (1.0f / (36.0f * d))) + 1e-6f;
+        ur[grid.z] = -INFINITY;
+        for (int m = grid.z - 1; m >= 0; --m)
+            ur[m] = fmax(ur[m], ur[m + 1]);
+        const hf_rf el = hf_vload_r(0, elev), al = hf_vload_r(0, alpha), ph = hf_vload_r(0, phi),
+                    sp = hf_vload_r(0, spread), limit = hf_vload_r(0, lim);
+        const hf_rf margin = 1.001f * fmax(al, 1e-6f) + 1e-5f;
+        float vis[HF_ROW];
+        for (int l = 0; l < HF_ROW; ++l)
+            vis[l] = 0.0f;
+        for (int q = -1; q <= 1; ++q) {
+            hf_rf c;
+            const hf_rf sn = sincos(ph + 0.5f * sp * (float)q, &c);
+            float h[HF_ROW];
+            hf_vstore_r(hf_horizon_pyramid_lanes(pyr, levels, grid, geom, hp, ref, u0, v0, c / geom.s3, -sn / geom.s4,
+                                                 limit, inv_wm1, inv_dm1, ur, el + margin, el - margin),
+                        0, h);
+            for (int l = 0; l < lanes; ++l)
+                if (lim[l] > 0.0f)
+                    vis[l] += hf_disc_above(elev[l], h[l], alpha[l]);
+        }
+        for (int l = 0; l < lanes; ++l)
+            if (lim[l] > 0.0f)
+                e[l] = irr[l] * vis[l] / 3.0f;
+    }
+    for (int l = 0; l < lanes; ++l) {
+        const int g = gid + l;
+        const float4 out = (float4)(hf_albedo(albedo, has_albedo, g) * radiance.xyz * e[l] * M_1_PI_F, 1.0f);
+        out_light[out_offset + g] = out;
+        out_total[g] += (float4)(out.xyz, 0.0f);
+    }
+}
+
 /* One spherical light: E = Le Σ_i z_l(i) y_i(ĉ - p) T_i, T_i = Σ Γ_ijk V_j C_k
  * (sparse Γ), clamped at 0. Vertices where the light cannot matter (its cap
  * entirely below the tangent plane, or Le Ω below `threshold`) get 0
@@ -1362,6 +1526,14 @@ kernel void hf_light(global const float *pyr, global const int4 *levels, int4 gr
     const int gid = get_global_id(0);
     if (gid >= grid.x * grid.y)
         return;
+#if HF_LIGHT_ROWS
+    if (mode == 1 && !exact) {
+        if (gid % grid.x % HF_ROW == 0)
+            hf_light_row(pyr, levels, grid, geom, normals, albedo, has_albedo, light, radiance, threshold, out_offset,
+                         out_light, out_total, gid);
+        return;
+    }
+#endif
     const int nc = nb * nb;
     const int i = gid % grid.x, j = gid / grid.x;
     const float3 p = (float3)(geom.s0 + (float)i * geom.s3, geom.s1 + pyr[gid], geom.s2 + (float)j * geom.s4);
