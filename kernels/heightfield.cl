@@ -1185,24 +1185,35 @@ inline void hf_env_vertex(int gid, const float *om, global const float4 *normals
     const float3 up = split ? pn_cube_grid_lookup(up_irradiance, up_size, n) : (float3)(0.0f);
     const float upv[3] = {up.x, up.y, up.z};
     float e[3];
-    /* V^T M C per channel as chunks: acc = Σ_j V_j M_j (rows of M), then acc · C. */
+    /* V^T M C per channel as chunks: acc = Σ_k C_k M_·k (M stored by
+     * columns), then acc · V. The clamped cosine is 0 on the odd bands from
+     * l = 3 on (cosine_zh), so half of the 36 columns are skipped. */
     const int nch = (nc + 15) / 16;
-    float cpad[16 * HF_SH_CHUNKS];
-    for (int q = 0; q < 16 * HF_SH_CHUNKS; ++q)
+    float cpad[16 * HF_SH_CHUNKS], vpad[16 * HF_SH_CHUNKS];
+    for (int q = 0; q < 16 * HF_SH_CHUNKS; ++q) {
         cpad[q] = q < nc ? cvec[q] : 0.0f;
+        vpad[q] = q < nc ? v[q] : 0.0f;
+    }
     const float16 c0 = vload16(0, cpad), c1 = vload16(1, cpad), c2 = vload16(2, cpad);
+    const float16 v0 = vload16(0, vpad), v1 = vload16(1, vpad), v2 = vload16(2, vpad);
+    const float zh[8] = {cosine_zh.s0, cosine_zh.s1, cosine_zh.s2, cosine_zh.s3,
+                         cosine_zh.s4, cosine_zh.s5, cosine_zh.s6, cosine_zh.s7};
     for (int ch = 0; ch < 3; ++ch) {
         global const float *mc = m + ch * nc * nc;
         float16 acc0 = 0.0f, acc1 = 0.0f, acc2 = 0.0f;
-        for (int j = 0; j < nc; ++j) {
-            global const float *row = mc + j * nc;
-            acc0 += v[j] * hf_sh_chunk(row, nc, 0);
-            if (nch > 1)
-                acc1 += v[j] * hf_sh_chunk(row, nc, 1);
-            if (nch > 2)
-                acc2 += v[j] * hf_sh_chunk(row, nc, 2);
+        for (int l = 0; l < nb; ++l) {
+            if (zh[l] == 0.0f)
+                continue;
+            for (int k = l * l; k < (l + 1) * (l + 1); ++k) {
+                global const float *col = mc + k * nc;
+                acc0 += cvec[k] * hf_sh_chunk(col, nc, 0);
+                if (nch > 1)
+                    acc1 += cvec[k] * hf_sh_chunk(col, nc, 1);
+                if (nch > 2)
+                    acc2 += cvec[k] * hf_sh_chunk(col, nc, 2);
+            }
         }
-        float sum = hf_hsum16(acc0 * c0 + acc1 * c1 + acc2 * c2);
+        float sum = hf_hsum16(acc0 * v0 + acc1 * v1 + acc2 * v2);
         if (split) {
             global const float *uch = u + ch * PN_SH_MAX_COEFFS;
             float16 ud = hf_sh_chunk(uch, nc, 0) * c0;

@@ -392,7 +392,7 @@ static pn_status prepare_env(pn_context ctx, pn_hf_cache *c, pn_envmap env, int 
                     double s = 0.0;
                     for (int i = 0; i < nc; ++i)
                         s += l[i][ch] * gamma[((size_t)i * nc + j) * nc + k];
-                    m[((size_t)ch * nc + j) * nc + k] = (float)s;
+                    m[((size_t)ch * nc + k) * nc + j] = (float)s; /* stored by columns: hf_env_vertex sums C_k M_·k */
                     uk += h[j] * s;
                 }
                 c->u[ch * PN_SH_MAX_BANDS * PN_SH_MAX_BANDS + k] = (float)uk;
@@ -739,8 +739,9 @@ static void cosine_zh(int nb, cl_float8 *out)
 {
     double a[PN_SH_MAX_BANDS];
     pn_sh_clamped_cosine64(nb, a);
+    /* odd l >= 3: 0 (the quadrature leaves ~1e-17), so that hf_env_vertex skips those bands of C */
     for (int l = 0; l < 8; ++l)
-        out->s[l] = l < nb ? (float)a[l] : 0.0f;
+        out->s[l] = l < nb && (l < 3 || l % 2 == 0) ? (float)a[l] : 0.0f;
 }
 
 /* Nearest distance from the light's centre to the field's bounding box. */
