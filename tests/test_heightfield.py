@@ -364,13 +364,16 @@ def early_exit_outputs(build_options, heights, env, lights):
     rig = Rig(ctx, heights, env, size=(6.0, 5.0), height_scale=1.5, lights=lights)
     out = {what: rig.read(what) for what in ("env_horizons", "env", "total")}
     out["light"] = rig.read("light", 0)
+    out["interpolating"] = rig.read("env_horizons", reconstruction=1)  # control points overshoot: no bound, no exit
+    out["interpolating_light"] = rig.read("light", 0, reconstruction=1)
     return out
 
 
 def test_early_exits_change_no_bit():
     """The searches' early exits (env: no later candidate can raise the clamped maximum; lights:
-    the disc already hidden or certainly clear) give the same floats as searching every sample;
-    with the bound on the heights lowered by a build option they do not."""
+    the disc already hidden or certainly clear) give the same floats as searching every sample,
+    also with the interpolating reconstruction (whose levels overshoot the heights); with the
+    bound on the heights lowered by a build option they do not."""
     heights = make_terrain("fbm", 53, 45, seed=5)
     env = procedural.sky(128, 64, sun_direction=(0.5, 0.5, 0.3))
     lights = [light_row((0.4, 1.2, -0.3), radius=0.2)]

@@ -589,8 +589,12 @@ static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf
     float sx, sz;
     pn_heightfield_spacing(hf, &sx, &sz);
     const float *o = hf->placement.origin;
-    /* geom.s7: the largest |H| (world heights), a bound on every level's values for the env search's early exit */
-    const float amax = fmaxf(fabsf(hf->placement.height_scale * hf->hmin), fabsf(hf->placement.height_scale * hf->hmax));
+    /* geom.s7: the largest |H| (world heights), a bound on every level's values for the searches' early exits
+     * (levels are weighted means of the heights); the interpolating reconstruction's control points overshoot
+     * the heights, so there it is infinite (no exit on a bound). */
+    const float amax = set->reconstruction ? INFINITY
+                                           : fmaxf(fabsf(hf->placement.height_scale * hf->hmin),
+                                                   fabsf(hf->placement.height_scale * hf->hmax));
     const float geom[8] = {o[0], o[1], o[2], sx, sz, (float)set->level_step, sx < sz ? sx : sz, amax};
     memcpy(s->geom.s, geom, sizeof geom);
     s->grid.s[0] = (cl_int)w;
