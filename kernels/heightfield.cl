@@ -10,7 +10,7 @@
  * the height field to those per-vertex results.
  *
  * Per-field constants: grid = (W, D, levels, level offset in samples),
- * geom = (x0, y0, z0, sx, sz, level step, s0, 0). Pyramid levels are
+ * geom = (x0, y0, z0, sx, sz, level step, s0, max |H|). Pyramid levels are
  * concatenated in `pyr`; level k is levels[k] = (offset, cells x, cells z, 0),
  * level 0 being the world heights H (height_scale x input). */
 #include "common/sh.cl"
@@ -19,6 +19,21 @@
 #define HF_MAX_LEVELS 128
 #define HF_MAX_AZIMUTHS 256
 #define HF_TABLE 64
+/* Early exits of the pyramid searches (env: hf_search_done; lights:
+ * hf_horizon_pyramid_v), tested after every sample m with
+ * (m & HF_EXIT_EVERY) == 0. */
+#ifndef HF_EARLY_EXIT /* a build option only to measure without them (0) */
+#define HF_EARLY_EXIT 1
+#endif
+#ifndef HF_EXIT_EVERY
+#define HF_EXIT_EVERY 3
+#endif
+#ifndef HF_LIGHT_ROWS /* a build option only to measure the per-vertex light search (0) */
+#define HF_LIGHT_ROWS 1
+#endif
+#ifndef HF_EXIT_BOUND /* added to max |H|: a build option only to test that a wrong bound is caught */
+#define HF_EXIT_BOUND 0.0f
+#endif
 
 /* Uniform cubic B-spline weights at t in [0, 1), times 6. */
 inline float4 hf_bspline6(float t)
@@ -273,9 +288,15 @@ inline hf_vf hf_level_sample_v(global const float *pyr, int4 lev, hf_vf u, hf_vf
         return HF_WINDOW_MAX(best, knot, mid);                                                                  \
     }
 
+/* With ur (lights, hf_light_horizon): the search may stop once every lane's
+ * horizon is known to be at least `hidden` (the running maximum is there,
+ * and the result only grows) or at most `clear` (the maximum and every
+ * later candidate, all combinations of the window's elevations and later
+ * ones, bounded by ur[m + 1] from sample m + 1 on, lie below it): it then
+ * returns the running maximum, on the same side. */
 inline hf_vf hf_horizon_pyramid_v(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
                                   const float *hp, float ref, float u0, float v0, hf_vf cu, hf_vf cv, float limit,
-                                  float inv_wm1, float inv_dm1)
+                                  float inv_wm1, float inv_dm1, const float *ur, float hidden, float clear)
 {
     hf_vf w0 = 0.0f, w1 = 0.0f, w2 = 0.0f, best = -M_PI_2_F;
     int count = 0;
@@ -288,6 +309,11 @@ inline hf_vf hf_horizon_pyramid_v(global const float *pyr, global const int4 *le
         const hf_vf h = hf_level_sample_v(pyr, levels[k], u0 + d * cu, v0 + d * cv, inv_wm1, inv_dm1, ref);
         const hf_vf w3 = hf_atan_v((h - hp[k]) / d);
         HF_WINDOW_STEP(w0, w1, w2, w3, best, count)
+#if HF_EARLY_EXIT
+        if (ur && m >= 3 && (m & HF_EXIT_EVERY) == 0 &&
+            all((best >= hidden) | ((best <= clear) & (fmax(fmax(w0, w1), fmax(w2, ur[m + 1])) <= clear))))
+            return best;
+#endif
     }
     HF_WINDOW_END(w0, w1, w2, best, count)
 }
@@ -523,6 +549,15 @@ HF_INLINE float16 hf_level_sample_row(global const float *pyr, int4 lev, int wm1
         }                                                                                                       \
     }
 
+/* Whether no later spline candidate can change max(result, 0) when every
+ * elevation they combine is at most b: b <= 0 (their numerators are sums of
+ * non-positive terms), or b below the running maximum of the knots (6 b) or
+ * the midpoints (48 b), with room for the numerators' float rounding. */
+HF_INLINE hf_ri hf_search_done(hf_rf b, hf_rf knot, hf_rf mid)
+{
+    return (b <= 0.0f) | (6.00006f * b + 1e-5f < knot) | (48.0005f * b + 1e-4f < mid);
+}
+
 /* hf_horizon_pyramid_v for a row group's two rows along one direction (cu,
  * cv); hpA, hpB hold H_k - ref at each lane's vertex. The environment's
  * search: no limit. With start > 0 (partial updates) the search resumes at
@@ -536,7 +571,8 @@ HF_INLINE void hf_horizon_pyramid_row2(global const float *pyr, global const int
                                        const hf_rf *hpA, const hf_rf *hpB, float refA, float refB, hf_rf u0, float vA,
                                        float vB, float cu, float cv, float inv_wm1, float inv_dm1, int start,
                                        hf_rf best0A, hf_rf best0B, global float *cp, hf_ri cpiA, hf_ri cpiB,
-                                       int lanes, int rows, int ncp, hf_rf *outA, hf_rf *outB)
+                                       int lanes, int rows, int ncp, const hf_rf *urA, const hf_rf *urB,
+                                       hf_rf *outA, hf_rf *outB)
 {
     hf_rf wA0 = 0.0f, wA1 = 0.0f, wA2 = 0.0f, bestA = start ? best0A : -M_PI_2_F, knotA = -INFINITY,
           midA = -INFINITY;
@@ -580,6 +616,17 @@ HF_INLINE void hf_horizon_pyramid_row2(global const float *pyr, global const int
         }
         HF_WINDOW_STEP_N(wA0, wA1, wA2, w3A, knotA, midA, countA)
         HF_WINDOW_STEP_N(wB0, wB1, wB2, w3B, knotB, midB, countB)
+#if HF_EARLY_EXIT
+        /* Early exit (urA, urB: bounds on every elevation from sample m + 1
+         * on): every later candidate combines the window's three elevations
+         * and later ones, so none can change the clamped result once all
+         * lanes' bounds lie below their maxima (or at or below 0). */
+        if (urA && m >= 3 && (m & HF_EXIT_EVERY) == 0 &&
+            all(hf_search_done(fmax(fmax(wA0, wA1), fmax(wA2, urA[m + 1])), knotA, midA) &
+                hf_search_done(fmax(fmax(wB0, wB1), fmax(wB2, urB[m + 1])), knotB, midB))) {
+            break;
+        }
+#endif
     }
     HF_WINDOW_FINISH_N(wA0, wA1, wA2, bestA, knotA, midA, countA, *outA)
     HF_WINDOW_FINISH_N(wB0, wB1, wB2, bestB, knotB, midB, countB, *outB)
@@ -689,6 +736,30 @@ inline int hf_row_env_horizons(global const float *pyr, global const int4 *level
     const int top = max(grid.z - 1 - grid.w, 0);
     for (int k = 0; k <= top; ++k)
         hf_level_sample_row2(pyr, levels[k], grid.x - 1, u0, vA, vB, inv_wm1, inv_dm1, refA, refB, hpA + k, hpB + k);
+    /* Full searches (update 0): bounds for the early exit, the same for every
+     * azimuth. No value of any level exceeds max |H| (geom.s7: the levels
+     * are weighted means of the heights), so a sample's 36 (H_L - ref) is
+     * at most hi (plus room for the float rounding of its 16 taps and of
+     * hp) and its elevation at most atan((hi - hp[k]) / (36 d)); ur[m] is
+     * the largest of these over samples m .. n - 1 (ur[n] = -inf). */
+    hf_rf urA[HF_MAX_LEVELS + 1], urB[HF_MAX_LEVELS + 1];
+    if (!update) {
+        const float amax = geom.s7 + HF_EXIT_BOUND;
+        const float hiA = 36.0f * (amax - refA) + 4e-4f * (amax + fabs(refA)),
+                    hiB = 36.0f * (amax - refB) + 4e-4f * (amax + fabs(refB)), sr = exp2(1.0f / geom.s5);
+        float d = geom.s6;
+        for (int m = 0; m < grid.z; ++m, d *= sr) {
+            const int k = clamp(m - grid.w, 0, grid.z - 1);
+            const float rd = 1.0f / (36.0f * d);
+            urA[m] = hf_atan_r((hiA - hpA[k]) * rd);
+            urB[m] = hf_atan_r((hiB - hpB[k]) * rd);
+        }
+        urA[grid.z] = urB[grid.z] = -INFINITY;
+        for (int m = grid.z - 1; m >= 0; --m) {
+            urA[m] = fmax(urA[m], urA[m + 1]);
+            urB[m] = fmax(urB[m], urB[m + 1]);
+        }
+    }
     const float dphi = 2.0f * M_PI_F / (float)n_phi;
     const hf_ri laneA = gid + min(HF_ROW_IDS, lanes - 1), laneB = laneA + (gidB - gid);
     int searched = 0;
@@ -700,7 +771,8 @@ inline int hf_row_env_horizons(global const float *pyr, global const int4 *level
         hf_rf oA, oB;
         if (!update) {
             hf_horizon_pyramid_row2(pyr, levels, grid, geom, hpA, hpB, refA, refB, u0, vA, vB, c / geom.s3,
-                                    -s / geom.s4, inv_wm1, inv_dm1, 0, 0.0f, 0.0f, 0, 0, 0, 0, 0, 0, &oA, &oB);
+                                    -s / geom.s4, inv_wm1, inv_dm1, 0, 0.0f, 0.0f, 0, 0, 0, 0, 0, 0, urA, urB, &oA,
+                                    &oB);
             hf_vstore_r(fmax(oA, 0.0f), 0, hA);
             hf_vstore_r(fmax(oB, 0.0f), 0, hB);
             for (int l = 0; l < lanes; ++l) {
@@ -738,7 +810,8 @@ inline int hf_row_env_horizons(global const float *pyr, global const int4 *level
             best0B = hf_vload_r(0, b0);
         }
         hf_horizon_pyramid_row2(pyr, levels, grid, geom, hpA, hpB, refA, refB, u0, vA, vB, c / geom.s3, -s / geom.s4,
-                                inv_wm1, inv_dm1, start, best0A, best0B, cp, cpiA, cpiB, lanes, rows, ncp, &oA, &oB);
+                                inv_wm1, inv_dm1, start, best0A, best0B, cp, cpiA, cpiB, lanes, rows, ncp, 0, 0, &oA,
+                                &oB);
         hf_vstore_r(fmax(oA, 0.0f), 0, hA);
         hf_vstore_r(fmax(oB, 0.0f), 0, hB);
         for (int r = 0; r < rows; ++r)
@@ -824,7 +897,7 @@ inline void hf_vertex_horizons(global const float *pyr, global const int4 *level
             hf_vf c;
             const hf_vf sn = sincos(dphi * HF_CONVERT_F(kk), &c);
             hf_vf h = hf_horizon_pyramid_v(pyr, levels, grid, geom, hp, pyr[gid], u0, v0, c / geom.s3, -sn / geom.s4,
-                                           limit, inv_wm1, inv_dm1);
+                                           limit, inv_wm1, inv_dm1, 0, 0.0f, 0.0f);
             if (env)
                 h = fmax(h, 0.0f);
             if (k0 + HF_LANES <= n_phi)
@@ -1112,24 +1185,35 @@ inline void hf_env_vertex(int gid, const float *om, global const float4 *normals
     const float3 up = split ? pn_cube_grid_lookup(up_irradiance, up_size, n) : (float3)(0.0f);
     const float upv[3] = {up.x, up.y, up.z};
     float e[3];
-    /* V^T M C per channel as chunks: acc = Σ_j V_j M_j (rows of M), then acc · C. */
+    /* V^T M C per channel as chunks: acc = Σ_k C_k M_·k (M stored by
+     * columns), then acc · V. The clamped cosine is 0 on the odd bands from
+     * l = 3 on (cosine_zh), so half of the 36 columns are skipped. */
     const int nch = (nc + 15) / 16;
-    float cpad[16 * HF_SH_CHUNKS];
-    for (int q = 0; q < 16 * HF_SH_CHUNKS; ++q)
+    float cpad[16 * HF_SH_CHUNKS], vpad[16 * HF_SH_CHUNKS];
+    for (int q = 0; q < 16 * HF_SH_CHUNKS; ++q) {
         cpad[q] = q < nc ? cvec[q] : 0.0f;
+        vpad[q] = q < nc ? v[q] : 0.0f;
+    }
     const float16 c0 = vload16(0, cpad), c1 = vload16(1, cpad), c2 = vload16(2, cpad);
+    const float16 v0 = vload16(0, vpad), v1 = vload16(1, vpad), v2 = vload16(2, vpad);
+    const float zh[8] = {cosine_zh.s0, cosine_zh.s1, cosine_zh.s2, cosine_zh.s3,
+                         cosine_zh.s4, cosine_zh.s5, cosine_zh.s6, cosine_zh.s7};
     for (int ch = 0; ch < 3; ++ch) {
         global const float *mc = m + ch * nc * nc;
         float16 acc0 = 0.0f, acc1 = 0.0f, acc2 = 0.0f;
-        for (int j = 0; j < nc; ++j) {
-            global const float *row = mc + j * nc;
-            acc0 += v[j] * hf_sh_chunk(row, nc, 0);
-            if (nch > 1)
-                acc1 += v[j] * hf_sh_chunk(row, nc, 1);
-            if (nch > 2)
-                acc2 += v[j] * hf_sh_chunk(row, nc, 2);
+        for (int l = 0; l < nb; ++l) {
+            if (zh[l] == 0.0f)
+                continue;
+            for (int k = l * l; k < (l + 1) * (l + 1); ++k) {
+                global const float *col = mc + k * nc;
+                acc0 += cvec[k] * hf_sh_chunk(col, nc, 0);
+                if (nch > 1)
+                    acc1 += cvec[k] * hf_sh_chunk(col, nc, 1);
+                if (nch > 2)
+                    acc2 += cvec[k] * hf_sh_chunk(col, nc, 2);
+            }
         }
-        float sum = hf_hsum16(acc0 * c0 + acc1 * c1 + acc2 * c2);
+        float sum = hf_hsum16(acc0 * v0 + acc1 * v1 + acc2 * v2);
         if (split) {
             global const float *uch = u + ch * PN_SH_MAX_COEFFS;
             float16 ud = hf_sh_chunk(uch, nc, 0) * c0;
@@ -1252,14 +1336,191 @@ inline float hf_light_horizon(global const float *pyr, global const int4 *levels
         const hf_vf q = HF_CONVERT_F(min(HF_LANE_IDS, 2) - 1);
         hf_vf c;
         const hf_vf sn = sincos(phi + 0.5f * spread * q, &c);
+        /* Early exit: a horizon at or above elev + alpha hides the disc, one at
+         * or below elev - alpha clears it (hf_disc_above gives exactly 0 or
+         * 1 either way; margins for the float rounding of x). ur: bounds on
+         * the elevations from sample m on, as in hf_row_env_horizons. */
+        float ur[HF_MAX_LEVELS + 1];
+        const float ref = pyr[gid], amax = geom.s7 + HF_EXIT_BOUND, sr = exp2(1.0f / geom.s5);
+        const float hi = amax - ref + 1e-5f * (amax + fabs(ref));
+        float d = geom.s6;
+        int count = 0;
+        for (int m = 0; m < grid.z && d < limit; ++m, d *= sr, ++count)
+            ur[m] = pn_atan((hi - hp[clamp(m - grid.w, 0, grid.z - 1)]) / d) + 1e-6f;
+        ur[count] = -INFINITY;
+        for (int m = count - 1; m >= 0; --m)
+            ur[m] = fmax(ur[m], ur[m + 1]);
+        const float margin = 1.001f * fmax(alpha, 1e-6f) + 1e-5f;
         float h[HF_LANES];
-        hf_vstore(hf_horizon_pyramid_v(pyr, levels, grid, geom, hp, pyr[gid], (float)(gid % grid.x),
-                                       (float)(gid / grid.x), c / geom.s3, -sn / geom.s4, limit, inv_wm1, inv_dm1),
+        hf_vstore(hf_horizon_pyramid_v(pyr, levels, grid, geom, hp, ref, (float)(gid % grid.x), (float)(gid / grid.x),
+                                       c / geom.s3, -sn / geom.s4, limit, inv_wm1, inv_dm1, ur, elev + margin,
+                                       elev - margin),
                   0, h);
         for (int l = 0; l < 3; ++l)
             vis += hf_disc_above(elev, h[l], alpha);
     }
     return irr * vis / 3.0f;
+}
+
+/* Lights in row groups (light_visibility = 1, pyramid mode): the 16
+ * vertices of a row group run in the lanes of a float16, one of the three
+ * azimuths across each vertex's disc at a time, instead of one vertex's
+ * three azimuths in a float8 (5 lanes wasted) per vertex. Each lane has its
+ * own direction and limit, so the taps are per-lane loads as in
+ * hf_level_sample_v (weights times 6 per axis here); the receivers' levels
+ * come from the row sampler, relative to the group's first vertex. */
+HF_INLINE hf_rf hf_level_sample_g(global const float *pyr, int4 lev, hf_rf u, hf_rf v, float inv_wm1, float inv_dm1,
+                                  float ref)
+{
+    const hf_rf a = u * (float)lev.y * inv_wm1, b = v * (float)lev.z * inv_dm1;
+    const hf_rf fa = floor(a), fb = floor(b), ta = a - fa, tb = b - fb;
+    const hf_rf sa = 1.0f - ta, sb = 1.0f - tb, ta2 = ta * ta, tb2 = tb * tb, ta3 = ta2 * ta, tb3 = tb2 * tb;
+    const hf_rf wa0 = sa * sa * sa, wa1 = 3.0f * ta3 - 6.0f * ta2 + 4.0f, wa2 = -3.0f * ta3 + 3.0f * ta2 + 3.0f * ta + 1.0f,
+                wa3 = ta3;
+    const hf_rf wb0 = sb * sb * sb, wb1 = 3.0f * tb3 - 6.0f * tb2 + 4.0f, wb2 = -3.0f * tb3 + 3.0f * tb2 + 3.0f * tb + 1.0f,
+                wb3 = tb3;
+    const hf_ri ia = convert_int16(fa) - 1, ib = convert_int16(fb) - 1, row = lev.y + 1;
+    const hf_ri a0 = clamp(ia, 0, lev.y), a1 = clamp(ia + 1, 0, lev.y), a2 = clamp(ia + 2, 0, lev.y),
+                a3 = clamp(ia + 3, 0, lev.y);
+    global const float *base = pyr + lev.x;
+    hf_ri i0, i1, i2, i3;
+#define HF_ROW_AT_G(rr) (i0 = rr + a0, i1 = rr + a1, i2 = rr + a2, i3 = rr + a3,                        \
+                         wa0 * (HF_RGATHER(base, i0) - ref) + wa1 * (HF_RGATHER(base, i1) - ref) +     \
+                         wa2 * (HF_RGATHER(base, i2) - ref) + wa3 * (HF_RGATHER(base, i3) - ref))
+    const hf_rf rows0 = HF_ROW_AT_G(clamp(ib, 0, lev.z) * row), rows1 = HF_ROW_AT_G(clamp(ib + 1, 0, lev.z) * row),
+                rows2 = HF_ROW_AT_G(clamp(ib + 2, 0, lev.z) * row), rows3 = HF_ROW_AT_G(clamp(ib + 3, 0, lev.z) * row);
+#undef HF_ROW_AT_G
+    return wb0 * rows0 + wb1 * rows1 + wb2 * rows2 + wb3 * rows3;
+}
+
+/* The search of hf_horizon_pyramid_v with a direction (cu, cv), a limit and
+ * exit levels per lane (the window per lane: a lane stops taking samples at
+ * its limit); hp holds 36 (H_k - ref) per lane. Early exit as there, once
+ * every lane is finished, hidden or clear. */
+HF_INLINE hf_rf hf_horizon_pyramid_lanes(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                                         const hf_rf *hp, float ref, hf_rf u0, float v0, hf_rf cu, hf_rf cv,
+                                         hf_rf limit, float inv_wm1, float inv_dm1, const hf_rf *ur, hf_rf hidden,
+                                         hf_rf clear)
+{
+    hf_rf w0 = 0.0f, w1 = 0.0f, w2 = 0.0f, best = -M_PI_2_F;
+    hf_ri count = 0;
+    const float8 l8 = fmax(limit.lo, limit.hi);
+    const float4 l4 = fmax(l8.lo, l8.hi);
+    const float dmax = fmax(fmax(l4.x, l4.y), fmax(l4.z, l4.w)), sr = exp2(1.0f / geom.s5);
+    float d = geom.s6;
+    for (int m = 0; m < grid.z && d < dmax; ++m, d *= sr) {
+        const int k = clamp(m - grid.w, 0, grid.z - 1);
+        const hf_rf h = hf_level_sample_g(pyr, levels[k], u0 + d * cu, v0 + d * cv, inv_wm1, inv_dm1, ref);
+        const hf_rf w3 = hf_atan_r((h - hp[k]) * (1.0f / (36.0f * d)));
+        const hf_ri act = (hf_rf)(d) < limit, first = act & (count == 0);
+        w0 = select(w0, w3, first);
+        w1 = select(w1, w3, first);
+        w2 = select(w2, w3, first);
+        best = select(best, fmax(best, (w1 + 4.0f * w2 + w3) / 6.0f), act & (count >= 1));
+        best = select(best, fmax(best, (w0 + 23.0f * w1 + 23.0f * w2 + w3) / 48.0f), act & (count >= 2));
+        w0 = select(w0, w1, act);
+        w1 = select(w1, w2, act);
+        w2 = select(w2, w3, act);
+        count -= act; /* act is -1 where true */
+#if HF_EARLY_EXIT
+        if (m >= 3 && (m & HF_EXIT_EVERY) == 0 &&
+            all(!act | (best >= hidden) | ((best <= clear) & (fmax(fmax(w0, w1), fmax(w2, ur[m + 1])) <= clear))))
+            break;
+#endif
+    }
+    best = select(best, fmax(best, (w1 + 5.0f * w2) / 6.0f), count >= 1);
+    best = select(best, fmax(best, (w0 + 23.0f * w1 + 24.0f * w2) / 48.0f), count >= 2);
+    return select(best, (hf_rf)(-M_PI_2_F), count == 0);
+}
+
+/* hf_light (light_visibility = 1, pyramid) for the row group of 16
+ * vertices starting at gid (fewer at the row's end). */
+inline void hf_light_row(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
+                         global const float4 *normals, global const float *albedo, int has_albedo, float4 light,
+                         float4 radiance, float threshold, int out_offset, global float4 *out_light,
+                         global float4 *out_total, int gid)
+{
+    const int i0 = gid % grid.x, j = gid / grid.x, lanes = min(HF_ROW, grid.x - i0);
+    const float le = fmax(fmax(radiance.x, radiance.y), radiance.z), r = light.w;
+    float e[HF_ROW], irr[HF_ROW], elev[HF_ROW], alpha[HF_ROW], phi[HF_ROW], spread[HF_ROW], lim[HF_ROW];
+    bool any = false;
+    for (int l = 0; l < HF_ROW; ++l) {
+        e[l] = irr[l] = elev[l] = alpha[l] = phi[l] = spread[l] = lim[l] = 0.0f;
+        if (l >= lanes)
+            continue;
+        const int g = gid + l;
+        const float3 p = (float3)(geom.s0 + (float)(i0 + l) * geom.s3, geom.s1 + pyr[g], geom.s2 + (float)j * geom.s4);
+        const float3 rel = light.xyz - p, n = normals[g].xyz;
+        const float s = hf_cap(rel, r), dist = length(rel);
+        const float sin_alpha = sqrt(fmax(0.0f, s * (2.0f - s)));
+        const float cos_n = dist > 0.0f ? dot(n, rel) / dist : 1.0f;
+        /* as hf_light and hf_light_horizon */
+        if (s >= 2.0f || cos_n <= -sin_alpha || !(le * 2.0f * M_PI_F * s >= threshold))
+            continue;
+        const float d2 = dot(rel, rel), dd = sqrt(d2);
+        if (d2 <= r * r)
+            continue;
+        const float sin2 = r * r / d2, a = asin(sqrt(sin2)), c = dot(n, rel) / dd;
+        const float ir = hf_sphere_irradiance(c, sin2);
+        if (ir <= 0.0f)
+            continue;
+        const float limit = sqrt(rel.x * rel.x + rel.z * rel.z);
+        if (!(limit > 0.0f)) {
+            e[l] = ir;
+            continue;
+        }
+        irr[l] = ir;
+        alpha[l] = a;
+        elev[l] = asin(clamp(rel.y / dd, -1.0f, 1.0f));
+        phi[l] = atan2(-rel.z, rel.x);
+        spread[l] = fmin(a / fmax(cos(elev[l]), 1e-3f), M_PI_F);
+        lim[l] = limit;
+        any = true;
+    }
+    if (any) {
+        const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1), v0 = (float)j;
+        const float ref = pyr[gid];
+        const hf_rf u0 = hf_convert_rf(min(i0 + HF_ROW_IDS, grid.x - 1));
+        hf_rf hp[HF_MAX_LEVELS], ur[HF_MAX_LEVELS + 1];
+        const int top = max(grid.z - 1 - grid.w, 0);
+        for (int k = 0; k <= top; ++k)
+            hp[k] = hf_level_sample_row(pyr, levels[k], grid.x - 1, u0, v0, inv_wm1, inv_dm1, ref);
+        /* bounds for the early exit, as in hf_row_env_horizons */
+        const float amax = geom.s7 + HF_EXIT_BOUND, hi = 36.0f * (amax - ref) + 4e-4f * (amax + fabs(ref));
+        const float sr = exp2(1.0f / geom.s5);
+        float d = geom.s6;
+        for (int m = 0; m < grid.z; ++m, d *= sr)
+            ur[m] = hf_atan_r((hi - hp[clamp(m - grid.w, 0, grid.z - 1)]) * (1.0f / (36.0f * d))) + 1e-6f;
+        ur[grid.z] = -INFINITY;
+        for (int m = grid.z - 1; m >= 0; --m)
+            ur[m] = fmax(ur[m], ur[m + 1]);
+        const hf_rf el = hf_vload_r(0, elev), al = hf_vload_r(0, alpha), ph = hf_vload_r(0, phi),
+                    sp = hf_vload_r(0, spread), limit = hf_vload_r(0, lim);
+        const hf_rf margin = 1.001f * fmax(al, 1e-6f) + 1e-5f;
+        float vis[HF_ROW];
+        for (int l = 0; l < HF_ROW; ++l)
+            vis[l] = 0.0f;
+        for (int q = -1; q <= 1; ++q) {
+            hf_rf c;
+            const hf_rf sn = sincos(ph + 0.5f * sp * (float)q, &c);
+            float h[HF_ROW];
+            hf_vstore_r(hf_horizon_pyramid_lanes(pyr, levels, grid, geom, hp, ref, u0, v0, c / geom.s3, -sn / geom.s4,
+                                                 limit, inv_wm1, inv_dm1, ur, el + margin, el - margin),
+                        0, h);
+            for (int l = 0; l < lanes; ++l)
+                if (lim[l] > 0.0f)
+                    vis[l] += hf_disc_above(elev[l], h[l], alpha[l]);
+        }
+        for (int l = 0; l < lanes; ++l)
+            if (lim[l] > 0.0f)
+                e[l] = irr[l] * vis[l] / 3.0f;
+    }
+    for (int l = 0; l < lanes; ++l) {
+        const int g = gid + l;
+        const float4 out = (float4)(hf_albedo(albedo, has_albedo, g) * radiance.xyz * e[l] * M_1_PI_F, 1.0f);
+        out_light[out_offset + g] = out;
+        out_total[g] += (float4)(out.xyz, 0.0f);
+    }
 }
 
 /* One spherical light: E = Le Σ_i z_l(i) y_i(ĉ - p) T_i, T_i = Σ Γ_ijk V_j C_k
@@ -1276,6 +1537,14 @@ kernel void hf_light(global const float *pyr, global const int4 *levels, int4 gr
     const int gid = get_global_id(0);
     if (gid >= grid.x * grid.y)
         return;
+#if HF_LIGHT_ROWS
+    if (mode == 1 && !exact) {
+        if (gid % grid.x % HF_ROW == 0)
+            hf_light_row(pyr, levels, grid, geom, normals, albedo, has_albedo, light, radiance, threshold, out_offset,
+                         out_light, out_total, gid);
+        return;
+    }
+#endif
     const int nc = nb * nb;
     const int i = gid % grid.x, j = gid / grid.x;
     const float3 p = (float3)(geom.s0 + (float)i * geom.s3, geom.s1 + pyr[gid], geom.s2 + (float)j * geom.s4);

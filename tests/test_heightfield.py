@@ -355,3 +355,32 @@ def test_mesh_normals_are_the_method_normals(ctx, constant_env, terrain, scale):
     method = rig.read("normals")[..., :3].reshape(-1, 3)
     np.testing.assert_allclose(n, method, atol=2e-6)
     np.testing.assert_allclose(v[:, 1].reshape(29, 33), scale * h, rtol=1e-6, atol=1e-6)
+
+
+def early_exit_outputs(build_options, heights, env, lights):
+    """Every per-vertex output of a frame on `heights` built with `build_options`."""
+    ctx = pn.Context(f"build_options={build_options}") if build_options else pn.Context()
+    env = pn.EnvMap(ctx, env, face_size=32, irradiance_face_size=32)
+    rig = Rig(ctx, heights, env, size=(6.0, 5.0), height_scale=1.5, lights=lights)
+    out = {what: rig.read(what) for what in ("env_horizons", "env", "total")}
+    out["light"] = rig.read("light", 0)
+    out["interpolating"] = rig.read("env_horizons", reconstruction=1)  # control points overshoot: no bound, no exit
+    out["interpolating_light"] = rig.read("light", 0, reconstruction=1)
+    return out
+
+
+def test_early_exits_change_no_bit():
+    """The searches' early exits (env: no later candidate can raise the clamped maximum; lights:
+    the disc already hidden or certainly clear) give the same floats as searching every sample,
+    also with the interpolating reconstruction (whose levels overshoot the heights); with the
+    bound on the heights lowered by a build option they do not."""
+    heights = make_terrain("fbm", 53, 45, seed=5)
+    env = procedural.sky(128, 64, sun_direction=(0.5, 0.5, 0.3))
+    lights = [light_row((0.4, 1.2, -0.3), radius=0.2)]
+    full = early_exit_outputs("-DHF_EARLY_EXIT=0", heights, env, lights)
+    fast = early_exit_outputs("", heights, env, lights)
+    wrong = early_exit_outputs("-DHF_EXIT_BOUND=-1.0f", heights, env, lights)
+    for what in full:
+        np.testing.assert_array_equal(fast[what].view(np.uint32), full[what].view(np.uint32), err_msg=what)
+    assert not np.array_equal(wrong["env_horizons"], full["env_horizons"])
+    assert not np.array_equal(wrong["light"], full["light"])

@@ -392,7 +392,7 @@ static pn_status prepare_env(pn_context ctx, pn_hf_cache *c, pn_envmap env, int 
                     double s = 0.0;
                     for (int i = 0; i < nc; ++i)
                         s += l[i][ch] * gamma[((size_t)i * nc + j) * nc + k];
-                    m[((size_t)ch * nc + j) * nc + k] = (float)s;
+                    m[((size_t)ch * nc + k) * nc + j] = (float)s; /* stored by columns: hf_env_vertex sums C_k M_·k */
                     uk += h[j] * s;
                 }
                 c->u[ch * PN_SH_MAX_BANDS * PN_SH_MAX_BANDS + k] = (float)uk;
@@ -589,7 +589,13 @@ static pn_status prepare_field(pn_context ctx, pn_hf_state *s, pn_heightfield hf
     float sx, sz;
     pn_heightfield_spacing(hf, &sx, &sz);
     const float *o = hf->placement.origin;
-    const float geom[8] = {o[0], o[1], o[2], sx, sz, (float)set->level_step, sx < sz ? sx : sz, 0.0f};
+    /* geom.s7: the largest |H| (world heights), a bound on every level's values for the searches' early exits
+     * (levels are weighted means of the heights); the interpolating reconstruction's control points overshoot
+     * the heights, so there it is infinite (no exit on a bound). */
+    const float amax = set->reconstruction ? INFINITY
+                                           : fmaxf(fabsf(hf->placement.height_scale * hf->hmin),
+                                                   fabsf(hf->placement.height_scale * hf->hmax));
+    const float geom[8] = {o[0], o[1], o[2], sx, sz, (float)set->level_step, sx < sz ? sx : sz, amax};
     memcpy(s->geom.s, geom, sizeof geom);
     s->grid.s[0] = (cl_int)w;
     s->grid.s[1] = (cl_int)d;
@@ -737,8 +743,9 @@ static void cosine_zh(int nb, cl_float8 *out)
 {
     double a[PN_SH_MAX_BANDS];
     pn_sh_clamped_cosine64(nb, a);
+    /* odd l >= 3: 0 (the quadrature leaves ~1e-17), so that hf_env_vertex skips those bands of C */
     for (int l = 0; l < 8; ++l)
-        out->s[l] = l < nb ? (float)a[l] : 0.0f;
+        out->s[l] = l < nb && (l < 3 || l % 2 == 0) ? (float)a[l] : 0.0f;
 }
 
 /* Nearest distance from the light's centre to the field's bounding box. */
