@@ -129,6 +129,14 @@ def test_default_sweeps_include_fiv():
     assert {p.get("overlap", 1) for p in SWEEPS["fiv"]} == {0, 1, 2}
 
 
+def test_readme_settings_are_swept():
+    """Each README column's setting is one the technique's sweep runs, spelled as the sweep spells it: the
+    row picks the result whose params equal it, so any other spelling leaves the column at '-'."""
+    for t in methods.techniques():
+        if t.readme_setting is not None:
+            assert t.readme_setting in t.sweep(), (t.name, t.readme_setting)
+
+
 def test_readme_row_has_fiv_columns(tiny_bench):
     _, res = tiny_bench
     fake = [dict(r) for r in res["results"] if r["method"] != "fiv"] + [

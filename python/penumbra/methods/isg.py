@@ -288,7 +288,8 @@ def attach_sphere_sets(built, overrides: dict | None = None) -> list[dict]:
 class Isg(Technique):
     bake_table = NAME
     scene_tables = (SceneTable(NAME, NAME, False, _parse_table),)
-    readme_setting = {}
+    # the defaults as the sweep spells them (the README's row picks the result whose params equal these)
+    readme_setting = {"spheres": 64, "lobes": 32, "patch_grid": 16}
     readme_label = "defaults"
 
     def applies_to(self, desc) -> bool:
