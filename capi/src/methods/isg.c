@@ -370,6 +370,28 @@ static uint32_t spread3(uint32_t v)
     return v;
 }
 
+/* The n 30-bit Morton keys in key, with their indices in order, sorted by a
+ * stable LSD radix sort of three 10-bit passes (key2 and order2 n entries of
+ * scratch each); returns the sorted indices (in order or order2). */
+static uint32_t *morton_sort(uint32_t n, uint32_t *key, uint32_t *key2, uint32_t *order, uint32_t *order2)
+{
+    for (int pass = 0; pass < 3; ++pass) {
+        uint32_t histogram[1025] = {0};
+        const int shift = 10 * pass;
+        for (uint32_t i = 0; i < n; ++i)
+            ++histogram[((key[i] >> shift) & 1023u) + 1];
+        for (int b = 0; b < 1024; ++b)
+            histogram[b + 1] += histogram[b];
+        for (uint32_t i = 0; i < n; ++i) {
+            const uint32_t at = histogram[(key[i] >> shift) & 1023u]++;
+            key2[at] = key[i], order2[at] = order[i];
+        }
+        uint32_t *t = key;
+        key = key2, key2 = t, t = order, order = order2, order2 = t;
+    }
+    return order;
+}
+
 /* The groups of the thin shells' triangles (kernels/isg.cl
  * pn_isg_mark_triangles; docs/isg.md section 9, "Thin shells"): the n
  * triangles (and their owners) reordered along a 30-bit Morton curve of their
@@ -403,20 +425,7 @@ static void shell_groups(state *s, uint32_t n)
         }
         key[t] = k, order[t] = t;
     }
-    for (int pass = 0; pass < 3; ++pass) { /* stable LSD radix sort, 10 bits a pass */
-        uint32_t histogram[1025] = {0};
-        const int shift = 10 * pass;
-        for (uint32_t i = 0; i < n; ++i)
-            ++histogram[((key[i] >> shift) & 1023u) + 1];
-        for (int b = 0; b < 1024; ++b)
-            histogram[b + 1] += histogram[b];
-        for (uint32_t i = 0; i < n; ++i) {
-            const uint32_t at = histogram[(key[i] >> shift) & 1023u]++;
-            key2[at] = key[i], order2[at] = order[i];
-        }
-        uint32_t *t = key;
-        key = key2, key2 = t, t = order, order = order2, order2 = t;
-    }
+    order = morton_sort(n, key, key2, order, order2);
     for (uint32_t i = 0; i < n; ++i) {
         memcpy(sorted + 12 * (size_t)i, s->tris + 12 * (size_t)order[i], 12 * sizeof(float));
         owners[i] = s->tri_owners[order[i]];
@@ -579,20 +588,7 @@ static pn_status sphere_tree(pn_renderer r, uint32_t n, size_t *node_count)
         }
         key[i] = k, order[i] = i;
     }
-    for (int pass = 0; pass < 3; ++pass) { /* stable LSD radix sort, 10 bits a pass */
-        uint32_t histogram[1025] = {0};
-        const int shift = 10 * pass;
-        for (uint32_t i = 0; i < n; ++i)
-            ++histogram[((key[i] >> shift) & 1023u) + 1];
-        for (int b = 0; b < 1024; ++b)
-            histogram[b + 1] += histogram[b];
-        for (uint32_t i = 0; i < n; ++i) {
-            const uint32_t at = histogram[(key[i] >> shift) & 1023u]++;
-            key2[at] = key[i], order2[at] = order[i];
-        }
-        uint32_t *t = key;
-        key = key2, key2 = t, t = order, order = order2, order2 = t;
-    }
+    order = morton_sort(n, key, key2, order, order2);
     for (uint32_t i = 0; i < n; ++i) {
         memcpy(sorted + 4 * (size_t)i, s->spheres + 4 * (size_t)order[i], 4 * sizeof(float));
         owners[i] = s->owners[order[i]];
