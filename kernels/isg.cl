@@ -278,17 +278,30 @@ inline int pn_isg_mark_sphere_rows(const pn_isg_grid *pg, float cos_cone, float 
  * something new, else 0. */
 #define PN_ISG_SHELL_FLAT 1e-6f
 #define PN_ISG_SHELL_OWN_FLAT 1e-3f
+/* A triangle's vertices from p (a, b, c), its edge-plane normals (bc, ca, ab)
+ * and det = a . (b x c); false when it cannot mark: the receiver's own with
+ * self_occlusion 0, wholly behind the receiver's plane, or seen edge-on
+ * (|det| within the flatness tolerance of the vertices' distances). */
+inline bool pn_isg_triangle_setup(float3 p, float3 n, float3 v0, float3 v1, float3 v2, bool own, int self_occlusion,
+                                  float3 *a, float3 *b, float3 *c, float3 *bc, float3 *ca, float3 *ab, float *det)
+{
+    if (own && self_occlusion == 0)
+        return false;
+    *a = v0 - p, *b = v1 - p, *c = v2 - p;
+    if (dot(*a, n) <= 0.0f && dot(*b, n) <= 0.0f && dot(*c, n) <= 0.0f)
+        return false;
+    *bc = cross(*b, *c), *ca = cross(*c, *a), *ab = cross(*a, *b);
+    *det = dot(*a, *bc);
+    const float tol = own && self_occlusion == 1 ? PN_ISG_SHELL_OWN_FLAT : PN_ISG_SHELL_FLAT;
+    return fabs(*det) > tol * length(*a) * length(*b) * length(*c);
+}
+
 inline int pn_isg_mark_triangle(const pn_isg_grid *pg, float cos_cone, float sin_cone, float3 p, float3 n,
                                 float3 v0, float3 v1, float3 v2, bool own, int self_occlusion, uint *mask)
 {
-    if (own && self_occlusion == 0)
-        return 0;
-    const float3 a = v0 - p, b = v1 - p, c = v2 - p;
-    if (dot(a, n) <= 0.0f && dot(b, n) <= 0.0f && dot(c, n) <= 0.0f)
-        return 0;
-    const float3 bc = cross(b, c), ca = cross(c, a), ab = cross(a, b);
-    const float det = dot(a, bc), tol = own && self_occlusion == 1 ? PN_ISG_SHELL_OWN_FLAT : PN_ISG_SHELL_FLAT;
-    if (!(fabs(det) > tol * length(a) * length(b) * length(c)))
+    float3 a, b, c, bc, ca, ab;
+    float det;
+    if (!pn_isg_triangle_setup(p, n, v0, v1, v2, own, self_occlusion, &a, &b, &c, &bc, &ca, &ab, &det))
         return 0;
     /* The cone cull by the triangle's bounding sphere (centroid, farthest vertex,
      * padded by 1e-4), and the rows that can hold its directions: those whose
@@ -398,14 +411,9 @@ inline uint pn_isg_group_candidates(const pn_isg_grid *pg, float cos_cone, float
 inline int pn_isg_mark_triangle_rows(const pn_isg_grid *pg, float3 p, float3 n, float3 v0, float3 v1, float3 v2,
                                      bool own, int self_occlusion, uint *mask, uint *cand, uint *rows)
 {
-    if (own && self_occlusion == 0)
-        return 0;
-    const float3 a = v0 - p, b = v1 - p, c = v2 - p;
-    if (dot(a, n) <= 0.0f && dot(b, n) <= 0.0f && dot(c, n) <= 0.0f)
-        return 0;
-    const float3 bc = cross(b, c), ca = cross(c, a), ab = cross(a, b);
-    const float det = dot(a, bc), tol = own && self_occlusion == 1 ? PN_ISG_SHELL_OWN_FLAT : PN_ISG_SHELL_FLAT;
-    if (!(fabs(det) > tol * length(a) * length(b) * length(c)))
+    float3 a, b, c, bc, ca, ab;
+    float det;
+    if (!pn_isg_triangle_setup(p, n, v0, v1, v2, own, self_occlusion, &a, &b, &c, &bc, &ca, &ab, &det))
         return 0;
     const int grid = pg->grid;
     const uint full = pn_isg_full_row(grid);
