@@ -264,20 +264,9 @@ inline int pn_isg_mark_sphere_rows(const pn_isg_grid *pg, float cos_cone, float 
     return marked != 0u;
 }
 
-/* Thin shells: a triangle's patches, those whose centre direction d hits it
- * from p (d a positive combination of its vertices seen from p: the three
- * edge planes' normals e_k = +-(b x c, c x a, a x b), signed by the
- * orientation det = a.(b x c), all have d.e_k >= 0). The same 16-wide row
- * and column tests as a sphere's. Skipped: triangles wholly behind the
- * receiver plane, outside the window's cone (by their bounding sphere), and
- * those nearly in the receiver's plane, |det| <= tol |a||b||c| (degenerate
- * triangles, edge-on ones seen from p, the one the receiver lies on): tol is
- * PN_ISG_SHELL_FLAT, or PN_ISG_SHELL_OWN_FLAT for the receiver's own triangles
- * under self_occlusion 1 (its flat neighbourhood on the sheet); own
- * triangles are ignored under self_occlusion 0. Returns 1 when it marked
- * something new, else 0. */
 #define PN_ISG_SHELL_FLAT 1e-6f
 #define PN_ISG_SHELL_OWN_FLAT 1e-3f
+
 /* A triangle's vertices from p (a, b, c), its edge-plane normals (bc, ca, ab)
  * and det = a . (b x c); false when it cannot mark: the receiver's own with
  * self_occlusion 0, wholly behind the receiver's plane, or seen edge-on
@@ -296,6 +285,30 @@ inline bool pn_isg_triangle_setup(float3 p, float3 n, float3 v0, float3 v1, floa
     return fabs(*det) > tol * length(*a) * length(*b) * length(*c);
 }
 
+/* The columns of row (si, ci) = (sin, cos of its polar angle) inside the
+ * triangle: every edge plane's d . e_k >= 0, with h_k (g_k for columns 16-31)
+ * the azimuthal part of d . e_k and ly_k its polar part. */
+inline uint pn_isg_triangle_row(float si, float ci, float16 h0, float16 h1, float16 h2, float16 g0, float16 g1,
+                                float16 g2, float ly0, float ly1, float ly2, int grid)
+{
+    uint cols = pn_isg_bits16((si * h0 + ci * ly0 >= 0.0f) & (si * h1 + ci * ly1 >= 0.0f) & (si * h2 + ci * ly2 >= 0.0f), 0);
+    if (grid > 16)
+        cols |= pn_isg_bits16((si * g0 + ci * ly0 >= 0.0f) & (si * g1 + ci * ly1 >= 0.0f) & (si * g2 + ci * ly2 >= 0.0f), 16);
+    return cols;
+}
+
+/* Thin shells: a triangle's patches, those whose centre direction d hits it
+ * from p (d a positive combination of its vertices seen from p: the three
+ * edge planes' normals e_k = +-(b x c, c x a, a x b), signed by the
+ * orientation det = a.(b x c), all have d.e_k >= 0). The same 16-wide row
+ * and column tests as a sphere's. Skipped: triangles wholly behind the
+ * receiver plane, outside the window's cone (by their bounding sphere), and
+ * those nearly in the receiver's plane, |det| <= tol |a||b||c| (degenerate
+ * triangles, edge-on ones seen from p, the one the receiver lies on): tol is
+ * PN_ISG_SHELL_FLAT, or PN_ISG_SHELL_OWN_FLAT for the receiver's own triangles
+ * under self_occlusion 1 (its flat neighbourhood on the sheet); own
+ * triangles are ignored under self_occlusion 0. Returns 1 when it marked
+ * something new, else 0. */
 inline int pn_isg_mark_triangle(const pn_isg_grid *pg, float cos_cone, float sin_cone, float3 p, float3 n,
                                 float3 v0, float3 v1, float3 v2, bool own, int self_occlusion, uint *mask)
 {
@@ -339,11 +352,7 @@ inline int pn_isg_mark_triangle(const pn_isg_grid *pg, float cos_cone, float sin
         if (row == full)
             continue;
         const float si = pg->sin_c[i], ci = pg->cos_c[i];
-        uint cols = pn_isg_bits16((si * h0 + ci * l0.y >= 0.0f) & (si * h1 + ci * l1.y >= 0.0f) &
-                                  (si * h2 + ci * l2.y >= 0.0f), 0);
-        if (grid > 16)
-            cols |= pn_isg_bits16((si * g0 + ci * l0.y >= 0.0f) & (si * g1 + ci * l1.y >= 0.0f) &
-                                  (si * g2 + ci * l2.y >= 0.0f), 16);
+        const uint cols = pn_isg_triangle_row(si, ci, h0, h1, h2, g0, g1, g2, l0.y, l1.y, l2.y, grid);
         const uint bits = cols & full & ~row;
         mask[i] = row | bits;
         marked |= bits;
@@ -434,11 +443,7 @@ inline int pn_isg_mark_triangle_rows(const pn_isg_grid *pg, float3 p, float3 n, 
         const int i = pn_isg_ctz(f);
         const uint row = mask[i];
         const float si = pg->sin_c[i], ci = pg->cos_c[i];
-        uint cols = pn_isg_bits16((si * h0 + ci * l0.y >= 0.0f) & (si * h1 + ci * l1.y >= 0.0f) &
-                                  (si * h2 + ci * l2.y >= 0.0f), 0);
-        if (grid > 16)
-            cols |= pn_isg_bits16((si * g0 + ci * l0.y >= 0.0f) & (si * g1 + ci * l1.y >= 0.0f) &
-                                  (si * g2 + ci * l2.y >= 0.0f), 16);
+        const uint cols = pn_isg_triangle_row(si, ci, h0, h1, h2, g0, g1, g2, l0.y, l1.y, l2.y, grid);
         const uint bits = cols & full & ~row;
         mask[i] = row | bits;
         marked |= bits;
