@@ -378,6 +378,16 @@ static pn_fiv_options tiny_fiv_options(void)
     return o;
 }
 
+/* A file name of its own in /tmp from a mkstemp template (XXXXXX), not yet
+ * existing: runs of the suite side by side must not share files. */
+static void unique_path(char *path)
+{
+    int fd = mkstemp(path);
+    if (fd >= 0)
+        close(fd);
+    remove(path);
+}
+
 static void bake_outer_sphere_overflow(void)
 {
     rig r;
@@ -391,10 +401,7 @@ static void bake_outer_sphere_overflow(void)
         return rig_release(&r);
     pn_fiv_options o = tiny_fiv_options();
     char path[] = "/tmp/pn_hostile_bake_XXXXXX";
-    int fd = mkstemp(path);
-    if (fd >= 0)
-        close(fd);
-    remove(path);
+    unique_path(path);
     pn_fiv fiv = NULL;
     st = pn_fiv_bake(r.env, big, &o, path, NULL, NULL, &fiv);
     if (st == PN_SUCCESS) {
@@ -471,7 +478,8 @@ static void fiv_header_promises_more_than_the_file(void)
     rig r;
     if (!rig_create(&r))
         return;
-    const char *path = "/tmp/pn_hostile_header.pnfiv";
+    char path[] = "/tmp/pn_hostile_header_XXXXXX";
+    unique_path(path);
     unsigned char h[256];
     if (small_bake(&r, path, h)) {
         put_u32(h + 16, 1025);
@@ -495,7 +503,8 @@ static void fiv_header_nan_centre(void)
     rig r;
     if (!rig_create(&r))
         return;
-    const char *path = "/tmp/pn_hostile_nan.pnfiv";
+    char path[] = "/tmp/pn_hostile_nan_XXXXXX";
+    unique_path(path);
     unsigned char h[256];
     if (small_bake(&r, path, h)) {
         FILE *f = fopen(path, "rb");
