@@ -85,17 +85,24 @@ def least_u2(x0: float, y0: float, rho: float, c: float) -> float:
     return px * px + (py / c) ** 2
 
 
+def x_range(family: int, rho: float, x0: float) -> tuple[float, float]:
+    """The disk's x extent, for Blinn-Phong cut where the profile is below e^-60 of its value at the
+    disk's nearest x (the quadratures' range)."""
+    lo, hi = x0 - rho, x0 + rho
+    if family == BLINN_PHONG:
+        xm = min(max(0.0, lo), hi)
+        lim = math.sqrt(120.0 + xm * xm)
+        lo, hi = max(lo, -lim), min(hi, lim)
+    return lo, hi
+
+
 def log_ratio(family: int, rho: float, c: float, delta_u: float, phi_s: float) -> float:
     """log G: the lobe's average over the disk over its value at the disk's point of least u."""
     if rho <= 0:
         return 0.0
     x0, y0, _ = disk_offset(rho, c, delta_u, phi_s)
     ref = log_lobe(family, math.sqrt(least_u2(x0, y0, rho, c))) if math.hypot(x0, y0) > rho else 0.0
-    lo, hi = x0 - rho, x0 + rho
-    if family == BLINN_PHONG:
-        xm = min(max(0.0, lo), hi)
-        lim = math.sqrt(120.0 + xm * xm)
-        lo, hi = max(lo, -lim), min(hi, lim)
+    lo, hi = x_range(family, rho, x0)
 
     def lv(x):
         h = math.sqrt(max(rho * rho - (x - x0) ** 2, 0.0))
@@ -147,11 +154,7 @@ def moments(family: int, rho: float, c: float, delta_u: float, phi_s: float):
     if rho <= 0:
         return 0.0, 0.0, 0.0, 0.0
     x0, y0, _ = disk_offset(rho, c, delta_u, phi_s)
-    lo, hi = x0 - rho, x0 + rho
-    if family == BLINN_PHONG:
-        xm = min(max(0.0, lo), hi)
-        lim = math.sqrt(120.0 + xm * xm)
-        lo, hi = max(lo, -lim), min(hi, lim)
+    lo, hi = x_range(family, rho, x0)
 
     def half(x):
         return math.sqrt(max(rho * rho - (x - x0) ** 2, 0.0))

@@ -135,6 +135,14 @@ def plane_receivers(rng, h=H, w=W, max_tilt_deg=85.0, extent=(2.0, 1.5)):
     return pos, nrm, np.full((h, w), 1000, np.uint32)
 
 
+def forty_spheres(meshes, fields, rng):
+    """40 spheres of radius 0.3 on an 8 x 5 grid a little above the receivers' plane (heights drawn from
+    rng): the instances and their centres."""
+    gx, gz = np.meshgrid(np.linspace(-2.0, 2.0, 8), np.linspace(-1.5, 1.5, 5))
+    centres = np.stack([gx.ravel(), 0.4 + 0.1 * rng.random(40), gz.ravel()], -1)
+    return [(fields["sphere"], meshes["sphere"][1], translate(c, 0.3)) for c in centres], centres
+
+
 def fibonacci_directions(n):
     k = np.arange(n) + 0.5
     y = 1 - 2 * k / n
@@ -544,9 +552,7 @@ def test_many_occluders_per_tile(ctx, env, meshes, fields):
     rng = np.random.default_rng(21)
     h, w = 12, 20
     pos, nrm, inst = plane_receivers(rng, h=h, w=w, max_tilt_deg=40.0)
-    gx, gz = np.meshgrid(np.linspace(-2.0, 2.0, 8), np.linspace(-1.5, 1.5, 5))
-    centres = np.stack([gx.ravel(), 0.4 + 0.1 * rng.random(40), gz.ravel()], -1)
-    instances = [(fields["sphere"], meshes["sphere"][1], translate(c, 0.3)) for c in centres]
+    instances, centres = forty_spheres(meshes, fields, rng)
     s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
     assert len(s.occluders()) == 40
     for params in (dict(overlap=0), dict(overlap=1, partial=1), dict(overlap=2)):
@@ -576,9 +582,7 @@ def test_disc_slots_are_per_lane(ctx, env, meshes, fields):
     rng = np.random.default_rng(22)
     h, w = 12, 24
     pos, nrm, inst = plane_receivers(rng, h=h, w=w, max_tilt_deg=85.0)
-    gx, gz = np.meshgrid(np.linspace(-2.0, 2.0, 8), np.linspace(-1.5, 1.5, 5))
-    centres = np.stack([gx.ravel(), 0.4 + 0.1 * rng.random(40), gz.ravel()], -1)
-    instances = [(fields["sphere"], meshes["sphere"][1], translate(c, 0.3)) for c in centres]
+    instances, centres = forty_spheres(meshes, fields, rng)
     s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
     ids = [i for _, _, i in s.instances]
     on = rng.random((h, w)) < 0.15

@@ -370,6 +370,14 @@ static uint32_t spread3(uint32_t v)
     return v;
 }
 
+/* x's 10-bit cell in [lo, hi] (0 when the extent is empty), its bits spread for a
+ * 30-bit Morton key (shifted by 2 - axis). */
+static uint32_t morton_axis(float x, float lo, float hi)
+{
+    const float ext = hi - lo, q = ext > 0.0f ? (x - lo) / ext * 1024.0f : 0.0f;
+    return spread3((uint32_t)fminf(fmaxf(q, 0.0f), 1023.0f));
+}
+
 /* The n 30-bit Morton keys in key, with their indices in order, sorted by a
  * stable LSD radix sort of three 10-bit passes (key2 and order2 n entries of
  * scratch each); returns the sorted indices (in order or order2). */
@@ -419,9 +427,7 @@ static void shell_groups(state *s, uint32_t n)
         uint32_t k = 0;
         for (int a = 0; a < 3; ++a) {
             const float *v = s->tris + 12 * (size_t)t + a;
-            const float c = (v[0] + v[4] + v[8]) * (1.0f / 3.0f), ext = hi[a] - lo[a];
-            const float q = ext > 0.0f ? (c - lo[a]) / ext * 1024.0f : 0.0f;
-            k |= spread3((uint32_t)fminf(fmaxf(q, 0.0f), 1023.0f)) << (2 - a);
+            k |= morton_axis((v[0] + v[4] + v[8]) * (1.0f / 3.0f), lo[a], hi[a]) << (2 - a);
         }
         key[t] = k, order[t] = t;
     }
@@ -582,9 +588,7 @@ static pn_status sphere_tree(pn_renderer r, uint32_t n, size_t *node_count)
     for (uint32_t i = 0; i < n; ++i) {
         uint32_t k = 0;
         for (int a = 0; a < 3; ++a) {
-            const float ext = hi[a] - lo[a];
-            const float q = ext > 0.0f ? (s->spheres[4 * i + a] - lo[a]) / ext * 1024.0f : 0.0f;
-            k |= spread3((uint32_t)fminf(fmaxf(q, 0.0f), 1023.0f)) << (2 - a);
+            k |= morton_axis(s->spheres[4 * i + a], lo[a], hi[a]) << (2 - a);
         }
         key[i] = k, order[i] = i;
     }
