@@ -31,6 +31,19 @@
 #ifndef HF_LIGHT_ROWS /* a build option only to measure the per-vertex light search (0) */
 #define HF_LIGHT_ROWS 1
 #endif
+/* Profiling stubs (build options only to measure a part's share; 0 = stubbed). */
+#ifndef HF_PROF_SHADE
+#define HF_PROF_SHADE 1
+#endif
+#ifndef HF_PROF_VIS
+#define HF_PROF_VIS 1
+#endif
+#ifndef HF_PROF_PRODUCT
+#define HF_PROF_PRODUCT 1
+#endif
+#ifndef HF_PROF_SUN
+#define HF_PROF_SUN 1
+#endif
 #ifndef HF_EXIT_BOUND /* added to max |H|: a build option only to test that a wrong bound is caught */
 #define HF_EXIT_BOUND 0.0f
 #endif
@@ -1179,7 +1192,12 @@ inline void hf_env_vertex(int gid, const float *om, global const float4 *normals
 {
     const int nc = nb * nb;
     float v[PN_SH_MAX_COEFFS], cvec[PN_SH_MAX_COEFFS];
+#if HF_PROF_VIS
     hf_visibility(om, n_phi, table, nb, 0.0f, v);
+#else
+    for (int q = 0; q < nc; ++q)
+        v[q] = om[q % n_phi];
+#endif
     const float3 n = normals[gid].xyz;
     hf_cosine(n, nb, cosine_zh, cvec);
     const float3 up = split ? pn_cube_grid_lookup(up_irradiance, up_size, n) : (float3)(0.0f);
@@ -1199,6 +1217,10 @@ inline void hf_env_vertex(int gid, const float *om, global const float4 *normals
     const float zh[8] = {cosine_zh.s0, cosine_zh.s1, cosine_zh.s2, cosine_zh.s3,
                          cosine_zh.s4, cosine_zh.s5, cosine_zh.s6, cosine_zh.s7};
     for (int ch = 0; ch < 3; ++ch) {
+#if !HF_PROF_PRODUCT
+        e[ch] = v[ch] + cvec[ch];
+        continue;
+#endif
         global const float *mc = m + ch * nc * nc;
         float16 acc0 = 0.0f, acc1 = 0.0f, acc2 = 0.0f;
         for (int l = 0; l < nb; ++l) {
@@ -1228,7 +1250,11 @@ inline void hf_env_vertex(int gid, const float *om, global const float4 *normals
         }
         e[ch] = fmax(sum, 0.0f);
     }
+#if HF_PROF_SUN
     const float3 direct = hf_sun(om, n_phi, n, sun, suns);
+#else
+    const float3 direct = (float3)(0.0f);
+#endif
     e[0] += direct.x;
     e[1] += direct.y;
     e[2] += direct.z;
@@ -1272,6 +1298,10 @@ kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid
                 out_total[g] = out_env[g];
                 continue;
             }
+#if !HF_PROF_SHADE
+            out_env[g] = out_total[g] = (float4)(om[q * n_phi]);
+            continue;
+#endif
             hf_env_vertex(g, om + q * n_phi, normals, albedo, has_albedo, n_phi, nb, table, m, cosine_zh, split,
                           up_irradiance, up_size, u, sun, suns, out_env, out_total);
         }
