@@ -1035,7 +1035,7 @@ inline float hf_hsum16(float16 x)
  * B = Σ sign(m) sin(|m| φ_k) c_k, both plain lane-wise chunk arithmetic. */
 inline void hf_visibility(const float *om, int n_phi, global const float *table, int nb, float lo, float *v)
 {
-    const int nc = nb * nb, nch = (nc + 15) / 16;
+    const int nc = nb * nb, nch = (nc + 15) / 16, ns = 16 * nch;
     const float scale = (float)(HF_TABLE - 1) / (0.5f * M_PI_F - lo), dphi = 2.0f * M_PI_F / (float)n_phi;
     /* cos mφ_k and sign(m) sin |m|φ_k per chunk lane, turned from wedge to
      * wedge by the fixed step δ = dphi (a rotation of each lane's pair:
@@ -1064,13 +1064,13 @@ inline void hf_visibility(const float *om, int n_phi, global const float *table,
         const float fb = clamp((om[k + 1 < n_phi ? k + 1 : 0] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
         const int ia = min((int)fa, HF_TABLE - 2), ib = min((int)fb, HF_TABLE - 2);
         const float ta = fa - (float)ia, tb = fb - (float)ib;
-        global const float *t00 = table + (ia * HF_TABLE + ib) * nc, *t01 = t00 + nc;
-        global const float *t10 = t00 + HF_TABLE * nc, *t11 = t10 + nc;
+        global const float *t00 = table + (ia * HF_TABLE + ib) * ns, *t01 = t00 + ns;
+        global const float *t10 = t00 + HF_TABLE * ns, *t11 = t10 + ns;
         /* (c, s) -> (c cos|m|δ - s sign sin|m|δ, s cos|m|δ + c sign sin|m|δ); sign² = 1 where sin|m|δ != 0 */
 #define HF_WEDGE_CHUNK(q, a, b, rc, rs, dc, ds)                                                                 \
     {                                                                                                           \
-        const float16 x = mix(mix(hf_sh_chunk(t00, nc, q), hf_sh_chunk(t01, nc, q), tb),                        \
-                              mix(hf_sh_chunk(t10, nc, q), hf_sh_chunk(t11, nc, q), tb), ta);                   \
+        const float16 x = mix(mix(vload16(q, t00), vload16(q, t01), tb),                                        \
+                              mix(vload16(q, t10), vload16(q, t11), tb), ta);                                   \
         a += rc * x;                                                                                            \
         b += rs * x;                                                                                            \
         const float16 rn = rc * dc - rs * ds;                                                                   \
@@ -1221,18 +1221,18 @@ inline void hf_env_vertex(int gid, const float *om, global const float4 *normals
         e[ch] = v[ch] + cvec[ch];
         continue;
 #endif
-        global const float *mc = m + ch * nc * nc;
+        global const float *mc = m + ch * nc * 16 * nch;
         float16 acc0 = 0.0f, acc1 = 0.0f, acc2 = 0.0f;
         for (int l = 0; l < nb; ++l) {
             if (zh[l] == 0.0f)
                 continue;
             for (int k = l * l; k < (l + 1) * (l + 1); ++k) {
-                global const float *col = mc + k * nc;
-                acc0 += cvec[k] * hf_sh_chunk(col, nc, 0);
+                global const float *col = mc + k * 16 * nch;
+                acc0 += cvec[k] * vload16(0, col);
                 if (nch > 1)
-                    acc1 += cvec[k] * hf_sh_chunk(col, nc, 1);
+                    acc1 += cvec[k] * vload16(1, col);
                 if (nch > 2)
-                    acc2 += cvec[k] * hf_sh_chunk(col, nc, 2);
+                    acc2 += cvec[k] * vload16(2, col);
             }
         }
         float sum = hf_hsum16(acc0 * v0 + acc1 * v1 + acc2 * v2);
