@@ -1066,11 +1066,13 @@ inline void hf_visibility(const float *om, int n_phi, global const float *table,
         const float ta = fa - (float)ia, tb = fb - (float)ib;
         global const float *t00 = table + (ia * HF_TABLE + ib) * ns, *t01 = t00 + ns;
         global const float *t10 = t00 + HF_TABLE * ns, *t11 = t10 + ns;
+        /* the bilinear weights (four FMAs per chunk instead of three mixes) */
+        const float w11 = ta * tb, w10 = ta - w11, w01 = tb - w11, w00 = 1.0f - ta - w01;
         /* (c, s) -> (c cos|m|δ - s sign sin|m|δ, s cos|m|δ + c sign sin|m|δ); sign² = 1 where sin|m|δ != 0 */
 #define HF_WEDGE_CHUNK(q, a, b, rc, rs, dc, ds)                                                                 \
     {                                                                                                           \
-        const float16 x = mix(mix(vload16(q, t00), vload16(q, t01), tb),                                        \
-                              mix(vload16(q, t10), vload16(q, t11), tb), ta);                                   \
+        const float16 x = w00 * vload16(q, t00) + w01 * vload16(q, t01) + w10 * vload16(q, t10) +               \
+                          w11 * vload16(q, t11);                                                                \
         a += rc * x;                                                                                            \
         b += rs * x;                                                                                            \
         const float16 rn = rc * dc - rs * ds;                                                                   \
@@ -1191,7 +1193,8 @@ inline void hf_env_vertex(int gid, const float *om, global const float4 *normals
                           global float4 *out_total)
 {
     const int nc = nb * nb;
-    float v[PN_SH_MAX_COEFFS], cvec[PN_SH_MAX_COEFFS];
+    /* zero-padded to whole chunks */
+    float v[16 * HF_SH_CHUNKS], cvec[16 * HF_SH_CHUNKS];
 #if HF_PROF_VIS
     hf_visibility(om, n_phi, table, nb, 0.0f, v);
 #else
@@ -1200,42 +1203,53 @@ inline void hf_env_vertex(int gid, const float *om, global const float4 *normals
 #endif
     const float3 n = normals[gid].xyz;
     hf_cosine(n, nb, cosine_zh, cvec);
+    for (int q = nc; q < 16 * HF_SH_CHUNKS; ++q)
+        v[q] = cvec[q] = 0.0f;
     const float3 up = split ? pn_cube_grid_lookup(up_irradiance, up_size, n) : (float3)(0.0f);
     const float upv[3] = {up.x, up.y, up.z};
     float e[3];
     /* V^T M C per channel as chunks: acc = Σ_k C_k M_·k (M stored by
-     * columns), then acc · V. The clamped cosine is 0 on the odd bands from
-     * l = 3 on (cosine_zh), so half of the 36 columns are skipped. */
-    const int nch = (nc + 15) / 16;
-    float cpad[16 * HF_SH_CHUNKS], vpad[16 * HF_SH_CHUNKS];
-    for (int q = 0; q < 16 * HF_SH_CHUNKS; ++q) {
-        cpad[q] = q < nc ? cvec[q] : 0.0f;
-        vpad[q] = q < nc ? v[q] : 0.0f;
-    }
-    const float16 c0 = vload16(0, cpad), c1 = vload16(1, cpad), c2 = vload16(2, cpad);
-    const float16 v0 = vload16(0, vpad), v1 = vload16(1, vpad), v2 = vload16(2, vpad);
+     * columns, each padded to whole chunks), then acc · V. The clamped
+     * cosine is 0 on the odd bands from l = 3 on (cosine_zh), so half of the
+     * 36 columns are skipped. The three channels run in one pass over the
+     * columns (each C_k broadcast once; the same sums in the same order). */
+    const int nch = (nc + 15) / 16, ms = nc * 16 * nch;
+    const float16 c0 = vload16(0, cvec), c1 = vload16(1, cvec), c2 = vload16(2, cvec);
+    const float16 v0 = vload16(0, v), v1 = vload16(1, v), v2 = vload16(2, v);
     const float zh[8] = {cosine_zh.s0, cosine_zh.s1, cosine_zh.s2, cosine_zh.s3,
                          cosine_zh.s4, cosine_zh.s5, cosine_zh.s6, cosine_zh.s7};
+    float16 r0 = 0.0f, r1 = 0.0f, r2 = 0.0f, g0 = 0.0f, g1 = 0.0f, g2 = 0.0f, b0 = 0.0f, b1 = 0.0f, b2 = 0.0f;
+#if HF_PROF_PRODUCT
+    for (int l = 0; l < nb; ++l) {
+        if (zh[l] == 0.0f)
+            continue;
+        for (int k = l * l; k < (l + 1) * (l + 1); ++k) {
+            global const float *col = m + k * 16 * nch;
+            const float ck = cvec[k];
+            r0 += ck * vload16(0, col);
+            g0 += ck * vload16(0, col + ms);
+            b0 += ck * vload16(0, col + 2 * ms);
+            if (nch > 1) {
+                r1 += ck * vload16(1, col);
+                g1 += ck * vload16(1, col + ms);
+                b1 += ck * vload16(1, col + 2 * ms);
+            }
+            if (nch > 2) {
+                r2 += ck * vload16(2, col);
+                g2 += ck * vload16(2, col + ms);
+                b2 += ck * vload16(2, col + 2 * ms);
+            }
+        }
+    }
+#endif
+    const float sums[3] = {hf_hsum16(r0 * v0 + r1 * v1 + r2 * v2), hf_hsum16(g0 * v0 + g1 * v1 + g2 * v2),
+                           hf_hsum16(b0 * v0 + b1 * v1 + b2 * v2)};
     for (int ch = 0; ch < 3; ++ch) {
 #if !HF_PROF_PRODUCT
         e[ch] = v[ch] + cvec[ch];
         continue;
 #endif
-        global const float *mc = m + ch * nc * 16 * nch;
-        float16 acc0 = 0.0f, acc1 = 0.0f, acc2 = 0.0f;
-        for (int l = 0; l < nb; ++l) {
-            if (zh[l] == 0.0f)
-                continue;
-            for (int k = l * l; k < (l + 1) * (l + 1); ++k) {
-                global const float *col = mc + k * 16 * nch;
-                acc0 += cvec[k] * vload16(0, col);
-                if (nch > 1)
-                    acc1 += cvec[k] * vload16(1, col);
-                if (nch > 2)
-                    acc2 += cvec[k] * vload16(2, col);
-            }
-        }
-        float sum = hf_hsum16(acc0 * v0 + acc1 * v1 + acc2 * v2);
+        float sum = sums[ch];
         if (split) {
             global const float *uch = u + ch * PN_SH_MAX_COEFFS;
             float16 ud = hf_sh_chunk(uch, nc, 0) * c0;
