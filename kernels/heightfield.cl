@@ -888,6 +888,11 @@ inline float hf_horizon_exact_at(global const float *pyr, int4 grid, float8 geom
 inline float hf_disc_above(float e, float h, float r)
 {
     const float x = clamp((e - h) / fmax(r, 1e-6f), -1.0f, 1.0f);
+    /* wholly below or above the horizon: the formula's own 0 and 1 (exactly), without the asin */
+    if (x <= -1.0f)
+        return 0.0f;
+    if (x >= 1.0f)
+        return 1.0f;
     return clamp(0.5f + (x * sqrt(1.0f - x * x) + asin(x)) * M_1_PI_F, 0.0f, 1.0f);
 }
 
