@@ -31,6 +31,19 @@
 #ifndef HF_LIGHT_ROWS /* a build option only to measure the per-vertex light search (0) */
 #define HF_LIGHT_ROWS 1
 #endif
+/* Profiling stubs (build options only to measure a part's share; 0 = stubbed). */
+#ifndef HF_PROF_SHADE
+#define HF_PROF_SHADE 1
+#endif
+#ifndef HF_PROF_VIS
+#define HF_PROF_VIS 1
+#endif
+#ifndef HF_PROF_PRODUCT
+#define HF_PROF_PRODUCT 1
+#endif
+#ifndef HF_PROF_SUN
+#define HF_PROF_SUN 1
+#endif
 #ifndef HF_EXIT_BOUND /* added to max |H|: a build option only to test that a wrong bound is caught */
 #define HF_EXIT_BOUND 0.0f
 #endif
@@ -875,6 +888,11 @@ inline float hf_horizon_exact_at(global const float *pyr, int4 grid, float8 geom
 inline float hf_disc_above(float e, float h, float r)
 {
     const float x = clamp((e - h) / fmax(r, 1e-6f), -1.0f, 1.0f);
+    /* wholly below or above the horizon: the formula's own 0 and 1 (exactly), without the asin */
+    if (x <= -1.0f)
+        return 0.0f;
+    if (x >= 1.0f)
+        return 1.0f;
     return clamp(0.5f + (x * sqrt(1.0f - x * x) + asin(x)) * M_1_PI_F, 0.0f, 1.0f);
 }
 
@@ -1022,7 +1040,7 @@ inline float hf_hsum16(float16 x)
  * B = Σ sign(m) sin(|m| φ_k) c_k, both plain lane-wise chunk arithmetic. */
 inline void hf_visibility(const float *om, int n_phi, global const float *table, int nb, float lo, float *v)
 {
-    const int nc = nb * nb, nch = (nc + 15) / 16;
+    const int nc = nb * nb, nch = (nc + 15) / 16, ns = 16 * nch;
     const float scale = (float)(HF_TABLE - 1) / (0.5f * M_PI_F - lo), dphi = 2.0f * M_PI_F / (float)n_phi;
     /* cos mφ_k and sign(m) sin |m|φ_k per chunk lane, turned from wedge to
      * wedge by the fixed step δ = dphi (a rotation of each lane's pair:
@@ -1051,13 +1069,15 @@ inline void hf_visibility(const float *om, int n_phi, global const float *table,
         const float fb = clamp((om[k + 1 < n_phi ? k + 1 : 0] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
         const int ia = min((int)fa, HF_TABLE - 2), ib = min((int)fb, HF_TABLE - 2);
         const float ta = fa - (float)ia, tb = fb - (float)ib;
-        global const float *t00 = table + (ia * HF_TABLE + ib) * nc, *t01 = t00 + nc;
-        global const float *t10 = t00 + HF_TABLE * nc, *t11 = t10 + nc;
+        global const float *t00 = table + (ia * HF_TABLE + ib) * ns, *t01 = t00 + ns;
+        global const float *t10 = t00 + HF_TABLE * ns, *t11 = t10 + ns;
+        /* the bilinear weights (four FMAs per chunk instead of three mixes) */
+        const float w11 = ta * tb, w10 = ta - w11, w01 = tb - w11, w00 = 1.0f - ta - w01;
         /* (c, s) -> (c cos|m|δ - s sign sin|m|δ, s cos|m|δ + c sign sin|m|δ); sign² = 1 where sin|m|δ != 0 */
 #define HF_WEDGE_CHUNK(q, a, b, rc, rs, dc, ds)                                                                 \
     {                                                                                                           \
-        const float16 x = mix(mix(hf_sh_chunk(t00, nc, q), hf_sh_chunk(t01, nc, q), tb),                        \
-                              mix(hf_sh_chunk(t10, nc, q), hf_sh_chunk(t11, nc, q), tb), ta);                   \
+        const float16 x = w00 * vload16(q, t00) + w01 * vload16(q, t01) + w10 * vload16(q, t10) +               \
+                          w11 * vload16(q, t11);                                                                \
         a += rc * x;                                                                                            \
         b += rs * x;                                                                                            \
         const float16 rn = rc * dc - rs * ds;                                                                   \
@@ -1178,42 +1198,63 @@ inline void hf_env_vertex(int gid, const float *om, global const float4 *normals
                           global float4 *out_total)
 {
     const int nc = nb * nb;
-    float v[PN_SH_MAX_COEFFS], cvec[PN_SH_MAX_COEFFS];
+    /* zero-padded to whole chunks */
+    float v[16 * HF_SH_CHUNKS], cvec[16 * HF_SH_CHUNKS];
+#if HF_PROF_VIS
     hf_visibility(om, n_phi, table, nb, 0.0f, v);
+#else
+    for (int q = 0; q < nc; ++q)
+        v[q] = om[q % n_phi];
+#endif
     const float3 n = normals[gid].xyz;
     hf_cosine(n, nb, cosine_zh, cvec);
+    for (int q = nc; q < 16 * HF_SH_CHUNKS; ++q)
+        v[q] = cvec[q] = 0.0f;
     const float3 up = split ? pn_cube_grid_lookup(up_irradiance, up_size, n) : (float3)(0.0f);
     const float upv[3] = {up.x, up.y, up.z};
     float e[3];
     /* V^T M C per channel as chunks: acc = Σ_k C_k M_·k (M stored by
-     * columns), then acc · V. The clamped cosine is 0 on the odd bands from
-     * l = 3 on (cosine_zh), so half of the 36 columns are skipped. */
-    const int nch = (nc + 15) / 16;
-    float cpad[16 * HF_SH_CHUNKS], vpad[16 * HF_SH_CHUNKS];
-    for (int q = 0; q < 16 * HF_SH_CHUNKS; ++q) {
-        cpad[q] = q < nc ? cvec[q] : 0.0f;
-        vpad[q] = q < nc ? v[q] : 0.0f;
-    }
-    const float16 c0 = vload16(0, cpad), c1 = vload16(1, cpad), c2 = vload16(2, cpad);
-    const float16 v0 = vload16(0, vpad), v1 = vload16(1, vpad), v2 = vload16(2, vpad);
+     * columns, each padded to whole chunks), then acc · V. The clamped
+     * cosine is 0 on the odd bands from l = 3 on (cosine_zh), so half of the
+     * 36 columns are skipped. The three channels run in one pass over the
+     * columns (each C_k broadcast once; the same sums in the same order). */
+    const int nch = (nc + 15) / 16, ms = nc * 16 * nch;
+    const float16 c0 = vload16(0, cvec), c1 = vload16(1, cvec), c2 = vload16(2, cvec);
+    const float16 v0 = vload16(0, v), v1 = vload16(1, v), v2 = vload16(2, v);
     const float zh[8] = {cosine_zh.s0, cosine_zh.s1, cosine_zh.s2, cosine_zh.s3,
                          cosine_zh.s4, cosine_zh.s5, cosine_zh.s6, cosine_zh.s7};
-    for (int ch = 0; ch < 3; ++ch) {
-        global const float *mc = m + ch * nc * nc;
-        float16 acc0 = 0.0f, acc1 = 0.0f, acc2 = 0.0f;
-        for (int l = 0; l < nb; ++l) {
-            if (zh[l] == 0.0f)
-                continue;
-            for (int k = l * l; k < (l + 1) * (l + 1); ++k) {
-                global const float *col = mc + k * nc;
-                acc0 += cvec[k] * hf_sh_chunk(col, nc, 0);
-                if (nch > 1)
-                    acc1 += cvec[k] * hf_sh_chunk(col, nc, 1);
-                if (nch > 2)
-                    acc2 += cvec[k] * hf_sh_chunk(col, nc, 2);
+    float16 r0 = 0.0f, r1 = 0.0f, r2 = 0.0f, g0 = 0.0f, g1 = 0.0f, g2 = 0.0f, b0 = 0.0f, b1 = 0.0f, b2 = 0.0f;
+#if HF_PROF_PRODUCT
+    for (int l = 0; l < nb; ++l) {
+        if (zh[l] == 0.0f)
+            continue;
+        for (int k = l * l; k < (l + 1) * (l + 1); ++k) {
+            global const float *col = m + k * 16 * nch;
+            const float ck = cvec[k];
+            r0 += ck * vload16(0, col);
+            g0 += ck * vload16(0, col + ms);
+            b0 += ck * vload16(0, col + 2 * ms);
+            if (nch > 1) {
+                r1 += ck * vload16(1, col);
+                g1 += ck * vload16(1, col + ms);
+                b1 += ck * vload16(1, col + 2 * ms);
+            }
+            if (nch > 2) {
+                r2 += ck * vload16(2, col);
+                g2 += ck * vload16(2, col + ms);
+                b2 += ck * vload16(2, col + 2 * ms);
             }
         }
-        float sum = hf_hsum16(acc0 * v0 + acc1 * v1 + acc2 * v2);
+    }
+#endif
+    const float sums[3] = {hf_hsum16(r0 * v0 + r1 * v1 + r2 * v2), hf_hsum16(g0 * v0 + g1 * v1 + g2 * v2),
+                           hf_hsum16(b0 * v0 + b1 * v1 + b2 * v2)};
+    for (int ch = 0; ch < 3; ++ch) {
+#if !HF_PROF_PRODUCT
+        e[ch] = v[ch] + cvec[ch];
+        continue;
+#endif
+        float sum = sums[ch];
         if (split) {
             global const float *uch = u + ch * PN_SH_MAX_COEFFS;
             float16 ud = hf_sh_chunk(uch, nc, 0) * c0;
@@ -1228,7 +1269,11 @@ inline void hf_env_vertex(int gid, const float *om, global const float4 *normals
         }
         e[ch] = fmax(sum, 0.0f);
     }
+#if HF_PROF_SUN
     const float3 direct = hf_sun(om, n_phi, n, sun, suns);
+#else
+    const float3 direct = (float3)(0.0f);
+#endif
     e[0] += direct.x;
     e[1] += direct.y;
     e[2] += direct.z;
@@ -1272,6 +1317,10 @@ kernel void hf_env(global const float *pyr, global const int4 *levels, int4 grid
                 out_total[g] = out_env[g];
                 continue;
             }
+#if !HF_PROF_SHADE
+            out_env[g] = out_total[g] = (float4)(om[q * n_phi]);
+            continue;
+#endif
             hf_env_vertex(g, om + q * n_phi, normals, albedo, has_albedo, n_phi, nb, table, m, cosine_zh, split,
                           up_irradiance, up_size, u, sun, suns, out_env, out_total);
         }

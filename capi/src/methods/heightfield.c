@@ -151,6 +151,28 @@ static void destroy(pn_renderer r)
     free(c->outputs_lights);
 }
 
+/* SH vectors on the device: nc coefficients padded with zeros to whole
+ * chunks of 16 floats (the kernels' float16 chunks), so every chunk load is
+ * one aligned vload16 of a whole 64-byte line. */
+static int sh_stride(int nc)
+{
+    return 16 * ((nc + 15) / 16);
+}
+
+/* `rows` vectors of nc floats at src, uploaded padded to sh_stride(nc). */
+static pn_status alloc_padded(pn_context ctx, const float *src, size_t rows, int nc, cl_mem *out, const char *what)
+{
+    const int ns = sh_stride(nc);
+    float *p = calloc(rows * (size_t)ns, sizeof(float));
+    if (!p)
+        return pn_fail(ctx, PN_ERROR_OUT_OF_MEMORY, "out of memory for a padded SH table");
+    for (size_t r = 0; r < rows; ++r)
+        memcpy(p + r * ns, src + r * nc, (size_t)nc * sizeof(float));
+    pn_status st = pn_alloc(ctx, rows * (size_t)ns * sizeof(float), CL_MEM_READ_ONLY, p, out, what);
+    free(p);
+    return st;
+}
+
 /* Wedge tables for (n_phi, bands) and the triple product for `bands`. */
 static pn_status prepare_tables(pn_context ctx, pn_hf_cache *c, int n_phi, int nb)
 {
@@ -158,14 +180,14 @@ static pn_status prepare_tables(pn_context ctx, pn_hf_cache *c, int n_phi, int n
     const int nc = nb * nb;
     if (c->tables_nphi != n_phi || c->tables_nb != nb) {
         const float *env = NULL, *light = NULL;
-        const size_t bytes = (size_t)PN_SH_WEDGE_ANGLES * PN_SH_WEDGE_ANGLES * nc * sizeof(float);
+        const size_t rows = (size_t)PN_SH_WEDGE_ANGLES * PN_SH_WEDGE_ANGLES;
         pn_mem_release(&c->env_table);
         pn_mem_release(&c->light_table);
         c->tables_nphi = 0;
         if (!(st = pn_sh_wedge_table(ctx, n_phi, nb, false, &env)) &&
             !(st = pn_sh_wedge_table(ctx, n_phi, nb, true, &light)) &&
-            !(st = pn_alloc(ctx, bytes, CL_MEM_READ_ONLY, env, &c->env_table, "the environment wedge table")) &&
-            !(st = pn_alloc(ctx, bytes, CL_MEM_READ_ONLY, light, &c->light_table, "the light wedge table"))) {
+            !(st = alloc_padded(ctx, env, rows, nc, &c->env_table, "the environment wedge table")) &&
+            !(st = alloc_padded(ctx, light, rows, nc, &c->light_table, "the light wedge table"))) {
             c->tables_nphi = n_phi;
             c->tables_nb = nb;
         }
@@ -400,8 +422,7 @@ static pn_status prepare_env(pn_context ctx, pn_hf_cache *c, pn_envmap env, int 
         c->env_ref = (float)(power / 4.0);
         pn_mem_release(&c->m);
         pn_mem_release(&c->u_buf);
-        if (!(st = pn_alloc(ctx, (size_t)3 * nc * nc * sizeof(float), CL_MEM_READ_ONLY, m, &c->m,
-                            "the env's SH product matrices")))
+        if (!(st = alloc_padded(ctx, m, (size_t)3 * nc, nc, &c->m, "the env's SH product matrices")))
             st = pn_alloc(ctx, sizeof c->u, CL_MEM_READ_ONLY, c->u, &c->u_buf, "the upper hemisphere's SH product");
     }
     /* The upper half's irradiance map, by the env map's own irradiance kernel. */
