@@ -643,6 +643,9 @@ HF_INLINE void hf_horizon_pyramid_row2(global const float *pyr, global const int
     }
     HF_WINDOW_FINISH_N(wA0, wA1, wA2, bestA, knotA, midA, countA, *outA)
     HF_WINDOW_FINISH_N(wB0, wB1, wB2, bestB, knotB, midB, countB, *outB)
+#ifdef HF_COUNT_SAMPLES /* a build option only to measure the early exits: the samples taken, not the horizon */
+    *outA = *outB = (float)countA;
+#endif
 }
 
 /* Partial updates (docs/heightfield.md, "Dynamic terrain"): changed[k] is
