@@ -64,8 +64,8 @@ PHASES = [("G-buffer read, image write (floor)", None, "floor"),
 # Floating-point operations per lookup, counted from kernels/fiv.cl (an atan2
 # = 20: divide, 7-term polynomial, fix-ups; a log = 20; a sqrt or divide = 1).
 PHASE_OPS = {"loop": 14 + 24, "indices": 92, "sum": 183}
-# Bytes per lookup read from the field: 8 samples x 9 halves.
-FETCH_BYTES = 8 * 9 * 2
+# Bytes per lookup read from the field: 8 samples x 9 floats (float32 on the device).
+FETCH_BYTES = 8 * 9 * 4
 # Bytes per pixel to and from memory: position, normal, albedo (float4),
 # instance id (uint), image (float4).
 PIXEL_BYTES = 16 * 3 + 4 + 16

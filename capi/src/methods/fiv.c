@@ -149,8 +149,11 @@ static void bin_bounds(const struct pn_fiv_impl *f, const float *cells, float *o
     }
 }
 
-/* Concatenates the scene's fields as stored on the device (half or float),
- * each at a 16-byte aligned offset and followed by its cell bounds and its
+/* Concatenates the scene's fields as stored on the device, float32 whatever
+ * the bake's precision (a half-float field's values, value / value_scale,
+ * converted exactly: the lookup multiplies each tap's 9 values by its
+ * weights straight from memory, kernels/fiv.cl, pn_fiv_add8_all), each at a
+ * 16-byte aligned offset and followed by its cell bounds and its
  * direction-bin bounds (float, 16-byte aligned); rebuilt when the list
  * changes. */
 static pn_status upload_fields(state *cache, pn_scene scene)
@@ -164,8 +167,7 @@ static pn_status upload_fields(state *cache, pn_scene scene)
     size_t total = 0;
     for (uint32_t i = 0; i < cache->field_count; ++i) {
         const pn_fiv f = cache->fields[i];
-        size_t elem = f->options.precision == PN_PRECISION_FLOAT16 ? 2u : 4u;
-        total += ((size_t)pn_fiv_sample_count(&f->options) * 9u * elem + 15u) & ~(size_t)15u;
+        total += ((size_t)pn_fiv_sample_count(&f->options) * 9u * sizeof(float) + 15u) & ~(size_t)15u;
         total += (cell_bound_count(f) * sizeof(float) + 15u) & ~(size_t)15u;
         total += PN_FIV_BINS_Z * PN_FIV_BINS_P * sizeof(float);
     }
@@ -186,14 +188,13 @@ static pn_status upload_fields(state *cache, pn_scene scene)
         const size_t n = (size_t)pn_fiv_sample_count(&f->options) * 9u;
         cache->offsets[i] = (uint32_t)at;
         if (f->options.precision == PN_PRECISION_FLOAT16) {
-            uint16_t *h = (uint16_t *)(void *)(host + at);
+            float *h = (float *)(void *)(host + at);
             for (size_t k = 0; k < n; ++k)
-                h[k] = pn_half_from_float(f->samples[k] / f->value_scale);
-            at += (n * 2u + 15u) & ~(size_t)15u;
+                h[k] = pn_float_from_half(pn_half_from_float(f->samples[k] / f->value_scale));
         } else {
             memcpy(host + at, f->samples, n * 4u);
-            at += (n * 4u + 15u) & ~(size_t)15u;
         }
+        at += (n * 4u + 15u) & ~(size_t)15u;
         float *cells = (float *)(void *)(host + at);
         cell_bounds(f, cells);
         at += (cell_bound_count(f) * sizeof(float) + 15u) & ~(size_t)15u;
@@ -317,8 +318,7 @@ static pn_status build_records(pn_renderer r, pn_scene scene, uint32_t *count_ou
             cull = f->outer * sqrtf(fmaxf(f->outer_max / fmaxf(floor_e, 1e-30f), 1.0f));
         }
         rec[7] = sc * cull;
-        const uint32_t u[6] = {s->offsets[fi], f->options.theta, f->options.phi, f->options.radii, id,
-                               f->options.precision == PN_PRECISION_FLOAT16 ? 1u : 0u};
+        const uint32_t u[6] = {s->offsets[fi], f->options.theta, f->options.phi, f->options.radii, id, 0u};
         memcpy(rec + 8, u, 4 * sizeof(uint32_t));
         memcpy(rec + 12, u + 4, 2 * sizeof(uint32_t));
         rec[14] = f->options.precision == PN_PRECISION_FLOAT16 ? f->value_scale : 1.0f;
