@@ -568,6 +568,44 @@ PN_FIV_INLINE int pn_fiv_any8(int8 m)
     return (b.x | b.y) < 0;
 }
 
+/* The unshadowed irradiance (pn_cube_grid_lookup) of the lanes of `active`
+ * (0 in the others): the face and cell of each lane in lanes
+ * (pn_cube_grid_cell8v). When the active lanes' cells are one cell (8
+ * neighbouring pixels of a flat surface share one normal: most of a
+ * floor), its 4 samples are read once and mixed in lanes, channel by
+ * channel with each lane's fractions: mix on float8 does per element what
+ * mix on the float4 samples does per lane (the same bits). Else lane by
+ * lane, 4 samples each. */
+PN_FIV_INLINE void pn_fiv_irradiance8(global const float4 *irradiance, int m, float8 nx, float8 ny, float8 nz,
+                                      int8 active, float8 *tot_r, float8 *tot_g, float8 *tot_b)
+{
+    int8 cell;
+    float8 fx, fy;
+    pn_cube_grid_cell8v(m, nx, ny, nz, &cell, &fx, &fy);
+    const int2 span = pn_fiv_range8(cell, active);
+    float8 r = 0.0f, g = 0.0f, b = 0.0f;
+    if (span.x == span.y) {
+        global const float4 *row0 = irradiance + span.x, *row1 = row0 + m;
+        const float4 s00 = row0[0], s01 = row0[1], s10 = row1[0], s11 = row1[1];
+        r = mix(mix((float8)(s00.x), (float8)(s01.x), fx), mix((float8)(s10.x), (float8)(s11.x), fx), fy);
+        g = mix(mix((float8)(s00.y), (float8)(s01.y), fx), mix((float8)(s10.y), (float8)(s11.y), fx), fy);
+        b = mix(mix((float8)(s00.z), (float8)(s01.z), fx), mix((float8)(s10.z), (float8)(s11.z), fx), fy);
+        *tot_r = select((float8)(0.0f), r, active), *tot_g = select((float8)(0.0f), g, active);
+        *tot_b = select((float8)(0.0f), b, active);
+        return;
+    }
+#define PN_FIV_IRRADIANCE_LANE(l)                                                                 \
+    if (active.s##l) {                                                                            \
+        global const float4 *row0 = irradiance + cell.s##l, *row1 = row0 + m;                     \
+        float4 e = mix(mix(row0[0], row0[1], fx.s##l), mix(row1[0], row1[1], fx.s##l), fy.s##l); \
+        r.s##l = e.x, g.s##l = e.y, b.s##l = e.z;                                                 \
+    }
+    PN_FIV_IRRADIANCE_LANE(0) PN_FIV_IRRADIANCE_LANE(1) PN_FIV_IRRADIANCE_LANE(2) PN_FIV_IRRADIANCE_LANE(3)
+    PN_FIV_IRRADIANCE_LANE(4) PN_FIV_IRRADIANCE_LANE(5) PN_FIV_IRRADIANCE_LANE(6) PN_FIV_IRRADIANCE_LANE(7)
+#undef PN_FIV_IRRADIANCE_LANE
+    *tot_r = r, *tot_g = g, *tot_b = b;
+}
+
 /* One work-item per 8 pixels of a row (above): global size
  * ceil(width / 8) x height. */
 kernel void shade_fiv(global const float4 *position, global const float4 *normal, global const float4 *albedo,
@@ -623,29 +661,19 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     nx = select((float8)(0.0f), nx, active), ny = select((float8)(1.0f), ny, active);
     nz = select((float8)(0.0f), nz, active);
     pn_normalize8(&nx, &ny, &nz);
-    /* per-lane copies for the scalar code below (a vector store, read back one
-     * lane at a time, forwards) */
-    float lp[3][PN_FIV_LANES], ln[3][PN_FIV_LANES];
-    uint lid[PN_FIV_LANES];
-    int lactive[PN_FIV_LANES];
-    vstore8(id8, 0, lid);
-    vstore8(active, 0, lactive);
-    vstore8(px, 0, lp[0]), vstore8(py, 0, lp[1]), vstore8(pz, 0, lp[2]);
-    vstore8(nx, 0, ln[0]), vstore8(ny, 0, ln[1]), vstore8(nz, 0, ln[2]);
-    int cface[PN_FIV_LANES], cx[PN_FIV_LANES], cy[PN_FIV_LANES];
-    float cfx[PN_FIV_LANES], cfy[PN_FIV_LANES];
-    pn_cube_grid_cell8(m, nx, ny, nz, cface, cx, cy, cfx, cfy);
     float8 tot_r = 0.0f, tot_g = 0.0f, tot_b = 0.0f;
-#define PN_FIV_IRRADIANCE_LANE(l)                                                                       \
-    if (lactive[l]) {                                                                                   \
-        float3 e = pn_cube_grid_fetch(irradiance, m, cface[l], cx[l], cy[l], cfx[l], cfy[l]);           \
-        tot_r.s##l = e.x, tot_g.s##l = e.y, tot_b.s##l = e.z;                                           \
-    }
-    PN_FIV_IRRADIANCE_LANE(0) PN_FIV_IRRADIANCE_LANE(1) PN_FIV_IRRADIANCE_LANE(2) PN_FIV_IRRADIANCE_LANE(3)
-    PN_FIV_IRRADIANCE_LANE(4) PN_FIV_IRRADIANCE_LANE(5) PN_FIV_IRRADIANCE_LANE(6) PN_FIV_IRRADIANCE_LANE(7)
-#undef PN_FIV_IRRADIANCE_LANE
+    pn_fiv_irradiance8(irradiance, m, nx, ny, nz, active, &tot_r, &tot_g, &tot_b);
     float8 base_r = tot_r, base_g = tot_g, base_b = tot_b;
     if (self_shadow) {
+        /* per-lane copies for the scalar code below (a vector store, read
+         * back one lane at a time, forwards) */
+        float lp[3][PN_FIV_LANES], ln[3][PN_FIV_LANES];
+        uint lid[PN_FIV_LANES];
+        int lactive[PN_FIV_LANES];
+        vstore8(id8, 0, lid);
+        vstore8(active, 0, lactive);
+        vstore8(px, 0, lp[0]), vstore8(py, 0, lp[1]), vstore8(pz, 0, lp[2]);
+        vstore8(nx, 0, ln[0]), vstore8(ny, 0, ln[1]), vstore8(nz, 0, ln[2]);
         const int8 lane = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
         for (int l = 0; l < PN_FIV_LANES; ++l) {
             if (!lactive[l])
