@@ -569,16 +569,23 @@ PN_FIV_INLINE int pn_fiv_any8(int8 m)
 }
 
 /* The unshadowed irradiance (pn_cube_grid_lookup) of the lanes of `active`
- * (0 in the others): the face and cell of each lane in lanes
- * (pn_cube_grid_cell8v). When the active lanes' cells are one cell (8
- * neighbouring pixels of a flat surface share one normal: most of a
- * floor), its 4 samples are read once and mixed in lanes, channel by
- * channel with each lane's fractions: mix on float8 does per element what
- * mix on the float4 samples does per lane (the same bits). Else lane by
- * lane, 4 samples each. */
+ * (0 in the others). Lanes with one normal (`one_normal`: 8 neighbouring
+ * pixels of a flat surface, 99 % of the work-items with one bunny on a
+ * floor) are one lookup, broadcast. Else the face and cell of each lane in
+ * lanes (pn_cube_grid_cell8v); when the active lanes' cells are one cell,
+ * its 4 samples are read once and mixed in lanes, channel by channel with
+ * each lane's fractions (mix on float8 does per element what mix on the
+ * float4 samples does per lane: the same bits); else lane by lane, 4
+ * samples each. */
 PN_FIV_INLINE void pn_fiv_irradiance8(global const float4 *irradiance, int m, float8 nx, float8 ny, float8 nz,
-                                      int8 active, float8 *tot_r, float8 *tot_g, float8 *tot_b)
+                                      int8 active, bool one_normal, float8 *tot_r, float8 *tot_g, float8 *tot_b)
 {
+    if (one_normal) {
+        const float3 e = pn_cube_grid_lookup(irradiance, m, (float3)(nx.s0, ny.s0, nz.s0));
+        *tot_r = select((float8)(0.0f), (float8)(e.x), active), *tot_g = select((float8)(0.0f), (float8)(e.y), active);
+        *tot_b = select((float8)(0.0f), (float8)(e.z), active);
+        return;
+    }
     int8 cell;
     float8 fx, fy;
     pn_cube_grid_cell8v(m, nx, ny, nz, &cell, &fx, &fy);
@@ -660,9 +667,12 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     pz = select((float8)(0.0f), pz, active);
     nx = select((float8)(0.0f), nx, active), ny = select((float8)(1.0f), ny, active);
     nz = select((float8)(0.0f), nz, active);
+    /* 8 neighbouring pixels of a flat surface share one normal (most of a
+     * floor): their irradiance is looked up once (pn_fiv_irradiance8) */
+    const bool one_normal = !pn_fiv_any8(~((nx == nx.s0) & (ny == ny.s0) & (nz == nz.s0)));
     pn_normalize8(&nx, &ny, &nz);
     float8 tot_r = 0.0f, tot_g = 0.0f, tot_b = 0.0f;
-    pn_fiv_irradiance8(irradiance, m, nx, ny, nz, active, &tot_r, &tot_g, &tot_b);
+    pn_fiv_irradiance8(irradiance, m, nx, ny, nz, active, one_normal, &tot_r, &tot_g, &tot_b);
     float8 base_r = tot_r, base_g = tot_g, base_b = tot_b;
     if (self_shadow) {
         /* per-lane copies for the scalar code below (a vector store, read
