@@ -568,51 +568,6 @@ PN_FIV_INLINE int pn_fiv_any8(int8 m)
     return (b.x | b.y) < 0;
 }
 
-/* The unshadowed irradiance (pn_cube_grid_lookup) of the lanes of `active`
- * (0 in the others). Lanes with one normal (`one_normal`: 8 neighbouring
- * pixels of a flat surface, 99 % of the work-items with one bunny on a
- * floor) are one lookup, broadcast. Else the face and cell of each lane in
- * lanes (pn_cube_grid_cell8v); when the active lanes' cells are one cell,
- * its 4 samples are read once and mixed in lanes, channel by channel with
- * each lane's fractions (mix on float8 does per element what mix on the
- * float4 samples does per lane: the same bits); else lane by lane, 4
- * samples each. */
-PN_FIV_INLINE void pn_fiv_irradiance8(global const float4 *irradiance, int m, float8 nx, float8 ny, float8 nz,
-                                      int8 active, bool one_normal, float8 *tot_r, float8 *tot_g, float8 *tot_b)
-{
-    if (one_normal) {
-        const float3 e = pn_cube_grid_lookup(irradiance, m, (float3)(nx.s0, ny.s0, nz.s0));
-        *tot_r = select((float8)(0.0f), (float8)(e.x), active), *tot_g = select((float8)(0.0f), (float8)(e.y), active);
-        *tot_b = select((float8)(0.0f), (float8)(e.z), active);
-        return;
-    }
-    int8 cell;
-    float8 fx, fy;
-    pn_cube_grid_cell8v(m, nx, ny, nz, &cell, &fx, &fy);
-    const int2 span = pn_fiv_range8(cell, active);
-    float8 r = 0.0f, g = 0.0f, b = 0.0f;
-    if (span.x == span.y) {
-        global const float4 *row0 = irradiance + span.x, *row1 = row0 + m;
-        const float4 s00 = row0[0], s01 = row0[1], s10 = row1[0], s11 = row1[1];
-        r = mix(mix((float8)(s00.x), (float8)(s01.x), fx), mix((float8)(s10.x), (float8)(s11.x), fx), fy);
-        g = mix(mix((float8)(s00.y), (float8)(s01.y), fx), mix((float8)(s10.y), (float8)(s11.y), fx), fy);
-        b = mix(mix((float8)(s00.z), (float8)(s01.z), fx), mix((float8)(s10.z), (float8)(s11.z), fx), fy);
-        *tot_r = select((float8)(0.0f), r, active), *tot_g = select((float8)(0.0f), g, active);
-        *tot_b = select((float8)(0.0f), b, active);
-        return;
-    }
-#define PN_FIV_IRRADIANCE_LANE(l)                                                                 \
-    if (active.s##l) {                                                                            \
-        global const float4 *row0 = irradiance + cell.s##l, *row1 = row0 + m;                     \
-        float4 e = mix(mix(row0[0], row0[1], fx.s##l), mix(row1[0], row1[1], fx.s##l), fy.s##l); \
-        r.s##l = e.x, g.s##l = e.y, b.s##l = e.z;                                                 \
-    }
-    PN_FIV_IRRADIANCE_LANE(0) PN_FIV_IRRADIANCE_LANE(1) PN_FIV_IRRADIANCE_LANE(2) PN_FIV_IRRADIANCE_LANE(3)
-    PN_FIV_IRRADIANCE_LANE(4) PN_FIV_IRRADIANCE_LANE(5) PN_FIV_IRRADIANCE_LANE(6) PN_FIV_IRRADIANCE_LANE(7)
-#undef PN_FIV_IRRADIANCE_LANE
-    *tot_r = r, *tot_g = g, *tot_b = b;
-}
-
 /* One work-item per 8 pixels of a row (above): global size
  * ceil(width / 8) x height. */
 kernel void shade_fiv(global const float4 *position, global const float4 *normal, global const float4 *albedo,
@@ -668,11 +623,11 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     nx = select((float8)(0.0f), nx, active), ny = select((float8)(1.0f), ny, active);
     nz = select((float8)(0.0f), nz, active);
     /* 8 neighbouring pixels of a flat surface share one normal (most of a
-     * floor): their irradiance is looked up once (pn_fiv_irradiance8) */
+     * floor): their irradiance is looked up once (pn_cube_grid_lookup8) */
     const bool one_normal = !pn_fiv_any8(~((nx == nx.s0) & (ny == ny.s0) & (nz == nz.s0)));
     pn_normalize8(&nx, &ny, &nz);
     float8 tot_r = 0.0f, tot_g = 0.0f, tot_b = 0.0f;
-    pn_fiv_irradiance8(irradiance, m, nx, ny, nz, active, one_normal, &tot_r, &tot_g, &tot_b);
+    pn_cube_grid_lookup8(irradiance, m, nx, ny, nz, active, one_normal, &tot_r, &tot_g, &tot_b);
     float8 base_r = tot_r, base_g = tot_g, base_b = tot_b;
     if (self_shadow) {
         /* per-lane copies for the scalar code below (a vector store, read

@@ -545,15 +545,16 @@ def test_lanes_sharing_a_cell(ctx, env, meshes, fields):
 
 
 def test_lanes_sharing_a_normal(ctx, env, meshes, fields):
-    """The unshadowed irradiance of a work-item's 8 pixels (pn_fiv_irradiance8,
-    kernels/fiv.cl): lanes with one normal are one cube-grid lookup, lanes
-    whose normals differ within one cube-grid cell read its 4 samples once
-    and mix them in lanes, other lanes go one by one. Rows of 21 pixels (a
+    """The unshadowed irradiance of a work-item's 8 pixels in fiv and
+    unshadowed (pn_cube_grid_lookup8, kernels/common/sphere_maps.cl): lanes
+    with one normal are one cube-grid lookup, lanes whose normals differ
+    within one cube-grid cell read its 4 samples once and mix them in
+    lanes, other lanes go one by one. Rows of 21 pixels (a
     partial work-item at each row's end): the floor's normal, one tilted
     normal, that normal with perturbations of 1e-4 (one cell, different
     normals), random normals, and one normal with background pixels among
-    them; against the twin, and bit for bit against the same pixels shaded
-    one per work-item."""
+    them; against the twin, and both methods bit for bit against the same
+    pixels shaded one per work-item."""
     rng = np.random.default_rng(15)
     rows, w = 2, 21
     n1 = unit(np.array([0.3, 1.0, -0.2]))
@@ -573,6 +574,8 @@ def test_lanes_sharing_a_normal(ctx, env, meshes, fields):
     for plane, src in zip(alone, (pos, nrm, inst)):
         plane[:, ::8] = src
     s1 = FivScene(ctx, env, fields, instances, tuple(alone))
+    # unshadowed (shade_unshadowed, the same lookup; FivScene.e0 is its image)
+    assert np.array_equal(s.e0[s.fg], s1.e0[:, ::8][s.fg])
     for params in (dict(overlap=0), dict(overlap=1, partial=1, self_shadow=1), dict(overlap=2, background=0)):
         got = assert_matches_twin(s, params) if params.get("background", 1) else s.render(cull_threshold=0.0, **params)
         lone = s1.render(cull_threshold=0.0, **params)[:, ::8]
