@@ -213,58 +213,26 @@ inline float3 pn_cube_grid_lookup(global const float4 *grid, int n, float3 d)
     return mix(top, bottom, fy).xyz;
 }
 
-/* pn_cube_grid_lookup (above) for 8 unit directions: the
- * face and the cell (x0, y0, fx, fy) of each lane, from the same operations
- * as pn_dir_to_cube's branches, as selects (their mispredictions were most
- * of the lookup's cost); pn_cube_grid_fetch then reads the 4 samples. */
-PN_LANES_INLINE void pn_cube_grid_cell8_parts(int n, float8 dx, float8 dy, float8 dz, int8 *face, int8 *x0, int8 *y0,
-                                            float8 *fx, float8 *fy)
+/* pn_cube_grid_lookup (above) for 8 unit directions: the face and the cell
+ * of each lane, as the index (face n + y0) n + x0 of its first sample, and
+ * the fractions fx, fy, from the same operations as pn_dir_to_cube's
+ * branches, as selects (their mispredictions were most of the lookup's
+ * cost). */
+PN_LANES_INLINE void pn_cube_grid_cell8(int n, float8 dx, float8 dy, float8 dz, int8 *cell, float8 *fx, float8 *fy)
 {
     float8 ax = fabs(dx), ay = fabs(dy), az = fabs(dz);
     int8 xm = (ax >= ay) & (ax >= az), ym = ~xm & (ay >= az);
     float8 inv = 1.0f / select(select(az, ay, ym), ax, xm);
     float8 a = select(select(select(-dx, dx, dz > 0.0f), dx, ym), select(dz, -dz, dx > 0.0f), xm) * inv;
     float8 b = select(-dy, select(-dz, dz, dy > 0.0f), ym) * inv;
-    *face = select(select(select((int8)(5), (int8)(4), dz > 0.0f), select((int8)(3), (int8)(2), dy > 0.0f), ym),
-                   select((int8)(1), (int8)(0), dx > 0.0f), xm);
+    int8 f = select(select(select((int8)(5), (int8)(4), dz > 0.0f), select((int8)(3), (int8)(2), dy > 0.0f), ym),
+                    select((int8)(1), (int8)(0), dx > 0.0f), xm);
     float8 x = clamp((a + 1.0f) * 0.5f * (float)(n - 1), 0.0f, (float)(n - 1));
     float8 y = clamp((b + 1.0f) * 0.5f * (float)(n - 1), 0.0f, (float)(n - 1));
-    *x0 = min(convert_int8(x), n - 2), *y0 = min(convert_int8(y), n - 2);
-    *fx = x - convert_float8(*x0);
-    *fy = y - convert_float8(*y0);
-}
-
-/* The same into per-lane arrays (pn_cube_grid_fetch reads them lane by lane). */
-PN_LANES_INLINE void pn_cube_grid_cell8(int n, float8 dx, float8 dy, float8 dz, int *face, int *x0, int *y0, float *fx,
-                                     float *fy)
-{
-    int8 f, ix, iy;
-    float8 tx, ty;
-    pn_cube_grid_cell8_parts(n, dx, dy, dz, &f, &ix, &iy, &tx, &ty);
-    vstore8(f, 0, face);
-    vstore8(ix, 0, x0);
-    vstore8(iy, 0, y0);
-    vstore8(tx, 0, fx);
-    vstore8(ty, 0, fy);
-}
-
-/* The same with the cell as the index of its first sample,
- * (face n + y0) n + x0. */
-PN_LANES_INLINE void pn_cube_grid_cell8v(int n, float8 dx, float8 dy, float8 dz, int8 *cell, float8 *fx, float8 *fy)
-{
-    int8 f, ix, iy;
-    pn_cube_grid_cell8_parts(n, dx, dy, dz, &f, &ix, &iy, fx, fy);
+    int8 ix = min(convert_int8(x), n - 2), iy = min(convert_int8(y), n - 2);
     *cell = (f * n + iy) * n + ix;
-}
-
-/* The rest of pn_cube_grid_lookup for one lane. */
-PN_LANES_INLINE float3 pn_cube_grid_fetch(global const float4 *grid, int n, int face, int x0, int y0, float fx, float fy)
-{
-    global const float4 *row0 = grid + (face * n + y0) * n + x0;
-    global const float4 *row1 = row0 + n;
-    float4 top = mix(row0[0], row0[1], fx);
-    float4 bottom = mix(row1[0], row1[1], fx);
-    return mix(top, bottom, fy).xyz;
+    *fx = x - convert_float8(ix);
+    *fy = y - convert_float8(iy);
 }
 
 /* The unshadowed irradiance (pn_cube_grid_lookup) of the lanes of `active`
@@ -272,7 +240,7 @@ PN_LANES_INLINE float3 pn_cube_grid_fetch(global const float4 *grid, int n, int 
  * (fiv.cl, unshadowed.cl). Lanes with one normal (`one_normal`: 8
  * neighbouring pixels of a flat surface, 99 % of the work-items with one
  * bunny on a floor) are one lookup, broadcast. Else the face and cell of each lane in
- * lanes (pn_cube_grid_cell8v); when the active lanes' cells are one cell,
+ * lanes (pn_cube_grid_cell8); when the active lanes' cells are one cell,
  * its 4 samples are read once and mixed in lanes, channel by channel with
  * each lane's fractions (mix on float8 does per element what mix on the
  * float4 samples does per lane: the same bits); else lane by lane, 4
@@ -288,7 +256,7 @@ PN_LANES_INLINE void pn_cube_grid_lookup8(global const float4 *irradiance, int m
     }
     int8 cell;
     float8 fx, fy;
-    pn_cube_grid_cell8v(m, nx, ny, nz, &cell, &fx, &fy);
+    pn_cube_grid_cell8(m, nx, ny, nz, &cell, &fx, &fy);
     int8 lo = select((int8)(INT_MAX), cell, active), hi = select((int8)(INT_MIN), cell, active);
     lo.s0123 = min(lo.s0123, lo.s4567), hi.s0123 = max(hi.s0123, hi.s4567);
     lo.s01 = min(lo.s01, lo.s23), hi.s01 = max(hi.s01, hi.s23);
