@@ -626,30 +626,23 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     pz = select((float8)(0.0f), pz, active);
     nx = select((float8)(0.0f), nx, active), ny = select((float8)(1.0f), ny, active);
     nz = select((float8)(0.0f), nz, active);
+    /* 8 neighbouring pixels of a flat surface share one normal (most of a
+     * floor): their irradiance is looked up once (pn_cube_grid_lookup8) */
+    const bool one_normal = !pn_fiv_any8(~((nx == nx.s0) & (ny == ny.s0) & (nz == nz.s0)));
     pn_normalize8(&nx, &ny, &nz);
-    /* per-lane copies for the scalar code below (a vector store, read back one
-     * lane at a time, forwards) */
-    float lp[3][PN_FIV_LANES], ln[3][PN_FIV_LANES];
-    uint lid[PN_FIV_LANES];
-    int lactive[PN_FIV_LANES];
-    vstore8(id8, 0, lid);
-    vstore8(active, 0, lactive);
-    vstore8(px, 0, lp[0]), vstore8(py, 0, lp[1]), vstore8(pz, 0, lp[2]);
-    vstore8(nx, 0, ln[0]), vstore8(ny, 0, ln[1]), vstore8(nz, 0, ln[2]);
-    int cface[PN_FIV_LANES], cx[PN_FIV_LANES], cy[PN_FIV_LANES];
-    float cfx[PN_FIV_LANES], cfy[PN_FIV_LANES];
-    pn_cube_grid_cell8(m, nx, ny, nz, cface, cx, cy, cfx, cfy);
     float8 tot_r = 0.0f, tot_g = 0.0f, tot_b = 0.0f;
-#define PN_FIV_IRRADIANCE_LANE(l)                                                                       \
-    if (lactive[l]) {                                                                                   \
-        float3 e = pn_cube_grid_fetch(irradiance, m, cface[l], cx[l], cy[l], cfx[l], cfy[l]);           \
-        tot_r.s##l = e.x, tot_g.s##l = e.y, tot_b.s##l = e.z;                                           \
-    }
-    PN_FIV_IRRADIANCE_LANE(0) PN_FIV_IRRADIANCE_LANE(1) PN_FIV_IRRADIANCE_LANE(2) PN_FIV_IRRADIANCE_LANE(3)
-    PN_FIV_IRRADIANCE_LANE(4) PN_FIV_IRRADIANCE_LANE(5) PN_FIV_IRRADIANCE_LANE(6) PN_FIV_IRRADIANCE_LANE(7)
-#undef PN_FIV_IRRADIANCE_LANE
+    pn_cube_grid_lookup8(irradiance, m, nx, ny, nz, active, one_normal, &tot_r, &tot_g, &tot_b);
     float8 base_r = tot_r, base_g = tot_g, base_b = tot_b;
     if (self_shadow) {
+        /* per-lane copies for the scalar code below (a vector store, read
+         * back one lane at a time, forwards) */
+        float lp[3][PN_FIV_LANES], ln[3][PN_FIV_LANES];
+        uint lid[PN_FIV_LANES];
+        int lactive[PN_FIV_LANES];
+        vstore8(id8, 0, lid);
+        vstore8(active, 0, lactive);
+        vstore8(px, 0, lp[0]), vstore8(py, 0, lp[1]), vstore8(pz, 0, lp[2]);
+        vstore8(nx, 0, ln[0]), vstore8(ny, 0, ln[1]), vstore8(nz, 0, ln[2]);
         const int8 lane = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
         for (int l = 0; l < PN_FIV_LANES; ++l) {
             if (!lactive[l])

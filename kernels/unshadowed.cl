@@ -4,10 +4,10 @@
 #include "common/sphere_maps.cl"
 
 /* One work-item per 8 consecutive pixels (global size ceil(count / 8)): the
- * cube grid's face and cell of the 8 normals in float8 lanes
- * (pn_cube_grid_cell8, the face branches as selects, each lane doing
- * pn_cube_grid_lookup's operations in the same order), then per pixel its
- * 4 samples and the output. */
+ * irradiance of the 8 normals in lanes (pn_cube_grid_lookup8: one lookup
+ * for one normal, else the face branches as selects, each lane doing
+ * pn_cube_grid_lookup's operations in the same order, the 4 samples read
+ * once for lanes in one cell), then per pixel the output. */
 #define PN_UNSHADOWED_LANES 8
 kernel void shade_unshadowed(global const float4 *position, global const float4 *normal,
                              global const float4 *albedo, global const uint *instance_id, int count,
@@ -38,16 +38,19 @@ kernel void shade_unshadowed(global const float4 *position, global const float4 
 #undef PN_UNSHADOWED_LANE
     if (!any(live8 != 0))
         return;
+    /* 8 neighbouring pixels of a flat surface share one normal: one lookup
+     * (pn_cube_grid_lookup8; the same bits either way) */
+    const bool one_normal = all((nx == nx.s0) & (ny == ny.s0) & (nz == nz.s0));
+    float8 er, eg, eb;
+    pn_cube_grid_lookup8(irradiance, m, nx, ny, nz, live8 != 0, one_normal, &er, &eg, &eb);
     int live[PN_UNSHADOWED_LANES];
+    float e[3][PN_UNSHADOWED_LANES];
     vstore8(live8, 0, live);
-    int face[PN_UNSHADOWED_LANES], cx[PN_UNSHADOWED_LANES], cy[PN_UNSHADOWED_LANES];
-    float fx[PN_UNSHADOWED_LANES], fy[PN_UNSHADOWED_LANES];
-    pn_cube_grid_cell8(m, nx, ny, nz, face, cx, cy, fx, fy);
+    vstore8(er, 0, e[0]), vstore8(eg, 0, e[1]), vstore8(eb, 0, e[2]);
     for (int l = 0; l < PN_UNSHADOWED_LANES; ++l) {
         if (!live[l])
             continue;
         int gid = base + l;
-        float3 e = pn_cube_grid_fetch(irradiance, m, face[l], cx[l], cy[l], fx[l], fy[l]);
-        image[gid] = (float4)(fmax(albedo[gid].xyz * e * PN_INV_PI, 0.0f), 1.0f);
+        image[gid] = (float4)(fmax(albedo[gid].xyz * (float3)(e[0][l], e[1][l], e[2][l]) * PN_INV_PI, 0.0f), 1.0f);
     }
 }

@@ -544,6 +544,44 @@ def test_lanes_sharing_a_cell(ctx, env, meshes, fields):
     assert_matches_twin(s, dict(overlap=1), cull_threshold=0.1)
 
 
+def test_lanes_sharing_a_normal(ctx, env, meshes, fields):
+    """The unshadowed irradiance of a work-item's 8 pixels in fiv and
+    unshadowed (pn_cube_grid_lookup8, kernels/common/sphere_maps.cl): lanes
+    with one normal are one cube-grid lookup, lanes whose normals differ
+    within one cube-grid cell read its 4 samples once and mix them in
+    lanes, other lanes go one by one. Rows of 21 pixels (a
+    partial work-item at each row's end): the floor's normal, one tilted
+    normal, that normal with perturbations of 1e-4 (one cell, different
+    normals), random normals, and one normal with background pixels among
+    them; against the twin, and both methods bit for bit against the same
+    pixels shaded one per work-item."""
+    rng = np.random.default_rng(15)
+    rows, w = 2, 21
+    n1 = unit(np.array([0.3, 1.0, -0.2]))
+    up = np.broadcast_to([0.0, 1.0, 0.0], (rows, w, 3))
+    one = np.broadcast_to(n1, (rows, w, 3))
+    near = unit(n1 + 1e-4 * rng.normal(size=(rows, w, 3)))
+    spread = unit(rng.normal(size=(rows, w, 3)) + np.array([0.0, 1.5, 0.0]))
+    nrm = np.concatenate([up, one, near, spread, one]).astype(np.float32).astype(np.float64)
+    h = len(nrm)
+    pos, _, inst = plane_receivers(rng, h=h, w=w)
+    inst[-rows:][rng.random((rows, w)) < 0.3] = BACKGROUND
+    inst[-rows:, 0] = BACKGROUND  # a background lane 0 before lanes with one normal
+    assert len(np.unique(nrm[2 * rows:3 * rows, :8].reshape(-1, 3), axis=0)) == 8 * rows
+    instances = [(fields["sphere"], meshes["sphere"][1], translate((0.0, 0.6, 0.0)))]
+    s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
+    alone = [np.zeros((h, 8 * w, 3)), np.zeros((h, 8 * w, 3)), np.full((h, 8 * w), BACKGROUND, np.uint32)]
+    for plane, src in zip(alone, (pos, nrm, inst)):
+        plane[:, ::8] = src
+    s1 = FivScene(ctx, env, fields, instances, tuple(alone))
+    # unshadowed (shade_unshadowed, the same lookup; FivScene.e0 is its image)
+    assert np.array_equal(s.e0[s.fg], s1.e0[:, ::8][s.fg])
+    for params in (dict(overlap=0), dict(overlap=1, partial=1, self_shadow=1), dict(overlap=2, background=0)):
+        got = assert_matches_twin(s, params) if params.get("background", 1) else s.render(cull_threshold=0.0, **params)
+        lone = s1.render(cull_threshold=0.0, **params)[:, ::8]
+        assert np.array_equal(got[s.fg], lone[s.fg]), params  # the same operations, so the same bits
+
+
 def test_many_occluders_per_tile(ctx, env, meshes, fields):
     """40 small spheres over every pixel of a 20 x 12 image: two words of the
     tile masks, every lane of a work-item taking most occluders, more than 32

@@ -213,12 +213,12 @@ inline float3 pn_cube_grid_lookup(global const float4 *grid, int n, float3 d)
     return mix(top, bottom, fy).xyz;
 }
 
-/* pn_cube_grid_lookup (above) for 8 unit directions: the
- * face and the cell (x0, y0, fx, fy) of each lane, from the same operations
- * as pn_dir_to_cube's branches, as selects (their mispredictions were most
- * of the lookup's cost); pn_cube_grid_fetch then reads the 4 samples. */
-PN_LANES_INLINE void pn_cube_grid_cell8(int n, float8 dx, float8 dy, float8 dz, int *face, int *x0, int *y0, float *fx,
-                                     float *fy)
+/* pn_cube_grid_lookup (above) for 8 unit directions: the face and the cell
+ * of each lane, as the index (face n + y0) n + x0 of its first sample, and
+ * the fractions fx, fy, from the same operations as pn_dir_to_cube's
+ * branches, as selects (their mispredictions were most of the lookup's
+ * cost). */
+PN_LANES_INLINE void pn_cube_grid_cell8(int n, float8 dx, float8 dy, float8 dz, int8 *cell, float8 *fx, float8 *fy)
 {
     float8 ax = fabs(dx), ay = fabs(dy), az = fabs(dz);
     int8 xm = (ax >= ay) & (ax >= az), ym = ~xm & (ay >= az);
@@ -230,21 +230,58 @@ PN_LANES_INLINE void pn_cube_grid_cell8(int n, float8 dx, float8 dy, float8 dz, 
     float8 x = clamp((a + 1.0f) * 0.5f * (float)(n - 1), 0.0f, (float)(n - 1));
     float8 y = clamp((b + 1.0f) * 0.5f * (float)(n - 1), 0.0f, (float)(n - 1));
     int8 ix = min(convert_int8(x), n - 2), iy = min(convert_int8(y), n - 2);
-    vstore8(f, 0, face);
-    vstore8(ix, 0, x0);
-    vstore8(iy, 0, y0);
-    vstore8(x - convert_float8(ix), 0, fx);
-    vstore8(y - convert_float8(iy), 0, fy);
+    *cell = (f * n + iy) * n + ix;
+    *fx = x - convert_float8(ix);
+    *fy = y - convert_float8(iy);
 }
 
-/* The rest of pn_cube_grid_lookup for one lane. */
-PN_LANES_INLINE float3 pn_cube_grid_fetch(global const float4 *grid, int n, int face, int x0, int y0, float fx, float fy)
+/* The unshadowed irradiance (pn_cube_grid_lookup) of the lanes of `active`
+ * (0 in the others), for the kernels that shade 8 pixels per work-item
+ * (fiv.cl, unshadowed.cl). Lanes with one normal (`one_normal`: 8
+ * neighbouring pixels of a flat surface, 99 % of the work-items with one
+ * bunny on a floor) are one lookup, broadcast. Else the face and cell of each lane in
+ * lanes (pn_cube_grid_cell8); when the active lanes' cells are one cell,
+ * its 4 samples are read once and mixed in lanes, channel by channel with
+ * each lane's fractions (mix on float8 does per element what mix on the
+ * float4 samples does per lane: the same bits); else lane by lane, 4
+ * samples each. */
+PN_LANES_INLINE void pn_cube_grid_lookup8(global const float4 *irradiance, int m, float8 nx, float8 ny, float8 nz,
+                                        int8 active, bool one_normal, float8 *out_r, float8 *out_g, float8 *out_b)
 {
-    global const float4 *row0 = grid + (face * n + y0) * n + x0;
-    global const float4 *row1 = row0 + n;
-    float4 top = mix(row0[0], row0[1], fx);
-    float4 bottom = mix(row1[0], row1[1], fx);
-    return mix(top, bottom, fy).xyz;
+    if (one_normal) {
+        const float3 e = pn_cube_grid_lookup(irradiance, m, (float3)(nx.s0, ny.s0, nz.s0));
+        *out_r = select((float8)(0.0f), (float8)(e.x), active), *out_g = select((float8)(0.0f), (float8)(e.y), active);
+        *out_b = select((float8)(0.0f), (float8)(e.z), active);
+        return;
+    }
+    int8 cell;
+    float8 fx, fy;
+    pn_cube_grid_cell8(m, nx, ny, nz, &cell, &fx, &fy);
+    int8 lo = select((int8)(INT_MAX), cell, active), hi = select((int8)(INT_MIN), cell, active);
+    lo.s0123 = min(lo.s0123, lo.s4567), hi.s0123 = max(hi.s0123, hi.s4567);
+    lo.s01 = min(lo.s01, lo.s23), hi.s01 = max(hi.s01, hi.s23);
+    const int2 span = (int2)(min(lo.s0, lo.s1), max(hi.s0, hi.s1));
+    float8 r = 0.0f, g = 0.0f, b = 0.0f;
+    if (span.x == span.y) {
+        global const float4 *row0 = irradiance + span.x, *row1 = row0 + m;
+        const float4 s00 = row0[0], s01 = row0[1], s10 = row1[0], s11 = row1[1];
+        r = mix(mix((float8)(s00.x), (float8)(s01.x), fx), mix((float8)(s10.x), (float8)(s11.x), fx), fy);
+        g = mix(mix((float8)(s00.y), (float8)(s01.y), fx), mix((float8)(s10.y), (float8)(s11.y), fx), fy);
+        b = mix(mix((float8)(s00.z), (float8)(s01.z), fx), mix((float8)(s10.z), (float8)(s11.z), fx), fy);
+        *out_r = select((float8)(0.0f), r, active), *out_g = select((float8)(0.0f), g, active);
+        *out_b = select((float8)(0.0f), b, active);
+        return;
+    }
+#define PN_CUBE_GRID_LANE(l)                                                                         \
+    if (active.s##l) {                                                                               \
+        global const float4 *row0 = irradiance + cell.s##l, *row1 = row0 + m;                        \
+        float4 e = mix(mix(row0[0], row0[1], fx.s##l), mix(row1[0], row1[1], fx.s##l), fy.s##l);     \
+        r.s##l = e.x, g.s##l = e.y, b.s##l = e.z;                                                    \
+    }
+    PN_CUBE_GRID_LANE(0) PN_CUBE_GRID_LANE(1) PN_CUBE_GRID_LANE(2) PN_CUBE_GRID_LANE(3)
+    PN_CUBE_GRID_LANE(4) PN_CUBE_GRID_LANE(5) PN_CUBE_GRID_LANE(6) PN_CUBE_GRID_LANE(7)
+#undef PN_CUBE_GRID_LANE
+    *out_r = r, *out_g = g, *out_b = b;
 }
 
 /* The env map's radiance (pn_latlong_bilinear, times `intensity`) in the
