@@ -44,6 +44,19 @@
 #ifndef HF_PROF_SUN
 #define HF_PROF_SUN 1
 #endif
+/* The row sampler's clamped taps (hf_level_sample_row2): every lane's taps
+ * at one border column, and taps clamped at one border only, without the
+ * column-by-column path (the same floats; build options 0 only to measure
+ * and test against it). */
+#ifndef HF_OUTSIDE_FAST
+#define HF_OUTSIDE_FAST 1
+#endif
+#ifndef HF_STRADDLE_FAST
+#define HF_STRADDLE_FAST 1
+#endif
+#ifndef HF_BORDER_TEST /* build options only to test that the tests catch a wrong border path: 1 reads */
+#define HF_BORDER_TEST 0 /* the outside column one value in, 2 lets a spread of 16 columns take the window */
+#endif
 #ifndef HF_EXIT_BOUND /* added to max |H|: a build option only to test that a wrong bound is caught */
 #define HF_EXIT_BOUND 0.0f
 #endif
@@ -474,6 +487,63 @@ HF_INLINE float16 hf_columns_clamped(global const float *r0, global const float 
            wa3 * HF_RGATHER(line, o3);
 }
 
+/* A window of 20 values (l, lh) shifted by a uniform amount, n in [0, 31]:
+ * right (toward higher indices) with l.s0 repeated in front, or left with
+ * lh.w repeated behind; one constant swizzle per set bit of n. */
+HF_INLINE void hf_window_shift_right(float16 *l, float4 *lh, int n)
+{
+    const float f = (*l).s0;
+    const float2 f2 = f;
+    const float4 f4 = f;
+    if (n & 1) {
+        *lh = (float4)((*l).sf, (*lh).xyz);
+        *l = (float16)(f, (*l).s0123, (*l).s4567, (*l).s89ab, (*l).scde);
+    }
+    if (n & 2) {
+        *lh = (float4)((*l).sef, (*lh).xy);
+        *l = (float16)(f2, (*l).s0123, (*l).s4567, (*l).s89ab, (*l).scd);
+    }
+    if (n & 4) {
+        *lh = (*l).scdef;
+        *l = (float16)(f4, (*l).s0123, (*l).s4567, (*l).s89ab);
+    }
+    if (n & 8) {
+        *lh = (*l).s89ab;
+        *l = (float16)(f4, f4, (*l).s0123, (*l).s4567);
+    }
+    if (n & 16) {
+        *lh = (*l).s0123;
+        *l = (float16)(f4, f4, f4, f4);
+    }
+}
+
+HF_INLINE void hf_window_shift_left(float16 *l, float4 *lh, int n)
+{
+    const float g = (*lh).w;
+    const float2 g2 = g;
+    const float4 g4 = g;
+    if (n & 1) {
+        *l = (float16)((*l).s1234, (*l).s5678, (*l).s9abc, (*l).sdef, (*lh).x);
+        *lh = (float4)((*lh).yzw, g);
+    }
+    if (n & 2) {
+        *l = (float16)((*l).s2345, (*l).s6789, (*l).sabcd, (*l).sef, (*lh).xy);
+        *lh = (float4)((*lh).zw, g2);
+    }
+    if (n & 4) {
+        *l = (float16)((*l).s4567, (*l).s89ab, (*l).scdef, *lh);
+        *lh = g4;
+    }
+    if (n & 8) {
+        *l = (float16)((*l).s89ab, (*l).scdef, *lh, g4);
+        *lh = g4;
+    }
+    if (n & 16) {
+        *l = (float16)(*lh, g4, g4, g4);
+        *lh = g4;
+    }
+}
+
 HF_INLINE void hf_level_sample_row2(global const float *pyr, int4 lev, int wm1, float16 u, float vA, float vB,
                                     float inv_wm1, float inv_dm1, float refA, float refB, float16 *hA, float16 *hB)
 {
@@ -534,6 +604,49 @@ HF_INLINE void hf_level_sample_row2(global const float *pyr, int4 lev, int wm1, 
             return;
         }
     }
+#if HF_OUTSIDE_FAST
+    if (lo >= lev.y || hi <= 0) {
+        /* every lane's taps clamped to one border column p: the values the
+         * column-by-column path gathers are all that column's combination */
+        const int p = lo >= lev.y ? lev.y - (HF_BORDER_TEST == 1) : (HF_BORDER_TEST == 1);
+        const float16 xA = wbA.x * (a0[p] - refA) + wbA.y * (a1[p] - refA) + wbA.z * (a2[p] - refA) +
+                           wbA.w * (a3[p] - refA),
+                      xB = wbB.x * (b0[p] - refB) + wbB.y * (b1[p] - refB) + wbB.z * (b2[p] - refB) +
+                           wbB.w * (b3[p] - refB);
+        *hA = wa0 * xA + wa1 * xA + wa2 * xA + wa3 * xA;
+        *hB = wa0 * xB + wa1 * xB + wa2 * xB + wa3 * xB;
+        return;
+    }
+#endif
+#if HF_STRADDLE_FAST
+    if (lev.y >= 19 && hi - lo <= 18 + (HF_BORDER_TEST == 2) && (lo >= 0 || hi <= lev.y)) {
+        /* taps clamped at one border only: the window w[c] = (the combined
+         * row at column clamp(lo + c, 0, C)), c = 0 .. 19, is the 20 values
+         * at that border shifted by a uniform amount with the border value
+         * repeated; lane l's taps are then w[s_l .. s_l + 3], s_l = ia_l - lo
+         * in [0, 15], picked as on the unclamped path. The same values as
+         * the column-by-column path gathers, so the same floats. (Lane 0
+         * rounding down and lane 15 not can make the spread 16 columns:
+         * those keep the column-by-column path.) */
+        const int cs = lo < 0 ? 0 : lev.y - 19;
+        float16 lA = HF_COMBINE16(a0, a1, a2, a3, wbA, refA, cs), lB = HF_COMBINE16(b0, b1, b2, b3, wbB, refB, cs);
+        float4 lhA = HF_COMBINE4(a0, a1, a2, a3, wbA, refA, cs + 16),
+               lhB = HF_COMBINE4(b0, b1, b2, b3, wbB, refB, cs + 16);
+        if (lo < 0) {
+            hf_window_shift_right(&lA, &lhA, -lo);
+            hf_window_shift_right(&lB, &lhB, -lo);
+        } else {
+            hf_window_shift_left(&lA, &lhA, lo - cs);
+            hf_window_shift_left(&lB, &lhB, lo - cs);
+        }
+        float16 c0, c1, c2, c3;
+        hf_pick_columns(lA, lhA, ia - lo, hi - 3 - lo, &c0, &c1, &c2, &c3);
+        *hA = wa0 * c0 + wa1 * c1 + wa2 * c2 + wa3 * c3;
+        hf_pick_columns(lB, lhB, ia - lo, hi - 3 - lo, &c0, &c1, &c2, &c3);
+        *hB = wa0 * c0 + wa1 * c1 + wa2 * c2 + wa3 * c3;
+        return;
+    }
+#endif
     const int p_lo = clamp(lo, 0, lev.y), p_hi = clamp(hi, 0, lev.y);
     const int16 o0 = clamp(ia, 0, lev.y) - p_lo, o1 = clamp(ia + 1, 0, lev.y) - p_lo,
                 o2 = clamp(ia + 2, 0, lev.y) - p_lo, o3 = clamp(ia + 3, 0, lev.y) - p_lo;

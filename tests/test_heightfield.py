@@ -384,3 +384,20 @@ def test_early_exits_change_no_bit():
         np.testing.assert_array_equal(fast[what].view(np.uint32), full[what].view(np.uint32), err_msg=what)
     assert not np.array_equal(wrong["env_horizons"], full["env_horizons"])
     assert not np.array_equal(wrong["light"], full["light"])
+
+
+def test_border_paths_change_no_bit():
+    """The row sampler's paths for taps clamped at the border (every lane's taps at one border
+    column; taps clamped at one border only, as a shifted window) give the same floats as the
+    column-by-column path; a build that reads the outside column one value in, or lets a spread
+    of 16 columns (lane 0 rounding down, lane 15 not) take the window, does not."""
+    heights = make_terrain("fbm", 61, 47, seed=9)
+    env = procedural.sky(128, 64, sun_direction=(0.5, 0.5, 0.3))
+    lights = [light_row((0.4, 1.2, -0.3), radius=0.2)]
+    slow = early_exit_outputs("-DHF_OUTSIDE_FAST=0 -DHF_STRADDLE_FAST=0", heights, env, lights)
+    fast = early_exit_outputs("", heights, env, lights)
+    for what in slow:
+        np.testing.assert_array_equal(fast[what].view(np.uint32), slow[what].view(np.uint32), err_msg=what)
+    for wrong in ("-DHF_BORDER_TEST=1", "-DHF_BORDER_TEST=2"):
+        assert not np.array_equal(early_exit_outputs(wrong, heights, env, lights)["env_horizons"],
+                                  slow["env_horizons"]), wrong
