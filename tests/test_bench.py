@@ -199,7 +199,8 @@ def test_fiv_scaling_writes_results(tmp_path, shared_data):
         assert r["fiv_noloop_shade_ms"] > 0 and r["fiv_noloop_cpu_ms"] > 0 and r["fiv_sum_noloop_cpu_ms"] > 0
         assert r["noloop_same_gbuffer"] is True
         lookups = r["tiles_lookups_per_pixel"] * r["tiles_receiver_pixels"]
-        assert r["loop_per_lookup_cpu_ns"] == pytest.approx((r["fiv_cpu_ms"] - r["fiv_noloop_cpu_ms"]) * 1e6 / lookups)
+        assert r["loop_per_lookup_cpu_ns"] == pytest.approx(r["loop_cpu_ms"] * 1e6 / lookups)
+        assert r["loop_cpu_ms"] == pytest.approx(r["fiv_cpu_ms"] - r["fiv_noloop_cpu_ms"], abs=0.5)  # paired rounds
         assert r["per_lookup_cpu_ns"] == pytest.approx((r["fiv_cpu_ms"] - r["unshadowed_cpu_ms"]) * 1e6 / lookups)
         assert r["tile_cull_speedup"] == pytest.approx(r["fiv_unculled_shade_ms"] / r["fiv_shade_ms"])
         assert r["fps_shading"] == pytest.approx(1000 / r["fiv_shade_ms"])
@@ -262,9 +263,23 @@ def test_per_lookup_measure_subtracts_fivs_own_pixel_work():
     assert dearer[1]["loop_per_lookup_cpu_ratio"] == pytest.approx(2.5)
 
 
+def test_per_lookup_measure_pairs_the_rounds():
+    # The load rose after round 2: each round's fiv less the same round's no-loop build is 2 ms
+    # (2.1 in round 4), the medians alone would give 8.0 - 2.2.
+    ms = _scaling_ms(8.0, 2.2, 1.0)
+    ms["rounds"] = {"cpu:fiv": [4.0, 4.1, 8.0, 8.1, 8.2], "cpu:fiv_noloop": [2.0, 2.1, 6.0, 6.0, 6.1]}
+    c = per_lookup_costs(ms, 1e5)
+    assert c["loop_cpu_ms"] == pytest.approx(2.0) and c["loop_per_lookup_cpu_ns"] == pytest.approx(20.0)
+    assert c["loop_ms"] == pytest.approx(5.8)  # no rounds of the wall clock's: the medians' difference
+    assert c["per_lookup_cpu_ns"] == pytest.approx(70.0)  # the earlier measure: medians, as it always was
+    ms["rounds"]["cpu:fiv_noloop"].pop()
+    with pytest.raises(ValueError):
+        per_lookup_costs(ms, 1e5)
+
+
 def test_per_lookup_measure_without_lookups_or_timings():
     ms = _scaling_ms(4.0, 2.0, 1.0)
-    assert all(v is None for v in per_lookup_costs(ms, 0).values())
+    assert all(v is None for k, v in per_lookup_costs(ms, 0).items() if k.endswith("_ns"))
     del ms["fiv_noloop"], ms["cpu:fiv_noloop"]
     c = per_lookup_costs(ms, 1e5)
     assert c["loop_per_lookup_ns"] is None and c["loop_per_lookup_cpu_ns"] is None

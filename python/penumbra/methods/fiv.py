@@ -1040,21 +1040,28 @@ def per_lookup_costs(ms: dict, lookups: float) -> dict:
     ``ms`` and the (pixel, occluder) pairs the kernel interpolates. Two
     measures: ``loop_per_lookup*`` = (fiv - fiv without the occluder loop) /
     lookups, the occluder loop's own time, which the goal (cost per occluder
-    that matters <= 2x the single occluder's) is read from; and the earlier
+    that matters <= 2x the single occluder's) is read from (with the rounds'
+    times in ``ms["rounds"]``, the median of each round's difference, so
+    that a change in the machine's load between rounds cancels out; else
+    the difference of the medians); and the earlier
     ``per_lookup*`` = (fiv - unshadowed) / lookups, kept for comparison,
     which also counts what fiv's pixel work costs above unshadowed's, so a
     change in either kernel's pixel work moves it although no lookup got
     cheaper or dearer. None without lookups (or without the no-loop
     timings, for the loop measure)."""
     out = {}
+    rounds = ms.get("rounds", {})
     for suffix, col in (("", "fiv"), ("_sum", "fiv_sum")):
         for clock in ("", "cpu:"):
             tag = suffix + ("_cpu" if clock else "")
-            base = ms.get(clock + col + "_noloop")
-            out[f"per_lookup{tag}_ns"] = ((ms[clock + col] - ms[clock + "unshadowed"]) * 1e6 / lookups
-                                          if lookups else None)
-            out[f"loop_per_lookup{tag}_ns"] = ((ms[clock + col] - base) * 1e6 / lookups
-                                               if lookups and base is not None else None)
+            a, b = clock + col, clock + col + "_noloop"
+            if a in rounds and b in rounds:
+                loop = statistics.median([x - y for x, y in zip(rounds[a], rounds[b], strict=True)])
+            else:
+                loop = ms[a] - ms[b] if b in ms else None
+            out[f"loop{tag}_ms"] = loop
+            out[f"per_lookup{tag}_ns"] = (ms[a] - ms[clock + "unshadowed"]) * 1e6 / lookups if lookups else None
+            out[f"loop_per_lookup{tag}_ns"] = loop * 1e6 / lookups if lookups and loop is not None else None
     return out
 
 
@@ -1097,7 +1104,8 @@ def _interleaved_ms(built, variants: dict, frames: int, others=()) -> dict:
     of its own, timed in the same rounds after the main build's variants
     (keys must not repeat); the returned image is the main build's last
     variant's. Also returns, per other build, whether its G-buffer planes
-    equal the main one's (key "same_gbuffer:" + its first variant)."""
+    equal the main one's (key "same_gbuffer:" + its first variant), and
+    every round's times (key "rounds": variant -> list, in round order)."""
     from ..core import GBuffer, Image, Renderer
     from ..render import WARMUP_SECONDS, _timed
 
@@ -1136,6 +1144,7 @@ def _interleaved_ms(built, variants: dict, frames: int, others=()) -> dict:
     planes = {p: gbuffer.read(p) for p in ("position", "normal", "instance")}
     out = {k: statistics.median(t) for k, t in times.items()}
     out["gbuffer"] = statistics.median(gtimes)
+    out["rounds"] = times
     for k, gb in extra:
         out["same_gbuffer:" + k] = all(planes[p].tobytes() == gb.read(p).tobytes() for p in planes)
     last = next(reversed(variants))
