@@ -701,7 +701,8 @@ class Fiv(Technique):
         for r in res["results"]:
             print(f"{r['layout']:>10}{r['occluders']:>10}{r['fiv_shade_ms']:>10.2f}{r['floor_ms']:>10.3f}"
                   f"{r['ratio_to_floor']:>9.1f}{r['ratio_to_floor_cpu']:>7.1f}{x(r['loop_per_lookup_ratio']):>11}"
-                  f"{x(r['loop_per_lookup_cpu_ratio']):>7}{x(r['per_lookup_cpu_ratio']):>9}{r['tile_cull_speedup']:>9.2f}x"
+                  f"{x(r['loop_per_lookup_cpu_ratio']):>7}{x(r['per_lookup_cpu_ratio']):>9}"
+                  f"{r['tile_cull_speedup']:>9.2f}x"
                   f"{r['tiles_per_tile_mean']:>9.1f}{r['paper_fps'] if r['paper_fps'] is not None else '-':>11}")
         print(f"penumbra bench: wrote {out}/results.json, report.md")
         return 0
