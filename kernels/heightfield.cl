@@ -44,6 +44,9 @@
 #ifndef HF_PROF_SUN
 #define HF_PROF_SUN 1
 #endif
+#ifndef HF_VIS_PREP /* a build option only to measure the per-wedge scalar index work (0) */
+#define HF_VIS_PREP 1
+#endif
 #ifndef HF_EXIT_BOUND /* added to max |H|: a build option only to test that a wrong bound is caught */
 #define HF_EXIT_BOUND 0.0f
 #endif
@@ -1067,7 +1070,50 @@ inline void hf_visibility(const float *om, int n_phi, global const float *table,
             rc2 = select((float16)(1.0f), (float16)(0.0f), HF_ABS_M2 == 7u);
     float16 rs0 = 0.0f, rs1 = 0.0f, rs2 = 0.0f;
     float16 a0 = 0.0f, a1 = 0.0f, a2 = 0.0f, b0 = 0.0f, b1 = 0.0f, b2 = 0.0f;
+#if HF_VIS_PREP
+    /* Each wedge's table cell and bilinear weights, 16 wedges at a time in
+     * the lanes (the same float operations as the scalar form below, lane
+     * by lane), kept in private arrays for the chunk loop. */
+    int toff[HF_MAX_AZIMUTHS];
+    float tw00[HF_MAX_AZIMUTHS], tw01[HF_MAX_AZIMUTHS], tw10[HF_MAX_AZIMUTHS], tw11[HF_MAX_AZIMUTHS];
+    int k0 = 0;
+    for (; k0 + 16 <= n_phi; k0 += 16) {
+        const float16 oa = vload16(0, om + k0);
+        float16 ob;
+        if (k0 + 16 < n_phi)
+            ob = vload16(0, om + k0 + 1);
+        else
+            ob = shuffle2(oa, (float16)(om[0]), (uint16)(1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16));
+        const float16 fa = clamp((oa - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
+        const float16 fb = clamp((ob - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
+        const int16 ia = min(convert_int16(fa), HF_TABLE - 2), ib = min(convert_int16(fb), HF_TABLE - 2);
+        const float16 ta = fa - convert_float16(ia), tb = fb - convert_float16(ib);
+        const float16 w11 = ta * tb, w10 = ta - w11, w01 = tb - w11, w00 = 1.0f - ta - w01;
+        vstore16((ia * HF_TABLE + ib) * ns, 0, toff + k0);
+        vstore16(w00, 0, tw00 + k0);
+        vstore16(w01, 0, tw01 + k0);
+        vstore16(w10, 0, tw10 + k0);
+        vstore16(w11, 0, tw11 + k0);
+    }
+    for (int k = k0; k < n_phi; ++k) {
+        const float fa = clamp((om[k] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
+        const float fb = clamp((om[k + 1 < n_phi ? k + 1 : 0] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
+        const int ia = min((int)fa, HF_TABLE - 2), ib = min((int)fb, HF_TABLE - 2);
+        const float ta = fa - (float)ia, tb = fb - (float)ib;
+        const float w11 = ta * tb, w01 = tb - w11;
+        toff[k] = (ia * HF_TABLE + ib) * ns;
+        tw00[k] = 1.0f - ta - w01;
+        tw01[k] = w01;
+        tw10[k] = ta - w11;
+        tw11[k] = w11;
+    }
+#endif
     for (int k = 0; k < n_phi; ++k) {
+#if HF_VIS_PREP
+        global const float *t00 = table + toff[k], *t01 = t00 + ns;
+        global const float *t10 = t00 + HF_TABLE * ns, *t11 = t10 + ns;
+        const float w00 = tw00[k], w01 = tw01[k], w10 = tw10[k], w11 = tw11[k];
+#else
         const float fa = clamp((om[k] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
         const float fb = clamp((om[k + 1 < n_phi ? k + 1 : 0] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
         const int ia = min((int)fa, HF_TABLE - 2), ib = min((int)fb, HF_TABLE - 2);
@@ -1076,6 +1122,7 @@ inline void hf_visibility(const float *om, int n_phi, global const float *table,
         global const float *t10 = t00 + HF_TABLE * ns, *t11 = t10 + ns;
         /* the bilinear weights (four FMAs per chunk instead of three mixes) */
         const float w11 = ta * tb, w10 = ta - w11, w01 = tb - w11, w00 = 1.0f - ta - w01;
+#endif
         /* (c, s) -> (c cos|m|δ - s sign sin|m|δ, s cos|m|δ + c sign sin|m|δ); sign² = 1 where sin|m|δ != 0 */
 #define HF_WEDGE_CHUNK(q, a, b, rc, rs, dc, ds)                                                                 \
     {                                                                                                           \
