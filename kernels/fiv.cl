@@ -572,23 +572,25 @@ PN_FIV_INLINE int pn_fiv_any8(int8 m)
     return (b.x | b.y) < 0;
 }
 
-/* One work-item per 8 pixels of a row (above): global size
- * ceil(width / 8) x height. */
-kernel void shade_fiv(global const float4 *position, global const float4 *normal, global const float4 *albedo,
-                      global const uint *instance_id, int count, global const float4 *irradiance, int m,
-                      global const float4 *occluders,
-                      int occluder_count, global const uchar *fields, float cull_floor, float4 env_x, float4 env_y,
-                      float4 env_z,
-                      int overlap, int partial, int self_shadow, int trilinear, int width, int binned,
-                      global const uint *tile_masks, global float4 *image, int background,
-                      global const float *latlong, int latlong_width, int latlong_height, float2 rot,
-                      float intensity)
+/* The last single normal a work-item looked up (shade_fiv): its raw bits
+ * as read from the G-buffer, the normalised normal and its unshadowed
+ * irradiance. */
+typedef struct {
+    uint3 raw;
+    float3 n, e;
+    bool valid;
+} pn_fiv_normal_cache;
+
+/* 8 pixels of row y from x0 on (shade_fiv). */
+PN_FIV_INLINE void pn_fiv_shade8(global const float4 *position, global const float4 *normal,
+                                 global const float4 *albedo, global const uint *instance_id,
+                                 global const float4 *irradiance, int m, global const float4 *occluders,
+                                 int occluder_count, global const uchar *fields, float cull_floor, float4 env_x,
+                                 float4 env_y, float4 env_z, int overlap, int partial, int self_shadow, int trilinear,
+                                 int width, int binned, global const uint *tile_masks, global float4 *image,
+                                 int background, global const float *latlong, int latlong_width, int latlong_height,
+                                 float2 rot, float intensity, int y, int x0, pn_fiv_normal_cache *cache)
 {
-    int groups = (width + PN_FIV_LANES - 1) / PN_FIV_LANES;
-    int item = get_global_id(0);
-    int y = item / groups, x0 = (item - y * groups) * PN_FIV_LANES;
-    if (width <= 0 || y >= count / width)
-        return;
     /* The 8 pixels in lanes: the G-buffer planes by 8-wide loads and
      * shuffles (pn_load_row8), the normals normalised in lanes (the
      * built-in's bits, pn_normalize8). Each lane's values go into the lane
@@ -629,9 +631,27 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     /* 8 neighbouring pixels of a flat surface share one normal (most of a
      * floor): their irradiance is looked up once (pn_cube_grid_lookup8) */
     const bool one_normal = !pn_fiv_any8(~((nx == nx.s0) & (ny == ny.s0) & (nz == nz.s0)));
-    pn_normalize8(&nx, &ny, &nz);
     float8 tot_r = 0.0f, tot_g = 0.0f, tot_b = 0.0f;
-    pn_cube_grid_lookup8(irradiance, m, nx, ny, nz, active, one_normal, &tot_r, &tot_g, &tot_b);
+    const uint3 raw = (uint3)(as_uint(nx.s0), as_uint(ny.s0), as_uint(nz.s0));
+#ifndef PN_X_NOCACHE
+    if (one_normal && cache->valid && raw.x == cache->raw.x && raw.y == cache->raw.y && raw.z == cache->raw.z) {
+        /* the same normal bits as the last single normal: the same
+         * normalised normal and irradiance (pn_cube_grid_lookup8's one-normal
+         * path, computed once per work-item and normal) */
+        nx = cache->n.x, ny = cache->n.y, nz = cache->n.z;
+        const float3 e = cache->e;
+        tot_r = select((float8)(0.0f), (float8)(e.x), active), tot_g = select((float8)(0.0f), (float8)(e.y), active);
+        tot_b = select((float8)(0.0f), (float8)(e.z), active);
+    } else
+#endif
+    {
+        pn_normalize8(&nx, &ny, &nz);
+        pn_cube_grid_lookup8(irradiance, m, nx, ny, nz, active, one_normal, &tot_r, &tot_g, &tot_b);
+        if (one_normal) {
+            const float3 n = (float3)(nx.s0, ny.s0, nz.s0);
+            cache->raw = raw, cache->n = n, cache->e = pn_cube_grid_lookup(irradiance, m, n), cache->valid = true;
+        }
+    }
     float8 base_r = tot_r, base_g = tot_g, base_b = tot_b;
     if (self_shadow) {
         /* per-lane copies for the scalar code below (a vector store, read
@@ -863,3 +883,33 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     pn_store_row8(image, row, full, in_row, out_r, out_g, out_b, select((float8)(0.0f), (float8)(1.0f), active));
 }
 
+/* One work-item per `row_groups` groups of 8 pixels of a row (above; global
+ * size ceil(ceil(width / 8) / row_groups) x height): neighbouring groups of
+ * a flat surface mostly share one normal, whose normalisation and
+ * unshadowed irradiance a work-item then computes once
+ * (pn_fiv_normal_cache; docs/performance.md, FIV, "The floor round 2"). */
+kernel void shade_fiv(global const float4 *position, global const float4 *normal, global const float4 *albedo,
+                      global const uint *instance_id, int count, global const float4 *irradiance, int m,
+                      global const float4 *occluders,
+                      int occluder_count, global const uchar *fields, float cull_floor, float4 env_x, float4 env_y,
+                      float4 env_z,
+                      int overlap, int partial, int self_shadow, int trilinear, int width, int binned,
+                      global const uint *tile_masks, global float4 *image, int background,
+                      global const float *latlong, int latlong_width, int latlong_height, float2 rot,
+                      float intensity, int row_groups)
+{
+    if (width <= 0 || row_groups <= 0)
+        return;
+    const int groups = (width + PN_FIV_LANES - 1) / PN_FIV_LANES, per_row = (groups + row_groups - 1) / row_groups;
+    const int item = get_global_id(0);
+    const int y = item / per_row, g0 = (item - y * per_row) * row_groups;
+    if (y >= count / width)
+        return;
+    pn_fiv_normal_cache cache;
+    cache.valid = false;
+    for (int g = g0; g < min(g0 + row_groups, groups); ++g)
+        pn_fiv_shade8(position, normal, albedo, instance_id, irradiance, m, occluders, occluder_count, fields,
+                      cull_floor, env_x, env_y, env_z, overlap, partial, self_shadow, trilinear, width, binned,
+                      tile_masks, image, background, latlong, latlong_width, latlong_height, rot, intensity, y,
+                      PN_FIV_LANES * g, &cache);
+}
