@@ -110,7 +110,7 @@ static void cell_bounds(const struct pn_fiv_impl *f, float *out)
  * of the smaller to the larger of |d.x|, |d.z|). Keep in step with fiv.cl. */
 /* Groups of 8 pixels of a row per shade_fiv work-item (kernels/fiv.cl): a
  * work-item normalises and looks up a normal its groups share once. */
-#define PN_FIV_ROW_GROUPS 4
+#define PN_FIV_ROW_GROUPS 8
 #define PN_FIV_BINS_Z 16
 #define PN_FIV_BINS_P 32
 #define PN_FIV_PI 3.14159265358979323846
