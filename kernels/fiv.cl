@@ -883,6 +883,36 @@ PN_FIV_INLINE void pn_fiv_shade8(global const float4 *position, global const flo
     pn_store_row8(image, row, full, in_row, out_r, out_g, out_b, select((float8)(0.0f), (float8)(1.0f), active));
 }
 
+/* Whether the groups g0 .. g1 - 1 of the row from index `row0` on are all
+ * background (the lanes past the row's end count as background). */
+PN_FIV_INLINE bool pn_fiv_all_sky(global const uint *instance_id, int row0, int width, int g0, int g1)
+{
+    for (int g = g0; g < g1; ++g) {
+        const int x0 = PN_FIV_LANES * g;
+        if (x0 + PN_FIV_LANES <= width) {
+            if (pn_fiv_any8(as_int8(vload8(0, instance_id + row0 + x0) != PN_BACKGROUND)))
+                return false;
+        } else {
+            for (int x = x0; x < width; ++x)
+                if (instance_id[row0 + x] != PN_BACKGROUND)
+                    return false;
+        }
+    }
+    return true;
+}
+
+/* pn_background_cell8 of group g of an all-background row (shade_fiv). */
+PN_FIV_INLINE void pn_fiv_sky_cell8(global const float4 *position, int row0, int width, int g, float2 rot,
+                                    int latlong_width, int latlong_height, int8 *i00, int8 *i10, int8 *i01,
+                                    int8 *i11, float8 *fx, float8 *fy)
+{
+    const int x0 = PN_FIV_LANES * g;
+    const int8 in_row = (int8)(0, 1, 2, 3, 4, 5, 6, 7) < width - x0;
+    float8 px, py, pz;
+    pn_load_row8(position, row0 + x0, x0 + PN_FIV_LANES <= width, in_row, &px, &py, &pz);
+    pn_background_cell8(latlong_width, latlong_height, rot, px, py, pz, in_row, i00, i10, i01, i11, fx, fy);
+}
+
 /* One work-item per `row_groups` groups of 8 pixels of a row (above; global
  * size ceil(ceil(width / 8) / row_groups) x height): neighbouring groups of
  * a flat surface mostly share one normal, whose normalisation and
@@ -905,9 +935,39 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     const int y = item / per_row, g0 = (item - y * per_row) * row_groups;
     if (y >= count / width)
         return;
+    const int g1 = min(g0 + row_groups, groups);
+#ifndef PN_X_NOSKYROW
+    if (background && pn_fiv_all_sky(instance_id, y * width, width, g0, g1)) {
+        /* Only env map pixels (the sky above a horizon): each group's
+         * texel offsets and weights (pn_background_cell8) are computed
+         * before the group before it reads its texels, so that the two
+         * groups' work overlaps (the chain from the direction through the
+         * angles to the texel reads is long); the same operations per group
+         * as pn_background8. */
+        int8 c00, c10, c01, c11;
+        float8 cfx, cfy;
+        pn_fiv_sky_cell8(position, y * width, width, g0, rot, latlong_width, latlong_height, &c00, &c10, &c01,
+                         &c11, &cfx, &cfy);
+        for (int g = g0; g < g1; ++g) {
+            int8 n00 = 0, n10 = 0, n01 = 0, n11 = 0;
+            float8 nfx = 0.0f, nfy = 0.0f;
+            if (g + 1 < g1)
+                pn_fiv_sky_cell8(position, y * width, width, g + 1, rot, latlong_width, latlong_height, &n00,
+                                 &n10, &n01, &n11, &nfx, &nfy);
+            const int x0 = PN_FIV_LANES * g, row = y * width + x0;
+            const bool full = x0 + PN_FIV_LANES <= width;
+            const int8 in_row = (int8)(0, 1, 2, 3, 4, 5, 6, 7) < width - x0;
+            float8 sky_r, sky_g, sky_b;
+            pn_background_texels8(latlong, intensity, in_row, c00, c10, c01, c11, cfx, cfy, &sky_r, &sky_g, &sky_b);
+            pn_store_row8(image, row, full, in_row, sky_r, sky_g, sky_b, (float8)(0.0f));
+            c00 = n00, c10 = n10, c01 = n01, c11 = n11, cfx = nfx, cfy = nfy;
+        }
+        return;
+    }
+#endif
     pn_fiv_normal_cache cache;
     cache.valid = false;
-    for (int g = g0; g < min(g0 + row_groups, groups); ++g)
+    for (int g = g0; g < g1; ++g)
         pn_fiv_shade8(position, normal, albedo, instance_id, irradiance, m, occluders, occluder_count, fields,
                       cull_floor, env_x, env_y, env_z, overlap, partial, self_shadow, trilinear, width, binned,
                       tile_masks, image, background, latlong, latlong_width, latlong_height, rot, intensity, y,
