@@ -883,6 +883,10 @@ PN_FIV_INLINE void pn_fiv_shade8(global const float4 *position, global const flo
     pn_store_row8(image, row, full, in_row, out_r, out_g, out_b, select((float8)(0.0f), (float8)(1.0f), active));
 }
 
+/* Groups of an all-background work-item whose texel cells are computed
+ * before their texels are read (shade_fiv). */
+#define PN_FIV_SKY_BATCH 8
+
 /* Whether the groups g0 .. g1 - 1 of the row from index `row0` on are all
  * background (the lanes past the row's end count as background). */
 PN_FIV_INLINE bool pn_fiv_all_sky(global const uint *instance_id, int row0, int width, int g0, int g1)
@@ -938,29 +942,28 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     const int g1 = min(g0 + row_groups, groups);
 #ifndef PN_X_NOSKYROW
     if (background && pn_fiv_all_sky(instance_id, y * width, width, g0, g1)) {
-        /* Only env map pixels (the sky above a horizon): each group's
-         * texel offsets and weights (pn_background_cell8) are computed
-         * before the group before it reads its texels, so that the two
-         * groups' work overlaps (the chain from the direction through the
-         * angles to the texel reads is long); the same operations per group
-         * as pn_background8. */
-        int8 c00, c10, c01, c11;
-        float8 cfx, cfy;
-        pn_fiv_sky_cell8(position, y * width, width, g0, rot, latlong_width, latlong_height, &c00, &c10, &c01,
-                         &c11, &cfx, &cfy);
-        for (int g = g0; g < g1; ++g) {
-            int8 n00 = 0, n10 = 0, n01 = 0, n11 = 0;
-            float8 nfx = 0.0f, nfy = 0.0f;
-            if (g + 1 < g1)
-                pn_fiv_sky_cell8(position, y * width, width, g + 1, rot, latlong_width, latlong_height, &n00,
-                                 &n10, &n01, &n11, &nfx, &nfy);
-            const int x0 = PN_FIV_LANES * g, row = y * width + x0;
-            const bool full = x0 + PN_FIV_LANES <= width;
-            const int8 in_row = (int8)(0, 1, 2, 3, 4, 5, 6, 7) < width - x0;
-            float8 sky_r, sky_g, sky_b;
-            pn_background_texels8(latlong, intensity, in_row, c00, c10, c01, c11, cfx, cfy, &sky_r, &sky_g, &sky_b);
-            pn_store_row8(image, row, full, in_row, sky_r, sky_g, sky_b, (float8)(0.0f));
-            c00 = n00, c10 = n10, c01 = n01, c11 = n11, cfx = nfx, cfy = nfy;
+        /* Only env map pixels (the sky above a horizon): the texel offsets
+         * and weights of up to PN_FIV_SKY_BATCH groups first
+         * (pn_background_cell8), then their texels, so that the groups'
+         * chains from the direction through the angles to the texel reads
+         * overlap (one group at a time leaves them waiting on each other);
+         * the same operations per group as pn_background8, so the same bits. */
+        for (int gb = g0; gb < g1; gb += PN_FIV_SKY_BATCH) {
+            const int n = min(PN_FIV_SKY_BATCH, g1 - gb);
+            int8 c00[PN_FIV_SKY_BATCH], c10[PN_FIV_SKY_BATCH], c01[PN_FIV_SKY_BATCH], c11[PN_FIV_SKY_BATCH];
+            float8 cfx[PN_FIV_SKY_BATCH], cfy[PN_FIV_SKY_BATCH];
+            for (int b = 0; b < n; ++b)
+                pn_fiv_sky_cell8(position, y * width, width, gb + b, rot, latlong_width, latlong_height, &c00[b],
+                                 &c10[b], &c01[b], &c11[b], &cfx[b], &cfy[b]);
+            for (int b = 0; b < n; ++b) {
+                const int x0 = PN_FIV_LANES * (gb + b), row = y * width + x0;
+                const bool full = x0 + PN_FIV_LANES <= width;
+                const int8 in_row = (int8)(0, 1, 2, 3, 4, 5, 6, 7) < width - x0;
+                float8 sky_r, sky_g, sky_b;
+                pn_background_texels8(latlong, intensity, in_row, c00[b], c10[b], c01[b], c11[b], cfx[b], cfy[b],
+                                      &sky_r, &sky_g, &sky_b);
+                pn_store_row8(image, row, full, in_row, sky_r, sky_g, sky_b, (float8)(0.0f));
+            }
         }
         return;
     }

@@ -590,8 +590,9 @@ def test_groups_sharing_a_normal(ctx, env, meshes, fields):
     whose groups take one normal each in the order A A B A, then at random
     among A, B and C (B and C differ only in the sign of z), some
     groups with background lanes or with one lane's normal differing (not a
-    single normal: the cache is neither used nor replaced), and all-sky
-    groups between them; against the twin, and bit for bit against the same
+    single normal: the cache is neither used nor replaced), all-sky
+    groups between them, and work-items of background alone (one ending in a
+    partial group); against the twin, and bit for bit against the same
     groups each alone in its work-item (the first group of 64 pixels, the
     rest background), where nothing is cached."""
     rng = np.random.default_rng(16)
@@ -615,6 +616,8 @@ def test_groups_sharing_a_normal(ctx, env, meshes, fields):
     for r, g in zip(*np.nonzero(sky)):
         inst[r, 8 * g:8 * g + 8] = BACKGROUND
     inst[rng.random((rows, w)) < 0.05] = BACKGROUND  # background lanes among one normal
+    inst[0] = BACKGROUND  # work-items of background alone (shade_fiv's sky path) ...
+    inst[1, span:] = BACKGROUND  # ... and one ending in a partial group
     instances = [(fields["sphere"], meshes["sphere"][1], translate((0.0, 0.6, 0.0)))]
     s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
     alone = [np.zeros((rows, span * groups, 3)), np.zeros((rows, span * groups, 3)),
