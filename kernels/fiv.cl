@@ -1061,10 +1061,15 @@ PN_FIV_INLINE void pn_fiv_sky_cell8(global const float4 *position, int row0, int
 }
 
 /* One work-item per `row_groups` groups of 8 pixels of a row (above; global
- * size ceil(ceil(width / 8) / row_groups) x height): neighbouring groups of
- * a flat surface mostly share one normal, whose normalisation and
- * unshadowed irradiance a work-item then computes once
- * (pn_fiv_normal_cache; docs/performance.md, FIV, "The floor round 2"). */
+ * size ceil(ceil(width / 8) / row_groups) x height, PN_FIV_ROW_GROUPS in
+ * capi/src/methods/fiv.c): neighbouring groups of a flat surface mostly
+ * share one normal, whose normalisation and unshadowed irradiance a
+ * work-item then computes once (pn_fiv_normal_cache); a work-item of
+ * background alone computes its groups' texel cells before their texels;
+ * without the disc correction's pairs the two groups of a 16x16 tile go
+ * through the occluder loop side by side (pn_fiv_run_pair8). Each group's
+ * pixels get the operations of one group alone, so the same bits
+ * (docs/performance.md, FIV, "The floor round 2"). */
 kernel void shade_fiv(global const float4 *position, global const float4 *normal, global const float4 *albedo,
                       global const uint *instance_id, int count, global const float4 *irradiance, int m,
                       global const float4 *occluders,

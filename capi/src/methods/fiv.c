@@ -109,7 +109,9 @@ static void cell_bounds(const struct pn_fiv_impl *f, float *out)
  * phi in [0, 8] that needs no atan (p = t, 2 - t, ... by octant, t the ratio
  * of the smaller to the larger of |d.x|, |d.z|). Keep in step with fiv.cl. */
 /* Groups of 8 pixels of a row per shade_fiv work-item (kernels/fiv.cl): a
- * work-item normalises and looks up a normal its groups share once. */
+ * work-item normalises and looks up a normal its groups share once, and
+ * overlaps the work of neighbouring groups. 8 measured 0.98x the CPU time
+ * of 4 and 16 1.02-1.03x of 8 (docs/performance.md, FIV, "The floor round 2"). */
 #define PN_FIV_ROW_GROUPS 8
 #define PN_FIV_BINS_Z 16
 #define PN_FIV_BINS_P 32
@@ -416,10 +418,10 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
                           &env->intensity, &row_groups};
     if ((st = pn_set_args(ctx, k, "shade_fiv", 29, sizes, vals)))
         return st;
-    /* 8 pixels of a row per work-item (vector lanes, kernels/fiv.cl), one
-     * work-item per work-group: PoCL then runs no loop over work-items around
-     * the kernel's own loops, which measured 7 % less CPU time than
-     * work-groups of 8 (docs/performance.md, FIV). */
+    /* PN_FIV_ROW_GROUPS groups of 8 pixels of a row per work-item (vector
+     * lanes, kernels/fiv.cl), one work-item per work-group: PoCL then runs no
+     * loop over work-items around the kernel's own loops, which measured 7 %
+     * less CPU time than work-groups of 8 (docs/performance.md, FIV). */
     const size_t groups = (gb->width + 7) / 8;
     const size_t items = (groups + PN_FIV_ROW_GROUPS - 1) / PN_FIV_ROW_GROUPS * gb->height;
     return pn_enqueue_1d(ctx, k, "shade_fiv", items, 1);
