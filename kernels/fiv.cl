@@ -21,6 +21,10 @@
  * shared fetch (pn_fiv_fetch8) does not serve get a huge FIV instead of
  * theirs (to count them), 4 = no occluder loop at all (the pixel setup, the
  * unshadowed part, the background and the output alone). 0 (default) = all.
+ * PN_FIV_NO_NORMAL_CACHE, PN_FIV_NO_SKY_BATCH and PN_FIV_NO_PAIRS (build
+ * options, for A/B timings in one process: bench/fiv_speed.py
+ * --build-options) leave out the normal cache, the background-only batch and
+ * the two groups side by side of shade_fiv (the same images either way).
  *
  * Occluder record, 4 float4 (capi/src/fiv.c):
  *   [0] centre xyz (world), bounding radius R (world)
@@ -655,7 +659,7 @@ PN_FIV_INLINE bool pn_fiv_begin8(const pn_fiv_args *a, int y, int x0, pn_fiv_nor
     const bool one_normal = !pn_fiv_any8(~((nx == nx.s0) & (ny == ny.s0) & (nz == nz.s0)));
     float8 tot_r = 0.0f, tot_g = 0.0f, tot_b = 0.0f;
     const uint3 raw = (uint3)(as_uint(nx.s0), as_uint(ny.s0), as_uint(nz.s0));
-#ifndef PN_X_NOCACHE
+#ifndef PN_FIV_NO_NORMAL_CACHE
     if (one_normal && cache->valid && raw.x == cache->raw.x && raw.y == cache->raw.y && raw.z == cache->raw.z) {
         /* the same normal bits as the last single normal: the same
          * normalised normal and irradiance (pn_cube_grid_lookup8's one-normal
@@ -1088,7 +1092,7 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     if (y >= count / width)
         return;
     const int g1 = min(g0 + row_groups, groups);
-#ifndef PN_X_NOSKYROW
+#ifndef PN_FIV_NO_SKY_BATCH
     if (background && pn_fiv_all_sky(instance_id, y * width, width, g0, g1)) {
         /* Only env map pixels (the sky above a horizon): the texel offsets
          * and weights of up to PN_FIV_SKY_BATCH groups first
@@ -1125,7 +1129,7 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     cache.valid = false;
     for (int g = g0; g < g1;) {
         pn_fiv_px8 p, q;
-#ifndef PN_X_NOPAIR
+#ifndef PN_FIV_NO_PAIRS
         if (!pairs && g % 2 == 0 && g + 1 < g1) { /* two groups of one tile side by side */
             const bool on = pn_fiv_begin8(&args, y, PN_FIV_LANES * g, &cache, &p);
             const bool uon = pn_fiv_begin8(&args, y, PN_FIV_LANES * (g + 1), &cache, &q);
