@@ -44,6 +44,9 @@
 #ifndef HF_PROF_SUN
 #define HF_PROF_SUN 1
 #endif
+#ifndef HF_VIS_PREP /* a build option only to measure the per-wedge scalar index work (0) */
+#define HF_VIS_PREP 1
+#endif
 #ifndef HF_EXIT_BOUND /* added to max |H|: a build option only to test that a wrong bound is caught */
 #define HF_EXIT_BOUND 0.0f
 #endif
@@ -1067,7 +1070,50 @@ inline void hf_visibility(const float *om, int n_phi, global const float *table,
             rc2 = select((float16)(1.0f), (float16)(0.0f), HF_ABS_M2 == 7u);
     float16 rs0 = 0.0f, rs1 = 0.0f, rs2 = 0.0f;
     float16 a0 = 0.0f, a1 = 0.0f, a2 = 0.0f, b0 = 0.0f, b1 = 0.0f, b2 = 0.0f;
+#if HF_VIS_PREP
+    /* Each wedge's table cell and bilinear weights, 16 wedges at a time in
+     * the lanes (the same float operations as the scalar form below, lane
+     * by lane), kept in private arrays for the chunk loop. */
+    int toff[HF_MAX_AZIMUTHS];
+    float tw00[HF_MAX_AZIMUTHS], tw01[HF_MAX_AZIMUTHS], tw10[HF_MAX_AZIMUTHS], tw11[HF_MAX_AZIMUTHS];
+    int k0 = 0;
+    for (; k0 + 16 <= n_phi; k0 += 16) {
+        const float16 oa = vload16(0, om + k0);
+        float16 ob;
+        if (k0 + 16 < n_phi)
+            ob = vload16(0, om + k0 + 1);
+        else
+            ob = shuffle2(oa, (float16)(om[0]), (uint16)(1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16));
+        const float16 fa = clamp((oa - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
+        const float16 fb = clamp((ob - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
+        const int16 ia = min(convert_int16(fa), HF_TABLE - 2), ib = min(convert_int16(fb), HF_TABLE - 2);
+        const float16 ta = fa - convert_float16(ia), tb = fb - convert_float16(ib);
+        const float16 w11 = ta * tb, w10 = ta - w11, w01 = tb - w11, w00 = 1.0f - ta - w01;
+        vstore16((ia * HF_TABLE + ib) * ns, 0, toff + k0);
+        vstore16(w00, 0, tw00 + k0);
+        vstore16(w01, 0, tw01 + k0);
+        vstore16(w10, 0, tw10 + k0);
+        vstore16(w11, 0, tw11 + k0);
+    }
+    for (int k = k0; k < n_phi; ++k) {
+        const float fa = clamp((om[k] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
+        const float fb = clamp((om[k + 1 < n_phi ? k + 1 : 0] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
+        const int ia = min((int)fa, HF_TABLE - 2), ib = min((int)fb, HF_TABLE - 2);
+        const float ta = fa - (float)ia, tb = fb - (float)ib;
+        const float w11 = ta * tb, w01 = tb - w11;
+        toff[k] = (ia * HF_TABLE + ib) * ns;
+        tw00[k] = 1.0f - ta - w01;
+        tw01[k] = w01;
+        tw10[k] = ta - w11;
+        tw11[k] = w11;
+    }
+#endif
     for (int k = 0; k < n_phi; ++k) {
+#if HF_VIS_PREP
+        global const float *t00 = table + toff[k], *t01 = t00 + ns;
+        global const float *t10 = t00 + HF_TABLE * ns, *t11 = t10 + ns;
+        const float w00 = tw00[k], w01 = tw01[k], w10 = tw10[k], w11 = tw11[k];
+#else
         const float fa = clamp((om[k] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
         const float fb = clamp((om[k + 1 < n_phi ? k + 1 : 0] - lo) * scale, 0.0f, (float)(HF_TABLE - 1));
         const int ia = min((int)fa, HF_TABLE - 2), ib = min((int)fb, HF_TABLE - 2);
@@ -1076,6 +1122,7 @@ inline void hf_visibility(const float *om, int n_phi, global const float *table,
         global const float *t10 = t00 + HF_TABLE * ns, *t11 = t10 + ns;
         /* the bilinear weights (four FMAs per chunk instead of three mixes) */
         const float w11 = ta * tb, w10 = ta - w11, w01 = tb - w11, w00 = 1.0f - ta - w01;
+#endif
         /* (c, s) -> (c cos|m|δ - s sign sin|m|δ, s cos|m|δ + c sign sin|m|δ); sign² = 1 where sin|m|δ != 0 */
 #define HF_WEDGE_CHUNK(q, a, b, rc, rs, dc, ds)                                                                 \
     {                                                                                                           \
@@ -1485,6 +1532,34 @@ HF_INLINE hf_rf hf_horizon_pyramid_lanes(global const float *pyr, global const i
     return select(best, (hf_rf)(-M_PI_2_F), count == 0);
 }
 
+#ifndef HF_LIGHT_SETUP_LANES /* a build option only to measure the lane-by-lane setup (0) */
+#define HF_LIGHT_SETUP_LANES 1
+#endif
+/* dot() of 3-vectors in the lanes, as the builtin rounds it (no contraction into FMAs). */
+HF_INLINE hf_rf hf_dot3_r(hf_rf ax, hf_rf ay, hf_rf az, hf_rf bx, hf_rf by, hf_rf bz)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    return ax * bx + ay * by + az * bz;
+}
+
+HF_INLINE int hf_any_r(hf_ri m)
+{
+    return any(m);
+}
+
+/* hf_sphere_irradiance in the lanes (the partial branch only where a lane needs it). */
+HF_INLINE hf_rf hf_sphere_irradiance_r(hf_rf c, hf_rf sin2)
+{
+    const hf_ri whole = c * c > sin2;
+    hf_rf e = select((hf_rf)(0.0f), M_PI_F * sin2 * c, c > 0.0f);
+    if (!all(whole)) {
+        const hf_rf sn = sqrt(fmax(1.0f - c * c, 0.0f)), x = sqrt(fmax(1.0f / sin2 - 1.0f, 0.0f));
+        const hf_rf y = clamp(-x * c / fmax(sn, 1e-7f), -1.0f, 1.0f), sy = sn * sqrt(1.0f - y * y);
+        e = select(fmax((c * acos(y) - x * sy) * sin2 + atan2(sy, x), 0.0f), e, whole);
+    }
+    return e;
+}
+
 /* hf_light (light_visibility = 1, pyramid) for the row group of 16
  * vertices starting at gid (fewer at the row's end). */
 inline void hf_light_row(global const float *pyr, global const int4 *levels, int4 grid, float8 geom,
@@ -1496,6 +1571,48 @@ inline void hf_light_row(global const float *pyr, global const int4 *levels, int
     const float le = fmax(fmax(radiance.x, radiance.y), radiance.z), r = light.w;
     float e[HF_ROW], irr[HF_ROW], elev[HF_ROW], alpha[HF_ROW], phi[HF_ROW], spread[HF_ROW], lim[HF_ROW];
     bool any = false;
+#if HF_LIGHT_SETUP_LANES
+    /* The per-vertex setup below (the cap, the clipped irradiance, the
+     * disc's elevation, azimuth and spread) for the 16 lanes at once, lanes
+     * that the scalar form skips (continue) masked to the same zeros. */
+    {
+        float hv[HF_ROW], nxv[HF_ROW], nyv[HF_ROW], nzv[HF_ROW];
+        for (int l = 0; l < HF_ROW; ++l) {
+            const int g = gid + min(l, lanes - 1);
+            const float4 nn = normals[g];
+            hv[l] = pyr[g];
+            nxv[l] = nn.x;
+            nyv[l] = nn.y;
+            nzv[l] = nn.z;
+        }
+        const hf_rf rx = light.x - (geom.s0 + hf_convert_rf(i0 + HF_ROW_IDS) * geom.s3),
+                    ry = light.y - (geom.s1 + hf_vload_r(0, hv));
+        const float rz = light.z - (geom.s2 + (float)j * geom.s4);
+        const hf_rf nx = hf_vload_r(0, nxv), ny = hf_vload_r(0, nyv), nz = hf_vload_r(0, nzv);
+        const hf_rf d2 = hf_dot3_r(rx, ry, rz, rx, ry, rz), dist = sqrt(d2), nr = hf_dot3_r(nx, ny, nz, rx, ry, rz);
+        const hf_ri inside = d2 <= r * r;
+        const hf_rf qc = r * r / d2;
+        const hf_rf s = select(qc / (1.0f + sqrt(1.0f - qc)), (hf_rf)(2.0f), inside);
+        const hf_rf sin_alpha = sqrt(fmax(0.0f, s * (2.0f - s)));
+        const hf_rf cos_n = select((hf_rf)(1.0f), nr / dist, dist > 0.0f);
+        hf_ri ok = (HF_ROW_IDS < lanes) & !(s >= 2.0f) & !(cos_n <= -sin_alpha) & (le * 2.0f * M_PI_F * s >= threshold) &
+                   !inside;
+        const hf_rf sin2 = qc, a = asin(sqrt(sin2)), c = nr / dist;
+        const hf_rf ir = hf_sphere_irradiance_r(c, sin2);
+        ok &= ir > 0.0f;
+        const hf_rf limit = sqrt(rx * rx + rz * rz);
+        const hf_ri srch = ok & (limit > 0.0f);
+        const hf_rf el = asin(clamp(ry / dist, -1.0f, 1.0f));
+        hf_vstore_r(select((hf_rf)(0.0f), ir, ok & !srch), 0, e);
+        hf_vstore_r(select((hf_rf)(0.0f), ir, srch), 0, irr);
+        hf_vstore_r(select((hf_rf)(0.0f), a, srch), 0, alpha);
+        hf_vstore_r(select((hf_rf)(0.0f), el, srch), 0, elev);
+        hf_vstore_r(select((hf_rf)(0.0f), atan2(-rz, rx), srch), 0, phi);
+        hf_vstore_r(select((hf_rf)(0.0f), fmin(a / fmax(cos(el), 1e-3f), M_PI_F), srch), 0, spread);
+        hf_vstore_r(select((hf_rf)(0.0f), limit, srch), 0, lim);
+        any = hf_any_r(srch);
+    }
+#else
     for (int l = 0; l < HF_ROW; ++l) {
         e[l] = irr[l] = elev[l] = alpha[l] = phi[l] = spread[l] = lim[l] = 0.0f;
         if (l >= lanes)
@@ -1529,6 +1646,7 @@ inline void hf_light_row(global const float *pyr, global const int4 *levels, int
         lim[l] = limit;
         any = true;
     }
+#endif
     if (any) {
         const float inv_wm1 = 1.0f / (float)(grid.x - 1), inv_dm1 = 1.0f / (float)(grid.y - 1), v0 = (float)j;
         const float ref = pyr[gid];

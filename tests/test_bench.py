@@ -18,7 +18,8 @@ from penumbra.bench import (README_BEGIN, README_END, RESULT_KEYS, BenchOptions,
 from penumbra.cli import main
 from penumbra.errors import InputError
 from penumbra.scenefile import parse_scene
-from penumbra.methods.fiv import PAPER_FPS, fiv_scaling, fiv_scaling_scene, fiv_spread_scene
+from penumbra.methods.fiv import (PAPER_FPS, fiv_scaling, fiv_scaling_scene, fiv_spread_scene, per_lookup_costs,
+                                  per_lookup_ratios)
 
 README_FIV = methods.technique("fiv").readme_setting
 SWEEPS = default_sweeps()
@@ -194,12 +195,21 @@ def test_fiv_scaling_writes_results(tmp_path, shared_data):
         assert r["fiv_cpu_ms"] > 0 and r["floor_cpu_ms"] > 0
         assert r["ratio_to_floor_cpu"] == pytest.approx(r["fiv_cpu_ms"] / r["floor_cpu_ms"])
         assert r["tile_cull_speedup_cpu"] > 0 and r["per_lookup_cpu_ns"] is not None
+        # the loop's cost per lookup: fiv less the same kernel built without its occluder loop
+        assert r["fiv_noloop_shade_ms"] > 0 and r["fiv_noloop_cpu_ms"] > 0 and r["fiv_sum_noloop_cpu_ms"] > 0
+        assert r["noloop_same_gbuffer"] is True
+        lookups = r["tiles_lookups_per_pixel"] * r["tiles_receiver_pixels"]
+        assert r["loop_per_lookup_cpu_ns"] == pytest.approx(r["loop_cpu_ms"] * 1e6 / lookups)
+        assert r["loop_cpu_ms"] == pytest.approx(r["fiv_cpu_ms"] - r["fiv_noloop_cpu_ms"], abs=0.5)  # paired rounds
+        assert r["per_lookup_cpu_ns"] == pytest.approx((r["fiv_cpu_ms"] - r["unshadowed_cpu_ms"]) * 1e6 / lookups)
         assert r["tile_cull_speedup"] == pytest.approx(r["fiv_unculled_shade_ms"] / r["fiv_shade_ms"])
         assert r["fps_shading"] == pytest.approx(1000 / r["fiv_shade_ms"])
         assert 0 <= r["tiles_per_tile_min"] <= r["tiles_per_tile_max"] <= r["occluders"]
         assert sum(r["tiles_per_tile_histogram"]) == r["tiles_tiles"] > 0
     assert data["results"][0]["per_lookup_ratio"] == pytest.approx(1.0)
     assert data["results"][0]["per_lookup_cpu_ratio"] == pytest.approx(1.0)
+    for key in ("loop_per_lookup_ratio", "loop_per_lookup_cpu_ratio", "loop_per_lookup_sum_cpu_ratio"):
+        assert data["results"][0][key] == pytest.approx(1.0)
     assert data["results"][2]["tiles_per_tile_mean"] < 4  # 100 units apart: no tile sees all four
     assert data["results"][0]["paper_fps"] == PAPER_FPS[1] == 112 and data["results"][1]["paper_fps"] is None
     assert data["summary"]["samples_phi_theta_radii"] == [8, 5, 4] and data["summary"]["bake"]["baked_now"]
@@ -207,6 +217,7 @@ def test_fiv_scaling_writes_results(tmp_path, shared_data):
     text = (tmp_path / "report.md").read_text()
     assert "fiv / floor" in text and "fiv / floor (CPU time)" in text and "paper fps" in text and "| 3 |" in text and "tile culling speed-up" in text
     assert "## Goals (issue 15)" in text and "Tile culling, 4 bunnies over a 800 x 800 floor" in text
+    assert "fiv without the occluder loop ms" in text and "earlier measure, (fiv - unshadowed)" in text
     # The scenes are real scene files (paths relative to them, the bake cache beside them).
     from penumbra.scenefile import load_scene
 
@@ -214,6 +225,70 @@ def test_fiv_scaling_writes_results(tmp_path, shared_data):
     assert sum(o.is_occluder for o in desc.objects) == 3
     assert Path(desc.objects[1].mesh) == (shared_data / "meshes" / "bunny_odedstein_3k.obj").resolve()
     assert len(list((tmp_path / "cache" / "fiv").glob("*.pnfiv"))) == 1
+
+
+def _scaling_ms(fiv, noloop, unshadowed, sum_extra=0.0):
+    """_interleaved_ms's medians for one scene, the CPU times equal to the wall clock's."""
+    ms = {"fiv": fiv, "fiv_sum": fiv - sum_extra, "unshadowed": unshadowed, "fiv_noloop": noloop,
+          "fiv_sum_noloop": noloop}
+    ms.update({"cpu:" + k: v for k, v in list(ms.items())})
+    return ms
+
+
+def _ratios(scenes):
+    rows = [{"occluders": n, "layout": "clustered", **per_lookup_costs(_scaling_ms(*t), lookups)}
+            for n, lookups, t in scenes]
+    per_lookup_ratios(rows)
+    return rows
+
+
+def test_per_lookup_measure_subtracts_fivs_own_pixel_work():
+    # 1 occluder: 1e5 lookups; 60: 6e6. Times in ms: (fiv, fiv without the loop, unshadowed).
+    before = _ratios([(1, 1e5, (4.0, 2.0, 1.0)), (60, 6e6, (242.0, 2.0, 1.0, 80.0))])
+    assert before[0]["loop_per_lookup_cpu_ns"] == pytest.approx(20.0)  # (4 - 2) ms / 1e5
+    assert before[0]["per_lookup_cpu_ns"] == pytest.approx(30.0)  # (4 - 1) ms / 1e5
+    assert before[1]["loop_per_lookup_cpu_ns"] == pytest.approx(40.0)
+    assert before[1]["loop_per_lookup_sum_cpu_ns"] == pytest.approx(160.0 / 6e6 * 1e6)
+    assert before[1]["loop_per_lookup_cpu_ratio"] == pytest.approx(2.0)
+    assert before[1]["loop_per_lookup_ratio"] == pytest.approx(2.0)  # the wall clock's, the same times
+    assert before[1]["per_lookup_cpu_ratio"] == pytest.approx((241 / 6) / 30)
+    assert before[0]["loop_per_lookup_cpu_ratio"] == before[0]["per_lookup_cpu_ratio"] == 1.0
+    # fiv's pixel work 0.7 ms cheaper in every frame, the loop as it was: the loop measure
+    # does not move, the earlier one (over unshadowed's whole kernel) does.
+    after = _ratios([(1, 1e5, (3.3, 1.3, 1.0)), (60, 6e6, (241.3, 1.3, 1.0, 80.0))])
+    assert after[1]["loop_per_lookup_cpu_ratio"] == pytest.approx(before[1]["loop_per_lookup_cpu_ratio"])
+    assert after[1]["per_lookup_cpu_ratio"] > 1.1 * before[1]["per_lookup_cpu_ratio"]
+    # a dearer lookup with 60 occluders moves it
+    dearer = _ratios([(1, 1e5, (4.0, 2.0, 1.0)), (60, 6e6, (302.0, 2.0, 1.0, 80.0))])
+    assert dearer[1]["loop_per_lookup_cpu_ratio"] == pytest.approx(2.5)
+
+
+def test_per_lookup_measure_pairs_the_rounds():
+    # The load rose after round 2: each round's fiv less the same round's no-loop build is 2 ms
+    # (2.1 in round 4), the medians alone would give 8.0 - 2.2.
+    ms = _scaling_ms(8.0, 2.2, 1.0)
+    ms["rounds"] = {"cpu:fiv": [4.0, 4.1, 8.0, 8.1, 8.2], "cpu:fiv_noloop": [2.0, 2.1, 6.0, 6.0, 6.1]}
+    c = per_lookup_costs(ms, 1e5)
+    assert c["loop_cpu_ms"] == pytest.approx(2.0) and c["loop_per_lookup_cpu_ns"] == pytest.approx(20.0)
+    assert c["loop_ms"] == pytest.approx(5.8)  # no rounds of the wall clock's: the medians' difference
+    assert c["per_lookup_cpu_ns"] == pytest.approx(70.0)  # the earlier measure: medians, as it always was
+    ms["rounds"]["cpu:fiv_noloop"].pop()
+    with pytest.raises(ValueError):
+        per_lookup_costs(ms, 1e5)
+
+
+def test_per_lookup_measure_without_lookups_or_timings():
+    ms = _scaling_ms(4.0, 2.0, 1.0)
+    assert all(v is None for k, v in per_lookup_costs(ms, 0).items() if k.endswith("_ns"))
+    del ms["fiv_noloop"], ms["cpu:fiv_noloop"]
+    c = per_lookup_costs(ms, 1e5)
+    assert c["loop_per_lookup_ns"] is None and c["loop_per_lookup_cpu_ns"] is None
+    assert c["per_lookup_ns"] == pytest.approx(30.0) and c["loop_per_lookup_sum_ns"] == pytest.approx(20.0)
+    # no single clustered occluder, or a loop that timed at nothing there: no ratio
+    rows = _ratios([(10, 1e6, (20.0, 2.0, 1.0))])
+    assert rows[0]["loop_per_lookup_cpu_ratio"] is None and rows[0]["per_lookup_cpu_ratio"] is None
+    rows = _ratios([(1, 1e5, (2.0, 2.0, 1.0)), (10, 1e6, (20.0, 2.0, 1.0))])
+    assert rows[1]["loop_per_lookup_cpu_ratio"] is None and rows[1]["per_lookup_cpu_ratio"] == pytest.approx(1.9)
 
 
 def test_cli_bench_needs_a_scene_or_fiv_scaling(capsys, tmp_path):

@@ -3,33 +3,20 @@ fields: per lane and per row group (16 columns x 2 rows), the share of samples s
 every later candidate is bounded below the running maximum. GLOBAL = 1: the bound from max H;
 0: from each level's maximum. Run from the repository root."""
 GLOBAL = 1
-import sys, numpy as np
-sys.path.insert(0, "tests")
-import heightfield64 as t
-from penumbra.scenefile import load_scene
-for scene in ["bench/scenes/terrain_sunny.toml", "bench/scenes/terrain_overcast_light.toml"]:
-    desc = load_scene(scene)
-    hd = desc.heightfields[0]
-    H = np.asarray(hd.load().heights, np.float64) * hd.height_scale
-    D, W = H.shape
-    sx, sz = hd.size[0] / (W - 1), hd.size[1] / (D - 1)
-    levels = t.pyramid(H, 4)
-    n = len(levels)
-    d, L = t.sample_plan(n, 4, 4.0, min(sx, sz))
+import os, sys, numpy as np
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))  # hf_setup.py
+from hf_setup import TERRAIN_SCENES, elevations, model
+for scene in TERRAIN_SCENES:
+    m = model(scene)
+    levels, n, d, L = m.levels, m.n, m.d, m.L
     j, i = np.mgrid[96:128, 0:256].astype(np.float64)
-    _, du, dv = t.azimuth_steps(32, sx, sz)
-    at_p = {k: t.level_sample(levels[k], W, D, i, j)[..., None] for k in set(L.tolist())}
-    omega = np.empty(i.shape + (32, n))
+    e = elevations(m, i, j, 32)
+    at_p, omega, knots, mids = e.at_p, e.omega, e.knots, e.mids
     U = np.empty(i.shape + (n,))
     for mm in range(n):
         k = L[mm]
-        h = t.level_sample(levels[k], W, D, i[..., None] + d[mm] * du, j[..., None] + d[mm] * dv)
-        omega[..., mm] = np.arctan((h - at_p[k]) / d[mm])
         U[..., mm] = np.arctan((levels[0 if GLOBAL else k].max() - at_p[k][..., 0]) / d[mm])
     Urem = np.maximum.accumulate(U[..., ::-1], axis=-1)[..., ::-1]
-    ext = np.concatenate([omega[..., :1], omega], axis=-1)
-    knots = (ext[..., :-2] + 4 * ext[..., 1:-1] + ext[..., 2:]) / 6
-    mids = (ext[..., :-3] + 23 * ext[..., 1:-2] + 23 * ext[..., 2:-1] + ext[..., 3:]) / 48
     stop = np.full(omega.shape[:-1], n)
     for m in range(2, n - 1):
         best = np.maximum(np.maximum(knots[..., :m].max(-1), mids[..., :m - 1].max(-1)), 0)

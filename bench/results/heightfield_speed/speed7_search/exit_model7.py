@@ -5,33 +5,18 @@ below the running maximum. Bounds on sample m's level value: 'global' max H (the
 'box' the maximum of the level's values over the group's taps at that sample; 'tileT' the
 same box rounded out to T x T tiles of the level (what a max-pyramid gives); 'oracle' the
 later elevations themselves (the limit of any bound). Run from the repository root."""
-import sys, numpy as np
-sys.path.insert(0, "tests")
-import heightfield64 as t
-from penumbra.scenefile import load_scene
+import os, sys, numpy as np
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))  # hf_setup.py
+from hf_setup import TERRAIN_SCENES, elevations, model
 
 R0, R1 = int(sys.argv[1]) if len(sys.argv) > 1 else 96, int(sys.argv[2]) if len(sys.argv) > 2 else 128
-for scene in ["bench/scenes/terrain_sunny.toml", "bench/scenes/terrain_overcast_light.toml"]:
-    desc = load_scene(scene)
-    hd = desc.heightfields[0]
-    H = np.asarray(hd.load().heights, np.float64) * hd.height_scale
-    D, W = H.shape
-    sx, sz = hd.size[0] / (W - 1), hd.size[1] / (D - 1)
-    levels = t.pyramid(H, 4)
-    n = len(levels)
-    d, L = t.sample_plan(n, 4, 4.0, min(sx, sz))
+for scene in TERRAIN_SCENES:
+    m = model(scene)
+    D, W, sx, sz, levels, n, d, L = m.D, m.W, m.sx, m.sz, m.levels, m.n, m.d, m.L
     j, i = np.mgrid[R0:R1, 0:256].astype(np.float64)
     NA = 32
-    _, du, dv = t.azimuth_steps(NA, sx, sz)
-    at_p = {k: t.level_sample(levels[k], W, D, i, j)[..., None] for k in set(L.tolist())}
-    omega = np.empty(i.shape + (NA, n))
-    for mm in range(n):
-        k = L[mm]
-        h = t.level_sample(levels[k], W, D, i[..., None] + d[mm] * du, j[..., None] + d[mm] * dv)
-        omega[..., mm] = np.arctan((h - at_p[k]) / d[mm])
-    ext = np.concatenate([omega[..., :1], omega], axis=-1)
-    knots = (ext[..., :-2] + 4 * ext[..., 1:-1] + ext[..., 2:]) / 6
-    mids = (ext[..., :-3] + 23 * ext[..., 1:-2] + 23 * ext[..., 2:-1] + ext[..., 3:]) / 48
+    e = elevations(m, i, j, NA)
+    du, dv, at_p, omega, knots, mids = e.du, e.dv, e.at_p, e.omega, e.knots, e.mids
     G0, G1 = (R1 - R0) // 2, 16
     # per group (g0, g1), azimuth a, sample m: max of level L_m over the group's tap box (exact, tiles)
     tiles = {}

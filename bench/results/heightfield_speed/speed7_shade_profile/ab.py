@@ -4,14 +4,11 @@ import json, os, statistics, subprocess, sys, time
 
 if sys.argv[1] == "--worker":
     scene, frames, params = sys.argv[2], int(sys.argv[3]), json.loads(sys.argv[4])
-    from penumbra import GBuffer, Image, Renderer
-    from penumbra.core import Context
-    from penumbra.render import build_scene
-    from penumbra.scenefile import load_scene
-    ctx = Context(); desc = load_scene(scene); built = build_scene(desc, ctx)
-    w, h = desc.camera.resolution
-    gb, img = GBuffer(ctx, w, h), Image(ctx, w, h)
-    built.scene.render_gbuffer(gb)
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))  # hf_setup.py
+    from hf_setup import terrain
+    from penumbra import Renderer
+    t = terrain(scene)
+    ctx, built, gb, img = t.ctx, t.built, t.gb, t.img
     r = Renderer(ctx, "heightfield", **params)
     r.execute(built.scene, gb, img); ctx.finish()
     cs, ts = [], []

@@ -2,21 +2,15 @@
 usage: cmp.py libA libB [json params]"""
 import json, os, subprocess, sys
 import numpy as np
-SCENES = ["bench/scenes/terrain_sunny.toml", "bench/scenes/terrain_overcast_light.toml"]
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))  # hf_setup.py
+from hf_setup import TERRAIN_SCENES as SCENES, terrain
 if sys.argv[1] == "--worker":
     out, params = sys.argv[2], json.loads(sys.argv[3])
-    from penumbra import GBuffer, Image, Renderer
-    from penumbra.core import Context
-    from penumbra.methods.heightfield import fields
-    from penumbra.render import build_scene
-    from penumbra.scenefile import load_scene
+    from penumbra import Renderer
     res = {}
     for s, sc in enumerate(SCENES):
-        ctx = Context(); desc = load_scene(sc); built = build_scene(desc, ctx)
-        w, h = desc.camera.resolution
-        gb, img = GBuffer(ctx, w, h), Image(ctx, w, h)
-        built.scene.render_gbuffer(gb)
-        field, inst = next(iter(fields(built).values()))
+        t = terrain(sc)
+        ctx, desc, built, gb, img, inst = t.ctx, t.desc, t.built, t.gb, t.img, t.inst
         r = Renderer(ctx, "heightfield", **params)
         r.execute(built.scene, gb, img); ctx.finish()
         res[f"{s}_image"] = np.asarray(img.read())
