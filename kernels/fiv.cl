@@ -863,72 +863,32 @@ PN_FIV_INLINE void pn_fiv_end8(const pn_fiv_args *a, const pn_fiv_px8 *q, float8
                   select((float8)(0.0f), (float8)(1.0f), active));
 }
 
-/* The occluder loop and the pixels of one group (pn_fiv_begin8 before). */
-PN_FIV_INLINE void pn_fiv_run8(const pn_fiv_args *a, pn_fiv_px8 *q)
+/* The lanes' discs of an occluder (taken in `take`), in slot *slots of dd
+ * (each lane's divides give the scalar code's bits; pn_fiv_run8). */
+PN_FIV_INLINE void pn_fiv_fill_slot8(const pn_fiv_px8 *q, float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], int8 *held,
+                                     int *slots, int8 take, float8 vx, float8 vy, float8 vz, float8 rho, float r,
+                                     float8 i_r, float8 i_g, float8 i_b)
 {
-    /* Disc correction: one slot per occluder that some lane took part with
-     * (in the loop's order), lane l of slot d at [d * 8 + l]: unit-sphere
-     * direction, radius, the occluder's irradiance; zeros in the lanes that did
-     * not take it (or already hold PN_FIV_MAX_OVERLAP discs). A slot is one
-     * occluder in all lanes, so neighbouring pixels' pairs line up: a pair
-     * near in one lane is mostly near in the others. A zero disc never adds
-     * to a lane's correction (its lens with any disc is 0), so each lane sees
-     * its own discs in the scalar order. At most 8 x 32 slots (57 KiB of
-     * private memory; a work-item fills only the slots it uses). */
-    float dd[7][PN_FIV_SLOTS * PN_FIV_LANES];
-    int8 held = 0;
-    int slots = 0;
-    /* With one occluder there is no pair: total = sum, clamped to [largest, sum]. */
-    const bool pairs = a->overlap == PN_OVERLAP_DISC && a->occluder_count > 1;
-    int words = (a->occluder_count + 31) / 32;
-#if PN_FIV_PROFILE == 4
-    words = 0;
-#endif
-    global const uint *mask = pn_fiv_tile_mask(a, q, words);
-    for (int w = 0; w < words; ++w) {
-        /* The occluders of these pixels' tile (all of them unbinned), in order. */
-        int left = a->occluder_count - 32 * w;
-        uint bits = a->binned ? mask[w] : left >= 32 ? 0xFFFFFFFFu : (1u << left) - 1u;
-        while (bits) {
-            int o = 32 * w + (31 - clz(bits & (0u - bits)));
-            bits &= bits - 1u;
-            global const float4 *occ = a->occluders + PN_FIV_RECORD * o;
-            float8 vx, vy, vz, dist_plane, rho;
-            int8 take = pn_fiv_take8(q, occ, &vx, &vy, &vz, &dist_plane, &rho);
-            if (!any(take))
-                continue;
-            float fr[9][PN_FIV_LANES];
-            float8 fi, fj, fk, falloff;
-            take = pn_fiv_index_occ8(a, occ, vx, vy, vz, take, &fi, &fj, &fk, &falloff);
-            if (!any(take))
-                continue;
-            take = pn_fiv_fetch_occ8(a, occ, fi, fj, fk, falloff, take, fr);
-            if (!any(take))
-                continue;
-            const float r = occ[0].w;
-            float8 i_r, i_g, i_b;
-            pn_fiv_add_occ8(a, q, take, fr, dist_plane, r, &i_r, &i_g, &i_b);
-            if (a->overlap != PN_OVERLAP_MULTIPLY && pairs) {
-                /* the lanes' discs of this occluder, in one slot (each lane's
-                 * divides give the scalar code's bits) */
-                int8 fill = take & (held < PN_FIV_MAX_OVERLAP);
-                if (pn_fiv_any8(fill)) {
-                    const float8 zero = 0.0f;
-                    int8 far = rho > 0.0f;
-                    held -= fill;
-                    vstore8(select(zero, select(q->nx, vx / rho, far), fill), slots, dd[0]);
-                    vstore8(select(zero, select(q->ny, vy / rho, far), fill), slots, dd[1]);
-                    vstore8(select(zero, select(q->nz, vz / rho, far), fill), slots, dd[2]);
-                    vstore8(select(zero, fmin(r / fmax(rho, 1e-30f), 1.0f), fill), slots, dd[3]);
-                    vstore8(select(zero, i_r, fill), slots, dd[4]);
-                    vstore8(select(zero, i_g, fill), slots, dd[5]);
-                    vstore8(select(zero, i_b, fill), slots, dd[6]);
-                    ++slots;
-                }
-            }
-        }
+    int8 fill = take & (*held < PN_FIV_MAX_OVERLAP);
+    if (pn_fiv_any8(fill)) {
+        const float8 zero = 0.0f;
+        int8 far = rho > 0.0f;
+        *held -= fill;
+        vstore8(select(zero, select(q->nx, vx / rho, far), fill), *slots, dd[0]);
+        vstore8(select(zero, select(q->ny, vy / rho, far), fill), *slots, dd[1]);
+        vstore8(select(zero, select(q->nz, vz / rho, far), fill), *slots, dd[2]);
+        vstore8(select(zero, fmin(r / fmax(rho, 1e-30f), 1.0f), fill), *slots, dd[3]);
+        vstore8(select(zero, i_r, fill), *slots, dd[4]);
+        vstore8(select(zero, i_g, fill), *slots, dd[5]);
+        vstore8(select(zero, i_b, fill), *slots, dd[6]);
+        ++*slots;
     }
-    /* The overlap correction, in lanes; then the pixels. */
+}
+
+/* The overlap correction, in lanes (pn_fiv_run8), then the pixels. */
+PN_FIV_INLINE void pn_fiv_finish8(const pn_fiv_args *a, const pn_fiv_px8 *q, bool pairs,
+                                  float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], int slots)
+{
     float8 e_r, e_g, e_b;
     if (a->overlap == PN_OVERLAP_MULTIPLY) {
         e_r = q->base_r * q->vis_r, e_g = q->base_g * q->vis_g, e_b = q->base_b * q->vis_b;
@@ -974,6 +934,58 @@ PN_FIV_INLINE void pn_fiv_run8(const pn_fiv_args *a, pn_fiv_px8 *q)
     pn_fiv_end8(a, q, e_r, e_g, e_b);
 }
 
+/* The occluder loop and the pixels of one group (pn_fiv_begin8 before). */
+PN_FIV_INLINE void pn_fiv_run8(const pn_fiv_args *a, pn_fiv_px8 *q)
+{
+    /* Disc correction: one slot per occluder that some lane took part with
+     * (in the loop's order), lane l of slot d at [d * 8 + l]: unit-sphere
+     * direction, radius, the occluder's irradiance; zeros in the lanes that did
+     * not take it (or already hold PN_FIV_MAX_OVERLAP discs). A slot is one
+     * occluder in all lanes, so neighbouring pixels' pairs line up: a pair
+     * near in one lane is mostly near in the others. A zero disc never adds
+     * to a lane's correction (its lens with any disc is 0), so each lane sees
+     * its own discs in the scalar order. At most 8 x 32 slots (57 KiB of
+     * private memory; a work-item fills only the slots it uses). */
+    float dd[7][PN_FIV_SLOTS * PN_FIV_LANES];
+    int8 held = 0;
+    int slots = 0;
+    /* With one occluder there is no pair: total = sum, clamped to [largest, sum]. */
+    const bool pairs = a->overlap == PN_OVERLAP_DISC && a->occluder_count > 1;
+    int words = (a->occluder_count + 31) / 32;
+#if PN_FIV_PROFILE == 4
+    words = 0;
+#endif
+    global const uint *mask = pn_fiv_tile_mask(a, q, words);
+    for (int w = 0; w < words; ++w) {
+        /* The occluders of these pixels' tile (all of them unbinned), in order. */
+        int left = a->occluder_count - 32 * w;
+        uint bits = a->binned ? mask[w] : left >= 32 ? 0xFFFFFFFFu : (1u << left) - 1u;
+        while (bits) {
+            int o = 32 * w + (31 - clz(bits & (0u - bits)));
+            bits &= bits - 1u;
+            global const float4 *occ = a->occluders + PN_FIV_RECORD * o;
+            float8 vx, vy, vz, dist_plane, rho;
+            int8 take = pn_fiv_take8(q, occ, &vx, &vy, &vz, &dist_plane, &rho);
+            if (!any(take))
+                continue;
+            float fr[9][PN_FIV_LANES];
+            float8 fi, fj, fk, falloff;
+            take = pn_fiv_index_occ8(a, occ, vx, vy, vz, take, &fi, &fj, &fk, &falloff);
+            if (!any(take))
+                continue;
+            take = pn_fiv_fetch_occ8(a, occ, fi, fj, fk, falloff, take, fr);
+            if (!any(take))
+                continue;
+            const float r = occ[0].w;
+            float8 i_r, i_g, i_b;
+            pn_fiv_add_occ8(a, q, take, fr, dist_plane, r, &i_r, &i_g, &i_b);
+            if (pairs)
+                pn_fiv_fill_slot8(q, dd, &held, &slots, take, vx, vy, vz, rho, r, i_r, i_g, i_b);
+        }
+    }
+    pn_fiv_finish8(a, q, pairs, dd, slots);
+}
+
 /* pn_fiv_run8 for two groups of one 16x16 tile (the same occluders, in the
  * same order) without the disc correction's pairs: each occluder's tests,
  * then its index math, then its fetch and sums, for both groups side by
@@ -982,6 +994,11 @@ PN_FIV_INLINE void pn_fiv_run8(const pn_fiv_args *a, pn_fiv_px8 *q)
  * operations of pn_fiv_run8, in its order: the same bits. */
 PN_FIV_INLINE void pn_fiv_run_pair8(const pn_fiv_args *a, pn_fiv_px8 *p, pn_fiv_px8 *q)
 {
+    /* the disc slots of each group (pn_fiv_run8) */
+    float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], udd[7][PN_FIV_SLOTS * PN_FIV_LANES];
+    int8 held = 0, uheld = 0;
+    int slots = 0, uslots = 0;
+    const bool pairs = a->overlap == PN_OVERLAP_DISC && a->occluder_count > 1;
     int words = (a->occluder_count + 31) / 32;
 #if PN_FIV_PROFILE == 4
     words = 0;
@@ -1010,25 +1027,30 @@ PN_FIV_INLINE void pn_fiv_run_pair8(const pn_fiv_args *a, pn_fiv_px8 *p, pn_fiv_
             if (on && any(take)) {
                 float fr[9][PN_FIV_LANES];
                 take = pn_fiv_fetch_occ8(a, occ, fi, fj, fk, falloff, take, fr);
-                if (any(take))
+                if (any(take)) {
                     pn_fiv_add_occ8(a, p, take, fr, dist_plane, r, &i_r, &i_g, &i_b);
+                    if (pairs)
+                        pn_fiv_fill_slot8(p, dd, &held, &slots, take, vx, vy, vz, rho, r, i_r, i_g, i_b);
+                }
             }
             if (uon && any(utake)) {
                 float fr[9][PN_FIV_LANES];
                 utake = pn_fiv_fetch_occ8(a, occ, ui, uj, uk, ufalloff, utake, fr);
-                if (any(utake))
+                if (any(utake)) {
                     pn_fiv_add_occ8(a, q, utake, fr, udist_plane, r, &i_r, &i_g, &i_b);
+                    if (pairs)
+                        pn_fiv_fill_slot8(q, udd, &uheld, &uslots, utake, ux, uy, uz, urho, r, i_r, i_g, i_b);
+                }
             }
         }
     }
-    if (a->overlap == PN_OVERLAP_MULTIPLY) {
-        pn_fiv_end8(a, p, p->base_r * p->vis_r, p->base_g * p->vis_g, p->base_b * p->vis_b);
-        pn_fiv_end8(a, q, q->base_r * q->vis_r, q->base_g * q->vis_g, q->base_b * q->vis_b);
-    } else {
-        pn_fiv_end8(a, p, p->base_r - p->sum_r, p->base_g - p->sum_g, p->base_b - p->sum_b);
-        pn_fiv_end8(a, q, q->base_r - q->sum_r, q->base_g - q->sum_g, q->base_b - q->sum_b);
-    }
+    pn_fiv_finish8(a, p, pairs, dd, slots);
+    pn_fiv_finish8(a, q, pairs, udd, uslots);
 }
+
+#ifndef PN_FIV_PAIR_DISCS
+#define PN_FIV_PAIR_DISCS 1
+#endif
 
 /* Groups of an all-background work-item whose texel cells are computed
  * before their texels are read (shade_fiv). */
@@ -1130,7 +1152,7 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     for (int g = g0; g < g1;) {
         pn_fiv_px8 p, q;
 #ifndef PN_FIV_NO_PAIRS
-        if (!pairs && g % 2 == 0 && g + 1 < g1) { /* two groups of one tile side by side */
+        if ((!pairs || PN_FIV_PAIR_DISCS) && g % 2 == 0 && g + 1 < g1) { /* two groups of one tile side by side */
             const bool on = pn_fiv_begin8(&args, y, PN_FIV_LANES * g, &cache, &p);
             const bool uon = pn_fiv_begin8(&args, y, PN_FIV_LANES * (g + 1), &cache, &q);
             if (on && uon)

@@ -592,9 +592,11 @@ def test_groups_sharing_a_normal(ctx, env, meshes, fields):
     groups with background lanes or with one lane's normal differing (not a
     single normal: the cache is neither used nor replaced), all-sky
     groups between them, and work-items of background alone (one ending in a
-    partial group); against the twin, and bit for bit against the same
-    groups each alone in its work-item (the first group of 64 pixels, the
-    rest background), where nothing is cached."""
+    partial group); with one sphere and with 40 (the disc correction's
+    pairs); against the twin, and bit for bit against the same groups each
+    alone in its work-item (the first group of 64 pixels, the rest
+    background), where nothing is cached and no two groups go side by
+    side."""
     rng = np.random.default_rng(16)
     rows, w, span = 6, 133, 64  # span: the pixels of a work-item (PN_FIV_ROW_GROUPS groups of 8)
     yb = np.sqrt(1.0 - 0.3 ** 2 - 0.2 ** 2)  # B and C differ only in z's sign
@@ -630,6 +632,15 @@ def test_groups_sharing_a_normal(ctx, env, meshes, fields):
         got = assert_matches_twin(s, params) if params.get("background", 1) else s.render(cull_threshold=0.0, **params)
         lone = s1.render(cull_threshold=0.0, **params)[:, cols]
         assert np.array_equal(got, lone), params  # the same operations, so the same bits
+    # 40 spheres: the disc correction's pairs, each group's discs in slots of its own
+    instances, _ = forty_spheres(meshes, fields, rng)
+    s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
+    s1 = FivScene(ctx, env, fields, instances, tuple(alone))
+    for params in (dict(overlap=1), dict(overlap=1, partial=1)):
+        got = assert_matches_twin(s, params)
+        assert np.array_equal(got, s1.render(cull_threshold=0.0, **params)[:, cols]), params
+        unbinned = s.render(cull_threshold=0.0, tile_cull=0, **params)
+        assert np.array_equal(unbinned, s1.render(cull_threshold=0.0, tile_cull=0, **params)[:, cols]), params
 
 
 def test_many_occluders_per_tile(ctx, env, meshes, fields):
