@@ -24,7 +24,8 @@
  * PN_FIV_NO_NORMAL_CACHE, PN_FIV_NO_SKY_BATCH and PN_FIV_NO_PAIRS (build
  * options, for A/B timings in one process: bench/fiv_speed.py
  * --build-options) leave out the normal cache, the background-only batch and
- * the two groups side by side of shade_fiv (the same images either way).
+ * the two groups side by side of shade_fiv, PN_FIV_PAIR_DISCS=0 the latter
+ * only with the disc correction's pairs (the same images either way).
  *
  * Occluder record, 4 float4 (capi/src/fiv.c):
  *   [0] centre xyz (world), bounding radius R (world)
