@@ -21,6 +21,11 @@
  * shared fetch (pn_fiv_fetch8) does not serve get a huge FIV instead of
  * theirs (to count them), 4 = no occluder loop at all (the pixel setup, the
  * unshadowed part, the background and the output alone). 0 (default) = all.
+ * PN_FIV_NO_NORMAL_CACHE, PN_FIV_NO_SKY_BATCH and PN_FIV_NO_PAIRS (build
+ * options, for A/B timings in one process: bench/fiv_speed.py
+ * --build-options) leave out the normal cache, the background-only batch and
+ * the two groups side by side of shade_fiv, PN_FIV_PAIR_DISCS=0 the latter
+ * only with the disc correction's pairs (the same images either way).
  *
  * Occluder record, 4 float4 (capi/src/fiv.c):
  *   [0] centre xyz (world), bounding radius R (world)
@@ -572,23 +577,46 @@ PN_FIV_INLINE int pn_fiv_any8(int8 m)
     return (b.x | b.y) < 0;
 }
 
-/* One work-item per 8 pixels of a row (above): global size
- * ceil(width / 8) x height. */
-kernel void shade_fiv(global const float4 *position, global const float4 *normal, global const float4 *albedo,
-                      global const uint *instance_id, int count, global const float4 *irradiance, int m,
-                      global const float4 *occluders,
-                      int occluder_count, global const uchar *fields, float cull_floor, float4 env_x, float4 env_y,
-                      float4 env_z,
-                      int overlap, int partial, int self_shadow, int trilinear, int width, int binned,
-                      global const uint *tile_masks, global float4 *image, int background,
-                      global const float *latlong, int latlong_width, int latlong_height, float2 rot,
-                      float intensity)
+/* The last single normal a work-item looked up (shade_fiv): its raw bits
+ * as read from the G-buffer, the normalised normal and its unshadowed
+ * irradiance. */
+typedef struct {
+    uint3 raw;
+    float3 n, e;
+    bool valid;
+} pn_fiv_normal_cache;
+
+/* shade_fiv's arguments, for the functions below. */
+typedef struct {
+    global const float4 *position, *normal, *albedo;
+    global const uint *instance_id;
+    global const float4 *irradiance, *occluders;
+    global const uchar *fields;
+    global const uint *tile_masks;
+    global float4 *image;
+    global const float *latlong;
+    float4 env_x, env_y, env_z;
+    float2 rot;
+    float cull_floor, intensity;
+    int m, occluder_count, overlap, partial, self_shadow, trilinear, width, binned, background, latlong_width,
+        latlong_height;
+} pn_fiv_args;
+
+/* A group of 8 pixels of a row in lanes, and its sums over the occluders. */
+typedef struct {
+    int y, x0, row;
+    bool full;
+    int8 in_row, active, sky;
+    uint8 id8;
+    float8 px, py, pz, nx, ny, nz;
+    float8 tot_r, tot_g, tot_b, base_r, base_g, base_b;
+    float8 sum_r, sum_g, sum_b, big_r, big_g, big_b, vis_r, vis_g, vis_b;
+} pn_fiv_px8;
+
+/* The 8 pixels of row y from x0 on, up to the occluder loop: false when
+ * they are all background (then drawn and stored here). */
+PN_FIV_INLINE bool pn_fiv_begin8(const pn_fiv_args *a, int y, int x0, pn_fiv_normal_cache *cache, pn_fiv_px8 *q)
 {
-    int groups = (width + PN_FIV_LANES - 1) / PN_FIV_LANES;
-    int item = get_global_id(0);
-    int y = item / groups, x0 = (item - y * groups) * PN_FIV_LANES;
-    if (width <= 0 || y >= count / width)
-        return;
     /* The 8 pixels in lanes: the G-buffer planes by 8-wide loads and
      * shuffles (pn_load_row8), the normals normalised in lanes (the
      * built-in's bits, pn_normalize8). Each lane's values go into the lane
@@ -598,30 +626,31 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
      * (pn_background8, the background pass's operations in the same order:
      * this kernel draws the background in the same visit of the pixels
      * instead of a second pass over them; black without `background`). */
+    const int width = a->width;
     const int row = y * width + x0;
     const bool full = x0 + PN_FIV_LANES <= width;
     const int8 in_row = (int8)(0, 1, 2, 3, 4, 5, 6, 7) < width - x0;
     uint8 id8;
     if (full) {
-        id8 = vload8(0, instance_id + row);
+        id8 = vload8(0, a->instance_id + row);
     } else {
-#define PN_FIV_ID_LANE(l) id8.s##l = x0 + l < width ? instance_id[row + l] : PN_BACKGROUND;
+#define PN_FIV_ID_LANE(l) id8.s##l = x0 + l < width ? a->instance_id[row + l] : PN_BACKGROUND;
         PN_FIV_ID_LANE(0) PN_FIV_ID_LANE(1) PN_FIV_ID_LANE(2) PN_FIV_ID_LANE(3)
         PN_FIV_ID_LANE(4) PN_FIV_ID_LANE(5) PN_FIV_ID_LANE(6) PN_FIV_ID_LANE(7)
 #undef PN_FIV_ID_LANE
     }
     const int8 active = id8 != PN_BACKGROUND, sky = ~active & in_row;
     float8 px, py, pz, nx, ny, nz;
-    pn_load_row8(position, row, full, in_row, &px, &py, &pz);
+    pn_load_row8(a->position, row, full, in_row, &px, &py, &pz);
     if (!any(active)) { /* all background */
         float8 sky_r = 0.0f, sky_g = 0.0f, sky_b = 0.0f;
-        if (background)
-            pn_background8(latlong, latlong_width, latlong_height, rot, intensity, px, py, pz, sky, &sky_r, &sky_g,
-                           &sky_b);
-        pn_store_row8(image, row, full, in_row, sky_r, sky_g, sky_b, (float8)(0.0f));
-        return;
+        if (a->background)
+            pn_background8(a->latlong, a->latlong_width, a->latlong_height, a->rot, a->intensity, px, py, pz, sky,
+                           &sky_r, &sky_g, &sky_b);
+        pn_store_row8(a->image, row, full, in_row, sky_r, sky_g, sky_b, (float8)(0.0f));
+        return false;
     }
-    pn_load_row8(normal, row, full, in_row, &nx, &ny, &nz);
+    pn_load_row8(a->normal, row, full, in_row, &nx, &ny, &nz);
     px = select((float8)(0.0f), px, active), py = select((float8)(0.0f), py, active);
     pz = select((float8)(0.0f), pz, active);
     nx = select((float8)(0.0f), nx, active), ny = select((float8)(1.0f), ny, active);
@@ -629,11 +658,30 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     /* 8 neighbouring pixels of a flat surface share one normal (most of a
      * floor): their irradiance is looked up once (pn_cube_grid_lookup8) */
     const bool one_normal = !pn_fiv_any8(~((nx == nx.s0) & (ny == ny.s0) & (nz == nz.s0)));
-    pn_normalize8(&nx, &ny, &nz);
     float8 tot_r = 0.0f, tot_g = 0.0f, tot_b = 0.0f;
-    pn_cube_grid_lookup8(irradiance, m, nx, ny, nz, active, one_normal, &tot_r, &tot_g, &tot_b);
+    const uint3 raw = (uint3)(as_uint(nx.s0), as_uint(ny.s0), as_uint(nz.s0));
+#ifndef PN_FIV_NO_NORMAL_CACHE
+    if (one_normal && cache->valid && raw.x == cache->raw.x && raw.y == cache->raw.y && raw.z == cache->raw.z) {
+        /* the same normal bits as the last single normal: the same
+         * normalised normal and irradiance (pn_cube_grid_lookup8's one-normal
+         * path, computed once per work-item and normal) */
+        nx = cache->n.x, ny = cache->n.y, nz = cache->n.z;
+        const float3 e = cache->e;
+        tot_r = select((float8)(0.0f), (float8)(e.x), active), tot_g = select((float8)(0.0f), (float8)(e.y), active);
+        tot_b = select((float8)(0.0f), (float8)(e.z), active);
+    } else
+#endif
+    {
+        pn_normalize8(&nx, &ny, &nz);
+        pn_cube_grid_lookup8(a->irradiance, a->m, nx, ny, nz, active, one_normal, &tot_r, &tot_g, &tot_b);
+        if (one_normal) {
+            const float3 n = (float3)(nx.s0, ny.s0, nz.s0);
+            cache->raw = raw, cache->n = n, cache->e = pn_cube_grid_lookup(a->irradiance, a->m, n);
+            cache->valid = true;
+        }
+    }
     float8 base_r = tot_r, base_g = tot_g, base_b = tot_b;
-    if (self_shadow) {
+    if (a->self_shadow) {
         /* per-lane copies for the scalar code below (a vector store, read
          * back one lane at a time, forwards) */
         float lp[3][PN_FIV_LANES], ln[3][PN_FIV_LANES];
@@ -652,19 +700,19 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
              * of them (a tile's mask may leave it out when a G-buffer puts the
              * pixel beyond its culling distance). All unoccluded light is in the
              * positive hemisphere. */
-            for (int o = 0; o < occluder_count; ++o) {
-                global const float4 *occ = occluders + PN_FIV_RECORD * o;
+            for (int o = 0; o < a->occluder_count; ++o) {
+                global const float4 *occ = a->occluders + PN_FIV_RECORD * o;
                 pn_fiv3 f;
                 if (as_uint(occ[3].x) != id)
                     continue;
                 float3 p = (float3)(lp[0][l], lp[1][l], lp[2][l]), n = (float3)(ln[0][l], ln[1][l], ln[2][l]);
-                if (pn_fiv_lookup(occ, fields, occ[0].xyz - p, trilinear, 0.0f, &f)) {
+                if (pn_fiv_lookup(occ, a->fields, occ[0].xyz - p, a->trilinear, 0.0f, &f)) {
                     /* A sample off the surface also sees unoccluded light behind
                      * the receiver plane, which the fullsphere sum subtracts: the
                      * estimate errs low, never above the unoccluded irradiance. */
                     float at[3][PN_FIV_LANES];
                     vstore8(tot_r, 0, at[0]), vstore8(tot_g, 0, at[1]), vstore8(tot_b, 0, at[2]);
-                    pn_fiv3 env = {env_x.xyz, env_y.xyz, env_z.xyz};
+                    pn_fiv3 env = {a->env_x.xyz, a->env_y.xyz, a->env_z.xyz};
                     float3 e_base = clamp(pn_fiv_dot(n, env) - pn_fiv_dot(n, f), 0.0f,
                                           (float3)(at[0][l], at[1][l], at[2][l]));
                     int8 here = lane == l;
@@ -676,151 +724,189 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
             }
         }
     }
-    float8 sum_r = 0.0f, sum_g = 0.0f, sum_b = 0.0f, big_r = 0.0f, big_g = 0.0f, big_b = 0.0f;
-    float8 vis_r = 1.0f, vis_g = 1.0f, vis_b = 1.0f;
-    /* Disc correction: one slot per occluder that some lane took part with
-     * (in the loop's order), lane l of slot d at [d * 8 + l]: unit-sphere
-     * direction, radius, the occluder's irradiance; zeros in the lanes that did
-     * not take it (or already hold PN_FIV_MAX_OVERLAP discs). A slot is one
-     * occluder in all lanes, so neighbouring pixels' pairs line up: a pair
-     * near in one lane is mostly near in the others. A zero disc never adds
-     * to a lane's correction (its lens with any disc is 0), so each lane sees
-     * its own discs in the scalar order. At most 8 x 32 slots (57 KiB of
-     * private memory; a work-item fills only the slots it uses). */
-    float dd[7][PN_FIV_SLOTS * PN_FIV_LANES];
-    int8 held = 0;
-    int slots = 0;
-    /* With one occluder there is no pair: total = sum, clamped to [largest, sum]. */
-    const bool pairs = overlap == PN_OVERLAP_DISC && occluder_count > 1;
-    int words = (occluder_count + 31) / 32;
-#if PN_FIV_PROFILE == 4
-    words = 0;
-#endif
-    global const uint *mask = tile_masks;
-    if (binned) {
-        int tile = (y / PN_FIV_TILE) * ((width + PN_FIV_TILE - 1) / PN_FIV_TILE) + x0 / PN_FIV_TILE;
-        mask += (size_t)tile * words;
-    }
-    for (int w = 0; w < words; ++w) {
-        /* The occluders of these pixels' tile (all of them unbinned), in order. */
-        int left = occluder_count - 32 * w;
-        uint bits = binned ? mask[w] : left >= 32 ? 0xFFFFFFFFu : (1u << left) - 1u;
-        while (bits) {
-            int o = 32 * w + (31 - clz(bits & (0u - bits)));
-            bits &= bits - 1u;
-            global const float4 *occ = occluders + PN_FIV_RECORD * o;
-            float4 sphere = occ[0];
-            float8 vx = sphere.x - px, vy = sphere.y - py, vz = sphere.z - pz;
-            float r = sphere.w;
-            float8 dist_plane = vx * nx + vy * ny + vz * nz;
-            float8 rho = sqrt(vx * vx + vy * vy + vz * vz);
-            /* not its own occluder (above), not fully behind the receiver
-             * plane (case C), not beyond the culling distance */
-            int8 take = active & (id8 != as_uint(occ[3].x)) & ~(dist_plane <= -r) & ~(rho > occ[1].w);
-            if (!any(take))
-                continue;
-            float fr[9][PN_FIV_LANES];
+    q->y = y, q->x0 = x0, q->row = row, q->full = full, q->in_row = in_row, q->active = active, q->sky = sky;
+    q->id8 = id8;
+    q->px = px, q->py = py, q->pz = pz, q->nx = nx, q->ny = ny, q->nz = nz;
+    q->tot_r = tot_r, q->tot_g = tot_g, q->tot_b = tot_b, q->base_r = base_r, q->base_g = base_g, q->base_b = base_b;
+    q->sum_r = q->sum_g = q->sum_b = q->big_r = q->big_g = q->big_b = 0.0f;
+    q->vis_r = q->vis_g = q->vis_b = 1.0f;
+    return true;
+}
+
+/* The first word of the occluder mask of the pixels' 16x16 tile (all
+ * occluders unbinned), `words` words a tile. */
+PN_FIV_INLINE global const uint *pn_fiv_tile_mask(const pn_fiv_args *a, const pn_fiv_px8 *q, int words)
+{
+    if (!a->binned)
+        return a->tile_masks;
+    int tile = (q->y / PN_FIV_TILE) * ((a->width + PN_FIV_TILE - 1) / PN_FIV_TILE) + q->x0 / PN_FIV_TILE;
+    return a->tile_masks + (size_t)tile * words;
+}
+
+/* An occluder's tests for the 8 pixels: not their own occluder (above), not
+ * fully behind the receiver plane (case C), not beyond the culling distance. */
+PN_FIV_INLINE int8 pn_fiv_take8(const pn_fiv_px8 *q, global const float4 *occ, float8 *vx, float8 *vy, float8 *vz,
+                                float8 *dist_plane, float8 *rho)
+{
+    float4 sphere = occ[0];
+    *vx = sphere.x - q->px, *vy = sphere.y - q->py, *vz = sphere.z - q->pz;
+    float r = sphere.w;
+    *dist_plane = *vx * q->nx + *vy * q->ny + *vz * q->nz;
+    *rho = sqrt(*vx * *vx + *vy * *vy + *vz * *vz);
+    return q->active & (q->id8 != as_uint(occ[3].x)) & ~(*dist_plane <= -r) & ~(*rho > occ[1].w);
+}
+
+/* The lookup's first half for the lanes of `take` (pn_fiv_index8): the
+ * lanes still in play. */
+PN_FIV_INLINE int8 pn_fiv_index_occ8(const pn_fiv_args *a, global const float4 *occ, float8 vx, float8 vy, float8 vz,
+                                     int8 take, float8 *fi, float8 *fj, float8 *fk, float8 *falloff)
+{
 #if PN_FIV_PROFILE == 1
-            for (int c = 0; c < 9; ++c)
-                vstore8((float8)(occ[3].z * 1e-3f), 0, fr[c]);
+    *fi = *fj = *fk = *falloff = 0.0f;
+    return take;
 #else
-            float8 fi, fj, fk, falloff;
-            take = pn_fiv_index8(occ, fields, vx, vy, vz, take, cull_floor, &fi, &fj, &fk, &falloff);
-            if (!any(take))
-                continue;
-#if PN_FIV_PROFILE == 2
-            for (int c = 0; c < 9; ++c)
-                vstore8((fi + fj + fk) * falloff, 0, fr[c]);
+    return pn_fiv_index8(occ, a->fields, vx, vy, vz, take, a->cull_floor, fi, fj, fk, falloff);
+#endif
+}
+
+/* The lookup's second half: the lanes' FIVs into fr (pn_fiv_fetch8 for all
+ * lanes at once, else lane by lane); the lanes still in play. */
+PN_FIV_INLINE int8 pn_fiv_fetch_occ8(const pn_fiv_args *a, global const float4 *occ, float8 fi, float8 fj, float8 fk,
+                                     float8 falloff, int8 take, float fr[9][PN_FIV_LANES])
+{
+#if PN_FIV_PROFILE == 1
+    for (int c = 0; c < 9; ++c)
+        vstore8((float8)(occ[3].z * 1e-3f), 0, fr[c]);
+    return take;
+#elif PN_FIV_PROFILE == 2
+    for (int c = 0; c < 9; ++c)
+        vstore8((fi + fj + fk) * falloff, 0, fr[c]);
+    return take;
 #else
-            /* all lanes in one cell: its samples read once (pn_fiv_fetch8); else lane by lane */
-            if (!pn_fiv_fetch8(occ, fields, fi, fj, fk, falloff, take, trilinear, fr))
+    /* all lanes in one cell: its samples read once (pn_fiv_fetch8); else lane by lane */
+    if (pn_fiv_fetch8(occ, a->fields, fi, fj, fk, falloff, take, a->trilinear, fr))
+        return take;
 #if PN_FIV_PROFILE == 3
-            { /* mark the lanes that would go lane by lane (counted by bench/fiv_profile.py) */
-                for (int c = 0; c < 9; ++c)
-                    vstore8((float8)(1e6f), 0, fr[c]);
-            }
-            if (0)
-#endif
-            {
-                float afi[PN_FIV_LANES], afj[PN_FIV_LANES], afk[PN_FIV_LANES], afo[PN_FIV_LANES];
-                int at[PN_FIV_LANES];
-                vstore8(fi, 0, afi);
-                vstore8(fj, 0, afj);
-                vstore8(fk, 0, afk);
-                vstore8(falloff, 0, afo);
-                vstore8(take, 0, at);
-                for (int l = 0; l < PN_FIV_LANES; ++l) {
-                    pn_fiv3 f = {(float3)(0.0f), (float3)(0.0f), (float3)(0.0f)};
-                    if (at[l] && !pn_fiv_fetch(occ, fields, afi[l], afj[l], afk[l], afo[l], trilinear, &f))
-                        at[l] = 0;
-                    fr[0][l] = f.x.x, fr[1][l] = f.x.y, fr[2][l] = f.x.z;
-                    fr[3][l] = f.y.x, fr[4][l] = f.y.y, fr[5][l] = f.y.z;
-                    fr[6][l] = f.z.x, fr[7][l] = f.z.y, fr[8][l] = f.z.z;
-                }
-                take = vload8(0, at);
-                if (!any(take))
-                    continue;
-            }
-#endif
-#endif
-            /* An occluder only removes light (N . FIV per channel, as pn_fiv_dot). */
-            float8 i_r = fmax(nx * vload8(0, fr[0]) + ny * vload8(0, fr[3]) + nz * vload8(0, fr[6]), 0.0f);
-            float8 i_g = fmax(nx * vload8(0, fr[1]) + ny * vload8(0, fr[4]) + nz * vload8(0, fr[7]), 0.0f);
-            float8 i_b = fmax(nx * vload8(0, fr[2]) + ny * vload8(0, fr[5]) + nz * vload8(0, fr[8]), 0.0f);
-            if (partial) { /* case B: the share above the plane */
-                int8 b = dist_plane < r;
-                float8 share = select((float8)(1.0f), (dist_plane + r) / (2.0f * r), b);
-                i_r = select(i_r, i_r * share, b);
-                i_g = select(i_g, i_g * share, b);
-                i_b = select(i_b, i_b * share, b);
-            }
-            i_r = select((float8)(0.0f), i_r, take);
-            i_g = select((float8)(0.0f), i_g, take);
-            i_b = select((float8)(0.0f), i_b, take);
-            sum_r += i_r, sum_g += i_g, sum_b += i_b;
-            big_r = fmax(big_r, i_r), big_g = fmax(big_g, i_g), big_b = fmax(big_b, i_b);
-            if (overlap == PN_OVERLAP_MULTIPLY) {
-                vis_r = select(vis_r, vis_r * clamp(1.0f - i_r / fmax(tot_r, 1e-30f), 0.0f, 1.0f), take);
-                vis_g = select(vis_g, vis_g * clamp(1.0f - i_g / fmax(tot_g, 1e-30f), 0.0f, 1.0f), take);
-                vis_b = select(vis_b, vis_b * clamp(1.0f - i_b / fmax(tot_b, 1e-30f), 0.0f, 1.0f), take);
-            } else if (pairs) {
-                /* the lanes' discs of this occluder, in one slot (each lane's
-                 * divides give the scalar code's bits) */
-                int8 fill = take & (held < PN_FIV_MAX_OVERLAP);
-                if (pn_fiv_any8(fill)) {
-                    const float8 zero = 0.0f;
-                    int8 far = rho > 0.0f;
-                    held -= fill;
-                    vstore8(select(zero, select(nx, vx / rho, far), fill), slots, dd[0]);
-                    vstore8(select(zero, select(ny, vy / rho, far), fill), slots, dd[1]);
-                    vstore8(select(zero, select(nz, vz / rho, far), fill), slots, dd[2]);
-                    vstore8(select(zero, fmin(r / fmax(rho, 1e-30f), 1.0f), fill), slots, dd[3]);
-                    vstore8(select(zero, i_r, fill), slots, dd[4]);
-                    vstore8(select(zero, i_g, fill), slots, dd[5]);
-                    vstore8(select(zero, i_b, fill), slots, dd[6]);
-                    ++slots;
-                }
-            }
-        }
+    /* mark the lanes that would go lane by lane (counted by bench/fiv_profile.py) */
+    for (int c = 0; c < 9; ++c)
+        vstore8((float8)(1e6f), 0, fr[c]);
+    return take;
+#else
+    float afi[PN_FIV_LANES], afj[PN_FIV_LANES], afk[PN_FIV_LANES], afo[PN_FIV_LANES];
+    int at[PN_FIV_LANES];
+    vstore8(fi, 0, afi);
+    vstore8(fj, 0, afj);
+    vstore8(fk, 0, afk);
+    vstore8(falloff, 0, afo);
+    vstore8(take, 0, at);
+    for (int l = 0; l < PN_FIV_LANES; ++l) {
+        pn_fiv3 f = {(float3)(0.0f), (float3)(0.0f), (float3)(0.0f)};
+        if (at[l] && !pn_fiv_fetch(occ, a->fields, afi[l], afj[l], afk[l], afo[l], a->trilinear, &f))
+            at[l] = 0;
+        fr[0][l] = f.x.x, fr[1][l] = f.x.y, fr[2][l] = f.x.z;
+        fr[3][l] = f.y.x, fr[4][l] = f.y.y, fr[5][l] = f.y.z;
+        fr[6][l] = f.z.x, fr[7][l] = f.z.y, fr[8][l] = f.z.z;
     }
-    /* The overlap correction, in lanes; then the pixels. */
+    return vload8(0, at);
+#endif
+#endif
+}
+
+/* The occluder's irradiance N . FIV in the lanes of `take` (0 in the
+ * others) into the pixels' sums, largest and visibilities. */
+PN_FIV_INLINE void pn_fiv_add_occ8(const pn_fiv_args *a, pn_fiv_px8 *q, int8 take, float fr[9][PN_FIV_LANES],
+                                   float8 dist_plane, float r, float8 *i_r_out, float8 *i_g_out, float8 *i_b_out)
+{
+    /* An occluder only removes light (N . FIV per channel, as pn_fiv_dot). */
+    const float8 nx = q->nx, ny = q->ny, nz = q->nz;
+    float8 i_r = fmax(nx * vload8(0, fr[0]) + ny * vload8(0, fr[3]) + nz * vload8(0, fr[6]), 0.0f);
+    float8 i_g = fmax(nx * vload8(0, fr[1]) + ny * vload8(0, fr[4]) + nz * vload8(0, fr[7]), 0.0f);
+    float8 i_b = fmax(nx * vload8(0, fr[2]) + ny * vload8(0, fr[5]) + nz * vload8(0, fr[8]), 0.0f);
+    if (a->partial) { /* case B: the share above the plane */
+        int8 b = dist_plane < r;
+        float8 share = select((float8)(1.0f), (dist_plane + r) / (2.0f * r), b);
+        i_r = select(i_r, i_r * share, b);
+        i_g = select(i_g, i_g * share, b);
+        i_b = select(i_b, i_b * share, b);
+    }
+    i_r = select((float8)(0.0f), i_r, take);
+    i_g = select((float8)(0.0f), i_g, take);
+    i_b = select((float8)(0.0f), i_b, take);
+    q->sum_r += i_r, q->sum_g += i_g, q->sum_b += i_b;
+    q->big_r = fmax(q->big_r, i_r), q->big_g = fmax(q->big_g, i_g), q->big_b = fmax(q->big_b, i_b);
+    if (a->overlap == PN_OVERLAP_MULTIPLY) {
+        q->vis_r = select(q->vis_r, q->vis_r * clamp(1.0f - i_r / fmax(q->tot_r, 1e-30f), 0.0f, 1.0f), take);
+        q->vis_g = select(q->vis_g, q->vis_g * clamp(1.0f - i_g / fmax(q->tot_g, 1e-30f), 0.0f, 1.0f), take);
+        q->vis_b = select(q->vis_b, q->vis_b * clamp(1.0f - i_b / fmax(q->tot_b, 1e-30f), 0.0f, 1.0f), take);
+    }
+    *i_r_out = i_r, *i_g_out = i_g, *i_b_out = i_b;
+}
+
+/* The pixels: albedo in lanes times the irradiance e; background lanes as in
+ * pn_fiv_begin8 (their directions read again here, so that nothing of
+ * theirs is kept across the occluder loop). */
+PN_FIV_INLINE void pn_fiv_end8(const pn_fiv_args *a, const pn_fiv_px8 *q, float8 e_r, float8 e_g, float8 e_b)
+{
+    float8 ar, ag, ab, sky_r = 0.0f, sky_g = 0.0f, sky_b = 0.0f;
+    pn_load_row8(a->albedo, q->row, q->full, q->in_row, &ar, &ag, &ab);
+    if (a->background && any(q->sky)) {
+        float8 qx, qy, qz;
+        pn_load_row8(a->position, q->row, q->full, q->in_row, &qx, &qy, &qz);
+        pn_background8(a->latlong, a->latlong_width, a->latlong_height, a->rot, a->intensity, qx, qy, qz, q->sky,
+                       &sky_r, &sky_g, &sky_b);
+    }
+    /* fmax(albedo.xyz * e * PN_INV_PI, 0) per lane, as the scalar code */
+    const int8 active = q->active;
+    float8 out_r = select(sky_r, fmax(ar * e_r * PN_INV_PI, 0.0f), active);
+    float8 out_g = select(sky_g, fmax(ag * e_g * PN_INV_PI, 0.0f), active);
+    float8 out_b = select(sky_b, fmax(ab * e_b * PN_INV_PI, 0.0f), active);
+    pn_store_row8(a->image, q->row, q->full, q->in_row, out_r, out_g, out_b,
+                  select((float8)(0.0f), (float8)(1.0f), active));
+}
+
+/* The lanes' discs of an occluder (taken in `take`), in slot *slots of dd
+ * (each lane's divides give the scalar code's bits; pn_fiv_run8). */
+PN_FIV_INLINE void pn_fiv_fill_slot8(const pn_fiv_px8 *q, float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], int8 *held,
+                                     int *slots, int8 take, float8 vx, float8 vy, float8 vz, float8 rho, float r,
+                                     float8 i_r, float8 i_g, float8 i_b)
+{
+    int8 fill = take & (*held < PN_FIV_MAX_OVERLAP);
+    if (pn_fiv_any8(fill)) {
+        const float8 zero = 0.0f;
+        int8 far = rho > 0.0f;
+        *held -= fill;
+        vstore8(select(zero, select(q->nx, vx / rho, far), fill), *slots, dd[0]);
+        vstore8(select(zero, select(q->ny, vy / rho, far), fill), *slots, dd[1]);
+        vstore8(select(zero, select(q->nz, vz / rho, far), fill), *slots, dd[2]);
+        vstore8(select(zero, fmin(r / fmax(rho, 1e-30f), 1.0f), fill), *slots, dd[3]);
+        vstore8(select(zero, i_r, fill), *slots, dd[4]);
+        vstore8(select(zero, i_g, fill), *slots, dd[5]);
+        vstore8(select(zero, i_b, fill), *slots, dd[6]);
+        ++*slots;
+    }
+}
+
+/* The overlap correction, in lanes (pn_fiv_run8), then the pixels. */
+PN_FIV_INLINE void pn_fiv_finish8(const pn_fiv_args *a, const pn_fiv_px8 *q, bool pairs,
+                                  float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], int slots)
+{
     float8 e_r, e_g, e_b;
-    if (overlap == PN_OVERLAP_MULTIPLY) {
-        e_r = base_r * vis_r, e_g = base_g * vis_g, e_b = base_b * vis_b;
+    if (a->overlap == PN_OVERLAP_MULTIPLY) {
+        e_r = q->base_r * q->vis_r, e_g = q->base_g * q->vis_g, e_b = q->base_b * q->vis_b;
     } else {
-        float8 tot_r = sum_r, tot_g = sum_g, tot_b = sum_b;
+        float8 tot_r = q->sum_r, tot_g = q->sum_g, tot_b = q->sum_b;
         if (pairs) {
             /* Pairwise: the lens of two unit bounding discs, as a share of their
              * areas, of the two occluders' irradiance is counted once; each
-             * lane over its own discs, in the scalar code's order. Per disc a,
+             * lane over its own discs, in the scalar code's order. Per disc d,
              * first the later discs b near it in some lane, listed without a
              * branch (most pairs are apart: no lens, no sqrt or acos spent on
              * them), then the lenses of the listed pairs, in order. */
-            for (int a = 0; a < slots; ++a) {
-                float8 uax = vload8(a, dd[0]), uay = vload8(a, dd[1]), uaz = vload8(a, dd[2]), ra = vload8(a, dd[3]);
+            for (int d = 0; d < slots; ++d) {
+                float8 uax = vload8(d, dd[0]), uay = vload8(d, dd[1]), uaz = vload8(d, dd[2]), ra = vload8(d, dd[3]);
                 uchar list[PN_FIV_SLOTS];
                 int listed = 0;
-                for (int b = a + 1; b < slots; ++b) {
+                for (int b = d + 1; b < slots; ++b) {
                     float8 rb = vload8(b, dd[3]);
                     float8 ex = uax - vload8(b, dd[0]), ey = uay - vload8(b, dd[1]), ez = uaz - vload8(b, dd[2]);
                     float8 d2 = ex * ex + ey * ey + ez * ez;
@@ -836,30 +922,252 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
                     float8 lens = pn_fiv_lens8(ra, rb, sqrt(d2));
                     int8 take = near & (lens > 0.0f);
                     float8 share = lens / (PN_PI * (ra * ra + rb * rb));
-                    tot_r = select(tot_r, tot_r - share * (vload8(a, dd[4]) + vload8(b, dd[4])), take);
-                    tot_g = select(tot_g, tot_g - share * (vload8(a, dd[5]) + vload8(b, dd[5])), take);
-                    tot_b = select(tot_b, tot_b - share * (vload8(a, dd[6]) + vload8(b, dd[6])), take);
+                    tot_r = select(tot_r, tot_r - share * (vload8(d, dd[4]) + vload8(b, dd[4])), take);
+                    tot_g = select(tot_g, tot_g - share * (vload8(d, dd[5]) + vload8(b, dd[5])), take);
+                    tot_b = select(tot_b, tot_b - share * (vload8(d, dd[6]) + vload8(b, dd[6])), take);
                 }
             }
-            tot_r = clamp(tot_r, big_r, sum_r), tot_g = clamp(tot_g, big_g, sum_g), tot_b = clamp(tot_b, big_b, sum_b);
+            tot_r = clamp(tot_r, q->big_r, q->sum_r), tot_g = clamp(tot_g, q->big_g, q->sum_g);
+            tot_b = clamp(tot_b, q->big_b, q->sum_b);
         }
-        e_r = base_r - tot_r, e_g = base_g - tot_g, e_b = base_b - tot_b;
+        e_r = q->base_r - tot_r, e_g = q->base_g - tot_g, e_b = q->base_b - tot_b;
     }
-    /* The pixels: albedo in lanes; background lanes as above (their
-     * directions read again here, so that nothing of theirs is kept across
-     * the occluder loop). */
-    float8 ar, ag, ab, sky_r = 0.0f, sky_g = 0.0f, sky_b = 0.0f;
-    pn_load_row8(albedo, row, full, in_row, &ar, &ag, &ab);
-    if (background && any(sky)) {
-        float8 qx, qy, qz;
-        pn_load_row8(position, row, full, in_row, &qx, &qy, &qz);
-        pn_background8(latlong, latlong_width, latlong_height, rot, intensity, qx, qy, qz, sky, &sky_r, &sky_g,
-                       &sky_b);
-    }
-    /* fmax(albedo.xyz * e * PN_INV_PI, 0) per lane, as the scalar code */
-    float8 out_r = select(sky_r, fmax(ar * e_r * PN_INV_PI, 0.0f), active);
-    float8 out_g = select(sky_g, fmax(ag * e_g * PN_INV_PI, 0.0f), active);
-    float8 out_b = select(sky_b, fmax(ab * e_b * PN_INV_PI, 0.0f), active);
-    pn_store_row8(image, row, full, in_row, out_r, out_g, out_b, select((float8)(0.0f), (float8)(1.0f), active));
+    pn_fiv_end8(a, q, e_r, e_g, e_b);
 }
 
+/* The occluder loop and the pixels of one group (pn_fiv_begin8 before). */
+PN_FIV_INLINE void pn_fiv_run8(const pn_fiv_args *a, pn_fiv_px8 *q)
+{
+    /* Disc correction: one slot per occluder that some lane took part with
+     * (in the loop's order), lane l of slot d at [d * 8 + l]: unit-sphere
+     * direction, radius, the occluder's irradiance; zeros in the lanes that did
+     * not take it (or already hold PN_FIV_MAX_OVERLAP discs). A slot is one
+     * occluder in all lanes, so neighbouring pixels' pairs line up: a pair
+     * near in one lane is mostly near in the others. A zero disc never adds
+     * to a lane's correction (its lens with any disc is 0), so each lane sees
+     * its own discs in the scalar order. At most 8 x 32 slots (57 KiB of
+     * private memory; a work-item fills only the slots it uses). */
+    float dd[7][PN_FIV_SLOTS * PN_FIV_LANES];
+    int8 held = 0;
+    int slots = 0;
+    /* With one occluder there is no pair: total = sum, clamped to [largest, sum]. */
+    const bool pairs = a->overlap == PN_OVERLAP_DISC && a->occluder_count > 1;
+    int words = (a->occluder_count + 31) / 32;
+#if PN_FIV_PROFILE == 4
+    words = 0;
+#endif
+    global const uint *mask = pn_fiv_tile_mask(a, q, words);
+    for (int w = 0; w < words; ++w) {
+        /* The occluders of these pixels' tile (all of them unbinned), in order. */
+        int left = a->occluder_count - 32 * w;
+        uint bits = a->binned ? mask[w] : left >= 32 ? 0xFFFFFFFFu : (1u << left) - 1u;
+        while (bits) {
+            int o = 32 * w + (31 - clz(bits & (0u - bits)));
+            bits &= bits - 1u;
+            global const float4 *occ = a->occluders + PN_FIV_RECORD * o;
+            float8 vx, vy, vz, dist_plane, rho;
+            int8 take = pn_fiv_take8(q, occ, &vx, &vy, &vz, &dist_plane, &rho);
+            if (!any(take))
+                continue;
+            float fr[9][PN_FIV_LANES];
+            float8 fi, fj, fk, falloff;
+            take = pn_fiv_index_occ8(a, occ, vx, vy, vz, take, &fi, &fj, &fk, &falloff);
+            if (!any(take))
+                continue;
+            take = pn_fiv_fetch_occ8(a, occ, fi, fj, fk, falloff, take, fr);
+            if (!any(take))
+                continue;
+            const float r = occ[0].w;
+            float8 i_r, i_g, i_b;
+            pn_fiv_add_occ8(a, q, take, fr, dist_plane, r, &i_r, &i_g, &i_b);
+            if (pairs)
+                pn_fiv_fill_slot8(q, dd, &held, &slots, take, vx, vy, vz, rho, r, i_r, i_g, i_b);
+        }
+    }
+    pn_fiv_finish8(a, q, pairs, dd, slots);
+}
+
+/* pn_fiv_run8 for two groups of one 16x16 tile (the same occluders, in the
+ * same order) without the disc correction's pairs: each occluder's tests,
+ * then its index math, then its fetch and sums, for both groups side by
+ * side, so that their long chains of dependent operations overlap (one
+ * group at a time leaves most of the core waiting on them). Per group the
+ * operations of pn_fiv_run8, in its order: the same bits. */
+PN_FIV_INLINE void pn_fiv_run_pair8(const pn_fiv_args *a, pn_fiv_px8 *p, pn_fiv_px8 *q)
+{
+    /* the disc slots of each group (pn_fiv_run8) */
+    float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], udd[7][PN_FIV_SLOTS * PN_FIV_LANES];
+    int8 held = 0, uheld = 0;
+    int slots = 0, uslots = 0;
+    const bool pairs = a->overlap == PN_OVERLAP_DISC && a->occluder_count > 1;
+    int words = (a->occluder_count + 31) / 32;
+#if PN_FIV_PROFILE == 4
+    words = 0;
+#endif
+    global const uint *mask = pn_fiv_tile_mask(a, p, words);
+    for (int w = 0; w < words; ++w) {
+        int left = a->occluder_count - 32 * w;
+        uint bits = a->binned ? mask[w] : left >= 32 ? 0xFFFFFFFFu : (1u << left) - 1u;
+        while (bits) {
+            int o = 32 * w + (31 - clz(bits & (0u - bits)));
+            bits &= bits - 1u;
+            global const float4 *occ = a->occluders + PN_FIV_RECORD * o;
+            float8 vx, vy, vz, dist_plane, rho, ux, uy, uz, udist_plane, urho;
+            int8 take = pn_fiv_take8(p, occ, &vx, &vy, &vz, &dist_plane, &rho);
+            int8 utake = pn_fiv_take8(q, occ, &ux, &uy, &uz, &udist_plane, &urho);
+            const bool on = any(take), uon = any(utake);
+            if (!on && !uon)
+                continue;
+            float8 fi = 0.0f, fj = 0.0f, fk = 0.0f, falloff = 0.0f, ui = 0.0f, uj = 0.0f, uk = 0.0f, ufalloff = 0.0f;
+            if (on)
+                take = pn_fiv_index_occ8(a, occ, vx, vy, vz, take, &fi, &fj, &fk, &falloff);
+            if (uon)
+                utake = pn_fiv_index_occ8(a, occ, ux, uy, uz, utake, &ui, &uj, &uk, &ufalloff);
+            const float r = occ[0].w;
+            float8 i_r, i_g, i_b;
+            if (on && any(take)) {
+                float fr[9][PN_FIV_LANES];
+                take = pn_fiv_fetch_occ8(a, occ, fi, fj, fk, falloff, take, fr);
+                if (any(take)) {
+                    pn_fiv_add_occ8(a, p, take, fr, dist_plane, r, &i_r, &i_g, &i_b);
+                    if (pairs)
+                        pn_fiv_fill_slot8(p, dd, &held, &slots, take, vx, vy, vz, rho, r, i_r, i_g, i_b);
+                }
+            }
+            if (uon && any(utake)) {
+                float fr[9][PN_FIV_LANES];
+                utake = pn_fiv_fetch_occ8(a, occ, ui, uj, uk, ufalloff, utake, fr);
+                if (any(utake)) {
+                    pn_fiv_add_occ8(a, q, utake, fr, udist_plane, r, &i_r, &i_g, &i_b);
+                    if (pairs)
+                        pn_fiv_fill_slot8(q, udd, &uheld, &uslots, utake, ux, uy, uz, urho, r, i_r, i_g, i_b);
+                }
+            }
+        }
+    }
+    pn_fiv_finish8(a, p, pairs, dd, slots);
+    pn_fiv_finish8(a, q, pairs, udd, uslots);
+}
+
+#ifndef PN_FIV_PAIR_DISCS
+#define PN_FIV_PAIR_DISCS 1
+#endif
+
+/* Groups of an all-background work-item whose texel cells are computed
+ * before their texels are read (shade_fiv). */
+#define PN_FIV_SKY_BATCH 8
+
+/* Whether the groups g0 .. g1 - 1 of the row from index `row0` on are all
+ * background (the lanes past the row's end count as background). */
+PN_FIV_INLINE bool pn_fiv_all_sky(global const uint *instance_id, int row0, int width, int g0, int g1)
+{
+    for (int g = g0; g < g1; ++g) {
+        const int x0 = PN_FIV_LANES * g;
+        if (x0 + PN_FIV_LANES <= width) {
+            if (pn_fiv_any8(as_int8(vload8(0, instance_id + row0 + x0) != PN_BACKGROUND)))
+                return false;
+        } else {
+            for (int x = x0; x < width; ++x)
+                if (instance_id[row0 + x] != PN_BACKGROUND)
+                    return false;
+        }
+    }
+    return true;
+}
+
+/* pn_background_cell8 of group g of an all-background row (shade_fiv). */
+PN_FIV_INLINE void pn_fiv_sky_cell8(global const float4 *position, int row0, int width, int g, float2 rot,
+                                    int latlong_width, int latlong_height, int8 *i00, int8 *i10, int8 *i01,
+                                    int8 *i11, float8 *fx, float8 *fy)
+{
+    const int x0 = PN_FIV_LANES * g;
+    const int8 in_row = (int8)(0, 1, 2, 3, 4, 5, 6, 7) < width - x0;
+    float8 px, py, pz;
+    pn_load_row8(position, row0 + x0, x0 + PN_FIV_LANES <= width, in_row, &px, &py, &pz);
+    pn_background_cell8(latlong_width, latlong_height, rot, px, py, pz, in_row, i00, i10, i01, i11, fx, fy);
+}
+
+/* One work-item per `row_groups` groups of 8 pixels of a row (above; global
+ * size ceil(ceil(width / 8) / row_groups) x height, PN_FIV_ROW_GROUPS in
+ * capi/src/methods/fiv.c): neighbouring groups of a flat surface mostly
+ * share one normal, whose normalisation and unshadowed irradiance a
+ * work-item then computes once (pn_fiv_normal_cache); a work-item of
+ * background alone computes its groups' texel cells before their texels;
+ * without the disc correction's pairs the two groups of a 16x16 tile go
+ * through the occluder loop side by side (pn_fiv_run_pair8). Each group's
+ * pixels get the operations of one group alone, so the same bits
+ * (docs/performance.md, FIV, "The floor round 2"). */
+kernel void shade_fiv(global const float4 *position, global const float4 *normal, global const float4 *albedo,
+                      global const uint *instance_id, int count, global const float4 *irradiance, int m,
+                      global const float4 *occluders,
+                      int occluder_count, global const uchar *fields, float cull_floor, float4 env_x, float4 env_y,
+                      float4 env_z,
+                      int overlap, int partial, int self_shadow, int trilinear, int width, int binned,
+                      global const uint *tile_masks, global float4 *image, int background,
+                      global const float *latlong, int latlong_width, int latlong_height, float2 rot,
+                      float intensity, int row_groups)
+{
+    if (width <= 0 || row_groups <= 0)
+        return;
+    const int groups = (width + PN_FIV_LANES - 1) / PN_FIV_LANES, per_row = (groups + row_groups - 1) / row_groups;
+    const int item = get_global_id(0);
+    const int y = item / per_row, g0 = (item - y * per_row) * row_groups;
+    if (y >= count / width)
+        return;
+    const int g1 = min(g0 + row_groups, groups);
+#ifndef PN_FIV_NO_SKY_BATCH
+    if (background && pn_fiv_all_sky(instance_id, y * width, width, g0, g1)) {
+        /* Only env map pixels (the sky above a horizon): the texel offsets
+         * and weights of up to PN_FIV_SKY_BATCH groups first
+         * (pn_background_cell8), then their texels, so that the groups'
+         * chains from the direction through the angles to the texel reads
+         * overlap (one group at a time leaves them waiting on each other);
+         * the same operations per group as pn_background8, so the same bits. */
+        for (int gb = g0; gb < g1; gb += PN_FIV_SKY_BATCH) {
+            const int n = min(PN_FIV_SKY_BATCH, g1 - gb);
+            int8 c00[PN_FIV_SKY_BATCH], c10[PN_FIV_SKY_BATCH], c01[PN_FIV_SKY_BATCH], c11[PN_FIV_SKY_BATCH];
+            float8 cfx[PN_FIV_SKY_BATCH], cfy[PN_FIV_SKY_BATCH];
+            for (int b = 0; b < n; ++b)
+                pn_fiv_sky_cell8(position, y * width, width, gb + b, rot, latlong_width, latlong_height, &c00[b],
+                                 &c10[b], &c01[b], &c11[b], &cfx[b], &cfy[b]);
+            for (int b = 0; b < n; ++b) {
+                const int x0 = PN_FIV_LANES * (gb + b), row = y * width + x0;
+                const bool full = x0 + PN_FIV_LANES <= width;
+                const int8 in_row = (int8)(0, 1, 2, 3, 4, 5, 6, 7) < width - x0;
+                float8 sky_r, sky_g, sky_b;
+                pn_background_texels8(latlong, intensity, in_row, c00[b], c10[b], c01[b], c11[b], cfx[b], cfy[b],
+                                      &sky_r, &sky_g, &sky_b);
+                pn_store_row8(image, row, full, in_row, sky_r, sky_g, sky_b, (float8)(0.0f));
+            }
+        }
+        return;
+    }
+#endif
+    const pn_fiv_args args = {position, normal, albedo, instance_id, irradiance, occluders, fields, tile_masks, image,
+                              latlong, env_x, env_y, env_z, rot, cull_floor, intensity, m, occluder_count, overlap,
+                              partial, self_shadow, trilinear, width, binned, background, latlong_width,
+                              latlong_height};
+    const bool pairs = overlap == PN_OVERLAP_DISC && occluder_count > 1;
+    pn_fiv_normal_cache cache;
+    cache.valid = false;
+    for (int g = g0; g < g1;) {
+        pn_fiv_px8 p, q;
+#ifndef PN_FIV_NO_PAIRS
+        if ((!pairs || PN_FIV_PAIR_DISCS) && g % 2 == 0 && g + 1 < g1) { /* two groups of one tile side by side */
+            const bool on = pn_fiv_begin8(&args, y, PN_FIV_LANES * g, &cache, &p);
+            const bool uon = pn_fiv_begin8(&args, y, PN_FIV_LANES * (g + 1), &cache, &q);
+            if (on && uon)
+                pn_fiv_run_pair8(&args, &p, &q);
+            else if (on)
+                pn_fiv_run8(&args, &p);
+            else if (uon)
+                pn_fiv_run8(&args, &q);
+            g += 2;
+            continue;
+        }
+#endif
+        if (pn_fiv_begin8(&args, y, PN_FIV_LANES * g, &cache, &p))
+            pn_fiv_run8(&args, &p);
+        ++g;
+    }
+}

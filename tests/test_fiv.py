@@ -582,6 +582,67 @@ def test_lanes_sharing_a_normal(ctx, env, meshes, fields):
         assert np.array_equal(got[s.fg], lone[s.fg]), params  # the same operations, so the same bits
 
 
+def test_groups_sharing_a_normal(ctx, env, meshes, fields):
+    """A shade_fiv work-item shades several groups of 8 pixels of a row and
+    normalises and looks up a normal that its groups share once (the last
+    single normal, keyed by its bits; kernels/fiv.cl, pn_fiv_normal_cache).
+    Rows of 133 pixels (more than one work-item, a partial group at the end)
+    whose groups take one normal each in the order A A B A, then at random
+    among A, B and C (B and C differ only in the sign of z), some
+    groups with background lanes or with one lane's normal differing (not a
+    single normal: the cache is neither used nor replaced), all-sky
+    groups between them, and work-items of background alone (one ending in a
+    partial group); with one sphere and with 40 (the disc correction's
+    pairs); against the twin, and bit for bit against the same groups each
+    alone in its work-item (the first group of 64 pixels, the rest
+    background), where nothing is cached and no two groups go side by
+    side."""
+    rng = np.random.default_rng(16)
+    rows, w, span = 6, 133, 64  # span: the pixels of a work-item (PN_FIV_ROW_GROUPS groups of 8)
+    yb = np.sqrt(1.0 - 0.3 ** 2 - 0.2 ** 2)  # B and C differ only in z's sign
+    normals = np.array([[0.0, 1.0, 0.0], [0.3, yb, -0.2], [0.3, yb, 0.2], unit(np.array([0.1, 1.0, 0.1]))])
+    groups = (w + 7) // 8
+    order = rng.integers(0, 3, (rows, groups))
+    order[:, :4] = [0, 0, 1, 0]
+    nrm = np.empty((rows, w, 3))
+    for r in range(rows):
+        for g in range(groups):
+            nrm[r, 8 * g:8 * g + 8] = normals[order[r, g]]
+    odd = rng.random((rows, groups)) < 0.2  # one lane's normal differs
+    for r, g in zip(*np.nonzero(odd)):
+        x = min(8 * g + int(rng.integers(0, 8)), w - 1)
+        nrm[r, x] = normals[3]
+    nrm = nrm.astype(np.float32).astype(np.float64)
+    pos, _, inst = plane_receivers(rng, h=rows, w=w)
+    sky = rng.random((rows, groups)) < 0.15  # all-sky groups
+    for r, g in zip(*np.nonzero(sky)):
+        inst[r, 8 * g:8 * g + 8] = BACKGROUND
+    inst[rng.random((rows, w)) < 0.05] = BACKGROUND  # background lanes among one normal
+    inst[0] = BACKGROUND  # work-items of background alone (shade_fiv's sky path) ...
+    inst[1, span:] = BACKGROUND  # ... and one ending in a partial group
+    instances = [(fields["sphere"], meshes["sphere"][1], translate((0.0, 0.6, 0.0)))]
+    s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
+    alone = [np.zeros((rows, span * groups, 3)), np.zeros((rows, span * groups, 3)),
+             np.full((rows, span * groups), BACKGROUND, np.uint32)]
+    cols = np.concatenate([span * g + np.arange(min(8, w - 8 * g)) for g in range(groups)])
+    for plane, src in zip(alone, (pos, nrm, inst)):
+        plane[:, cols] = src
+    s1 = FivScene(ctx, env, fields, instances, tuple(alone))
+    for params in (dict(overlap=0), dict(overlap=1, partial=1, self_shadow=1), dict(overlap=2, background=0)):
+        got = assert_matches_twin(s, params) if params.get("background", 1) else s.render(cull_threshold=0.0, **params)
+        lone = s1.render(cull_threshold=0.0, **params)[:, cols]
+        assert np.array_equal(got, lone), params  # the same operations, so the same bits
+    # 40 spheres: the disc correction's pairs, each group's discs in slots of its own
+    instances, _ = forty_spheres(meshes, fields, rng)
+    s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
+    s1 = FivScene(ctx, env, fields, instances, tuple(alone))
+    for params in (dict(overlap=1), dict(overlap=1, partial=1)):
+        got = assert_matches_twin(s, params)
+        assert np.array_equal(got, s1.render(cull_threshold=0.0, **params)[:, cols]), params
+        unbinned = s.render(cull_threshold=0.0, tile_cull=0, **params)
+        assert np.array_equal(unbinned, s1.render(cull_threshold=0.0, tile_cull=0, **params)[:, cols]), params
+
+
 def test_many_occluders_per_tile(ctx, env, meshes, fields):
     """40 small spheres over every pixel of a 20 x 12 image: two words of the
     tile masks, every lane of a work-item taking most occluders, more than 32

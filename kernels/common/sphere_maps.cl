@@ -284,21 +284,25 @@ PN_LANES_INLINE void pn_cube_grid_lookup8(global const float4 *irradiance, int m
     *out_r = r, *out_g = g, *out_b = b;
 }
 
-/* The env map's radiance (pn_latlong_bilinear, times `intensity`) in the
- * direction (x, y, z) of each lane of `live`, rotated by rot = (cos, sin) as
- * the background pass does (envmap_background: the direction normalised, the
- * same operations in the same order, so the same bits); 0 in the other
- * lanes, whose directions are not read. */
-PN_LANES_INLINE void pn_background8(global const float *latlong, int width, int height, float2 rot, float intensity,
-                                    float8 px, float8 py, float8 pz, int8 live, float8 *r, float8 *g, float8 *b)
+/* pn_background8's first half: the texel offsets and weights of each
+ * lane's direction (the lanes outside `live` look at the pole). */
+PN_LANES_INLINE void pn_background_cell8(int width, int height, float2 rot, float8 px, float8 py, float8 pz,
+                                         int8 live, int8 *i00, int8 *i10, int8 *i01, int8 *i11, float8 *fx,
+                                         float8 *fy)
 {
     px = select((float8)(0.0f), px, live), py = select((float8)(1.0f), py, live), pz = select((float8)(0.0f), pz, live);
     pn_normalize8(&px, &py, &pz);
     /* pn_rotate_y(d, rot.x, -rot.y) */
     float8 dx = rot.x * px + -rot.y * pz, dz = rot.y * px + rot.x * pz;
-    int8 i00, i10, i01, i11;
-    float8 fx, fy;
-    pn_latlong_cell8(width, height, dx, py, dz, &i00, &i10, &i01, &i11, &fx, &fy);
+    pn_latlong_cell8(width, height, dx, py, dz, i00, i10, i01, i11, fx, fy);
+}
+
+/* pn_background8's second half: each lane of `live` its 4 texels and the
+ * scalar code's mixes, times `intensity`; 0 in the other lanes. */
+PN_LANES_INLINE void pn_background_texels8(global const float *latlong, float intensity, int8 live, int8 i00,
+                                           int8 i10, int8 i01, int8 i11, float8 fx, float8 fy, float8 *r, float8 *g,
+                                           float8 *b)
+{
     float8 cr = 0.0f, cg = 0.0f, cb = 0.0f;
 #define PN_BACKGROUND_LANE8(l)                                                                            \
     if (live.s##l) {                                                                                      \
@@ -311,6 +315,20 @@ PN_LANES_INLINE void pn_background8(global const float *latlong, int width, int 
     PN_BACKGROUND_LANE8(4) PN_BACKGROUND_LANE8(5) PN_BACKGROUND_LANE8(6) PN_BACKGROUND_LANE8(7)
 #undef PN_BACKGROUND_LANE8
     *r = intensity * cr, *g = intensity * cg, *b = intensity * cb;
+}
+
+/* The env map's radiance (pn_latlong_bilinear, times `intensity`) in the
+ * direction (x, y, z) of each lane of `live`, rotated by rot = (cos, sin) as
+ * the background pass does (envmap_background: the direction normalised, the
+ * same operations in the same order, so the same bits); 0 in the other
+ * lanes, whose directions are not read. */
+PN_LANES_INLINE void pn_background8(global const float *latlong, int width, int height, float2 rot, float intensity,
+                                    float8 px, float8 py, float8 pz, int8 live, float8 *r, float8 *g, float8 *b)
+{
+    int8 i00, i10, i01, i11;
+    float8 fx, fy;
+    pn_background_cell8(width, height, rot, px, py, pz, live, &i00, &i10, &i01, &i11, &fx, &fy);
+    pn_background_texels8(latlong, intensity, live, i00, i10, i01, i11, fx, fy, r, g, b);
 }
 
 /* Nearest-texel lookup of a texel-centred cube map. */

@@ -108,6 +108,11 @@ static void cell_bounds(const struct pn_fiv_impl *f, float *out)
  * PN_FIV_BINS_Z in cos theta (= d.y) by PN_FIV_BINS_P in a pseudo-angle p of
  * phi in [0, 8] that needs no atan (p = t, 2 - t, ... by octant, t the ratio
  * of the smaller to the larger of |d.x|, |d.z|). Keep in step with fiv.cl. */
+/* Groups of 8 pixels of a row per shade_fiv work-item (kernels/fiv.cl): a
+ * work-item normalises and looks up a normal its groups share once, and
+ * overlaps the work of neighbouring groups. 8 measured 0.98x the CPU time
+ * of 4 and 16 1.02-1.03x of 8 (docs/performance.md, FIV, "The floor round 2"). */
+#define PN_FIV_ROW_GROUPS 8
 #define PN_FIV_BINS_Z 16
 #define PN_FIV_BINS_P 32
 #define PN_FIV_PI 3.14159265358979323846
@@ -398,25 +403,27 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const cl_int background = r->params[P_BACKGROUND] != 0.0;
     const cl_int lat_w = (cl_int)env->width, lat_h = (cl_int)env->height;
     const cl_float2 rot = pn_envmap_rotation(env);
+    const cl_int row_groups = PN_FIV_ROW_GROUPS;
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count, sizeof(cl_mem),
                       sizeof m, sizeof(cl_mem), sizeof occluders, sizeof(cl_mem), sizeof cull_floor,
                       sizeof env_fiv[0], sizeof env_fiv[1], sizeof env_fiv[2], sizeof overlap, sizeof partial,
                       sizeof self_shadow, sizeof trilinear, sizeof width, sizeof binned, sizeof(cl_mem),
                       sizeof(cl_mem), sizeof background, sizeof(cl_mem), sizeof lat_w, sizeof lat_h, sizeof rot,
-                      sizeof env->intensity};
+                      sizeof env->intensity, sizeof row_groups};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->irradiance,
                           &m, &s->device_records, &occluders, &s->data, &cull_floor, &env_fiv[0],
                           &env_fiv[1], &env_fiv[2], &overlap, &partial, &self_shadow, &trilinear, &width, &binned,
                           &s->tile_masks, &image->buffer, &background, &env->latlong, &lat_w, &lat_h, &rot,
-                          &env->intensity};
-    if ((st = pn_set_args(ctx, k, "shade_fiv", 28, sizes, vals)))
+                          &env->intensity, &row_groups};
+    if ((st = pn_set_args(ctx, k, "shade_fiv", 29, sizes, vals)))
         return st;
-    /* 8 pixels of a row per work-item (vector lanes, kernels/fiv.cl), one
-     * work-item per work-group: PoCL then runs no loop over work-items around
-     * the kernel's own loops, which measured 7 % less CPU time than
-     * work-groups of 8 (docs/performance.md, FIV). */
-    const size_t items = (size_t)((gb->width + 7) / 8) * gb->height;
+    /* PN_FIV_ROW_GROUPS groups of 8 pixels of a row per work-item (vector
+     * lanes, kernels/fiv.cl), one work-item per work-group: PoCL then runs no
+     * loop over work-items around the kernel's own loops, which measured 7 %
+     * less CPU time than work-groups of 8 (docs/performance.md, FIV). */
+    const size_t groups = (gb->width + 7) / 8;
+    const size_t items = (groups + PN_FIV_ROW_GROUPS - 1) / PN_FIV_ROW_GROUPS * gb->height;
     return pn_enqueue_1d(ctx, k, "shade_fiv", items, 1);
 }
 
