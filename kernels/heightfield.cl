@@ -54,18 +54,9 @@
 #ifndef HF_STRADDLE_FAST
 #define HF_STRADDLE_FAST 1
 #endif
-/* Taps clamped on levels narrower than 20 values (the row's clamped 20
- * values built from two loads and shifted), and a spread of 16 columns
- * (a fifth select stage): the same floats (0 only to measure and test). */
-#ifndef HF_NARROW_FAST
-#define HF_NARROW_FAST 1
+#ifndef HF_BORDER_TEST /* build options only to test that the tests catch a wrong border path: 1 reads */
+#define HF_BORDER_TEST 0 /* the outside column one value in, 2 lets a spread of 16 columns take the window */
 #endif
-#ifndef HF_SPREAD16_FAST
-#define HF_SPREAD16_FAST 1
-#endif
-#ifndef HF_BORDER_TEST /* build options only to test that the tests catch a wrong border path: 1 reads the */
-#define HF_BORDER_TEST 0 /* outside column one value in, 2 leaves out the fifth select stage (a spread of 16 */
-#endif                   /* columns), 3 builds a narrow level's right end one value off */
 #ifndef HF_VIS_PREP /* a build option only to measure the per-wedge scalar index work (0) */
 #define HF_VIS_PREP 1
 #endif
@@ -556,69 +547,6 @@ HF_INLINE void hf_window_shift_left(float16 *l, float4 *lh, int n)
     }
 }
 
-/* A window of 8 or 4 values shifted left by n in [0, 15] / [0, 7], the last value repeated behind. */
-HF_INLINE float8 hf_shift8_left(float8 v, int n)
-{
-    const float g = v.s7;
-    if (n & 1)
-        v = (float8)(v.s1234, v.s567, g);
-    if (n & 2)
-        v = (float8)(v.s2345, v.s67, g, g);
-    if (n & 4)
-        v = (float8)(v.s4567, (float4)g);
-    if (n & 8)
-        v = g;
-    return v;
-}
-
-HF_INLINE float4 hf_shift4_left(float4 v, int n)
-{
-    const float g = v.w;
-    if (n & 1)
-        v = (float4)(v.yzw, g);
-    if (n & 2)
-        v = (float4)(v.zw, g, g);
-    if (n & 4)
-        v = g;
-    return v;
-}
-
-/* hf_pick_columns for s in [0, S], S <= 16: a fifth stage takes w[16 .. 19]
- * (lh) for the lanes with s = 16 (whose lower bits are 0). */
-HF_INLINE void hf_pick_columns5(float16 l, float4 lh, int16 s, int S, float16 *c0, float16 *c1, float16 *c2,
-                                float16 *c3)
-{
-    hf_pick_columns(l, lh, s, min(S, 15), c0, c1, c2, c3);
-    if (S >= 16 + (HF_BORDER_TEST == 2)) {
-        const int16 m4 = (s & 16) != 0;
-        *c0 = select(*c0, (float16)lh.x, m4);
-        *c1 = select(*c1, (float16)lh.y, m4);
-        *c2 = select(*c2, (float16)lh.z, m4);
-        *c3 = select(*c3, (float16)lh.w, m4);
-    }
-}
-
-/* A narrow level's row (L = lev.y in [3, 18]) as the 20 values
- * (the combined row at column min(c, L)), c = 0 .. 19: two loads, the
- * right one shifted left so that column L lands at L, repeated behind. */
-#define HF_NARROW_WINDOW(r0, r1, r2, r3, wb, ref, L, l, lh)                                                   \
-    {                                                                                                           \
-        if (L >= 15) {                                                                                          \
-            l = HF_COMBINE16(r0, r1, r2, r3, wb, ref, 0);                                                       \
-            lh = hf_shift4_left(HF_COMBINE4(r0, r1, r2, r3, wb, ref, L - 3), 19 - L - (HF_BORDER_TEST == 3));   \
-        } else if (L >= 7) {                                                                                    \
-            const float8 r8 = hf_shift8_left(HF_COMBINE8(r0, r1, r2, r3, wb, ref, L - 7),                       \
-                                             15 - L - (HF_BORDER_TEST == 3));                                   \
-            l = (float16)(HF_COMBINE8(r0, r1, r2, r3, wb, ref, 0), r8);                                         \
-            lh = r8.s7;                                                                                         \
-        } else {                                                                                                \
-            const float4 r4 = hf_shift4_left(HF_COMBINE4(r0, r1, r2, r3, wb, ref, L - 3),                       \
-                                             7 - L - (HF_BORDER_TEST == 3));                                    \
-            lh = r4.w;                                                                                          \
-            l = (float16)(HF_COMBINE4(r0, r1, r2, r3, wb, ref, 0), r4, lh, lh);                                 \
-        }                                                                                                       \
-    }
-
 HF_INLINE void hf_level_sample_row2(global const float *pyr, int4 lev, int wm1, float16 u, float vA, float vB,
                                     float inv_wm1, float inv_dm1, float refA, float refB, float16 *hA, float16 *hB)
 {
@@ -694,16 +622,15 @@ HF_INLINE void hf_level_sample_row2(global const float *pyr, int4 lev, int wm1, 
     }
 #endif
 #if HF_STRADDLE_FAST
-    if (lev.y >= 19 && hi - lo <= 18 + HF_SPREAD16_FAST && (lo >= 0 || hi <= lev.y)) {
+    if (lev.y >= 19 && hi - lo <= 18 + (HF_BORDER_TEST == 2) && (lo >= 0 || hi <= lev.y)) {
         /* taps clamped at one border only: the window w[c] = (the combined
          * row at column clamp(lo + c, 0, C)), c = 0 .. 19, is the 20 values
          * at that border shifted by a uniform amount with the border value
          * repeated; lane l's taps are then w[s_l .. s_l + 3], s_l = ia_l - lo
          * in [0, 15], picked as on the unclamped path. The same values as
          * the column-by-column path gathers, so the same floats. (Lane 0
-         * rounding down and lane 15 not can make the spread 16 columns,
-         * s_15 = 16: the fifth select stage; also unclamped, which the
-         * windows above do not hold.) */
+         * rounding down and lane 15 not can make the spread 16 columns:
+         * those keep the column-by-column path.) */
         const int cs = lo < 0 ? 0 : lev.y - 19;
         float16 lA = HF_COMBINE16(a0, a1, a2, a3, wbA, refA, cs), lB = HF_COMBINE16(b0, b1, b2, b3, wbB, refB, cs);
         float4 lhA = HF_COMBINE4(a0, a1, a2, a3, wbA, refA, cs + 16),
@@ -716,36 +643,9 @@ HF_INLINE void hf_level_sample_row2(global const float *pyr, int4 lev, int wm1, 
             hf_window_shift_left(&lB, &lhB, lo - cs);
         }
         float16 c0, c1, c2, c3;
-        hf_pick_columns5(lA, lhA, ia - lo, hi - 3 - lo, &c0, &c1, &c2, &c3);
+        hf_pick_columns(lA, lhA, ia - lo, hi - 3 - lo, &c0, &c1, &c2, &c3);
         *hA = wa0 * c0 + wa1 * c1 + wa2 * c2 + wa3 * c3;
-        hf_pick_columns5(lB, lhB, ia - lo, hi - 3 - lo, &c0, &c1, &c2, &c3);
-        *hB = wa0 * c0 + wa1 * c1 + wa2 * c2 + wa3 * c3;
-        return;
-    }
-#endif
-#if HF_NARROW_FAST
-    if (lev.y >= 3 && lev.y < 19 && hi - lo <= 19 && hi > 0 && lo < lev.y) {
-        /* a narrow level (the unclamped windows above did not hold the
-         * taps, or a tap is clamped at one border or both): the row's
-         * clamped 20 values, shifted by lo as on the wide levels -- right
-         * with column 0 repeated in front, or left with column L repeated
-         * behind -- give w[c] = (the combined row at column clamp(lo + c,
-         * 0, L)); the same values as the column-by-column path gathers. */
-        float16 lA, lB;
-        float4 lhA, lhB;
-        HF_NARROW_WINDOW(a0, a1, a2, a3, wbA, refA, lev.y, lA, lhA)
-        HF_NARROW_WINDOW(b0, b1, b2, b3, wbB, refB, lev.y, lB, lhB)
-        if (lo < 0) {
-            hf_window_shift_right(&lA, &lhA, -lo);
-            hf_window_shift_right(&lB, &lhB, -lo);
-        } else {
-            hf_window_shift_left(&lA, &lhA, lo);
-            hf_window_shift_left(&lB, &lhB, lo);
-        }
-        float16 c0, c1, c2, c3;
-        hf_pick_columns5(lA, lhA, ia - lo, hi - 3 - lo, &c0, &c1, &c2, &c3);
-        *hA = wa0 * c0 + wa1 * c1 + wa2 * c2 + wa3 * c3;
-        hf_pick_columns5(lB, lhB, ia - lo, hi - 3 - lo, &c0, &c1, &c2, &c3);
+        hf_pick_columns(lB, lhB, ia - lo, hi - 3 - lo, &c0, &c1, &c2, &c3);
         *hB = wa0 * c0 + wa1 * c1 + wa2 * c2 + wa3 * c3;
         return;
     }
