@@ -337,15 +337,6 @@ PN_FIV_INLINE float8 pn_fiv_ln8(float8 x)
     return convert_float8(e) * 0.693147180559945f + 2.0f * s * p;
 }
 
-/* any() of a lane mask without branches: PoCL's any tests the lanes one by
- * one, a branch each, which mispredicts in the disc pairs' loop. */
-PN_FIV_INLINE int pn_fiv_any8(int8 m)
-{
-    int4 a = m.lo | m.hi;
-    int2 b = a.lo | a.hi;
-    return (b.x | b.y) < 0;
-}
-
 /* pn_fiv_dir_bin, lane by lane. */
 PN_FIV_INLINE int8 pn_fiv_dir_bin8(float8 vx, float8 vy, float8 vz, float8 rho)
 {
@@ -360,11 +351,15 @@ PN_FIV_INLINE int8 pn_fiv_dir_bin8(float8 vx, float8 vy, float8 vz, float8 rho)
 
 /* base[idx] in the lanes of mask (-1), 0 in the others (whose idx may be anything).
  * Unrolled, each value put into its lane in registers (a lane array written
- * one lane at a time and read back as a vector stalls the load). */
+ * one lane at a time and read back as a vector stalls the load). Without a
+ * branch per lane: every lane reads, base[0] in the lanes out of the mask,
+ * and a select zeroes them (the lanes' masks vary from group to group, so
+ * that the branches mispredicted; 0.95x the one-bunny frame,
+ * docs/performance.md, FIV, "Index math"). PN_FIV_GATHER_BRANCHES (a build
+ * option, for A/B timings) keeps a branch per lane; the same values. */
 PN_FIV_INLINE float8 pn_fiv_gather8(global const float *base, int8 idx, int8 mask)
 {
 #ifndef PN_FIV_GATHER_BRANCHES
-    /* without a branch per lane: every lane reads (base[0] in the others) */
     idx = select((int8)(0), idx, mask);
     float8 g;
     g.s0 = base[idx.s0], g.s1 = base[idx.s1], g.s2 = base[idx.s2], g.s3 = base[idx.s3];
@@ -404,12 +399,6 @@ PN_FIV_INLINE int8 pn_fiv_index8(global const float4 *occ, global const uchar *f
             global const float *bin_bound = cell_bound + (((size_t)(n_theta - 1) * n_phi + 3) & ~(size_t)3);
             float8 bound = pn_fiv_gather8(bin_bound, pn_fiv_dir_bin8(vx, vy, vz, rho), beyond);
             live &= ~(beyond & (bound * ((rho_max / rho) * (rho_max / rho)) < cull_floor));
-#ifndef PN_FIV_NO_INDEX_SKIP
-            if (!pn_fiv_any8(live)) { /* every lane culled by its bin: no angle, logarithm or fall-off */
-                *fi_out = *fj_out = *fk_out = *falloff_out = 0.0f;
-                return live;
-            }
-#endif
         }
     }
     float8 theta = pn_atan2_8(sqrt(vx * vx + vz * vz), vy);
@@ -419,14 +408,7 @@ PN_FIV_INLINE int8 pn_fiv_index8(global const float4 *occ, global const uchar *f
     float8 fj = phi * (float)n_phi * PN_INV_TWO_PI;
     float8 fk = select((float8)(0.0f), pn_fiv_ln8(rho / rho_min) / log_ratio * (float)(n_rho - 1), rho > 0.0f);
     int8 out_of_grid = fk > (float)(n_rho - 1);
-#ifndef PN_FIV_NO_INDEX_SKIP
-    /* the fall-off's divide only when some lane is beyond the grid */
-    float8 falloff = 1.0f;
-    if (pn_fiv_any8(out_of_grid))
-        falloff = select((float8)(1.0f), (rho_max / rho) * (rho_max / rho), out_of_grid);
-#else
     float8 falloff = select((float8)(1.0f), (rho_max / rho) * (rho_max / rho), out_of_grid);
-#endif
     fk = select(fk, (float8)(n_rho - 1), out_of_grid);
     int8 cull = live & out_of_grid;
     if (any(cull)) { /* the cell test (pn_fiv_lookup) */
@@ -596,6 +578,15 @@ PN_FIV_INLINE float8 pn_fiv_lens8(float8 a, float8 b, float8 dist)
     float8 sk = sqrt(fmax(k, 0.0f));
     float8 lens = a2 * pn_atan2_8(sk, d2 + a2 - b2) + b2 * pn_atan2_8(sk, d2 + b2 - a2) - 0.5f * sk;
     return select(select(lens, PN_PI * r * r, dist <= fabs(a - b)), (float8)(0.0f), dist >= a + b);
+}
+
+/* any() of a lane mask without branches: PoCL's any tests the lanes one by
+ * one, a branch each, which mispredicts in the disc pairs' loop. */
+PN_FIV_INLINE int pn_fiv_any8(int8 m)
+{
+    int4 a = m.lo | m.hi;
+    int2 b = a.lo | a.hi;
+    return (b.x | b.y) < 0;
 }
 
 /* The last single normal a work-item looked up (shade_fiv): its raw bits
