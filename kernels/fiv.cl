@@ -351,9 +351,21 @@ PN_FIV_INLINE int8 pn_fiv_dir_bin8(float8 vx, float8 vy, float8 vz, float8 rho)
 
 /* base[idx] in the lanes of mask (-1), 0 in the others (whose idx may be anything).
  * Unrolled, each value put into its lane in registers (a lane array written
- * one lane at a time and read back as a vector stalls the load). */
+ * one lane at a time and read back as a vector stalls the load). Without a
+ * branch per lane: every lane reads, base[0] in the lanes out of the mask,
+ * and a select zeroes them (the lanes' masks vary from group to group, so
+ * that the branches mispredicted; 0.95x the one-bunny frame,
+ * docs/performance.md, FIV, "Index math"). PN_FIV_GATHER_BRANCHES (a build
+ * option, for A/B timings) keeps a branch per lane; the same values. */
 PN_FIV_INLINE float8 pn_fiv_gather8(global const float *base, int8 idx, int8 mask)
 {
+#ifndef PN_FIV_GATHER_BRANCHES
+    idx = select((int8)(0), idx, mask);
+    float8 g;
+    g.s0 = base[idx.s0], g.s1 = base[idx.s1], g.s2 = base[idx.s2], g.s3 = base[idx.s3];
+    g.s4 = base[idx.s4], g.s5 = base[idx.s5], g.s6 = base[idx.s6], g.s7 = base[idx.s7];
+    return select((float8)(0.0f), g, mask);
+#endif
     float8 v = 0.0f;
 #define PN_FIV_GATHER_LANE(l)     \
     if (mask.s##l)                \
