@@ -45,6 +45,7 @@
 
 #define PN_FIV_RECORD 4
 #define PN_FIV_TILE 16
+/* The disc correction's capacity: the `max_overlap` parameter is at most this. */
 #define PN_FIV_MAX_OVERLAP 32
 #define PN_FIV_SLOTS (PN_FIV_MAX_OVERLAP * PN_FIV_LANES)
 
@@ -611,7 +612,7 @@ typedef struct {
     float2 rot;
     float cull_floor, intensity;
     int m, occluder_count, overlap, partial, self_shadow, trilinear, width, binned, background, latlong_width,
-        latlong_height;
+        latlong_height, max_overlap;
 } pn_fiv_args;
 
 /* A group of 8 pixels of a row in lanes, and its sums over the occluders. */
@@ -878,11 +879,12 @@ PN_FIV_INLINE void pn_fiv_end8(const pn_fiv_args *a, const pn_fiv_px8 *q, float8
 
 /* The lanes' discs of an occluder (taken in `take`), in slot *slots of dd
  * (each lane's divides give the scalar code's bits; pn_fiv_run8). */
-PN_FIV_INLINE void pn_fiv_fill_slot8(const pn_fiv_px8 *q, float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], int8 *held,
+PN_FIV_INLINE void pn_fiv_fill_slot8(const pn_fiv_args *a, const pn_fiv_px8 *q,
+                                     float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], int8 *held,
                                      int *slots, int8 take, float8 vx, float8 vy, float8 vz, float8 rho, float r,
                                      float8 i_r, float8 i_g, float8 i_b)
 {
-    int8 fill = take & (*held < PN_FIV_MAX_OVERLAP);
+    int8 fill = take & (*held < a->max_overlap);
     if (pn_fiv_any8(fill)) {
         const float8 zero = 0.0f;
         int8 far = rho > 0.0f;
@@ -953,7 +955,7 @@ PN_FIV_INLINE void pn_fiv_run8(const pn_fiv_args *a, pn_fiv_px8 *q)
     /* Disc correction: one slot per occluder that some lane took part with
      * (in the loop's order), lane l of slot d at [d * 8 + l]: unit-sphere
      * direction, radius, the occluder's irradiance; zeros in the lanes that did
-     * not take it (or already hold PN_FIV_MAX_OVERLAP discs). A slot is one
+     * not take it (or already hold `max_overlap` discs). A slot is one
      * occluder in all lanes, so neighbouring pixels' pairs line up: a pair
      * near in one lane is mostly near in the others. A zero disc never adds
      * to a lane's correction (its lens with any disc is 0), so each lane sees
@@ -993,7 +995,7 @@ PN_FIV_INLINE void pn_fiv_run8(const pn_fiv_args *a, pn_fiv_px8 *q)
             float8 i_r, i_g, i_b;
             pn_fiv_add_occ8(a, q, take, fr, dist_plane, r, &i_r, &i_g, &i_b);
             if (pairs)
-                pn_fiv_fill_slot8(q, dd, &held, &slots, take, vx, vy, vz, rho, r, i_r, i_g, i_b);
+                pn_fiv_fill_slot8(a, q, dd, &held, &slots, take, vx, vy, vz, rho, r, i_r, i_g, i_b);
         }
     }
     pn_fiv_finish8(a, q, pairs, dd, slots);
@@ -1043,7 +1045,7 @@ PN_FIV_INLINE void pn_fiv_run_pair8(const pn_fiv_args *a, pn_fiv_px8 *p, pn_fiv_
                 if (any(take)) {
                     pn_fiv_add_occ8(a, p, take, fr, dist_plane, r, &i_r, &i_g, &i_b);
                     if (pairs)
-                        pn_fiv_fill_slot8(p, dd, &held, &slots, take, vx, vy, vz, rho, r, i_r, i_g, i_b);
+                        pn_fiv_fill_slot8(a, p, dd, &held, &slots, take, vx, vy, vz, rho, r, i_r, i_g, i_b);
                 }
             }
             if (uon && any(utake)) {
@@ -1052,7 +1054,7 @@ PN_FIV_INLINE void pn_fiv_run_pair8(const pn_fiv_args *a, pn_fiv_px8 *p, pn_fiv_
                 if (any(utake)) {
                     pn_fiv_add_occ8(a, q, utake, fr, udist_plane, r, &i_r, &i_g, &i_b);
                     if (pairs)
-                        pn_fiv_fill_slot8(q, udd, &uheld, &uslots, utake, ux, uy, uz, urho, r, i_r, i_g, i_b);
+                        pn_fiv_fill_slot8(a, q, udd, &uheld, &uslots, utake, ux, uy, uz, urho, r, i_r, i_g, i_b);
                 }
             }
         }
@@ -1117,7 +1119,7 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
                       int overlap, int partial, int self_shadow, int trilinear, int width, int binned,
                       global const uint *tile_masks, global float4 *image, int background,
                       global const float *latlong, int latlong_width, int latlong_height, float2 rot,
-                      float intensity, int row_groups)
+                      float intensity, int row_groups, int max_overlap)
 {
     if (width <= 0 || row_groups <= 0)
         return;
@@ -1158,7 +1160,7 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
     const pn_fiv_args args = {position, normal, albedo, instance_id, irradiance, occluders, fields, tile_masks, image,
                               latlong, env_x, env_y, env_z, rot, cull_floor, intensity, m, occluder_count, overlap,
                               partial, self_shadow, trilinear, width, binned, background, latlong_width,
-                              latlong_height};
+                              latlong_height, clamp(max_overlap, 2, PN_FIV_MAX_OVERLAP)};
     const bool pairs = overlap == PN_OVERLAP_DISC && occluder_count > 1;
     pn_fiv_normal_cache cache;
     cache.valid = false;

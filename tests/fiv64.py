@@ -329,7 +329,7 @@ def lens_area(a, b, dist):
 
 
 def shade(position, normal, albedo, instance, e_unshadowed, occluders, env_fiv, overlap=1, partial=0, self_shadow=0,
-          trilinear=1, max_overlap=32):
+          trilinear=1, max_overlap=6):
     """The shade_fiv formula per foreground pixel (arrays of n pixels: position
     (n, 3+), normal (n, 3+), albedo (n, 3+), instance (n,), the DifMap
     irradiance e_unshadowed (n, 3)). Returns the outgoing radiance (n, 3), E

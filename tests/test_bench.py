@@ -263,6 +263,25 @@ def test_per_lookup_measure_subtracts_fivs_own_pixel_work():
     assert dearer[1]["loop_per_lookup_cpu_ratio"] == pytest.approx(2.5)
 
 
+def test_per_lookup_measure_of_max_overlap_32_uses_fivs_no_loop_kernel():
+    # max_overlap 32 (fiv_pairs32) forms no pair without the loop: its loop time is
+    # fiv_pairs32 - fiv_noloop; scenes timed without it get no such keys.
+    ms = _scaling_ms(6.0, 2.0, 1.0)
+    ms.update({"fiv_pairs32": 9.0, "cpu:fiv_pairs32": 10.0})
+    c = per_lookup_costs(ms, 1e5)
+    assert c["loop_per_lookup_pairs32_ns"] == pytest.approx(70.0)
+    assert c["loop_per_lookup_pairs32_cpu_ns"] == pytest.approx(80.0)
+    assert c["loop_per_lookup_cpu_ns"] == pytest.approx(40.0)
+    assert "loop_per_lookup_pairs32_ns" not in per_lookup_costs(_scaling_ms(6.0, 2.0, 1.0), 1e5)
+    rows = [{"occluders": 1, "layout": "clustered", **per_lookup_costs(_scaling_ms(4.0, 2.0, 1.0), 1e5)},
+            {"occluders": 60, "layout": "clustered", **c}]
+    per_lookup_ratios(rows)
+    assert rows[1]["loop_per_lookup_pairs32_cpu_ratio"] is None  # the single scene was not timed with it
+    rows[0].update(per_lookup_costs({**_scaling_ms(4.0, 2.0, 1.0), "fiv_pairs32": 4.0, "cpu:fiv_pairs32": 4.0}, 1e5))
+    per_lookup_ratios(rows)
+    assert rows[1]["loop_per_lookup_pairs32_cpu_ratio"] == pytest.approx(4.0)
+
+
 def test_per_lookup_measure_pairs_the_rounds():
     # The load rose after round 2: each round's fiv less the same round's no-loop build is 2 ms
     # (2.1 in round 4), the medians alone would give 8.0 - 2.2.

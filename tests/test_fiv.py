@@ -646,15 +646,16 @@ def test_groups_sharing_a_normal(ctx, env, meshes, fields):
 def test_many_occluders_per_tile(ctx, env, meshes, fields):
     """40 small spheres over every pixel of a 20 x 12 image: two words of the
     tile masks, every lane of a work-item taking most occluders, more than 32
-    taking part at a pixel (the overlap correction keeps the first 32, as the
-    twin does), and lanes past the row's end; against the twin."""
+    taking part at a pixel (the overlap correction pairs the first
+    `max_overlap`, 6 by default and 32 at most, as the twin does), and lanes
+    past the row's end; against the twin."""
     rng = np.random.default_rng(21)
     h, w = 12, 20
     pos, nrm, inst = plane_receivers(rng, h=h, w=w, max_tilt_deg=40.0)
     instances, centres = forty_spheres(meshes, fields, rng)
     s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
     assert len(s.occluders()) == 40
-    for params in (dict(overlap=0), dict(overlap=1, partial=1), dict(overlap=2)):
+    for params in (dict(overlap=0), dict(overlap=1, partial=1), dict(overlap=1, max_overlap=32), dict(overlap=2)):
         got = assert_matches_twin(s, params)
         assert np.array_equal(got, s.render(cull_threshold=0.0, tile_cull=0, **params)), params
     # More than 32 occluders take part at some pixels (not behind the plane,
@@ -675,8 +676,8 @@ def test_disc_slots_are_per_lane(ctx, env, meshes, fields):
     (kernels/fiv.cl): neighbouring pixels here take different occluders
     (normals tilted up to 85 degrees put occluders behind some planes and
     not others, pixels on an occluder skip their own, background pixels
-    take none, and some lanes reach the cap of 32 discs while their
-    neighbours do not). Each pixel is bit for bit the same pixel shaded one
+    take none, and some lanes reach the cap of `max_overlap` discs while
+    their neighbours do not). Each pixel is bit for bit the same pixel shaded one
     per work-item, where no other lane fills a slot, and matches the twin."""
     rng = np.random.default_rng(22)
     h, w = 12, 24
@@ -694,12 +695,13 @@ def test_disc_slots_are_per_lane(ctx, env, meshes, fields):
     for plane, src in zip(alone, (pos, nrm, inst)):
         plane[:, ::8] = src
     s1 = FivScene(ctx, env, fields, instances, tuple(alone))
-    for params in (dict(overlap=1), dict(overlap=1, partial=1), dict(overlap=1, self_shadow=1)):
+    for params in (dict(overlap=1), dict(overlap=1, partial=1), dict(overlap=1, self_shadow=1),
+                   dict(overlap=1, max_overlap=32)):
         lone = s1.render(cull_threshold=0.0, **params)[:, ::8]
         assert np.array_equal(s.render(cull_threshold=0.0, **params), lone), params
         assert_matches_twin(s, params)
     # The lanes of a work-item take different occluders, and some lanes are
-    # capped at 32 discs where a neighbour is not.
+    # capped (at 6, the default, and at 32) where a neighbour is not.
     p, n, ii = pos.reshape(-1, 3), nrm.reshape(-1, 3), inst.reshape(-1)
     taking = np.zeros((len(p), 40), bool)
     for j, o in enumerate(s.occluders()):
@@ -711,6 +713,39 @@ def test_disc_slots_are_per_lane(ctx, env, meshes, fields):
     assert differ.mean() > 0.5
     count = items.sum(axis=3)
     assert ((count.max(axis=2) > 32) & (count.min(axis=2) <= 32)).any()
+    assert ((count.max(axis=2) > 6) & (count.min(axis=2) <= 6)).any()
+
+
+def test_max_overlap_pairs_the_first_discs(ctx, env, meshes, fields):
+    """`max_overlap` k: the disc correction pairs the first k occluders
+    taking part at a pixel (in the scene's order) and only adds the others;
+    every k against the twin. Where no pixel has more than k discs, k and 32
+    give the same bits; where many do, a smaller k corrects less: the
+    occluded irradiance lies nearer the plain sum, so a pixel is darker or
+    the same, and never darker than with the plain sum."""
+    rng = np.random.default_rng(23)
+    pos, nrm, inst = plane_receivers(rng, h=12, w=20, max_tilt_deg=40.0)
+    instances, _ = forty_spheres(meshes, fields, rng)
+    s = FivScene(ctx, env, fields, instances, (pos, nrm, inst))
+    images = {k: assert_matches_twin(s, dict(overlap=1, max_overlap=k)) for k in (2, 3, 6, 8, 32)}
+    assert np.array_equal(images[6], assert_matches_twin(s, dict(overlap=1))), "the default is 6"
+    plain = s.render(cull_threshold=0.0, overlap=0)[..., :3]
+    for k, kk in ((2, 3), (3, 6), (6, 8), (8, 32)):
+        a, b = images[k][..., :3], images[kk][..., :3]
+        assert (a != b).any(), (k, kk)
+        assert (a <= b).all(), (k, kk)
+    assert (images[2][..., :3] >= plain).all()
+    # Two occluders: every k is the same correction, bit for bit.
+    two = FivScene(ctx, env, fields, instances[:2], (pos, nrm, inst))
+    pair = two.render(cull_threshold=0.0, overlap=1, max_overlap=2)
+    assert np.array_equal(pair, two.render(cull_threshold=0.0, overlap=1, max_overlap=32))
+    assert not np.array_equal(pair, two.render(cull_threshold=0.0, overlap=0)), "the two discs overlap somewhere"
+
+
+@pytest.mark.parametrize("k", [1, 0, 33, -4])
+def test_max_overlap_out_of_range_is_refused(ctx, k):
+    with pytest.raises(PenumbraError, match="max_overlap"):
+        Renderer(ctx, "fiv", max_overlap=k)
 
 
 # --------------------------------------------------------------------------- the bake file

@@ -10,12 +10,15 @@
 #include <stdlib.h>
 #include <string.h>
 
-enum { P_BACKGROUND, P_OVERLAP, P_PARTIAL, P_SELF_SHADOW, P_TRILINEAR, P_CULL_THRESHOLD, P_TILE_CULL };
+enum { P_BACKGROUND, P_OVERLAP, P_MAX_OVERLAP, P_PARTIAL, P_SELF_SHADOW, P_TRILINEAR, P_CULL_THRESHOLD, P_TILE_CULL };
 
 static const pn_param_desc params[] = {
     PN_PARAM_BACKGROUND,
     {"overlap", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 2, "",
      "Several occluders: 0 sum, 1 unit-bounding-disc correction, 2 multiplied visibility."},
+    {"max_overlap", PN_PARAM_INT, PN_PARAM_FRAME, 6, 2, 32, "",
+     "overlap 1: the first this many occluders taking part at a pixel are paired (docs/fiv.md: more pairs "
+     "over-correct)."},
     {"partial", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
      "1: occluders straddling the receiver plane scaled by (d + R) / 2R (the paper's factor; docs/fiv.md)."},
     {"self_shadow", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
@@ -403,20 +406,20 @@ static pn_status execute(pn_renderer r, pn_scene scene, pn_gbuffer gb, pn_image 
     const cl_int background = r->params[P_BACKGROUND] != 0.0;
     const cl_int lat_w = (cl_int)env->width, lat_h = (cl_int)env->height;
     const cl_float2 rot = pn_envmap_rotation(env);
-    const cl_int row_groups = PN_FIV_ROW_GROUPS;
+    const cl_int row_groups = PN_FIV_ROW_GROUPS, max_overlap = (cl_int)r->params[P_MAX_OVERLAP];
     size_t sizes[] = {sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof(cl_mem), sizeof count, sizeof(cl_mem),
                       sizeof m, sizeof(cl_mem), sizeof occluders, sizeof(cl_mem), sizeof cull_floor,
                       sizeof env_fiv[0], sizeof env_fiv[1], sizeof env_fiv[2], sizeof overlap, sizeof partial,
                       sizeof self_shadow, sizeof trilinear, sizeof width, sizeof binned, sizeof(cl_mem),
                       sizeof(cl_mem), sizeof background, sizeof(cl_mem), sizeof lat_w, sizeof lat_h, sizeof rot,
-                      sizeof env->intensity, sizeof row_groups};
+                      sizeof env->intensity, sizeof row_groups, sizeof max_overlap};
     const void *vals[] = {&gb->planes[PN_GBUFFER_POSITION], &gb->planes[PN_GBUFFER_NORMAL],
                           &gb->planes[PN_GBUFFER_ALBEDO], &gb->planes[PN_GBUFFER_INSTANCE], &count, &env->irradiance,
                           &m, &s->device_records, &occluders, &s->data, &cull_floor, &env_fiv[0],
                           &env_fiv[1], &env_fiv[2], &overlap, &partial, &self_shadow, &trilinear, &width, &binned,
                           &s->tile_masks, &image->buffer, &background, &env->latlong, &lat_w, &lat_h, &rot,
-                          &env->intensity, &row_groups};
-    if ((st = pn_set_args(ctx, k, "shade_fiv", 29, sizes, vals)))
+                          &env->intensity, &row_groups, &max_overlap};
+    if ((st = pn_set_args(ctx, k, "shade_fiv", 30, sizes, vals)))
         return st;
     /* PN_FIV_ROW_GROUPS groups of 8 pixels of a row per work-item (vector
      * lanes, kernels/fiv.cl), one work-item per work-group: PoCL then runs no

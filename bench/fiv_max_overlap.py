@@ -1,0 +1,140 @@
+"""fiv's disc correction against the number of occluders it pairs (`max_overlap`).
+
+The correction (overlap = 1, docs/fiv.md) subtracts, for every pair of the
+first `max_overlap` occluders taking part at a pixel, the lens of their unit
+bounding discs as a share of their irradiance. This script measures, against
+the reference renderer, the error of every `max_overlap` and of the plain sum
+(overlap 0) and multiplied visibilities (overlap 2) on scenes where 2 to 60
+bunnies shadow the same pixels, under a hard sun, a studio and a low dawn sun:
+the scaling benchmark's clustered scenes (10, 30, 60 bunnies), its spread
+scene, and tight groups of 2-16 bunnies of our own.
+
+    python bench/fiv_max_overlap.py [--out bench/results/fiv_max_overlap] [--res 128]
+
+Writes results.json and report.md (NRMSE over the whole image, the
+background black, and fiv's shading time, median of 3 frames).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from penumbra import data
+from penumbra.core import Context
+from penumbra.fileutil import atomic_write_text
+from penumbra.methods.fiv import fiv_scaling_scene, fiv_spread_scene
+from penumbra.metrics import nrmse
+from penumbra.render import build_scene, render
+from penumbra.scenefile import parse_scene
+
+ENVS = {"sunny": "immenstadter_horn_1k_polyhaven.hdr", "studio": "studio_small_03_1k_polyhaven.hdr",
+        "dawn": "kiara_1_dawn_1k_polyhaven.hdr"}
+CAPS = (2, 3, 4, 6, 8, 16, 32)
+
+
+def group_scene(k: int, mesh: str, envmap: str, res: int, cache: str, seed: int) -> dict:
+    """k bunnies (scales 0.7-1.0; fiv's fields hold the env's light, so no
+    rotation) within a disc
+    of radius 0.35 k^0.5 around the origin, seen from above at ~45 degrees:
+    every bunny's shadow overlaps some other's."""
+    rng = np.random.default_rng(seed)
+    objects = [{"name": "ground", "primitive": "plane", "params": {"size": [12.0, 12.0]}, "albedo": 0.6}]
+    for i in range(k):
+        r, a = 0.35 * np.sqrt(k) * np.sqrt(rng.uniform()), rng.uniform(0, 2 * np.pi)
+        s = round(float(rng.uniform(0.7, 1.0)), 3)
+        objects.append({"name": f"bunny{i}", "mesh": mesh, "scale": s,
+                        "translate": [round(r * np.cos(a), 3), round(0.769 * s, 4), round(r * np.sin(a), 3)], "albedo": [0.8, 0.78, 0.72]})
+    return {"environment": {"map": envmap, "face_size": 128, "irradiance_face_size": 32},
+            "camera": {"position": [0.0, 3.2 + 0.4 * k ** 0.5, 3.6 + 0.4 * k ** 0.5], "look_at": [0.0, 0.3, 0.0],
+                       "fov_deg": 55, "resolution": [res, res]},
+            "render": {"method": "fiv"}, "fiv": {"samples": [128, 65, 30], "cache": cache}, "object": objects}
+
+
+def scenes(res: int, cache: str) -> dict[str, dict]:
+    if not data.available():
+        raise SystemExit(data.missing_reason())
+    mesh = str(data.path("meshes/bunny_odedstein_3k.obj"))
+    out = {}
+    for env, name in ENVS.items():
+        envmap = str(data.path(f"envmaps/{name}"))
+        for k in (2, 3, 4, 6, 8, 12, 16):
+            out[f"group{k}_{env}"] = group_scene(k, mesh, envmap, res, cache, seed=100 + k)
+        for n in (10, 30, 60):
+            out[f"clustered{n}_{env}"] = fiv_scaling_scene(n, mesh, envmap, res, cache=cache)
+        out[f"spread60_{env}"] = fiv_spread_scene(60, mesh, envmap, res, cache=cache)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="bench/results/fiv_max_overlap")
+    ap.add_argument("--res", type=int, default=128)
+    ap.add_argument("--cache", default="bench/results/fiv_scaling/cache/fiv",
+                    help="the fields' bake cache (shared with the scaling benchmark; one bake per env map)")
+    ap.add_argument("--only", default="", help="comma-separated scene names (default: all)")
+    ap.add_argument("--report-only", action="store_true", help="rewrite report.md from results.json")
+    args = ap.parse_args()
+    out = Path(args.out)
+    if args.report_only:
+        atomic_write_text(out / "report.md", report(json.loads((out / "results.json").read_text())))
+        return
+    cache = str(Path(args.cache).resolve())
+    ctx = Context()
+    rows = []
+    only = set(filter(None, args.only.split(",")))
+    for name, scene in scenes(args.res, cache).items():
+        if only and name not in only:
+            continue
+        built = build_scene(parse_scene(scene), ctx)
+        t0 = time.perf_counter()
+        ref = render(built, "reference", frames=1, warmup=False, background=0, face_size=64,
+                     sun_supersampling=4).image[..., :3]
+        row = {"scene": name, "reference_s": round(time.perf_counter() - t0, 1), "variants": {}}
+        variants = [("sum", {"overlap": 0}), ("multiply", {"overlap": 2})]
+        variants += [(f"disc{c}", {"overlap": 1, "max_overlap": c}) for c in CAPS]
+        for label, params in variants:
+            r = render(built, "fiv", frames=3, background=0, **params)
+            row["variants"][label] = {"nrmse": float(nrmse(ref, r.image[..., :3])),
+                                      "shade_ms": float(r.timings_ms["shade_median"])}
+        rows.append(row)
+        print(name, " ".join(f"{k} {v['nrmse']:.5f}" for k, v in row["variants"].items()), flush=True)
+    result = {"resolution": args.res, "caps": list(CAPS), "device": ctx.device_name, "rows": rows,
+              "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+    atomic_write_text(out / "results.json", json.dumps(result, indent=1))
+    atomic_write_text(out / "report.md", report(result))
+    print(f"wrote {out}/results.json, report.md")
+
+
+def report(result: dict) -> str:
+    labels = ["sum", "multiply"] + [f"disc{c}" for c in result["caps"]]
+    head = ["scene"] + ["overlap 0", "overlap 2"] + [f"overlap 1, max_overlap {c}" for c in result["caps"]]
+    lines = ["# fiv: the disc correction against the occluders it pairs", "",
+             f"NRMSE against the reference renderer (face_size 64, sun_supersampling 4), whole image at "
+             f"{result['resolution']}², background black; {result['device']}, {result['date']}. "
+             "`bench/fiv_max_overlap.py` (its docstring says what the scenes are). The lowest error of a row in bold.", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    ratios = {k: [] for k in labels}
+    for row in result["rows"]:
+        v = row["variants"]
+        best = min(v[k]["nrmse"] for k in labels)
+        cells = [f"**{v[k]['nrmse']:.4f}**" if v[k]["nrmse"] == best else f"{v[k]['nrmse']:.4f}" for k in labels]
+        lines.append(f"| {row['scene']} | " + " | ".join(cells) + " |")
+        for k in labels:
+            ratios[k].append(v[k]["nrmse"] / best)
+    lines += ["", "Error against the row's lowest (geometric mean over the scenes; the worst row):", "",
+              "| | " + " | ".join(head[1:]) + " |", "|---|" + "---|" * (len(head) - 1),
+              "| mean | " + " | ".join(f"{np.exp(np.mean(np.log(ratios[k]))):.3f}" for k in labels) + " |",
+              "| worst | " + " | ".join(f"{max(ratios[k]):.3f}" for k in labels) + " |", ""]
+    lines += ["Shading ms (median of 3 frames, including the occluder loop):", "",
+              "| scene | " + " | ".join(head[1:]) + " |", "|---|" + "---|" * (len(head) - 1)]
+    for row in result["rows"]:
+        lines.append(f"| {row['scene']} | " + " | ".join(f"{row['variants'][k]['shade_ms']:.2f}" for k in labels) + " |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    main()
