@@ -7,7 +7,8 @@ the reference renderer, the error of every `max_overlap` and of the plain sum
 (overlap 0) and multiplied visibilities (overlap 2) on scenes where 2 to 60
 bunnies shadow the same pixels, under a hard sun, a studio and a low dawn sun:
 the scaling benchmark's clustered scenes (10, 30, 60 bunnies), its spread
-scene, and tight groups of 2-16 bunnies of our own.
+scene, tight groups of 2-16 bunnies of our own, and blobs of 3-40 spheres
+(occluders that fill their bounding discs, unlike the bunnies).
 
     python bench/fiv_max_overlap.py [--out bench/results/fiv_max_overlap] [--res 128]
 
@@ -54,6 +55,23 @@ def group_scene(k: int, mesh: str, envmap: str, res: int, cache: str, seed: int)
             "render": {"method": "fiv"}, "fiv": {"samples": [128, 65, 30], "cache": cache}, "object": objects}
 
 
+def sphere_scene(k: int, envmap: str, res: int, cache: str, seed: int) -> dict:
+    """k spheres of radius 0.25 in a blob of radius ~0.45 k^(1/3) above the
+    ground: occluders that fill their bounding discs (the lens of two discs is
+    the overlap of their silhouettes), unlike the bunnies."""
+    rng = np.random.default_rng(seed)
+    objects = [{"name": "ground", "primitive": "plane", "params": {"size": [12.0, 12.0]}, "albedo": 0.6}]
+    s = k ** (1 / 3)
+    for i in range(k):
+        c = rng.normal(size=3) * [0.35 * s, 0.2 * s, 0.35 * s] + [0.0, 0.6 + 0.25 * s, 0.0]
+        objects.append({"name": f"sphere{i}", "primitive": "sphere", "params": {"radius": 0.25}, "occluder": True,
+                        "translate": [round(float(x), 3) for x in c], "albedo": [0.8, 0.78, 0.72]})
+    return {"environment": {"map": envmap, "face_size": 128, "irradiance_face_size": 32},
+            "camera": {"position": [0.0, 3.2 + 0.4 * s, 3.6 + 0.4 * s], "look_at": [0.0, 0.3, 0.0],
+                       "fov_deg": 55, "resolution": [res, res]},
+            "render": {"method": "fiv"}, "fiv": {"samples": [128, 65, 30], "cache": cache}, "object": objects}
+
+
 def scenes(res: int, cache: str) -> dict[str, dict]:
     if not data.available():
         raise SystemExit(data.missing_reason())
@@ -66,6 +84,8 @@ def scenes(res: int, cache: str) -> dict[str, dict]:
         for n in (10, 30, 60):
             out[f"clustered{n}_{env}"] = fiv_scaling_scene(n, mesh, envmap, res, cache=cache)
         out[f"spread60_{env}"] = fiv_spread_scene(60, mesh, envmap, res, cache=cache)
+        for k in (3, 8, 20, 40):
+            out[f"spheres{k}_{env}"] = sphere_scene(k, envmap, res, cache, seed=200 + k)
     return out
 
 
@@ -102,6 +122,10 @@ def main() -> None:
                                       "shade_ms": float(r.timings_ms["shade_median"])}
         rows.append(row)
         print(name, " ".join(f"{k} {v['nrmse']:.5f}" for k, v in row["variants"].items()), flush=True)
+    if only and (out / "results.json").is_file():   # a partial run: replace its rows in the last full run's
+        done = {r["scene"]: r for r in json.loads((out / "results.json").read_text())["rows"]}
+        done.update({r["scene"]: r for r in rows})
+        rows = list(done.values())
     result = {"resolution": args.res, "caps": list(CAPS), "device": ctx.device_name, "rows": rows,
               "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
     atomic_write_text(out / "results.json", json.dumps(result, indent=1))
@@ -124,11 +148,18 @@ def report(result: dict) -> str:
         cells = [f"**{v[k]['nrmse']:.4f}**" if v[k]["nrmse"] == best else f"{v[k]['nrmse']:.4f}" for k in labels]
         lines.append(f"| {row['scene']} | " + " | ".join(cells) + " |")
         for k in labels:
-            ratios[k].append(v[k]["nrmse"] / best)
-    lines += ["", "Error against the row's lowest (geometric mean over the scenes; the worst row):", "",
-              "| | " + " | ".join(head[1:]) + " |", "|---|" + "---|" * (len(head) - 1),
-              "| mean | " + " | ".join(f"{np.exp(np.mean(np.log(ratios[k]))):.3f}" for k in labels) + " |",
-              "| worst | " + " | ".join(f"{max(ratios[k]):.3f}" for k in labels) + " |", ""]
+            ratios[k].append((row["scene"], v[k]["nrmse"] / best))
+    lines += ["", "Error against the row's lowest: geometric mean over the scenes (the worst scene's):", "",
+              "| scenes | " + " | ".join(head[1:]) + " |", "|---|" + "---|" * (len(head) - 1)]
+    for what, keep in (("all", lambda n: True), ("bunnies", lambda n: not n.startswith("spheres")),
+                       ("spheres", lambda n: n.startswith("spheres"))):
+        cells = []
+        for k in labels:
+            r = [x for n, x in ratios[k] if keep(n)]
+            cells.append(f"{np.exp(np.mean(np.log(r))):.3f} ({max(r):.2f})" if r else "-")
+        count = sum(keep(n) for n, _ in ratios[labels[0]])
+        lines.append(f"| {what} ({count}) | " + " | ".join(cells) + " |")
+    lines.append("")
     lines += ["Shading ms (median of 3 frames, including the occluder loop):", "",
               "| scene | " + " | ".join(head[1:]) + " |", "|---|" + "---|" * (len(head) - 1)]
     for row in result["rows"]:
