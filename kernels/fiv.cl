@@ -949,6 +949,31 @@ PN_FIV_INLINE void pn_fiv_finish8(const pn_fiv_args *a, const pn_fiv_px8 *q, boo
     pn_fiv_end8(a, q, e_r, e_g, e_b);
 }
 
+/* Whether the disc correction forms pairs (one occluder has none: total =
+ * sum, clamped to [largest, sum]). */
+PN_FIV_INLINE bool pn_fiv_pairs(const pn_fiv_args *a)
+{
+    return a->overlap == PN_OVERLAP_DISC && a->occluder_count > 1;
+}
+
+/* The 32-occluder words of the tile masks the occluder loop walks (none in
+ * the profiling build without the loop). */
+PN_FIV_INLINE int pn_fiv_words(const pn_fiv_args *a)
+{
+#if PN_FIV_PROFILE == 4
+    return 0;
+#else
+    return (a->occluder_count + 31) / 32;
+#endif
+}
+
+/* Word w of the tile's occluder bits: the mask's, or all occluders unbinned. */
+PN_FIV_INLINE uint pn_fiv_word_bits(const pn_fiv_args *a, global const uint *mask, int w)
+{
+    int left = a->occluder_count - 32 * w;
+    return a->binned ? mask[w] : left >= 32 ? 0xFFFFFFFFu : (1u << left) - 1u;
+}
+
 /* The occluder loop and the pixels of one group (pn_fiv_begin8 before). */
 PN_FIV_INLINE void pn_fiv_run8(const pn_fiv_args *a, pn_fiv_px8 *q)
 {
@@ -964,17 +989,12 @@ PN_FIV_INLINE void pn_fiv_run8(const pn_fiv_args *a, pn_fiv_px8 *q)
     float dd[7][PN_FIV_SLOTS * PN_FIV_LANES];
     int8 held = 0;
     int slots = 0;
-    /* With one occluder there is no pair: total = sum, clamped to [largest, sum]. */
-    const bool pairs = a->overlap == PN_OVERLAP_DISC && a->occluder_count > 1;
-    int words = (a->occluder_count + 31) / 32;
-#if PN_FIV_PROFILE == 4
-    words = 0;
-#endif
+    const bool pairs = pn_fiv_pairs(a);
+    const int words = pn_fiv_words(a);
     global const uint *mask = pn_fiv_tile_mask(a, q, words);
     for (int w = 0; w < words; ++w) {
         /* The occluders of these pixels' tile (all of them unbinned), in order. */
-        int left = a->occluder_count - 32 * w;
-        uint bits = a->binned ? mask[w] : left >= 32 ? 0xFFFFFFFFu : (1u << left) - 1u;
+        uint bits = pn_fiv_word_bits(a, mask, w);
         while (bits) {
             int o = 32 * w + (31 - clz(bits & (0u - bits)));
             bits &= bits - 1u;
@@ -1013,15 +1033,11 @@ PN_FIV_INLINE void pn_fiv_run_pair8(const pn_fiv_args *a, pn_fiv_px8 *p, pn_fiv_
     float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], udd[7][PN_FIV_SLOTS * PN_FIV_LANES];
     int8 held = 0, uheld = 0;
     int slots = 0, uslots = 0;
-    const bool pairs = a->overlap == PN_OVERLAP_DISC && a->occluder_count > 1;
-    int words = (a->occluder_count + 31) / 32;
-#if PN_FIV_PROFILE == 4
-    words = 0;
-#endif
+    const bool pairs = pn_fiv_pairs(a);
+    const int words = pn_fiv_words(a);
     global const uint *mask = pn_fiv_tile_mask(a, p, words);
     for (int w = 0; w < words; ++w) {
-        int left = a->occluder_count - 32 * w;
-        uint bits = a->binned ? mask[w] : left >= 32 ? 0xFFFFFFFFu : (1u << left) - 1u;
+        uint bits = pn_fiv_word_bits(a, mask, w);
         while (bits) {
             int o = 32 * w + (31 - clz(bits & (0u - bits)));
             bits &= bits - 1u;
@@ -1161,7 +1177,7 @@ kernel void shade_fiv(global const float4 *position, global const float4 *normal
                               latlong, env_x, env_y, env_z, rot, cull_floor, intensity, m, occluder_count, overlap,
                               partial, self_shadow, trilinear, width, binned, background, latlong_width,
                               latlong_height, clamp(max_overlap, 2, PN_FIV_MAX_OVERLAP)};
-    const bool pairs = overlap == PN_OVERLAP_DISC && occluder_count > 1;
+    const bool pairs = pn_fiv_pairs(&args);
     pn_fiv_normal_cache cache;
     cache.valid = false;
     for (int g = g0; g < g1;) {
