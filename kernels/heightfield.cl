@@ -1283,17 +1283,22 @@ inline float3 hf_albedo(global const float *albedo, int has_albedo, int gid)
 }
 
 /* The sun texels as directional lights: each is visible by the fraction of
- * its disc (angular radius r) above the horizon at its azimuth (linear
- * between the two nearest azimuths, as the wedges are), times N·s. Records of
+ * its disc (angular radius r) above the horizon at its azimuth, times N·s.
+ * The horizon there is the Catmull-Rom cubic through the four nearest
+ * azimuths (hf_horizon_cubic; the wedges take it linear, but a sun's shadow
+ * edge is sharp: the cubic places it closer to the reference on every
+ * terrain measured, docs/heightfield.md, "Sun texels"). Records of
  * three float4: (direction, r), (radiance x solid angle, power), (azimuth in
  * [0, 2π) in the SH frame, elevation, 0, 0) -- the angles do not depend on
  * the vertex, so the host computes them once. After the records 5 float4
  * for all of them: their bounds (least azimuth, greatest azimuth, least
  * elevation - r, greatest elevation + r; r taken as in x below), their mean
  * direction s_c and the largest |s_i - s_c| (plus room for rounding), and
- * S = Σ_i L_i Ω_i s_iᵀ (a row per channel). Where the horizons between the
- * azimuths around that range are all above the greatest elevation (every
- * disc wholly below its horizon) the texels give nothing; where they are all
+ * S = Σ_i L_i Ω_i s_iᵀ (a row per channel). The cubic of four horizons
+ * lies within their range widened by 1/8 of it on either side (its two
+ * outer weights sum to -t (1 - t) / 2 >= -1/8). Where that bound over the
+ * azimuths the texels read is all above the greatest elevation (every
+ * disc wholly below its horizon) the texels give nothing; where it is all
  * below the least (every disc wholly above: vis = 1), with HF_SUN_MARGIN to
  * spare for the rounding of the interpolation, the texels need no horizon,
  * and if moreover n · s_c exceeds the spread (every n · s_i > 0) their sum
@@ -1302,6 +1307,19 @@ inline float3 hf_albedo(global const float *albedo, int has_albedo, int gid)
 #ifndef HF_SUN_MARGIN /* a build option only to measure without the shortcuts (1e30f) */
 #define HF_SUN_MARGIN 1e-4f
 #endif
+/* The Catmull-Rom cubic through om[k - 1 .. k + 2] (wrapping) at k + t. */
+#ifndef HF_SUN_LINEAR /* a build option only to measure against the linear interpolation (1) */
+#define HF_SUN_LINEAR 0
+#endif
+inline float hf_horizon_cubic(const float *om, int n_phi, int k, float t)
+{
+    const float p0 = om[k > 0 ? k - 1 : n_phi - 1], p1 = om[k], p2 = om[k + 1 < n_phi ? k + 1 : 0],
+                p3 = om[k + 2 < n_phi ? k + 2 : k + 2 - n_phi];
+    if (HF_SUN_LINEAR)
+        return mix(p1, p2, t);
+    return p1 + 0.5f * t * (p2 - p0 + t * (2.0f * p0 - 5.0f * p1 + 4.0f * p2 - p3 + t * (3.0f * (p1 - p2) + p3 - p0)));
+}
+
 inline float3 hf_sun(const float *om, int n_phi, float3 n, global const float4 *sun, int suns)
 {
     float3 e = (float3)(0.0f);
@@ -1309,17 +1327,18 @@ inline float3 hf_sun(const float *om, int n_phi, float3 n, global const float4 *
         return e;
     const float scale = (float)n_phi / (2.0f * M_PI_F);
     const float4 box = sun[3 * suns];
-    /* texel i reads om[k_i] and om[k_i + 1] (wrapping), k_i = min((int)(azimuth_i scale), n_phi - 1) */
-    const int klo = min((int)(box.x * scale), n_phi - 1), khi = min((int)(box.y * scale), n_phi - 1) + 1;
-    float hmin = om[klo], hmax = om[klo];
-    for (int k = klo + 1; k <= khi; ++k) {
-        const float h = om[k < n_phi ? k : 0];
+    /* texel i reads om[k_i - 1 .. k_i + 2] (wrapping), k_i = min((int)(azimuth_i scale), n_phi - 1) */
+    const int klo = min((int)(box.x * scale), n_phi - 1) - 1, khi = min((int)(box.y * scale), n_phi - 1) + 2;
+    float hmin = INFINITY, hmax = -INFINITY;
+    for (int k = klo; k <= khi; ++k) {
+        const float h = om[k < 0 ? k + n_phi : k < n_phi ? k : k - n_phi];
         hmin = fmin(hmin, h);
         hmax = fmax(hmax, h);
     }
-    if (hmin >= box.w + HF_SUN_MARGIN)
+    const float overshoot = 0.125f * (hmax - hmin);
+    if (hmin - overshoot >= box.w + HF_SUN_MARGIN)
         return e;
-    if (hmax <= box.z - HF_SUN_MARGIN) {
+    if (hmax + overshoot <= box.z - HF_SUN_MARGIN) {
         const float4 sc = sun[3 * suns + 1];
         if (dot(n, sc.xyz) > sc.w)
             return (float3)(dot(n, sun[3 * suns + 2].xyz), dot(n, sun[3 * suns + 3].xyz), dot(n, sun[3 * suns + 4].xyz));
@@ -1338,7 +1357,7 @@ inline float3 hf_sun(const float *om, int n_phi, float3 n, global const float4 *
         const float2 g = sun[3 * i + 2].xy;
         const float a = g.x * scale;
         const int k = min((int)a, n_phi - 1);
-        const float horizon = mix(om[k], om[k + 1 < n_phi ? k + 1 : 0], a - (float)k);
+        const float horizon = hf_horizon_cubic(om, n_phi, k, a - (float)k);
         /* Fully below or fully above the horizon: no chord to integrate. */
         const float x = (g.y - horizon) / fmax(d.w, 1e-6f);
         if (x <= -1.0f)

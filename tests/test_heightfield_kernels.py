@@ -27,6 +27,7 @@ from penumbra.heightfield import make_terrain
 HORIZON_ATOL = 3e-5
 VIS_RTOL = 2e-5
 DEFAULT_BANDS = 6  # the renderer's default `bands` (capi/src/methods/heightfield.c)
+DEFAULT_AZIMUTHS = 32  # and its default `azimuths`
 E_RTOL = 2e-4
 E_MAP_RTOL = 3e-3
 
@@ -55,7 +56,7 @@ class Case:
         c = self.lights[k][0]
         return (c[0] - self.origin[0], c[2] - self.origin[2])
 
-    def twin_horizons(self, ls=4, lo=4.0, n_phi=32, light=None, exact=False, interpolating=False):
+    def twin_horizons(self, ls=4, lo=4.0, n_phi=DEFAULT_AZIMUTHS, light=None, exact=False, interpolating=False):
         lxz = None if light is None else self.light_xz(light)
         if exact:
             return hf64.exact_horizons(self.H, self.sx, self.sz, n_phi, lxz)
@@ -165,14 +166,14 @@ def test_env_visibility(case, nb, n_phi):
 def test_light_visibility(case):
     got = case.read("light_visibility", light=1)  # the default bands
     nb = DEFAULT_BANDS
-    want = hf64.visibility(case.twin_horizons(light=1), hf64.wedge_table(32, nb, "light"), 32, nb, "light")
+    want = hf64.visibility(case.twin_horizons(light=1), hf64.wedge_table(DEFAULT_AZIMUTHS, nb, "light"), DEFAULT_AZIMUTHS, nb, "light")
     np.testing.assert_allclose(got, want, atol=VIS_RTOL * np.abs(want[..., 0]).max(), rtol=0)
 
 
 # ------------------------------------------------------------------ environment pass
 
 
-def twin_env_paper(c, nb=4, n_phi=32, exact=False, sun_threshold=0.0):
+def twin_env_paper(c, nb=4, n_phi=DEFAULT_AZIMUTHS, exact=False, sun_threshold=0.0):
     dirs, omega, rad, sun = c.env_records(sun_threshold)
     hz = c.twin_horizons(n_phi=n_phi, exact=exact)
     V = hf64.visibility(hz, hf64.wedge_table(n_phi, nb, "env"), n_phi, nb, "env")
@@ -195,11 +196,20 @@ def disc_above(e, h, r):
     return np.clip(0.5 + (x * np.sqrt(1 - x * x) + np.arcsin(x)) / np.pi, 0.0, 1.0)
 
 
+def horizon_cubic(hz, k, t):
+    """The Catmull-Rom cubic through the horizons at azimuths k - 1 .. k + 2
+    (wrapping; hz's last axis) at k + t, k and t of equal shape."""
+    n_phi = hz.shape[-1]
+    p0, p1, p2, p3 = (hz[..., (k + j) % n_phi] for j in (-1, 0, 1, 2))
+    return p1 + 0.5 * t * (p2 - p0 + t * (2 * p0 - 5 * p1 + 4 * p2 - p3 + t * (3 * (p1 - p2) + p3 - p0)))
+
+
 def twin_env_split(c, sun_threshold):
     """E = clamp(E_paper + E_up(n) - H^T M C, 0, E_up(n)) + the sun texels
-    (disc share above the horizon, linear between azimuths, times n.s), with
+    (disc share above the horizon, the Catmull-Rom cubic through the four
+    nearest azimuths, times n.s), with
     E_up the exact sum over the non-sun texels above the horizontal plane."""
-    nb, n_phi = DEFAULT_BANDS, 32
+    nb, n_phi = DEFAULT_BANDS, DEFAULT_AZIMUTHS
     e_paper, V, normals, L, hz, (dirs, omega, rad, sun) = twin_env_paper(c, nb, n_phi, sun_threshold=sun_threshold)
     table = hf64.wedge_table(n_phi, nb, "env")
     Hup = hf64.zrotate(np.broadcast_to(table[0, 0], (n_phi, nb * nb)), 2 * np.pi * np.arange(n_phi) / n_phi,
@@ -216,7 +226,7 @@ def twin_env_split(c, sun_threshold):
         phi = np.mod(np.arctan2(-sd[:, 2], sd[:, 0]), 2 * np.pi) * n_phi / (2 * np.pi)
         k = np.minimum(phi.astype(int), n_phi - 1)
         t = phi - k
-        horizon = hz[..., k] * (1 - t) + hz[..., (k + 1) % n_phi] * t
+        horizon = horizon_cubic(hz, k, t)
         vis = disc_above(np.arcsin(sd[:, 1]), horizon, np.sqrt(so / np.pi))
         e = e + np.einsum("...s,...s,sc->...c", np.maximum(normals @ sd.T, 0.0), vis, sr * so[:, None])
     return e, sun.sum()
@@ -241,7 +251,7 @@ def test_light_pass_sh(case, light, nb):
     """light_visibility = 0: the seed's SH wedges and cap, threshold 0."""
     got = case.read("light", light=light, bands=nb, light_visibility=0, light_threshold=0)[..., :3]
     centre, radius, le = case.lights[light]
-    V = hf64.visibility(case.twin_horizons(light=light), hf64.wedge_table(32, nb, "light"), 32, nb, "light")
+    V = hf64.visibility(case.twin_horizons(light=light), hf64.wedge_table(DEFAULT_AZIMUTHS, nb, "light"), DEFAULT_AZIMUTHS, nb, "light")
     normals = hf64.vertex_normals(case.H, case.sx, case.sz)
     points = hf64.vertex_points(case.H, case.origin, case.sx, case.sz)
     want = hf64.shade_light(V, normals, points, centre, radius, le, nb)
