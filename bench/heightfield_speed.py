@@ -14,6 +14,8 @@ Phases per scene (defaults of the method unless --params), medians of
   frame      renderer.execute: every per-vertex pass (env, lights) + shading
   frame_bands4  the same with 4 SH bands (the same settings on both sides: A's default)
   no_sun     the same with sun_threshold = 0 (the sun texels' share is the difference)
+  azimuths16 the frame with 16 azimuths on both sides (a knob that trades error for time,
+             docs/heightfield.md, Speed); the report also gives A's default frame / B's azimuths16
   horizons   the env horizons alone (hf_probe) with their read-back
   pyramid    new heights: upload, pyramid, normals (read-back of the normals subtracted)
   floor      the floor kernel (reads the G-buffer, writes the image)
@@ -35,8 +37,8 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_SCENES = ["bench/scenes/terrain_sunny.toml", "bench/scenes/terrain_overcast_light.toml"]
-PHASES = ("frame", "frame_bands4", "no_sun", "horizons", "pyramid", "floor")
-CPU_PHASES = ("frame", "frame_bands4", "no_sun", "horizons")
+PHASES = ("frame", "frame_bands4", "no_sun", "azimuths16", "horizons", "pyramid", "floor")
+CPU_PHASES = ("frame", "frame_bands4", "no_sun", "azimuths16", "horizons")
 
 
 def baseline_build(commit: str, cache: Path) -> Path:
@@ -103,6 +105,8 @@ def worker(scene_path: str, frames: int, params: dict) -> dict:
     out["frame_bands4"] = med(lambda: r4.execute(built.scene, gb, img), phase="frame_bands4")
     r0 = Renderer(ctx, "heightfield", **{**params, "sun_threshold": 0})
     out["no_sun"] = med(lambda: r0.execute(built.scene, gb, img), phase="no_sun")
+    r16 = Renderer(ctx, "heightfield", **{**params, "azimuths": 16})
+    out["azimuths16"] = med(lambda: r16.execute(built.scene, gb, img), phase="azimuths16")
     out["horizons"] = med(lambda: r.read_output(built.scene, "env_horizons", instance), phase="horizons")
     h0 = field_heights = np.asarray(built.desc.heightfields[0].load().heights, np.float32)
     h1 = (field_heights * np.float32(0.999)).astype(np.float32)
@@ -196,8 +200,14 @@ def report(res: dict) -> str:
             c = (f"{s['cpu']['A'][p]:.1f} | {s['cpu']['B'][p]:.1f} | {s['cpu_ratio'][p]:.2f}" if p in CPU_PHASES
                  else "– | – | –")
             L.append(f"| {name} | {p} | {s['A'][p]:.2f} | {s['B'][p]:.2f} | {s['ratio'][p]:.2f} | {c} |")
+    L += ["", "The trade `azimuths = 16` (B) against A's default frame (not the same settings: up to 4 % more error "
+          "on the bench terrains, 20–23 % on small sharp fields, docs/heightfield.md, Speed):", ""]
+    for name, s in res["scenes"].items():
+        L.append(f"- {name}: {s['A']['frame'] / max(s['B']['azimuths16'], 1e-9):.2f}× wall, "
+                 f"{s['cpu']['A']['frame'] / max(s['cpu']['B']['azimuths16'], 1e-9):.2f}× CPU")
     L += ["", "frame = every per-vertex pass + shading (each side's defaults); frame_bands4 = the same with 4 SH "
-          "bands on both sides (A's default, so the same settings); no_sun = frame with sun_threshold 0; horizons = the env "
+          "bands on both sides (A's default, so the same settings); no_sun = frame with sun_threshold 0; azimuths16 = frame "
+          "with 16 azimuths on both sides; horizons = the env "
           "horizons alone (hf_probe, read-back included); pyramid = new heights to normals; floor = the floor "
           "kernel. CPU ms = the process's CPU time over every PoCL thread (the work's cost; on a loaded machine "
           "wall time also counts the waits for a core).", ""]
