@@ -206,8 +206,8 @@ def report(res: dict) -> str:
         L.append(f"- {name}: {s['A']['frame'] / max(s['B']['azimuths16'], 1e-9):.2f}× wall, "
                  f"{s['cpu']['A']['frame'] / max(s['cpu']['B']['azimuths16'], 1e-9):.2f}× CPU")
     L += ["", "frame = every per-vertex pass + shading (each side's defaults); frame_bands4 = the same with 4 SH "
-          "bands on both sides (A's default, so the same settings); no_sun = frame with sun_threshold 0; azimuths16 = frame "
-          "with 16 azimuths on both sides; horizons = the env "
+          "bands on both sides (A's default, so the same settings); no_sun = frame with sun_threshold 0; "
+          "azimuths16 = frame with 16 azimuths on both sides; horizons = the env "
           "horizons alone (hf_probe, read-back included); pyramid = new heights to normals; floor = the floor "
           "kernel. CPU ms = the process's CPU time over every PoCL thread (the work's cost; on a loaded machine "
           "wall time also counts the waits for a core).", ""]

@@ -1307,10 +1307,10 @@ inline float3 hf_albedo(global const float *albedo, int has_albedo, int gid)
 #ifndef HF_SUN_MARGIN /* a build option only to measure without the shortcuts (1e30f) */
 #define HF_SUN_MARGIN 1e-4f
 #endif
-/* The Catmull-Rom cubic through om[k - 1 .. k + 2] (wrapping) at k + t. */
 #ifndef HF_SUN_LINEAR /* a build option only to measure against the linear interpolation (1) */
 #define HF_SUN_LINEAR 0
 #endif
+/* The Catmull-Rom cubic through om[k - 1 .. k + 2] (wrapping) at k + t. */
 inline float hf_horizon_cubic(const float *om, int n_phi, int k, float t)
 {
     const float p0 = om[k > 0 ? k - 1 : n_phi - 1], p1 = om[k], p2 = om[k + 1 < n_phi ? k + 1 : 0],

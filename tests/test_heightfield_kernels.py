@@ -166,7 +166,8 @@ def test_env_visibility(case, nb, n_phi):
 def test_light_visibility(case):
     got = case.read("light_visibility", light=1)  # the default bands
     nb = DEFAULT_BANDS
-    want = hf64.visibility(case.twin_horizons(light=1), hf64.wedge_table(DEFAULT_AZIMUTHS, nb, "light"), DEFAULT_AZIMUTHS, nb, "light")
+    n_phi = DEFAULT_AZIMUTHS
+    want = hf64.visibility(case.twin_horizons(light=1), hf64.wedge_table(n_phi, nb, "light"), n_phi, nb, "light")
     np.testing.assert_allclose(got, want, atol=VIS_RTOL * np.abs(want[..., 0]).max(), rtol=0)
 
 
@@ -251,7 +252,8 @@ def test_light_pass_sh(case, light, nb):
     """light_visibility = 0: the seed's SH wedges and cap, threshold 0."""
     got = case.read("light", light=light, bands=nb, light_visibility=0, light_threshold=0)[..., :3]
     centre, radius, le = case.lights[light]
-    V = hf64.visibility(case.twin_horizons(light=light), hf64.wedge_table(DEFAULT_AZIMUTHS, nb, "light"), DEFAULT_AZIMUTHS, nb, "light")
+    n_phi = DEFAULT_AZIMUTHS
+    V = hf64.visibility(case.twin_horizons(light=light), hf64.wedge_table(n_phi, nb, "light"), n_phi, nb, "light")
     normals = hf64.vertex_normals(case.H, case.sx, case.sz)
     points = hf64.vertex_points(case.H, case.origin, case.sx, case.sz)
     want = hf64.shade_light(V, normals, points, centre, radius, le, nb)
