@@ -877,18 +877,74 @@ PN_FIV_INLINE void pn_fiv_end8(const pn_fiv_args *a, const pn_fiv_px8 *q, float8
                   select((float8)(0.0f), (float8)(1.0f), active));
 }
 
+#ifndef PN_FIV_PAIR_BY_ORDER
+#define PN_FIV_PAIR_BY_ORDER 0
+#endif
+
+/* An occluder's key for the disc correction's choice: its irradiance summed
+ * over the channels (the same operations where it is read back from the
+ * slots, so the same bits). */
+PN_FIV_INLINE float8 pn_fiv_key8(float8 i_r, float8 i_g, float8 i_b)
+{
+    return i_r + i_g + i_b;
+}
+
+/* The slots' discs whose key is below the lanes' threshold `thr` (or zero:
+ * emptied) dropped, and the slots every lane has dropped removed, the others
+ * kept in their order. A dropped disc can never come back: the threshold only
+ * grows. */
+PN_FIV_INLINE void pn_fiv_drop_slots8(float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], int *slots, float8 thr)
+{
+    int kept = 0;
+    for (int d = 0; d < *slots; ++d) {
+        const float8 key = pn_fiv_key8(vload8(d, dd[4]), vload8(d, dd[5]), vload8(d, dd[6]));
+        const int8 keep = (key >= thr) & (key > 0.0f);
+        if (!pn_fiv_any8(keep))
+            continue;
+        for (int c = 0; c < 7; ++c)
+            vstore8(select((float8)(0.0f), vload8(d, dd[c]), keep), kept, dd[c]);
+        ++kept;
+    }
+    *slots = kept;
+}
+
 /* The lanes' discs of an occluder (taken in `take`), in slot *slots of dd
- * (each lane's divides give the scalar code's bits; pn_fiv_run8). */
+ * (each lane's divides give the scalar code's bits; pn_fiv_run8). Each lane
+ * pairs the `max_overlap` occluders with the largest keys (its largest
+ * shadows), whatever the scene's order: top[0 .. max_overlap - 1] holds the
+ * lane's largest keys so far, descending (zeros at first), and a disc is
+ * stored only while its key is among them; those pushed out later are
+ * dropped before the pairs are formed (pn_fiv_drop_slots8), or here when the
+ * slots are full. An occluder whose irradiance is zero takes no part: it
+ * shadows nothing, so nothing of it is counted twice. (PN_FIV_PAIR_BY_ORDER,
+ * a build option for measuring: the first `max_overlap` in the scene's
+ * order, top[0] counting them, as before.) */
 PN_FIV_INLINE void pn_fiv_fill_slot8(const pn_fiv_args *a, const pn_fiv_px8 *q,
-                                     float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], int8 *held,
+                                     float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], float8 top[PN_FIV_MAX_OVERLAP],
                                      int *slots, int8 take, float8 vx, float8 vy, float8 vz, float8 rho, float r,
                                      float8 i_r, float8 i_g, float8 i_b)
 {
-    int8 fill = take & (*held < a->max_overlap);
+#if PN_FIV_PAIR_BY_ORDER
+    int8 fill = take & (top[0] < (float)a->max_overlap);
+    top[0] += select((float8)(0.0f), (float8)(1.0f), fill);
+#else
+    const float8 key = select((float8)(0.0f), pn_fiv_key8(i_r, i_g, i_b), take);
+    float8 y = key; /* one insertion step of a sorting network per place */
+    for (int j = 0; j < a->max_overlap; ++j) {
+        const float8 t = top[j];
+        top[j] = fmax(t, y), y = fmin(t, y);
+    }
+    const float8 thr = top[a->max_overlap - 1];
+    int8 fill = take & (key > 0.0f) & (key >= thr);
+    if (pn_fiv_any8(fill) && *slots == PN_FIV_SLOTS) {
+        pn_fiv_drop_slots8(dd, slots, thr);
+        if (*slots == PN_FIV_SLOTS) /* only ties of keys can hold this many: the disc is left out */
+            return;
+    }
+#endif
     if (pn_fiv_any8(fill)) {
         const float8 zero = 0.0f;
         int8 far = rho > 0.0f;
-        *held -= fill;
         vstore8(select(zero, select(q->nx, vx / rho, far), fill), *slots, dd[0]);
         vstore8(select(zero, select(q->ny, vy / rho, far), fill), *slots, dd[1]);
         vstore8(select(zero, select(q->nz, vz / rho, far), fill), *slots, dd[2]);
@@ -902,7 +958,8 @@ PN_FIV_INLINE void pn_fiv_fill_slot8(const pn_fiv_args *a, const pn_fiv_px8 *q,
 
 /* The overlap correction, in lanes (pn_fiv_run8), then the pixels. */
 PN_FIV_INLINE void pn_fiv_finish8(const pn_fiv_args *a, const pn_fiv_px8 *q, bool pairs,
-                                  float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], int slots)
+                                  float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], const float8 top[PN_FIV_MAX_OVERLAP],
+                                  int slots)
 {
     float8 e_r, e_g, e_b;
     if (a->overlap == PN_OVERLAP_MULTIPLY) {
@@ -910,6 +967,9 @@ PN_FIV_INLINE void pn_fiv_finish8(const pn_fiv_args *a, const pn_fiv_px8 *q, boo
     } else {
         float8 tot_r = q->sum_r, tot_g = q->sum_g, tot_b = q->sum_b;
         if (pairs) {
+#if !PN_FIV_PAIR_BY_ORDER
+            pn_fiv_drop_slots8(dd, &slots, top[a->max_overlap - 1]); /* each lane's largest keys */
+#endif
             /* Pairwise: the lens of two unit bounding discs, as a share of their
              * areas, of the two occluders' irradiance is counted once; each
              * lane over its own discs, in the scalar code's order. Per disc d,
@@ -977,18 +1037,21 @@ PN_FIV_INLINE uint pn_fiv_word_bits(const pn_fiv_args *a, global const uint *mas
 /* The occluder loop and the pixels of one group (pn_fiv_begin8 before). */
 PN_FIV_INLINE void pn_fiv_run8(const pn_fiv_args *a, pn_fiv_px8 *q)
 {
-    /* Disc correction: one slot per occluder that some lane took part with
-     * (in the loop's order), lane l of slot d at [d * 8 + l]: unit-sphere
+    /* Disc correction: one slot per occluder that some lane stored (in the
+     * loop's order), lane l of slot d at [d * 8 + l]: unit-sphere
      * direction, radius, the occluder's irradiance; zeros in the lanes that did
-     * not take it (or already hold `max_overlap` discs). A slot is one
+     * not take it or hold `max_overlap` larger keys (pn_fiv_fill_slot8). A slot is one
      * occluder in all lanes, so neighbouring pixels' pairs line up: a pair
      * near in one lane is mostly near in the others. A zero disc never adds
      * to a lane's correction (its lens with any disc is 0), so each lane sees
      * its own discs in the scalar order. At most 8 x 32 slots (57 KiB of
-     * private memory; a work-item fills only the slots it uses). */
+     * private memory; a work-item fills only the slots it uses), and per lane
+     * its largest keys (1 KiB). */
     float dd[7][PN_FIV_SLOTS * PN_FIV_LANES];
-    int8 held = 0;
+    float8 top[PN_FIV_MAX_OVERLAP];
     int slots = 0;
+    for (int j = 0; j < a->max_overlap; ++j)
+        top[j] = 0.0f;
     const bool pairs = pn_fiv_pairs(a);
     const int words = pn_fiv_words(a);
     global const uint *mask = pn_fiv_tile_mask(a, q, words);
@@ -1015,10 +1078,10 @@ PN_FIV_INLINE void pn_fiv_run8(const pn_fiv_args *a, pn_fiv_px8 *q)
             float8 i_r, i_g, i_b;
             pn_fiv_add_occ8(a, q, take, fr, dist_plane, r, &i_r, &i_g, &i_b);
             if (pairs)
-                pn_fiv_fill_slot8(a, q, dd, &held, &slots, take, vx, vy, vz, rho, r, i_r, i_g, i_b);
+                pn_fiv_fill_slot8(a, q, dd, top, &slots, take, vx, vy, vz, rho, r, i_r, i_g, i_b);
         }
     }
-    pn_fiv_finish8(a, q, pairs, dd, slots);
+    pn_fiv_finish8(a, q, pairs, dd, top, slots);
 }
 
 /* pn_fiv_run8 for two groups of one 16x16 tile (the same occluders, in the
@@ -1031,8 +1094,10 @@ PN_FIV_INLINE void pn_fiv_run_pair8(const pn_fiv_args *a, pn_fiv_px8 *p, pn_fiv_
 {
     /* the disc slots of each group (pn_fiv_run8) */
     float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], udd[7][PN_FIV_SLOTS * PN_FIV_LANES];
-    int8 held = 0, uheld = 0;
+    float8 top[PN_FIV_MAX_OVERLAP], utop[PN_FIV_MAX_OVERLAP];
     int slots = 0, uslots = 0;
+    for (int j = 0; j < a->max_overlap; ++j)
+        top[j] = utop[j] = 0.0f;
     const bool pairs = pn_fiv_pairs(a);
     const int words = pn_fiv_words(a);
     global const uint *mask = pn_fiv_tile_mask(a, p, words);
@@ -1061,7 +1126,7 @@ PN_FIV_INLINE void pn_fiv_run_pair8(const pn_fiv_args *a, pn_fiv_px8 *p, pn_fiv_
                 if (any(take)) {
                     pn_fiv_add_occ8(a, p, take, fr, dist_plane, r, &i_r, &i_g, &i_b);
                     if (pairs)
-                        pn_fiv_fill_slot8(a, p, dd, &held, &slots, take, vx, vy, vz, rho, r, i_r, i_g, i_b);
+                        pn_fiv_fill_slot8(a, p, dd, top, &slots, take, vx, vy, vz, rho, r, i_r, i_g, i_b);
                 }
             }
             if (uon && any(utake)) {
@@ -1070,13 +1135,13 @@ PN_FIV_INLINE void pn_fiv_run_pair8(const pn_fiv_args *a, pn_fiv_px8 *p, pn_fiv_
                 if (any(utake)) {
                     pn_fiv_add_occ8(a, q, utake, fr, udist_plane, r, &i_r, &i_g, &i_b);
                     if (pairs)
-                        pn_fiv_fill_slot8(a, q, udd, &uheld, &uslots, utake, ux, uy, uz, urho, r, i_r, i_g, i_b);
+                        pn_fiv_fill_slot8(a, q, udd, utop, &uslots, utake, ux, uy, uz, urho, r, i_r, i_g, i_b);
                 }
             }
         }
     }
-    pn_fiv_finish8(a, p, pairs, dd, slots);
-    pn_fiv_finish8(a, q, pairs, udd, uslots);
+    pn_fiv_finish8(a, p, pairs, dd, top, slots);
+    pn_fiv_finish8(a, q, pairs, udd, utop, uslots);
 }
 
 #ifndef PN_FIV_PAIR_DISCS

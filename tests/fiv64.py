@@ -23,6 +23,10 @@ from geometry64 import cast
 # which is 1e-3 index units on a 9-theta grid; 2e-3 covers it.
 FRAGILE_INDEX = 2e-3
 FRAGILE_RELATIVE = 1e-5
+# The disc correction's choice of discs (the largest keys, none whose key is 0) flips where two
+# keys lie closer than the float32 lookups' error, or a channel's dot N . FIV lies closer to 0 than
+# its rounding: relative to the keys, and to the sum of the dot's terms' magnitudes.
+KEY_FRAGILE_RELATIVE = 1e-4
 
 
 def f32(a) -> np.ndarray:
@@ -349,7 +353,7 @@ def shade(position, normal, albedo, instance, e_unshadowed, occluders, env_fiv, 
     visible = np.ones((npx, 3))
     fragile = np.zeros(npx, bool)
     discs = []  # (active, i_occ, unit direction, radius)
-    count = np.zeros(npx, int)
+    unsure_key = np.zeros(npx, bool)
     env = np.asarray(env_fiv, np.float64)
     for occ in occluders:
         v = f32(occ.centre)[None, :] - p
@@ -372,7 +376,8 @@ def shade(position, normal, albedo, instance, e_unshadowed, occluders, env_fiv, 
         f, ok, frag = lookup(occ, v, trilinear)
         fragile |= active & frag
         active &= ok
-        i_occ = np.maximum(np.einsum("na,nac->nc", nrm, f), 0.0)
+        dots = np.einsum("na,nac->nc", nrm, f)
+        i_occ = np.maximum(dots, 0.0)
         if partial:
             b = dp < r
             i_occ = np.where(b[:, None], i_occ * ((dp + r) / (2 * r))[:, None], i_occ)
@@ -382,15 +387,27 @@ def shade(position, normal, albedo, instance, e_unshadowed, occluders, env_fiv, 
         if overlap == 2:
             visible *= np.clip(1.0 - i_occ / np.maximum(e_tot, 1e-30), 0.0, 1.0)
         elif overlap == 1:
-            take = active & (count < max_overlap)
-            count += take
             u = np.where((rho > 0)[:, None], v / np.where(rho > 0, rho, 1.0)[:, None], nrm)
-            discs.append((take, i_occ, u, np.minimum(r / np.maximum(rho, 1e-30), 1.0)))
+            discs.append((active, i_occ, u, np.minimum(r / np.maximum(rho, 1e-30), 1.0)))
+            # whether the key is positive (some channel's dot above 0) is a float32 rounding away
+            tol = KEY_FRAGILE_RELATIVE * np.einsum("na,nac->nc", np.abs(nrm), np.abs(f))
+            unsure_key |= active & ~(dots > tol).any(axis=1) & ((np.abs(dots) <= tol) & (tol > 0)).any(axis=1)
     if overlap == 2:
         e = e_base * visible
     else:
         s = total.copy()
-        if overlap == 1:
+        if overlap == 1 and discs:
+            # Each pixel pairs the max_overlap discs with the largest keys (the irradiance summed
+            # over the channels; none whose key is 0), whatever the occluders' order.
+            keys = np.stack([np.where(d[0], d[1].sum(axis=1), 0.0) for d in discs], axis=1)
+            ranked = -np.sort(-keys, axis=1)
+            kth = ranked[:, max_overlap - 1] if keys.shape[1] >= max_overlap else np.zeros(npx)
+            chosen = (keys > 0) & (keys >= kth[:, None])
+            if keys.shape[1] > max_overlap:   # the k-th and the next within rounding: either may be chosen
+                nxt = ranked[:, max_overlap]
+                fragile |= (nxt > 0) & (kth - nxt <= KEY_FRAGILE_RELATIVE * kth)
+            fragile |= unsure_key & (len(discs) > 1)
+            discs = [(chosen[:, j],) + d[1:] for j, d in enumerate(discs)]
             for a in range(len(discs)):
                 for b in range(a + 1, len(discs)):
                     ta, ia, ua, ra = discs[a]

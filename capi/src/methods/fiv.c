@@ -17,8 +17,8 @@ static const pn_param_desc params[] = {
     {"overlap", PN_PARAM_INT, PN_PARAM_FRAME, 1, 0, 2, "",
      "Several occluders: 0 sum, 1 unit-bounding-disc correction, 2 multiplied visibility."},
     {"max_overlap", PN_PARAM_INT, PN_PARAM_FRAME, 6, 2, 32, "",
-     "overlap 1: the first this many occluders taking part at a pixel are paired (docs/fiv.md, Accuracy 6: "
-     "32 suits dense clusters of convex occluders)."},
+     "overlap 1: how many occluders a pixel pairs, those with the largest irradiance there, whatever the "
+     "scene's order (docs/fiv.md, Accuracy 6)."},
     {"partial", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
      "1: occluders straddling the receiver plane scaled by (d + R) / 2R (the paper's factor; docs/fiv.md)."},
     {"self_shadow", PN_PARAM_INT, PN_PARAM_FRAME, 0, 0, 1, "",
