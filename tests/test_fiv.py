@@ -784,6 +784,53 @@ def test_disc_choice_does_not_depend_on_the_scene_order(ctx, env, meshes, fields
         assert_matches_twin(s, dict(overlap=1, max_overlap=6))
 
 
+def slots_filled(keys, k, lanes=8):
+    """The disc slots a work-item of `lanes` neighbouring pixels fills (kernels/fiv.cl,
+    pn_fiv_fill_slot8, without dropping any): an occluder takes one where its key enters some
+    lane's `k` largest so far. keys: (occluders, pixels) in the scene's order, pixels in row order
+    (rows a multiple of `lanes` wide). The most over the work-items."""
+    most = 0
+    for g in range(0, keys.shape[1], lanes):
+        top = np.zeros((k, lanes))
+        slots = 0
+        for key in keys[:, g:g + lanes]:
+            enters = (key > 0) & (key >= np.sort(np.vstack([top, key]), axis=0)[1])
+            slots += enters.any()
+            top = np.sort(np.vstack([top, key]), axis=0)[1:]
+        most = max(most, slots)
+    return most
+
+
+def test_disc_slots_full_keep_the_largest(ctx, env, meshes, fields):
+    """300 small spheres above the receivers, added in the order of their
+    shadows, weakest first: most enter a lane's largest `max_overlap` and
+    take a disc slot, so a work-item's 256 slots fill (counted by a model of
+    the kernel's filling); the discs pushed out since are dropped to make
+    room (kernels/fiv.cl, pn_fiv_fill_slot8), so the pairs are still the
+    largest discs: against the twin, and the same image as the strongest
+    first (which fills few slots) up to the sums' rounding."""
+    rng = np.random.default_rng(25)
+    pos, nrm, inst = plane_receivers(rng, h=8, w=16, max_tilt_deg=20.0, extent=(0.3, 0.2))
+    n = 300
+    centres = np.stack([0.05 * rng.standard_normal(n), np.linspace(3.0, 0.5, n), 0.05 * rng.standard_normal(n)], -1)
+    spheres = [(fields["sphere"], meshes["sphere"][1], translate(c, 0.06)) for c in centres]
+    p, nn = pos.reshape(-1, 3), nrm.reshape(-1, 3)
+    keys = []   # per sphere and pixel (nothing culled: cull_threshold 0)
+    for o in FivScene(ctx, env, fields, spheres, (pos, nrm, inst)).occluders():
+        f, ok, _ = lookup(o, o.centre[None, :] - p)
+        keys.append(np.where(ok, np.maximum(np.einsum("na,nac->nc", nn, f), 0.0).sum(axis=1), 0.0))
+    order = np.argsort(np.mean(keys, axis=1))
+    weakest_first = [spheres[i] for i in order]
+    s = FivScene(ctx, env, fields, weakest_first, (pos, nrm, inst))
+    strongest_first = FivScene(ctx, env, fields, weakest_first[::-1], (pos, nrm, inst))
+    for k in (6, 32):
+        assert slots_filled(np.array(keys)[order], k) > 256, k
+        assert slots_filled(np.array(keys)[order[::-1]], k) < 128, k
+        got = assert_matches_twin(s, dict(overlap=1, max_overlap=k))[..., :3]
+        np.testing.assert_allclose(strongest_first.render(cull_threshold=0.0, overlap=1, max_overlap=k)[..., :3],
+                                   got, rtol=0, atol=2e-6 * got.max())
+
+
 def blob_floor_errors(ctx, variants):
     """NRMSE on the floor, against the reference, of fiv with each parameter set of `variants`:
     20 spheres in a blob above a floor under a sky with a sun, in context `ctx` (the field baked
