@@ -9,7 +9,8 @@
  * straddling ones (case B) are scaled by (d + R) / 2R. A pixel on an
  * occluder itself uses the fullsphere equality E = N . (FIV(Env) - FIV_occ).
  * Several occluders combine by a plain sum, the unit-bounding-disc overlap
- * correction, or multiplied visibilities (`overlap`).
+ * correction (among each pixel's `max_overlap` largest shadows), or multiplied
+ * visibilities (`overlap`).
  *
  * Screen-space binning (`bin_fiv_tiles`, before `shade_fiv`): per 16x16
  * tile, a bit mask of the occluders whose culling sphere reaches the tile's
@@ -26,6 +27,10 @@
  * --build-options) leave out the normal cache, the background-only batch and
  * the two groups side by side of shade_fiv, PN_FIV_PAIR_DISCS=0 the latter
  * only with the disc correction's pairs (the same images either way).
+ * PN_FIV_PAIR_BY_ORDER=1 pairs the first `max_overlap` occluders in the
+ * scene's order instead of the largest (the rule before), and
+ * PN_FIV_LENS_SCALE scales every pair's lens (default 1): both for measuring
+ * the correction's accuracy (bench/fiv_max_overlap.py, docs/fiv.md).
  *
  * Occluder record, 4 float4 (capi/src/fiv.c):
  *   [0] centre xyz (world), bounding radius R (world)
@@ -880,6 +885,9 @@ PN_FIV_INLINE void pn_fiv_end8(const pn_fiv_args *a, const pn_fiv_px8 *q, float8
 #ifndef PN_FIV_PAIR_BY_ORDER
 #define PN_FIV_PAIR_BY_ORDER 0
 #endif
+#ifndef PN_FIV_LENS_SCALE
+#define PN_FIV_LENS_SCALE 1.0f
+#endif
 
 /* An occluder's key for the disc correction's choice: its irradiance summed
  * over the channels (the same operations where it is read back from the
@@ -889,77 +897,111 @@ PN_FIV_INLINE float8 pn_fiv_key8(float8 i_r, float8 i_g, float8 i_b)
     return i_r + i_g + i_b;
 }
 
-/* The slots' discs whose key is below the lanes' threshold `thr` (or zero:
- * emptied) dropped, and the slots every lane has dropped removed, the others
- * kept in their order. A dropped disc can never come back: the threshold only
- * grows. */
-PN_FIV_INLINE void pn_fiv_drop_slots8(float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], int *slots, float8 thr)
+/* The disc slots (pn_fiv_run8) as the occluder loop leaves them: per lane
+ * the receiver-to-centre vector (dd[0..2]), its length (dd[3]; -1 where
+ * the lane stored nothing) and the occluder's irradiance (dd[4..6]); per
+ * slot the occluder's radius (rr). Here the lanes' discs whose key is below
+ * their threshold `thr` (or zero) are dropped and the slots every lane has
+ * dropped removed, the others kept in their order; a dropped disc can never
+ * come back, since the threshold only grows. With `discs`, the kept ones
+ * become the unit discs the pairs read: unit direction (dd[0..2]; the normal
+ * where the receiver is at the centre), radius min(R / rho, 1) (dd[3]), and
+ * zeros in the lanes without one (a zero disc pairs with none). Their
+ * divides are done here, for the few discs kept, not in the loop for every
+ * one stored. */
+PN_FIV_INLINE void pn_fiv_drop_slots8(const pn_fiv_px8 *q, float dd[7][PN_FIV_SLOTS * PN_FIV_LANES],
+                                      float rr[PN_FIV_SLOTS], int *slots, float8 thr, bool discs)
 {
+    const float8 zero = 0.0f;
     int kept = 0;
     for (int d = 0; d < *slots; ++d) {
+        const float8 rho = vload8(d, dd[3]);
         const float8 key = pn_fiv_key8(vload8(d, dd[4]), vload8(d, dd[5]), vload8(d, dd[6]));
-        const int8 keep = (key >= thr) & (key > 0.0f);
+#if PN_FIV_PAIR_BY_ORDER
+        const int8 keep = rho >= 0.0f;
+#else
+        const int8 keep = (rho >= 0.0f) & (key >= thr) & (key > 0.0f);
+#endif
         if (!pn_fiv_any8(keep))
             continue;
-        for (int c = 0; c < 7; ++c)
-            vstore8(select((float8)(0.0f), vload8(d, dd[c]), keep), kept, dd[c]);
+        const float8 vx = vload8(d, dd[0]), vy = vload8(d, dd[1]), vz = vload8(d, dd[2]);
+        const float r = rr[d];
+        if (discs) {
+            const int8 far = rho > 0.0f;
+            vstore8(select(zero, select(q->nx, vx / rho, far), keep), kept, dd[0]);
+            vstore8(select(zero, select(q->ny, vy / rho, far), keep), kept, dd[1]);
+            vstore8(select(zero, select(q->nz, vz / rho, far), keep), kept, dd[2]);
+            vstore8(select(zero, fmin(r / fmax(rho, 1e-30f), 1.0f), keep), kept, dd[3]);
+        } else {
+            vstore8(select(zero, vx, keep), kept, dd[0]);
+            vstore8(select(zero, vy, keep), kept, dd[1]);
+            vstore8(select(zero, vz, keep), kept, dd[2]);
+            vstore8(select((float8)(-1.0f), rho, keep), kept, dd[3]);
+        }
+        for (int c = 4; c < 7; ++c)
+            vstore8(select(zero, vload8(d, dd[c]), keep), kept, dd[c]);
+        rr[kept] = r;
         ++kept;
     }
     *slots = kept;
 }
 
-/* The lanes' discs of an occluder (taken in `take`), in slot *slots of dd
- * (each lane's divides give the scalar code's bits; pn_fiv_run8). Each lane
- * pairs the `max_overlap` occluders with the largest keys (its largest
- * shadows), whatever the scene's order: top[0 .. max_overlap - 1] holds the
- * lane's largest keys so far, descending (zeros at first), and a disc is
+/* The lanes' share of an occluder (taken in `take`) in slot *slots of the
+ * disc slots (pn_fiv_drop_slots8 says what they hold). Each lane pairs the
+ * `max_overlap` occluders with the largest keys (its largest shadows),
+ * whatever the scene's order: top[0 .. max_overlap - 1] holds the lane's
+ * largest keys so far, descending (zeros at first), and an occluder is
  * stored only while its key is among them; those pushed out later are
- * dropped before the pairs are formed (pn_fiv_drop_slots8), or here when the
- * slots are full. An occluder whose irradiance is zero takes no part: it
- * shadows nothing, so nothing of it is counted twice. (PN_FIV_PAIR_BY_ORDER,
- * a build option for measuring: the first `max_overlap` in the scene's
- * order, top[0] counting them, as before.) */
+ * dropped before the pairs are formed, or here when the slots are full. An
+ * occluder whose irradiance is zero takes no part: it shadows nothing, so
+ * nothing of it is counted twice. (PN_FIV_PAIR_BY_ORDER, a build option for
+ * measuring: the first `max_overlap` in the scene's order, top[0] counting
+ * them, as before.) */
 PN_FIV_INLINE void pn_fiv_fill_slot8(const pn_fiv_args *a, const pn_fiv_px8 *q,
-                                     float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], float8 top[PN_FIV_MAX_OVERLAP],
-                                     int *slots, int8 take, float8 vx, float8 vy, float8 vz, float8 rho, float r,
-                                     float8 i_r, float8 i_g, float8 i_b)
+                                     float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], float rr[PN_FIV_SLOTS],
+                                     float8 top[PN_FIV_MAX_OVERLAP], int *slots, int8 take, float8 vx, float8 vy,
+                                     float8 vz, float8 rho, float r, float8 i_r, float8 i_g, float8 i_b)
 {
 #if PN_FIV_PAIR_BY_ORDER
     int8 fill = take & (top[0] < (float)a->max_overlap);
     top[0] += select((float8)(0.0f), (float8)(1.0f), fill);
 #else
     const float8 key = select((float8)(0.0f), pn_fiv_key8(i_r, i_g, i_b), take);
-    float8 y = key; /* one insertion step of a sorting network per place */
+    /* one insertion step of a sorting network per place, no branch: whether
+     * a key enters is as likely as not, so a test mispredicts */
+    float8 y = key;
     for (int j = 0; j < a->max_overlap; ++j) {
         const float8 t = top[j];
         top[j] = fmax(t, y), y = fmin(t, y);
     }
     const float8 thr = top[a->max_overlap - 1];
     int8 fill = take & (key > 0.0f) & (key >= thr);
-    if (pn_fiv_any8(fill) && *slots == PN_FIV_SLOTS) {
-        pn_fiv_drop_slots8(dd, slots, thr);
-        if (*slots == PN_FIV_SLOTS) /* only ties of keys can hold this many: the disc is left out */
+#endif
+    if (*slots == PN_FIV_SLOTS) { /* rare: the slots are full */
+#if !PN_FIV_PAIR_BY_ORDER
+        if (pn_fiv_any8(fill))
+            pn_fiv_drop_slots8(q, dd, rr, slots, thr, false);
+#endif
+        if (*slots == PN_FIV_SLOTS) /* only ties of keys can hold this many: the occluder is left out */
             return;
     }
-#endif
-    if (pn_fiv_any8(fill)) {
-        const float8 zero = 0.0f;
-        int8 far = rho > 0.0f;
-        vstore8(select(zero, select(q->nx, vx / rho, far), fill), *slots, dd[0]);
-        vstore8(select(zero, select(q->ny, vy / rho, far), fill), *slots, dd[1]);
-        vstore8(select(zero, select(q->nz, vz / rho, far), fill), *slots, dd[2]);
-        vstore8(select(zero, fmin(r / fmax(rho, 1e-30f), 1.0f), fill), *slots, dd[3]);
-        vstore8(select(zero, i_r, fill), *slots, dd[4]);
-        vstore8(select(zero, i_g, fill), *slots, dd[5]);
-        vstore8(select(zero, i_b, fill), *slots, dd[6]);
-        ++*slots;
-    }
+    /* stored in any case, kept (the count moved on) where some lane fills */
+    const float8 zero = 0.0f;
+    vstore8(select(zero, vx, fill), *slots, dd[0]);
+    vstore8(select(zero, vy, fill), *slots, dd[1]);
+    vstore8(select(zero, vz, fill), *slots, dd[2]);
+    vstore8(select((float8)(-1.0f), rho, fill), *slots, dd[3]);
+    vstore8(select(zero, i_r, fill), *slots, dd[4]);
+    vstore8(select(zero, i_g, fill), *slots, dd[5]);
+    vstore8(select(zero, i_b, fill), *slots, dd[6]);
+    rr[*slots] = r;
+    *slots += pn_fiv_any8(fill);
 }
 
 /* The overlap correction, in lanes (pn_fiv_run8), then the pixels. */
 PN_FIV_INLINE void pn_fiv_finish8(const pn_fiv_args *a, const pn_fiv_px8 *q, bool pairs,
-                                  float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], const float8 top[PN_FIV_MAX_OVERLAP],
-                                  int slots)
+                                  float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], float rr[PN_FIV_SLOTS],
+                                  const float8 top[PN_FIV_MAX_OVERLAP], int slots)
 {
     float8 e_r, e_g, e_b;
     if (a->overlap == PN_OVERLAP_MULTIPLY) {
@@ -967,9 +1009,8 @@ PN_FIV_INLINE void pn_fiv_finish8(const pn_fiv_args *a, const pn_fiv_px8 *q, boo
     } else {
         float8 tot_r = q->sum_r, tot_g = q->sum_g, tot_b = q->sum_b;
         if (pairs) {
-#if !PN_FIV_PAIR_BY_ORDER
-            pn_fiv_drop_slots8(dd, &slots, top[a->max_overlap - 1]); /* each lane's largest keys */
-#endif
+            /* each lane's largest keys, as unit discs */
+            pn_fiv_drop_slots8(q, dd, rr, &slots, top[a->max_overlap - 1], true);
             /* Pairwise: the lens of two unit bounding discs, as a share of their
              * areas, of the two occluders' irradiance is counted once; each
              * lane over its own discs, in the scalar code's order. Per disc d,
@@ -995,7 +1036,7 @@ PN_FIV_INLINE void pn_fiv_finish8(const pn_fiv_args *a, const pn_fiv_px8 *q, boo
                     int8 near = ~(d2 >= (ra + rb) * (ra + rb));
                     float8 lens = pn_fiv_lens8(ra, rb, sqrt(d2));
                     int8 take = near & (lens > 0.0f);
-                    float8 share = lens / (PN_PI * (ra * ra + rb * rb));
+                    float8 share = PN_FIV_LENS_SCALE * lens / (PN_PI * (ra * ra + rb * rb));
                     tot_r = select(tot_r, tot_r - share * (vload8(d, dd[4]) + vload8(b, dd[4])), take);
                     tot_g = select(tot_g, tot_g - share * (vload8(d, dd[5]) + vload8(b, dd[5])), take);
                     tot_b = select(tot_b, tot_b - share * (vload8(d, dd[6]) + vload8(b, dd[6])), take);
@@ -1047,7 +1088,7 @@ PN_FIV_INLINE void pn_fiv_run8(const pn_fiv_args *a, pn_fiv_px8 *q)
      * its own discs in the scalar order. At most 8 x 32 slots (57 KiB of
      * private memory; a work-item fills only the slots it uses), and per lane
      * its largest keys (1 KiB). */
-    float dd[7][PN_FIV_SLOTS * PN_FIV_LANES];
+    float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], rr[PN_FIV_SLOTS];
     float8 top[PN_FIV_MAX_OVERLAP];
     int slots = 0;
     for (int j = 0; j < a->max_overlap; ++j)
@@ -1078,10 +1119,10 @@ PN_FIV_INLINE void pn_fiv_run8(const pn_fiv_args *a, pn_fiv_px8 *q)
             float8 i_r, i_g, i_b;
             pn_fiv_add_occ8(a, q, take, fr, dist_plane, r, &i_r, &i_g, &i_b);
             if (pairs)
-                pn_fiv_fill_slot8(a, q, dd, top, &slots, take, vx, vy, vz, rho, r, i_r, i_g, i_b);
+                pn_fiv_fill_slot8(a, q, dd, rr, top, &slots, take, vx, vy, vz, rho, r, i_r, i_g, i_b);
         }
     }
-    pn_fiv_finish8(a, q, pairs, dd, top, slots);
+    pn_fiv_finish8(a, q, pairs, dd, rr, top, slots);
 }
 
 /* pn_fiv_run8 for two groups of one 16x16 tile (the same occluders, in the
@@ -1094,6 +1135,7 @@ PN_FIV_INLINE void pn_fiv_run_pair8(const pn_fiv_args *a, pn_fiv_px8 *p, pn_fiv_
 {
     /* the disc slots of each group (pn_fiv_run8) */
     float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], udd[7][PN_FIV_SLOTS * PN_FIV_LANES];
+    float rr[PN_FIV_SLOTS], urr[PN_FIV_SLOTS];
     float8 top[PN_FIV_MAX_OVERLAP], utop[PN_FIV_MAX_OVERLAP];
     int slots = 0, uslots = 0;
     for (int j = 0; j < a->max_overlap; ++j)
@@ -1126,7 +1168,7 @@ PN_FIV_INLINE void pn_fiv_run_pair8(const pn_fiv_args *a, pn_fiv_px8 *p, pn_fiv_
                 if (any(take)) {
                     pn_fiv_add_occ8(a, p, take, fr, dist_plane, r, &i_r, &i_g, &i_b);
                     if (pairs)
-                        pn_fiv_fill_slot8(a, p, dd, top, &slots, take, vx, vy, vz, rho, r, i_r, i_g, i_b);
+                        pn_fiv_fill_slot8(a, p, dd, rr, top, &slots, take, vx, vy, vz, rho, r, i_r, i_g, i_b);
                 }
             }
             if (uon && any(utake)) {
@@ -1135,13 +1177,13 @@ PN_FIV_INLINE void pn_fiv_run_pair8(const pn_fiv_args *a, pn_fiv_px8 *p, pn_fiv_
                 if (any(utake)) {
                     pn_fiv_add_occ8(a, q, utake, fr, udist_plane, r, &i_r, &i_g, &i_b);
                     if (pairs)
-                        pn_fiv_fill_slot8(a, q, udd, utop, &uslots, utake, ux, uy, uz, urho, r, i_r, i_g, i_b);
+                        pn_fiv_fill_slot8(a, q, udd, urr, utop, &uslots, utake, ux, uy, uz, urho, r, i_r, i_g, i_b);
                 }
             }
         }
     }
-    pn_fiv_finish8(a, p, pairs, dd, top, slots);
-    pn_fiv_finish8(a, q, pairs, udd, utop, uslots);
+    pn_fiv_finish8(a, p, pairs, dd, rr, top, slots);
+    pn_fiv_finish8(a, q, pairs, udd, urr, utop, uslots);
 }
 
 #ifndef PN_FIV_PAIR_DISCS

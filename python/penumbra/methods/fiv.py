@@ -1078,12 +1078,13 @@ PER_LOOKUP_KEYS = tuple(f"{m}per_lookup{s}{c}_ns" for m in ("loop_", "") for s i
 def per_lookup_ratios(rows: list[dict]) -> None:
     """Adds to each row, for every per-lookup cost (PER_LOOKUP_KEYS), its
     ratio to the single clustered occluder's (key ..._ratio; None where
-    either is missing or the single occluder's is 0)."""
+    either is missing or the single occluder's is not above 0: a loop time
+    lost in the wall clock's noise, which would give a negative ratio)."""
     single = next((r for r in rows if r["occluders"] == 1 and r["layout"] == "clustered"), None)
     for r in rows:
         for key in PER_LOOKUP_KEYS:
             base = single.get(key) if single else None
-            r[key.replace("_ns", "_ratio")] = r[key] / base if base and r.get(key) is not None else None
+            r[key.replace("_ns", "_ratio")] = r[key] / base if base and base > 0 and r.get(key) is not None else None
 
 
 def _cpu_timed(fn, ctx) -> float:
@@ -1344,8 +1345,8 @@ def scaling_markdown(summary: dict, rows: list[dict], equal_error: dict | None) 
               "without tile culling, and fiv and its plain sum built without the occluder loop (on a G-buffer of "
               "their own, the same bits), are executed in turn on one G-buffer, the median of each taken "
               "(penumbra.methods.fiv._interleaved_ms). fiv uses its defaults: overlap = 1 (the pairwise "
-              "unit-bounding-disc correction, docs/fiv.md) among the first max_overlap = 6 occluders taking part at "
-              "a pixel (max_overlap=32: the default before, timed in the same rounds) and tile_cull = 1 (per 16x16 tile, only the occluders "
+              "unit-bounding-disc correction, docs/fiv.md) among the max_overlap = 6 occluders with the largest "
+              "irradiance at a pixel (max_overlap=32 timed in the same rounds) and tile_cull = 1 (per 16x16 tile, only the occluders "
               "whose culling distance reaches the tile's receivers). Occluders per tile: over the tiles with "
               "receivers. Lookups per pixel: the (pixel, occluder) pairs the kernel interpolates (not culled by "
               "distance, not wholly behind the pixel's plane), per receiver pixel, and in brackets those that "
