@@ -1091,9 +1091,9 @@ PN_FIV_INLINE void pn_fiv_run8(const pn_fiv_args *a, pn_fiv_px8 *q)
     float dd[7][PN_FIV_SLOTS * PN_FIV_LANES], rr[PN_FIV_SLOTS];
     float8 top[PN_FIV_MAX_OVERLAP];
     int slots = 0;
-    for (int j = 0; j < a->max_overlap; ++j)
-        top[j] = 0.0f;
     const bool pairs = pn_fiv_pairs(a);
+    for (int j = 0; pairs && j < a->max_overlap; ++j)
+        top[j] = 0.0f;
     const int words = pn_fiv_words(a);
     global const uint *mask = pn_fiv_tile_mask(a, q, words);
     for (int w = 0; w < words; ++w) {
@@ -1138,9 +1138,9 @@ PN_FIV_INLINE void pn_fiv_run_pair8(const pn_fiv_args *a, pn_fiv_px8 *p, pn_fiv_
     float rr[PN_FIV_SLOTS], urr[PN_FIV_SLOTS];
     float8 top[PN_FIV_MAX_OVERLAP], utop[PN_FIV_MAX_OVERLAP];
     int slots = 0, uslots = 0;
-    for (int j = 0; j < a->max_overlap; ++j)
-        top[j] = utop[j] = 0.0f;
     const bool pairs = pn_fiv_pairs(a);
+    for (int j = 0; pairs && j < a->max_overlap; ++j)
+        top[j] = utop[j] = 0.0f;
     const int words = pn_fiv_words(a);
     global const uint *mask = pn_fiv_tile_mask(a, p, words);
     for (int w = 0; w < words; ++w) {
