@@ -1079,9 +1079,9 @@ PN_FIV_INLINE uint pn_fiv_word_bits(const pn_fiv_args *a, global const uint *mas
 PN_FIV_INLINE void pn_fiv_run8(const pn_fiv_args *a, pn_fiv_px8 *q)
 {
     /* Disc correction: one slot per occluder that some lane stored (in the
-     * loop's order), lane l of slot d at [d * 8 + l]: unit-sphere
-     * direction, radius, the occluder's irradiance; zeros in the lanes that did
-     * not take it or hold `max_overlap` larger keys (pn_fiv_fill_slot8). A slot is one
+     * loop's order), lane l of slot d at [d * 8 + l] (what a slot holds:
+     * pn_fiv_drop_slots8); nothing in the lanes that did not take it or hold
+     * `max_overlap` larger keys (pn_fiv_fill_slot8). A slot is one
      * occluder in all lanes, so neighbouring pixels' pairs line up: a pair
      * near in one lane is mostly near in the others. A zero disc never adds
      * to a lane's correction (its lens with any disc is 0), so each lane sees
