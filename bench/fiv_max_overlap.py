@@ -136,18 +136,15 @@ def main() -> None:
         t0 = time.perf_counter()
         ref = reference(built, scene, Path(args.reference_cache))
         row = {"scene": name, "reference_s": round(time.perf_counter() - t0, 1), "variants": {}}
-        variants = [("sum", {"overlap": 0}), ("multiply", {"overlap": 2})]
-        variants += [(f"disc{c}", {"overlap": 1, "max_overlap": c}) for c in CAPS]
-        for label, params in variants:
-            r = render(built, "fiv", frames=3, background=0, **params)
+        # The rule before, the first max_overlap occluders in the scene's order: a build of its own.
+        built_order = build_scene(parse_scene(scene), ctx_order)
+        variants = [("sum", built, {"overlap": 0}), ("multiply", built, {"overlap": 2})]
+        variants += [(f"disc{c}", built, {"overlap": 1, "max_overlap": c}) for c in CAPS]
+        variants += [(f"order{c}", built_order, {"overlap": 1, "max_overlap": c}) for c in CAPS]
+        for label, where, params in variants:
+            r = render(where, "fiv", frames=3, background=0, **params)
             row["variants"][label] = {"nrmse": float(nrmse(ref, r.image[..., :3])),
                                       "shade_ms": float(r.timings_ms["shade_median"])}
-        # The rule before: the first max_overlap occluders in the scene's order (a build option).
-        built_order = build_scene(parse_scene(scene), ctx_order)
-        for c in CAPS:
-            r = render(built_order, "fiv", frames=3, background=0, overlap=1, max_overlap=c)
-            row["variants"][f"order{c}"] = {"nrmse": float(nrmse(ref, r.image[..., :3])),
-                                            "shade_ms": float(r.timings_ms["shade_median"])}
         rows.append(row)
         print(name, " ".join(f"{k} {v['nrmse']:.5f}" for k, v in row["variants"].items()), flush=True)
     if only and (out / "results.json").is_file():   # a partial run: replace its rows in the last full run's
